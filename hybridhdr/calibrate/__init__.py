@@ -1,0 +1,3 @@
+"""Calibrate: stereo rig, camera response functions, noise profiles, HDR references (see issue 6)."""
+
+__all__: list[str] = []

@@ -1,0 +1,3 @@
+"""Readers and writers of event file formats (imported lazily through :mod:`hybridhdr.io`)."""
+
+__all__: list[str] = []

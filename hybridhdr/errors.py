@@ -1,0 +1,50 @@
+"""Exception types shared by every part of hybridhdr.
+
+All validation errors derive from :class:`ValueError` (or :class:`TypeError`) so that
+callers can catch them with the standard types; the subclasses add structured context
+(file, byte offset, record index) for tools that want it.
+"""
+
+from __future__ import annotations
+
+import os
+
+__all__ = ["FormatError", "UnknownFormatError", "EventValidationError"]
+
+
+class EventValidationError(ValueError):
+    """Events violate an invariant (unsorted time, coordinates outside the sensor, bad polarity)."""
+
+
+class FormatError(ValueError):
+    """A file does not match the format it claims (or was asked) to be.
+
+    Parameters
+    ----------
+    path : str or os.PathLike or None
+        The file being read.
+    message : str
+        What was expected and what was found.
+    offset : int, optional
+        Byte offset in the file where the problem was found.
+    record : int, optional
+        Index of the offending record (event, line, packet) where a byte offset is not meaningful.
+    """
+
+    def __init__(self, path, message: str, *, offset: int | None = None, record: int | None = None):
+        self.path = None if path is None else os.fspath(path)
+        self.offset = offset
+        self.record = record
+        where = []
+        if offset is not None:
+            where.append(f"byte offset {offset}")
+        if record is not None:
+            where.append(f"record {record}")
+        loc = f" at {', '.join(where)}" if where else ""
+        prefix = f"{self.path}{loc}: " if self.path is not None else (f"{loc.strip()}: " if loc else "")
+        super().__init__(prefix + message)
+        self.message = message
+
+
+class UnknownFormatError(FormatError):
+    """The format of a file could not be detected, or an unknown format name was given."""

@@ -1,0 +1,228 @@
+"""Event arrays: the one structured dtype used at every API and file boundary.
+
+Conventions (see ``docs/conventions.md``): ``t`` is int64 microseconds and non-decreasing,
+``x`` is the column (0 = left), ``y`` the row (0 = top), ``p`` is +1 (ON) or -1 (OFF).
+Time windows are half-open, ``[t0, t1)``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from .errors import EventValidationError
+
+__all__ = [
+    "EVENT_DTYPE",
+    "TRIGGER_DTYPE",
+    "SensorSize",
+    "make_events",
+    "empty_events",
+    "make_triggers",
+    "empty_triggers",
+    "validate_events",
+    "validate_triggers",
+    "slice_time",
+    "time_window_indices",
+    "concatenate_events",
+    "events_fields",
+]
+
+#: Structured dtype of one event: 16 bytes per record with ``align=True``.
+EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")], align=True)
+
+#: Structured dtype of one trigger edge: ``edge`` is +1 (rising) or -1 (falling).
+TRIGGER_DTYPE = np.dtype([("t", "<i8"), ("channel", "<u2"), ("edge", "i1")], align=True)
+
+
+@dataclass(frozen=True)
+class SensorSize:
+    """Sensor size in pixels, ``(height, width)`` in that order (unlike OpenCV's (w, h)).
+
+    Examples
+    --------
+    >>> SensorSize(260, 346).shape
+    (260, 346)
+    """
+
+    height: int
+    width: int
+
+    def __post_init__(self):
+        for name in ("height", "width"):
+            v = getattr(self, name)
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                raise TypeError(f"SensorSize.{name} must be an int, got {type(v).__name__} {v!r}")
+            if not 0 < int(v) <= 65536:
+                raise ValueError(f"SensorSize.{name} must be in 1..65536 pixels, got {v}")
+            object.__setattr__(self, name, int(v))
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(height, width)``, the shape of an image on this sensor."""
+        return (self.height, self.width)
+
+    @property
+    def n_pixels(self) -> int:
+        return self.height * self.width
+
+    def __str__(self) -> str:
+        return f"{self.width}x{self.height}"
+
+    @classmethod
+    def from_any(cls, value) -> "SensorSize | None":
+        """Accept ``SensorSize``, ``None`` or a ``(height, width)`` pair."""
+        if value is None or isinstance(value, SensorSize):
+            return value
+        try:
+            h, w = value
+        except (TypeError, ValueError):
+            raise TypeError(f"sensor_size must be SensorSize or (height, width), got {value!r}") from None
+        return cls(int(h), int(w))
+
+
+def empty_events(n: int = 0) -> np.ndarray:
+    """Return a zero-filled event array of length ``n``."""
+    return np.zeros(n, dtype=EVENT_DTYPE)
+
+
+def make_events(t, x, y, p) -> np.ndarray:
+    """Build an event array from columns.
+
+    Parameters
+    ----------
+    t : array_like of int, shape (N,)
+        Timestamps in µs.
+    x, y : array_like of int, shape (N,)
+        Column and row.
+    p : array_like, shape (N,)
+        Polarity: ±1, or 0/1, or bool (0/False -> -1).
+
+    Returns
+    -------
+    events : ndarray of shape (N,), dtype EVENT_DTYPE
+    """
+    t = np.asarray(t)
+    n = t.shape[0] if t.ndim else 1
+    ev = np.empty(n, dtype=EVENT_DTYPE)
+    ev["t"] = t
+    ev["x"] = x
+    ev["y"] = y
+    pa = np.asarray(p)
+    if pa.dtype == np.bool_:
+        ev["p"] = np.where(pa, 1, -1)
+    else:
+        ev["p"] = np.where(pa > 0, 1, -1)
+    return ev
+
+
+def empty_triggers(n: int = 0) -> np.ndarray:
+    return np.zeros(n, dtype=TRIGGER_DTYPE)
+
+
+def make_triggers(t, channel, edge) -> np.ndarray:
+    """Build a trigger array; ``edge`` > 0 (or True) is rising (+1), else falling (-1)."""
+    t = np.asarray(t)
+    tr = np.empty(t.shape[0] if t.ndim else 1, dtype=TRIGGER_DTYPE)
+    tr["t"] = t
+    tr["channel"] = channel
+    e = np.asarray(edge)
+    tr["edge"] = np.where(e.astype(bool) if e.dtype == np.bool_ else e > 0, 1, -1)
+    return tr
+
+
+def _first_bad(mask: np.ndarray) -> int:
+    return int(np.flatnonzero(mask)[0])
+
+
+def validate_events(events, sensor_size=None, *, name: str = "events") -> np.ndarray:
+    """Check dtype, time order, polarity and coordinates; return the array unchanged.
+
+    Raises
+    ------
+    TypeError
+        If ``events`` is not an ndarray of dtype ``EVENT_DTYPE``.
+    EventValidationError
+        If timestamps decrease, a polarity is not ±1, or a coordinate lies outside ``sensor_size``.
+    """
+    if not isinstance(events, np.ndarray) or events.dtype != EVENT_DTYPE:
+        got = type(events).__name__ if not isinstance(events, np.ndarray) else f"ndarray of dtype {events.dtype}"
+        raise TypeError(f"{name} must be an ndarray of dtype EVENT_DTYPE {EVENT_DTYPE.descr}, got {got}")
+    if events.ndim != 1:
+        raise EventValidationError(f"{name} must be 1-D, got shape {events.shape}")
+    if events.size == 0:
+        return events
+    t = events["t"]
+    dec = t[1:] < t[:-1]
+    if dec.any():
+        i = _first_bad(dec) + 1
+        raise EventValidationError(
+            f"{name}['t'] must be non-decreasing; index {i} has {int(t[i])} after {int(t[i - 1])}")
+    p = events["p"]
+    badp = (p != 1) & (p != -1)
+    if badp.any():
+        i = _first_bad(badp)
+        raise EventValidationError(f"{name}['p'] must be +1 or -1; index {i} has {int(p[i])}")
+    ss = SensorSize.from_any(sensor_size)
+    if ss is not None:
+        for field, lim, dim in (("x", ss.width, "width"), ("y", ss.height, "height")):
+            v = events[field]
+            bad = v >= lim
+            if bad.any():
+                i = _first_bad(bad)
+                raise EventValidationError(
+                    f"{name}[{field!r}] must be < sensor {dim} {lim}; index {i} has {int(v[i])}")
+    return events
+
+
+def validate_triggers(triggers, *, name: str = "triggers") -> np.ndarray:
+    if not isinstance(triggers, np.ndarray) or triggers.dtype != TRIGGER_DTYPE:
+        got = type(triggers).__name__ if not isinstance(triggers, np.ndarray) else f"dtype {triggers.dtype}"
+        raise TypeError(f"{name} must be an ndarray of dtype TRIGGER_DTYPE, got {got}")
+    if triggers.size:
+        t = triggers["t"]
+        dec = t[1:] < t[:-1]
+        if dec.any():
+            i = _first_bad(dec) + 1
+            raise EventValidationError(
+                f"{name}['t'] must be non-decreasing; index {i} has {int(t[i])} after {int(t[i - 1])}")
+        e = triggers["edge"]
+        bad = (e != 1) & (e != -1)
+        if bad.any():
+            i = _first_bad(bad)
+            raise EventValidationError(f"{name}['edge'] must be +1 or -1; index {i} has {int(e[i])}")
+    return triggers
+
+
+def time_window_indices(t: np.ndarray, t_start_us=None, t_end_us=None) -> tuple[int, int]:
+    """Indices ``[i0, i1)`` of the half-open window ``[t_start_us, t_end_us)`` in sorted ``t``."""
+    i0 = 0 if t_start_us is None else int(np.searchsorted(t, np.int64(t_start_us), side="left"))
+    i1 = len(t) if t_end_us is None else int(np.searchsorted(t, np.int64(t_end_us), side="left"))
+    return i0, max(i0, i1)
+
+
+def slice_time(events: np.ndarray, t_start_us=None, t_end_us=None) -> np.ndarray:
+    """Events in the half-open window ``[t_start_us, t_end_us)`` (a view, no copy).
+
+    Examples
+    --------
+    >>> ev = make_events([0, 5, 5, 9], [0, 1, 2, 3], [0, 0, 0, 0], [1, -1, 1, 1])
+    >>> slice_time(ev, 5, 9)["t"].tolist()
+    [5, 5]
+    """
+    i0, i1 = time_window_indices(events["t"], t_start_us, t_end_us)
+    return events[i0:i1]
+
+
+def concatenate_events(chunks) -> np.ndarray:
+    chunks = [c for c in chunks if len(c)]
+    if not chunks:
+        return empty_events()
+    return np.concatenate(chunks)
+
+
+def events_fields(events: np.ndarray):
+    """Contiguous copies ``(t, x, y, p)`` for Numba kernels (made once, see conventions)."""
+    return (np.ascontiguousarray(events["t"]), np.ascontiguousarray(events["x"]),
+            np.ascontiguousarray(events["y"]), np.ascontiguousarray(events["p"]))

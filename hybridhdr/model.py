@@ -1,0 +1,244 @@
+"""The recording model shared by all five parts: frames, HDR references, metadata, recordings."""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
+                     slice_time, time_window_indices, validate_events, validate_triggers)
+
+__all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS"]
+
+#: How frame pixel values relate to irradiance (after colour's domain-range tables).
+FRAME_ENCODINGS = ("raw", "linear", "gamma", "unknown")
+
+
+def _as_i64(a, name: str, n: int | None = None) -> np.ndarray:
+    arr = np.asarray(a)
+    if arr.ndim != 1:
+        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
+    if n is not None and arr.shape[0] != n:
+        raise ValueError(f"{name} must have length {n} (one per frame), got {arr.shape[0]}")
+    if arr.size and not np.issubdtype(arr.dtype, np.integer):
+        if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
+            raise ValueError(f"{name} must hold whole microseconds (int64), got non-integral values")
+    return np.ascontiguousarray(arr, dtype=np.int64)
+
+
+@dataclass(frozen=True, eq=False)
+class Frames:
+    """Frames with their exposure intervals.
+
+    Parameters
+    ----------
+    images : ndarray of shape (K, H, W) or (K, H, W, 3)
+        Pixel values; the dtype is kept (uint8, uint16, float32 ...).
+    t_start_us, t_end_us : ndarray of shape (K,), int64
+        Exposure start and end of each frame in µs (``t_end_us >= t_start_us``).
+    gain : ndarray of shape (K,), float, optional
+        Analogue gain (linear factor) per frame.
+    iso : ndarray of shape (K,), float, optional
+        ISO per frame.
+    encoding : {"raw", "linear", "gamma", "unknown"}
+        How pixel values relate to irradiance.
+    """
+
+    images: np.ndarray
+    t_start_us: np.ndarray
+    t_end_us: np.ndarray
+    gain: np.ndarray | None = None
+    iso: np.ndarray | None = None
+    encoding: str = "unknown"
+
+    def __post_init__(self):
+        im = np.asarray(self.images)
+        if im.ndim not in (3, 4) or (im.ndim == 4 and im.shape[3] != 3):
+            raise ValueError(f"frames.images must have shape (K, H, W) or (K, H, W, 3), got {im.shape}")
+        k = im.shape[0]
+        ts = _as_i64(self.t_start_us, "frames.t_start_us", k)
+        te = _as_i64(self.t_end_us, "frames.t_end_us", k)
+        bad = te < ts
+        if bad.any():
+            i = int(np.flatnonzero(bad)[0])
+            raise ValueError(f"frame {i}: exposure end {te[i]} µs is before its start {ts[i]} µs")
+        if k > 1 and np.any(ts[1:] < ts[:-1]):
+            i = int(np.flatnonzero(ts[1:] < ts[:-1])[0]) + 1
+            raise ValueError(f"frames must be sorted by exposure start; frame {i} starts at {ts[i]} "
+                             f"µs after frame {i - 1} at {ts[i - 1]} µs")
+        for name in ("gain", "iso"):
+            v = getattr(self, name)
+            if v is not None:
+                v = np.asarray(v, dtype=np.float64)
+                if v.shape != (k,):
+                    raise ValueError(f"frames.{name} must have shape ({k},), got {v.shape}")
+                object.__setattr__(self, name, v)
+        if self.encoding not in FRAME_ENCODINGS:
+            raise ValueError(f"frames.encoding must be one of {FRAME_ENCODINGS}, got {self.encoding!r}")
+        object.__setattr__(self, "images", im)
+        object.__setattr__(self, "t_start_us", ts)
+        object.__setattr__(self, "t_end_us", te)
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """Image ``(height, width)``."""
+        return tuple(self.images.shape[1:3])
+
+    @property
+    def t_mid_us(self) -> np.ndarray:
+        """Mid-exposure timestamps (µs, int64, rounded down)."""
+        return self.t_start_us + (self.t_end_us - self.t_start_us) // 2
+
+    @property
+    def exposure_us(self) -> np.ndarray:
+        return self.t_end_us - self.t_start_us
+
+    def select(self, idx) -> "Frames":
+        sel = lambda a: None if a is None else a[idx]  # noqa: E731
+        return Frames(self.images[idx], self.t_start_us[idx], self.t_end_us[idx],
+                      sel(self.gain), sel(self.iso), self.encoding)
+
+    def slice_time(self, t_start_us=None, t_end_us=None) -> "Frames":
+        """Frames whose mid-exposure time lies in ``[t_start_us, t_end_us)``."""
+        i0, i1 = time_window_indices(self.t_mid_us, t_start_us, t_end_us)
+        return self.select(slice(i0, i1))
+
+    @classmethod
+    def empty(cls, height: int = 1, width: int = 1, dtype=np.uint8) -> "Frames":
+        return cls(np.zeros((0, height, width), dtype), np.zeros(0, np.int64), np.zeros(0, np.int64))
+
+
+@dataclass(frozen=True, eq=False)
+class HDRReferences:
+    """HDR reference images: float32 linear radiance, one timestamp each.
+
+    Parameters
+    ----------
+    images : ndarray of shape (K, H, W) or (K, H, W, 3), float32
+    t_us : ndarray of shape (K,), int64
+    """
+
+    images: np.ndarray
+    t_us: np.ndarray
+
+    def __post_init__(self):
+        im = np.asarray(self.images)
+        if im.ndim not in (3, 4) or (im.ndim == 4 and im.shape[3] != 3):
+            raise ValueError(f"hdr.images must have shape (K, H, W) or (K, H, W, 3), got {im.shape}")
+        object.__setattr__(self, "images", np.ascontiguousarray(im, dtype=np.float32))
+        object.__setattr__(self, "t_us", _as_i64(self.t_us, "hdr.t_us", im.shape[0]))
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+
+@dataclass(frozen=True)
+class CameraInfo:
+    """One camera's description: sensor size, model, serial number."""
+
+    sensor_size: SensorSize | None = None
+    model: str = ""
+    serial: str = ""
+
+    def to_dict(self) -> dict:
+        return {"height": None if self.sensor_size is None else self.sensor_size.height,
+                "width": None if self.sensor_size is None else self.sensor_size.width,
+                "model": self.model, "serial": self.serial}
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "CameraInfo":
+        d = d or {}
+        ss = None
+        if d.get("height") is not None and d.get("width") is not None:
+            ss = SensorSize(int(d["height"]), int(d["width"]))
+        return cls(ss, str(d.get("model", "") or ""), str(d.get("serial", "") or ""))
+
+
+@dataclass(frozen=True)
+class Metadata:
+    """Recording metadata: both cameras, calibration (a JSON-able dict) and provenance."""
+
+    event_camera: CameraInfo = field(default_factory=CameraInfo)
+    frame_camera: CameraInfo = field(default_factory=CameraInfo)
+    calibration: dict | None = None
+    provenance: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"event_camera": self.event_camera.to_dict(), "frame_camera": self.frame_camera.to_dict(),
+                "calibration": self.calibration, "provenance": dict(self.provenance)}
+
+    @classmethod
+    def from_dict(cls, d: dict | None) -> "Metadata":
+        d = d or {}
+        return cls(CameraInfo.from_dict(d.get("event_camera")), CameraInfo.from_dict(d.get("frame_camera")),
+                   d.get("calibration"), dict(d.get("provenance") or {}))
+
+
+@dataclass(frozen=True, eq=False)
+class Recording:
+    """A hybrid recording: events, frames, triggers, HDR references and metadata.
+
+    Parameters
+    ----------
+    events : ndarray of shape (N,), dtype EVENT_DTYPE
+        Sorted by ``t`` (µs).
+    sensor_size : SensorSize or None
+        Event-camera size; when given, event coordinates are checked against it.
+    frames : Frames, optional
+    triggers : ndarray of shape (M,), dtype TRIGGER_DTYPE
+    hdr : HDRReferences, optional
+    metadata : Metadata
+    """
+
+    events: np.ndarray = field(default_factory=empty_events)
+    sensor_size: SensorSize | None = None
+    frames: Frames | None = None
+    triggers: np.ndarray = field(default_factory=empty_triggers)
+    hdr: HDRReferences | None = None
+    metadata: Metadata = field(default_factory=Metadata)
+
+    def __post_init__(self):
+        ss = SensorSize.from_any(self.sensor_size)
+        if ss is None and self.metadata.event_camera.sensor_size is not None:
+            ss = self.metadata.event_camera.sensor_size
+        object.__setattr__(self, "sensor_size", ss)
+        validate_events(self.events, ss, name="recording.events")
+        validate_triggers(self.triggers, name="recording.triggers")
+        if ss is not None and self.metadata.event_camera.sensor_size != ss:
+            ec = dataclasses.replace(self.metadata.event_camera, sensor_size=ss)
+            object.__setattr__(self, "metadata", dataclasses.replace(self.metadata, event_camera=ec))
+        if self.frames is not None and not isinstance(self.frames, Frames):
+            raise TypeError(f"recording.frames must be Frames or None, got {type(self.frames).__name__}")
+        if self.hdr is not None and not isinstance(self.hdr, HDRReferences):
+            raise TypeError(f"recording.hdr must be HDRReferences or None, got {type(self.hdr).__name__}")
+
+    @property
+    def n_events(self) -> int:
+        return int(self.events.shape[0])
+
+    def time_range_us(self) -> tuple[int, int] | None:
+        """``(first, last)`` timestamp over events, frames and triggers, or None when empty."""
+        lo, hi = [], []
+        if self.events.size:
+            lo.append(int(self.events["t"][0])); hi.append(int(self.events["t"][-1]))
+        if self.frames is not None and len(self.frames):
+            lo.append(int(self.frames.t_start_us.min())); hi.append(int(self.frames.t_end_us.max()))
+        if self.triggers.size:
+            lo.append(int(self.triggers["t"][0])); hi.append(int(self.triggers["t"][-1]))
+        return (min(lo), max(hi)) if lo else None
+
+    def slice_time(self, t_start_us=None, t_end_us=None) -> "Recording":
+        """Events, triggers and HDR references in ``[t_start_us, t_end_us)``; frames by mid-exposure."""
+        hdr = self.hdr
+        if hdr is not None:
+            i0, i1 = time_window_indices(hdr.t_us, t_start_us, t_end_us)
+            hdr = HDRReferences(hdr.images[i0:i1], hdr.t_us[i0:i1])
+        return Recording(slice_time(self.events, t_start_us, t_end_us), self.sensor_size,
+                         None if self.frames is None else self.frames.slice_time(t_start_us, t_end_us),
+                         slice_time(self.triggers, t_start_us, t_end_us), hdr, self.metadata)
