@@ -1,0 +1,25 @@
+"""Shared fixtures: the sample data in ../shared/data (skipped with a reason when absent)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+
+REPO_ROOT = Path(__file__).resolve().parents[1]
+SHARED_DATA = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
+
+
+def shared_file(rel: str) -> Path:
+    """Path of a sample file under ../shared/data, or skip the test with the reason."""
+    p = SHARED_DATA / rel
+    if not p.exists():
+        pytest.skip(f"sample data {rel!r} not found under {SHARED_DATA} (the ../shared folder is absent)")
+    return p
+
+
+@pytest.fixture
+def shared_data():
+    """Callable fixture: ``shared_data("prophesee/evt3_sample.raw")`` -> Path, or skip."""
+    return shared_file
