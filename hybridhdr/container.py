@@ -1,0 +1,505 @@
+"""The hybridhdr recording container: one HDF5 file per recording.
+
+Layout (format version 1.0; see ``docs/recording-format.md``)::
+
+    /                       attrs: hybridhdr_format_version, sensor_height, sensor_width, metadata_json
+    /events/t  int64 µs     chunked, compressed; non-decreasing
+    /events/x  uint16       column
+    /events/y  uint16       row
+    /events/p  int8         +1 / -1
+    /events/ms_to_idx int64 attrs: origin_us; ms_to_idx[m] = first i with t[i] >= origin_us + 1000*m
+    /frames/images          (K, H, W[, 3]) any dtype, one chunk per frame; attrs: encoding
+    /frames/t_start_us, /frames/t_end_us   int64 (K,)
+    /frames/gain, /frames/iso              float64 (K,), optional
+    /triggers/t int64, /triggers/channel uint16, /triggers/edge int8
+    /hdr/images float32 (K, H, W[, 3]), /hdr/t_us int64 (K,)
+
+The writer streams: events are appended in chunks with a bounded buffer, the millisecond index is
+built incrementally, and the file is written as ``NAME.partial`` and renamed on close. The reader is
+lazy: it slices a time window through the millisecond index or iterates in chunks of N events or
+T µs without loading the file.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from .errors import FormatError
+from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
+                     validate_events)
+from .io import EventChunk, EventFileReader, EventFileWriter
+from .model import Frames, HDRReferences, Metadata, Recording
+
+__all__ = ["FORMAT_VERSION", "RecordingWriter", "RecordingFile", "write_recording", "read_recording",
+           "READERS", "WRITERS", "sniff"]
+
+FORMAT_VERSION = "1.0"
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+_EVENT_FIELDS = (("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1"))
+_TRIGGER_FIELDS = (("t", "<i8"), ("channel", "<u2"), ("edge", "i1"))
+_CHUNK_ELEMS = 1 << 17
+
+
+def _h5py():
+    try:
+        import h5py
+    except ImportError as e:  # pragma: no cover - h5py is a core dependency
+        raise ImportError("the hybridhdr container needs h5py: pip install h5py") from e
+    return h5py
+
+
+def _compression_kwargs(compression):
+    if compression in (None, "none"):
+        return {}
+    if compression == "gzip":
+        return {"compression": "gzip", "compression_opts": 1, "shuffle": True}
+    if compression == "lzf":
+        return {"compression": "lzf", "shuffle": True}
+    raise ValueError(f"compression must be 'gzip', 'lzf' or None, got {compression!r}")
+
+
+class RecordingWriter(EventFileWriter):
+    """Streaming writer of the hybridhdr container.
+
+    Parameters
+    ----------
+    path : path-like
+        Final file name; data goes to ``path + '.partial'`` until :meth:`close`.
+    sensor_size : SensorSize or (height, width)
+        Event-camera size.
+    metadata : Metadata, optional
+    compression : {"gzip", "lzf", None}
+        Dataset compression; gzip level 1 with byte shuffle by default (readable by any HDF5 tool).
+    buffer_events : int
+        Events held in memory before they are written (bounds memory).
+
+    Examples
+    --------
+    >>> import tempfile, os, hybridhdr
+    >>> from hybridhdr.container import RecordingWriter, RecordingFile
+    >>> path = os.path.join(tempfile.mkdtemp(), "rec.h5")
+    >>> with RecordingWriter(path, sensor_size=(4, 5)) as w:
+    ...     w.write_events(hybridhdr.make_events([0, 10, 2000], [0, 1, 4], [0, 2, 3], [1, -1, 1]))
+    >>> RecordingFile(path).n_events
+    3
+    """
+
+    format_name = "hybridhdr"
+    supports = frozenset({"triggers", "frames", "hdr"})
+
+    def __init__(self, path, sensor_size=None, metadata: Metadata | None = None, *,
+                 compression="gzip", buffer_events: int = 1 << 20, **options):
+        self._comp = _compression_kwargs(compression)
+        if int(buffer_events) < 1:
+            raise ValueError(f"buffer_events must be >= 1, got {buffer_events}")
+        self._buffer_events = int(buffer_events)
+        super().__init__(path, sensor_size, metadata, **options)
+
+    # -- EventFileWriter hooks ----------------------------------------------------------------
+    def _open(self):
+        h5py = _h5py()
+        self._f = h5py.File(self.tmp_path, "w")
+        f = self._f
+        f.attrs["hybridhdr_format_version"] = FORMAT_VERSION
+        f.attrs["sensor_height"] = self.sensor_size.height
+        f.attrs["sensor_width"] = self.sensor_size.width
+        from . import __version__
+        md = self.metadata.to_dict()
+        md["event_camera"]["height"], md["event_camera"]["width"] = self.sensor_size.shape
+        f.attrs["metadata_json"] = json.dumps(md)
+        f.attrs["created_by"] = f"hybridhdr {__version__}"
+        g = f.create_group("events")
+        for name, dt in _EVENT_FIELDS:
+            g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(_CHUNK_ELEMS,), **self._comp)
+        g.create_dataset("ms_to_idx", shape=(0,), maxshape=(None,), dtype="<i8", chunks=(1 << 14,))
+        gt = f.create_group("triggers")
+        for name, dt in _TRIGGER_FIELDS:
+            gt.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(4096,))
+        self._buf: list[np.ndarray] = []
+        self._buf_n = 0
+        self._n_written = 0
+        self._origin = None
+        self._next_ms = 0
+        self._ms_pending: list[np.ndarray] = []
+        self._trig_last = None
+
+    def _write_events(self, events):
+        self._buf.append(events.copy())
+        self._buf_n += len(events)
+        if self._buf_n >= self._buffer_events:
+            self._flush_events()
+
+    def _flush_events(self):
+        if not self._buf_n:
+            return
+        ev = np.concatenate(self._buf) if len(self._buf) > 1 else self._buf[0]
+        self._buf, self._buf_n = [], 0
+        g = self._f["events"]
+        n0, n1 = self._n_written, self._n_written + len(ev)
+        for name, _ in _EVENT_FIELDS:
+            ds = g[name]
+            ds.resize((n1,))
+            ds[n0:n1] = ev[name]
+        # millisecond index: entries whose boundary <= last time are final
+        t = ev["t"]
+        if self._origin is None:
+            self._origin = (int(t[0]) // 1000) * 1000
+        last_m = (int(t[-1]) - self._origin) // 1000
+        if last_m >= self._next_ms:
+            bounds = self._origin + 1000 * np.arange(self._next_ms, last_m + 1, dtype=np.int64)
+            idx = n0 + np.searchsorted(t, bounds, side="left")
+            self._append_ms(idx)
+            self._next_ms = last_m + 1
+        self._n_written = n1
+
+    def _append_ms(self, idx):
+        ds = self._f["events"]["ms_to_idx"]
+        m0 = ds.shape[0]
+        ds.resize((m0 + len(idx),))
+        ds[m0:] = idx
+
+    def _write_triggers(self, triggers):
+        from .events import validate_triggers
+        validate_triggers(triggers)
+        if self._trig_last is not None and triggers["t"][0] < self._trig_last:
+            raise ValueError(f"{self.path}: triggers must be appended in time order; chunk starts at "
+                             f"{int(triggers['t'][0])} µs after {self._trig_last} µs")
+        g = self._f["triggers"]
+        n0 = g["t"].shape[0]
+        for name, _ in _TRIGGER_FIELDS:
+            g[name].resize((n0 + len(triggers),))
+            g[name][n0:] = triggers[name]
+        self._trig_last = int(triggers["t"][-1])
+
+    def _write_frames(self, frames: Frames):
+        f = self._f
+        im = frames.images
+        if "frames" not in f:
+            g = f.create_group("frames")
+            g.create_dataset("images", shape=(0,) + im.shape[1:], maxshape=(None,) + im.shape[1:],
+                             dtype=im.dtype, chunks=(1,) + im.shape[1:], **self._comp)
+            for name in ("t_start_us", "t_end_us"):
+                g.create_dataset(name, shape=(0,), maxshape=(None,), dtype="<i8", chunks=(1024,))
+            g.attrs["encoding"] = frames.encoding
+            for name in ("gain", "iso"):
+                if getattr(frames, name) is not None:
+                    g.create_dataset(name, shape=(0,), maxshape=(None,), dtype="<f8", chunks=(1024,))
+        g = f["frames"]
+        ds = g["images"]
+        if ds.shape[1:] != im.shape[1:] or ds.dtype != im.dtype:
+            raise ValueError(f"{self.path}: frames must all have shape {ds.shape[1:]} and dtype {ds.dtype}; "
+                             f"got {im.shape[1:]} {im.dtype}")
+        if g.attrs["encoding"] != frames.encoding:
+            raise ValueError(f"{self.path}: frame encoding {frames.encoding!r} differs from {g.attrs['encoding']!r}")
+        k0 = ds.shape[0]
+        if k0 and frames.t_start_us[0] < g["t_start_us"][k0 - 1]:
+            raise ValueError(f"{self.path}: frames must be appended in order of exposure start")
+        for name in ("gain", "iso"):
+            if (getattr(frames, name) is not None) != (name in g):
+                raise ValueError(f"{self.path}: frames.{name} must be given for all frames or for none")
+        k1 = k0 + len(frames)
+        ds.resize((k1,) + ds.shape[1:])
+        ds[k0:k1] = im
+        for name in ("t_start_us", "t_end_us", "gain", "iso"):
+            if name in g:
+                g[name].resize((k1,))
+                g[name][k0:k1] = getattr(frames, name)
+
+    def write_hdr(self, hdr: HDRReferences) -> None:
+        """Append HDR references (float32 linear radiance with timestamps)."""
+        if not isinstance(hdr, HDRReferences):
+            raise TypeError(f"hdr must be HDRReferences, got {type(hdr).__name__}")
+        f = self._f
+        im = hdr.images
+        if "hdr" not in f:
+            g = f.create_group("hdr")
+            g.create_dataset("images", shape=(0,) + im.shape[1:], maxshape=(None,) + im.shape[1:],
+                             dtype="<f4", chunks=(1,) + im.shape[1:], **self._comp)
+            g.create_dataset("t_us", shape=(0,), maxshape=(None,), dtype="<i8", chunks=(1024,))
+        g = f["hdr"]
+        if g["images"].shape[1:] != im.shape[1:]:
+            raise ValueError(f"{self.path}: HDR references must have shape {g['images'].shape[1:]}, got {im.shape[1:]}")
+        k0 = g["t_us"].shape[0]
+        k1 = k0 + len(hdr)
+        g["images"].resize((k1,) + im.shape[1:])
+        g["images"][k0:k1] = im
+        g["t_us"].resize((k1,))
+        g["t_us"][k0:k1] = hdr.t_us
+
+    def flush(self) -> None:
+        """Write buffered events and flush the HDF5 file to disk."""
+        self._flush_events()
+        self._f.flush()
+
+    def _finish(self):
+        self._flush_events()
+        if self._origin is not None:
+            # final sentinel entry: the boundary after the last event maps to n_events
+            self._append_ms(np.array([self._n_written], dtype=np.int64))
+            self._f["events"]["ms_to_idx"].attrs["origin_us"] = self._origin
+        else:
+            self._f["events"]["ms_to_idx"].attrs["origin_us"] = 0
+        self._f.attrs["n_events"] = self._n_written
+        self._f.close()
+
+    def _cleanup(self):
+        try:
+            self._f.close()
+        except Exception:
+            pass
+
+
+def _require(f, name, path):
+    if name not in f:
+        raise FormatError(path, f"missing dataset {name!r} (expected the hybridhdr container layout, "
+                                f"format version {FORMAT_VERSION})")
+    return f[name]
+
+
+class RecordingFile(EventFileReader):
+    """Lazy reader of a hybridhdr container.
+
+    Nothing is loaded on open beyond attributes and the millisecond index; :meth:`events` reads a
+    time window, :meth:`iter_chunks` and :meth:`iter_time_windows` stream the file.
+    """
+
+    format_name = "hybridhdr"
+
+    def __init__(self, path, **options):
+        super().__init__(path, **options)
+        h5py = _h5py()
+        try:
+            self._f = h5py.File(self.path, "r")
+        except OSError as e:
+            raise FormatError(self.path, f"not a readable HDF5 file ({e})") from None
+        try:
+            self._open_checked()
+        except FormatError:
+            self._f.close()
+            raise
+        except Exception as e:  # corrupt internals surface as many h5py errors
+            self._f.close()
+            raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
+
+    def _open_checked(self):
+        f, path = self._f, self.path
+        ver = f.attrs.get("hybridhdr_format_version")
+        if ver is None:
+            raise FormatError(path, "HDF5 file is not a hybridhdr container (no 'hybridhdr_format_version' attribute)")
+        ver = ver.decode() if isinstance(ver, bytes) else str(ver)
+        if ver.split(".")[0] != FORMAT_VERSION.split(".")[0]:
+            raise FormatError(path, f"container format version {ver} is not supported (expected {FORMAT_VERSION})")
+        self.format_version = ver
+        try:
+            md = json.loads(f.attrs.get("metadata_json", "{}"))
+        except (ValueError, TypeError) as e:
+            raise FormatError(path, f"metadata_json attribute is not valid JSON ({e})") from None
+        self.metadata = Metadata.from_dict(md)
+        ss = SensorSize(int(f.attrs["sensor_height"]), int(f.attrs["sensor_width"]))
+        if self.sensor_size is None:
+            self.sensor_size = ss
+        ds = [_require(f, f"events/{n}", path) for n, _ in _EVENT_FIELDS]
+        n = ds[0].shape[0]
+        for d, (name, dt) in zip(ds, _EVENT_FIELDS):
+            if d.ndim != 1 or d.shape[0] != n:
+                raise FormatError(path, f"events/{name} has shape {d.shape}; expected ({n},) like events/t")
+            if d.dtype != np.dtype(dt):
+                raise FormatError(path, f"events/{name} has dtype {d.dtype}; expected {np.dtype(dt)}")
+        self._ev = dict(zip([n_ for n_, _ in _EVENT_FIELDS], ds))
+        self.n_events = int(n)
+        ms = _require(f, "events/ms_to_idx", path)
+        self._ms = np.asarray(ms[:], dtype=np.int64)
+        self._origin = int(ms.attrs.get("origin_us", 0))
+        if n and (len(self._ms) == 0 or self._ms[-1] != n or np.any(np.diff(self._ms) < 0)
+                  or self._ms[0] < 0):
+            raise FormatError(path, f"events/ms_to_idx is inconsistent with {n} events (expected a "
+                                    f"non-decreasing index ending at {n}); the file may be truncated")
+
+    @property
+    def time_range_us(self) -> tuple[int, int] | None:
+        if not self.n_events:
+            return None
+        return int(self._ev["t"][0]), int(self._ev["t"][self.n_events - 1])
+
+    def _bounds(self, t_us, default):
+        if t_us is None:
+            return default
+        t_us = int(t_us)
+        m = (t_us - self._origin) // 1000
+        if m < 0:
+            return 0
+        if m >= len(self._ms) - 1:
+            return self.n_events
+        lo, hi = int(self._ms[m]), int(self._ms[m + 1])
+        if lo == hi:
+            return lo
+        t = self._ev["t"][lo:hi]
+        return lo + int(np.searchsorted(t, t_us, side="left"))
+
+    def index_range(self, t_start_us=None, t_end_us=None) -> tuple[int, int]:
+        """Event indices ``[i0, i1)`` of the half-open window ``[t_start_us, t_end_us)``."""
+        i0 = self._bounds(t_start_us, 0)
+        i1 = self._bounds(t_end_us, self.n_events)
+        return i0, max(i0, i1)
+
+    def _load(self, i0: int, i1: int, check: bool = True) -> np.ndarray:
+        out = np.empty(i1 - i0, dtype=EVENT_DTYPE)
+        if i1 > i0:
+            try:
+                for name, ds in self._ev.items():
+                    out[name] = ds[i0:i1]
+            except Exception as e:
+                raise FormatError(self.path, f"cannot read events {i0}..{i1} ({type(e).__name__}: {e})",
+                                  record=i0) from None
+            if check:
+                try:
+                    validate_events(out, self.sensor_size, name="events")
+                except ValueError as e:
+                    raise FormatError(self.path, f"corrupt events in records {i0}..{i1}: {e}", record=i0) from None
+        return out
+
+    def event_columns(self, t_start_us=None, t_end_us=None) -> dict[str, np.ndarray]:
+        """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy)."""
+        i0, i1 = self.index_range(t_start_us, t_end_us)
+        try:
+            cols = {name: np.ascontiguousarray(ds[i0:i1]) for name, ds in self._ev.items()}
+        except Exception as e:
+            raise FormatError(self.path, f"cannot read events {i0}..{i1} ({type(e).__name__}: {e})",
+                              record=i0) from None
+        t = cols["t"]
+        if t.size and np.any(t[1:] < t[:-1]):
+            i = int(np.flatnonzero(t[1:] < t[:-1])[0]) + 1
+            raise FormatError(self.path, f"events/t decreases at index {i0 + i}", record=i0 + i)
+        ss = self.sensor_size
+        if t.size and (cols["x"].max() >= ss.width or cols["y"].max() >= ss.height):
+            raise FormatError(self.path, f"event coordinates outside the {ss} sensor in records {i0}..{i1}",
+                              record=i0)
+        return cols
+
+    def events(self, t_start_us=None, t_end_us=None) -> np.ndarray:
+        """Events in ``[t_start_us, t_end_us)`` (loads only that window)."""
+        return self._load(*self.index_range(t_start_us, t_end_us))
+
+    def read_triggers(self) -> np.ndarray:
+        if "triggers" not in self._f:
+            return empty_triggers()
+        g = self._f["triggers"]
+        n = g["t"].shape[0]
+        out = np.empty(n, dtype=TRIGGER_DTYPE)
+        for name, _ in _TRIGGER_FIELDS:
+            d = _require(g, name, self.path)
+            if d.shape != (n,):
+                raise FormatError(self.path, f"triggers/{name} has shape {d.shape}; expected ({n},)")
+            out[name] = d[:]
+        from .events import validate_triggers
+        try:
+            return validate_triggers(out)
+        except ValueError as e:
+            raise FormatError(self.path, f"corrupt triggers: {e}") from None
+
+    def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
+        trig = self.read_triggers()
+        ti = 0
+        n = self.n_events
+        if n == 0:
+            if len(trig):
+                yield EventChunk(empty_events(), trig)
+            return
+        for i0 in range(0, n, chunk_events):
+            i1 = min(n, i0 + chunk_events)
+            ev = self._load(i0, i1)
+            if i1 < n:
+                t_next = int(self._ev["t"][i1])
+                tj = int(np.searchsorted(trig["t"], t_next, side="left"))
+            else:
+                tj = len(trig)
+            yield EventChunk(ev, trig[ti:tj])
+            ti = tj
+
+    def read_frames(self) -> Frames | None:
+        if "frames" not in self._f:
+            return None
+        g = self._f["frames"]
+        try:
+            kw = {name: g[name][:] for name in ("gain", "iso") if name in g}
+            enc = g.attrs.get("encoding", "unknown")
+            enc = enc.decode() if isinstance(enc, bytes) else str(enc)
+            return Frames(_require(g, "images", self.path)[:], _require(g, "t_start_us", self.path)[:],
+                          _require(g, "t_end_us", self.path)[:], encoding=enc, **kw)
+        except FormatError:
+            raise
+        except Exception as e:
+            raise FormatError(self.path, f"corrupt /frames group: {e}") from None
+
+    def read_hdr(self) -> HDRReferences | None:
+        if "hdr" not in self._f:
+            return None
+        g = self._f["hdr"]
+        try:
+            return HDRReferences(_require(g, "images", self.path)[:], _require(g, "t_us", self.path)[:])
+        except FormatError:
+            raise
+        except Exception as e:
+            raise FormatError(self.path, f"corrupt /hdr group: {e}") from None
+
+    def read(self, t_start_us=None, t_end_us=None) -> Recording:
+        ev = self.events(t_start_us, t_end_us)
+        trig = self.read_triggers()
+        from .events import slice_time
+        trig = slice_time(trig, t_start_us, t_end_us)
+        frames = self.read_frames()
+        hdr = self.read_hdr()
+        if t_start_us is not None or t_end_us is not None:
+            if frames is not None:
+                frames = frames.slice_time(t_start_us, t_end_us)
+            if hdr is not None:
+                from .events import time_window_indices
+                a, b = time_window_indices(hdr.t_us, t_start_us, t_end_us)
+                hdr = HDRReferences(hdr.images[a:b], hdr.t_us[a:b])
+        return Recording(ev, self.sensor_size, frames, trig, hdr, self.metadata)
+
+    def close(self):
+        try:
+            self._f.close()
+        except Exception:
+            pass
+
+
+def write_recording(recording: Recording, path, **options) -> Path:
+    """Write a whole :class:`~hybridhdr.Recording` to a container file (atomically)."""
+    if recording.sensor_size is None:
+        raise ValueError("recording.sensor_size is required to write a hybridhdr container")
+    with RecordingWriter(path, recording.sensor_size, recording.metadata, **options) as w:
+        ev = recording.events
+        step = 1 << 22
+        for i in range(0, len(ev), step):
+            w.write_events(ev[i:i + step])
+        w.write_triggers(recording.triggers)
+        w.write_frames(recording.frames)
+        if recording.hdr is not None and len(recording.hdr):
+            w.write_hdr(recording.hdr)
+    return Path(path)
+
+
+def read_recording(path, t_start_us=None, t_end_us=None) -> Recording:
+    with RecordingFile(path) as r:
+        return r.read(t_start_us, t_end_us)
+
+
+def sniff(path: Path, head: bytes) -> str | None:
+    if not head.startswith(_HDF5_MAGIC):
+        return None
+    try:
+        h5py = _h5py()
+        with h5py.File(path, "r") as f:
+            return "hybridhdr" if "hybridhdr_format_version" in f.attrs else None
+    except Exception:
+        return None
+
+
+READERS = {"hybridhdr": RecordingFile}
+WRITERS = {"hybridhdr": RecordingWriter}
