@@ -375,9 +375,17 @@ class RecordingFile(EventFileReader):
             i = int(np.flatnonzero(t[1:] < t[:-1])[0]) + 1
             raise FormatError(self.path, f"events/t decreases at index {i0 + i}", record=i0 + i)
         ss = self.sensor_size
-        if t.size and (cols["x"].max() >= ss.width or cols["y"].max() >= ss.height):
-            raise FormatError(self.path, f"event coordinates outside the {ss} sensor in records {i0}..{i1}",
-                              record=i0)
+        for field, lim, dim in (("x", ss.width, "width"), ("y", ss.height, "height")):
+            v = cols[field]
+            if v.size and v.max() >= lim:
+                i = int(np.argmax(v >= lim))
+                raise FormatError(self.path, f"events/{field} must be < sensor {dim} {lim}; record {i0 + i} "
+                                             f"has {int(v[i])}", record=i0 + i)
+        p = cols["p"]
+        if p.size and np.any((p != 1) & (p != -1)):
+            i = int(np.argmax((p != 1) & (p != -1)))
+            raise FormatError(self.path, f"events/p must be +1 or -1; record {i0 + i} has {int(p[i])}",
+                              record=i0 + i)
         return cols
 
     def events(self, t_start_us=None, t_end_us=None) -> np.ndarray:
