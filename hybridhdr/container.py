@@ -253,6 +253,33 @@ class RecordingWriter(EventFileWriter):
             pass
 
 
+def _guarded(method):
+    """Turn any low-level h5py/HDF5 failure inside a reader method into a FormatError with context."""
+    import functools
+    import inspect
+
+    if inspect.isgeneratorfunction(method):
+        @functools.wraps(method)
+        def gen(self, *a, **k):
+            try:
+                yield from method(self, *a, **k)
+            except FormatError:
+                raise
+            except Exception as e:
+                raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
+        return gen
+
+    @functools.wraps(method)
+    def wrapper(self, *a, **k):
+        try:
+            return method(self, *a, **k)
+        except FormatError:
+            raise
+        except Exception as e:
+            raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
+    return wrapper
+
+
 def _require(f, name, path):
     if name not in f:
         raise FormatError(path, f"missing dataset {name!r} (expected the hybridhdr container layout, "
@@ -340,6 +367,7 @@ class RecordingFile(EventFileReader):
         t = self._ev["t"][lo:hi]
         return lo + int(np.searchsorted(t, t_us, side="left"))
 
+    @_guarded
     def index_range(self, t_start_us=None, t_end_us=None) -> tuple[int, int]:
         """Event indices ``[i0, i1)`` of the half-open window ``[t_start_us, t_end_us)``."""
         i0 = self._bounds(t_start_us, 0)
@@ -362,6 +390,7 @@ class RecordingFile(EventFileReader):
                     raise FormatError(self.path, f"corrupt events in records {i0}..{i1}: {e}", record=i0) from None
         return out
 
+    @_guarded
     def event_columns(self, t_start_us=None, t_end_us=None) -> dict[str, np.ndarray]:
         """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy)."""
         i0, i1 = self.index_range(t_start_us, t_end_us)
@@ -388,10 +417,12 @@ class RecordingFile(EventFileReader):
                               record=i0 + i)
         return cols
 
+    @_guarded
     def events(self, t_start_us=None, t_end_us=None) -> np.ndarray:
         """Events in ``[t_start_us, t_end_us)`` (loads only that window)."""
         return self._load(*self.index_range(t_start_us, t_end_us))
 
+    @_guarded
     def read_triggers(self) -> np.ndarray:
         if "triggers" not in self._f:
             return empty_triggers()
@@ -409,6 +440,7 @@ class RecordingFile(EventFileReader):
         except ValueError as e:
             raise FormatError(self.path, f"corrupt triggers: {e}") from None
 
+    @_guarded
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
         trig = self.read_triggers()
         ti = 0
@@ -428,6 +460,7 @@ class RecordingFile(EventFileReader):
             yield EventChunk(ev, trig[ti:tj])
             ti = tj
 
+    @_guarded
     def read_frames(self) -> Frames | None:
         if "frames" not in self._f:
             return None
@@ -443,6 +476,7 @@ class RecordingFile(EventFileReader):
         except Exception as e:
             raise FormatError(self.path, f"corrupt /frames group: {e}") from None
 
+    @_guarded
     def read_hdr(self) -> HDRReferences | None:
         if "hdr" not in self._f:
             return None
@@ -454,6 +488,7 @@ class RecordingFile(EventFileReader):
         except Exception as e:
             raise FormatError(self.path, f"corrupt /hdr group: {e}") from None
 
+    @_guarded
     def read(self, t_start_us=None, t_end_us=None) -> Recording:
         ev = self.events(t_start_us, t_end_us)
         trig = self.read_triggers()
