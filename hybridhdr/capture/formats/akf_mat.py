@@ -1,0 +1,533 @@
+"""AKF MATLAB ``.mat`` files (format ``akf_mat``): reader of v7.3 and v5, writer of v7.3.
+
+The datasets of Wang et al., "An Asynchronous Kalman Filter for Hybrid Event Cameras", ICCV 2021
+(doi:10.1109/ICCV48922.2021.00050; ``ziweiWWANG/AKF``) are MATLAB files holding
+
+* ``events`` N x 4 double: ``[t (µs), x, y, p]`` with **1-based** x and y, ``p == 1`` ON, any
+  other value OFF;
+* ``image`` H x W x K uint8 frames, ``time_image`` (K values, mid-exposure µs), ``exposure``
+  (µs, one per frame or a scalar);
+* ``im_height``, ``im_width`` (sensor size), ``ct`` (contrast threshold), ``f_Q`` (256-entry
+  intensity confidence LUT) and optionally ``HDR_mat`` H x W x 3 x K (HDR references).
+
+MATLAB v7.3 files are HDF5 with a 512-byte MATLAB header as the HDF5 user block; h5py returns each
+array with its axes reversed (``events`` reads as 4 x N), which this module undoes. v5 files are
+read with :func:`scipy.io.loadmat`.
+
+Conversions:
+
+* ``t`` rounded to int64 µs with ``np.rint`` (AKF stores whole µs in doubles, so this is exact);
+  x, y -> 0-based uint16; p -> +1/-1.
+* Frames: ``t_start_us = rint(time_image - exposure / 2)`` and
+  ``t_end_us = t_start_us + rint(exposure)``; without ``exposure`` both equal ``rint(time_image)``.
+  The writer stores ``time_image = t_start_us + (t_end_us - t_start_us) / 2`` (a multiple of
+  0.5 µs, exact in a double), so integer exposure intervals round-trip exactly.
+* ``ct`` and ``f_Q`` go to ``metadata.provenance["akf_mat"]``; ``HDR_mat`` is read by
+  :meth:`AkfMatReader.read_hdr`.
+"""
+
+from __future__ import annotations
+
+import time
+from pathlib import Path
+from typing import Iterator
+
+import numpy as np
+
+from ...errors import FormatError
+from ...events import EVENT_DTYPE, SensorSize
+from ...io import EventChunk, EventFileReader, EventFileWriter
+from ...model import CameraInfo, Frames, HDRReferences, Metadata
+
+__all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header"]
+
+_V73 = b"MATLAB 7.3 MAT-file"
+_V5 = b"MATLAB 5.0 MAT-file"
+_MATLAB_CLASS = {np.dtype(np.float64): b"double", np.dtype(np.float32): b"single",
+                 np.dtype(np.uint8): b"uint8", np.dtype(np.uint16): b"uint16", np.dtype(np.int8): b"int8",
+                 np.dtype(np.int16): b"int16", np.dtype(np.int32): b"int32", np.dtype(np.uint32): b"uint32",
+                 np.dtype(np.int64): b"int64", np.dtype(np.uint64): b"uint64"}
+_MAX_SAFE = float(1 << 53)
+
+
+def sniff(path: Path, head: bytes) -> str | None:
+    """``"akf_mat"`` for MATLAB v7.3 or v5 MAT files (text header at byte 0), else None."""
+    return "akf_mat" if head[:116].startswith((_V73, _V5)) else None
+
+
+def matlab_v73_header(created: str | None = None) -> bytes:
+    """The first 128 bytes of a MATLAB v7.3 file (the rest of the 512-byte user block is zeros).
+
+    Bytes 0-115 hold descriptive text padded with spaces, 116-123 the subsystem offset (unused),
+    124-125 the version 0x0200 and 126-127 the endian indicator ``IM`` (little-endian).
+    """
+    created = created or time.strftime("%a %b %d %H:%M:%S %Y")
+    text = f"MATLAB 7.3 MAT-file, Platform: hybridhdr, Created on: {created} HDF5 schema 1.00 .".encode("ascii")
+    return text[:116].ljust(116, b" ") + b"\x00" * 8 + (0x0200).to_bytes(2, "little") + b"IM"
+
+
+def _wrap(path, what: str, exc: BaseException) -> FormatError:
+    return FormatError(path, f"{what}: {type(exc).__name__}: {exc}")
+
+
+class AkfMatReader(EventFileReader):
+    """Reader of AKF ``.mat`` files (MATLAB v7.3 via h5py, v5 via scipy).
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    sensor_size : SensorSize or (height, width), optional
+        Overrides ``im_height``/``im_width``. Without either, the frame size is used, else max
+        coordinate + 1 (noted in provenance).
+
+    Notes
+    -----
+    v7.3 files are streamed by slices of the ``events`` dataset. v5 files cannot be sliced:
+    ``events`` is loaded whole (scipy) and then yielded in chunks.
+    """
+
+    format_name = "akf_mat"
+
+    def __init__(self, path, **options):
+        super().__init__(path, **options)
+        with open(self.path, "rb") as f:
+            head = f.read(128)
+        if head.startswith(_V73):
+            self.version = "7.3"
+        elif head.startswith(_V5):
+            self.version = "5"
+        else:
+            raise FormatError(self.path, f"not a MATLAB v5/v7.3 MAT-file (header {head[:20]!r})", offset=0)
+        self._v5_cache: dict | None = None
+        small = self._load_small()
+        n = self._n_events()
+        self.n_events = n
+        h = self._scalar(small, "im_height")
+        w = self._scalar(small, "im_width")
+        frame_shape = self._frame_shape()
+        src = "option"
+        note = None
+        if self.sensor_size is None:
+            if h is not None and w is not None:
+                try:
+                    self.sensor_size = SensorSize(int(h), int(w))
+                except (TypeError, ValueError) as exc:
+                    raise FormatError(self.path, f"invalid im_height/im_width {h!r}/{w!r}: {exc}") from None
+                src = "im_height/im_width"
+            elif frame_shape is not None:
+                self.sensor_size = SensorSize(*frame_shape)
+                src = "image shape"
+            else:
+                self.sensor_size = self._infer_size()
+                src = "inferred"
+                note = "no im_height/im_width and no image: inferred as max coordinate + 1"
+        akf = {}
+        ct = small.get("ct")
+        if ct is not None:
+            c = np.asarray(ct, dtype=np.float64).reshape(-1)
+            akf["ct"] = float(c[0]) if c.size == 1 else c.tolist()
+        fq = small.get("f_Q")
+        if fq is not None:
+            akf["f_Q"] = np.asarray(fq, dtype=np.float64).reshape(-1).tolist()
+        prov = {"source_file": str(self.path), "format": "akf_mat", "mat_version": self.version,
+                "n_events": n, "sensor_size_source": src, "akf_mat": akf,
+                "coordinates": "x, y stored 1-based; converted to 0-based",
+                "frame_timestamps": "t_start = rint(time_image - exposure/2), t_end = t_start + rint(exposure)"}
+        if note:
+            prov["sensor_size_note"] = note
+        self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size),
+                                 frame_camera=CameraInfo(SensorSize(*frame_shape) if frame_shape else None),
+                                 provenance=prov)
+
+    # -- low-level access ---------------------------------------------------------------------
+    def _h5(self):
+        import h5py
+        try:
+            return h5py.File(self.path, "r")
+        except Exception as exc:
+            raise _wrap(self.path, "cannot open the MATLAB v7.3 (HDF5) file; corrupt or truncated?", exc) from None
+
+    def _h5_var(self, f, name: str, required: bool = False):
+        import h5py
+        try:
+            obj = f.get(name)
+        except Exception as exc:
+            raise _wrap(self.path, f"cannot access variable {name!r}", exc) from None
+        if obj is None:
+            if required:
+                raise FormatError(self.path, f"MAT-file has no {name!r} variable; variables: {sorted(f.keys())}")
+            return None
+        if not isinstance(obj, h5py.Dataset):
+            raise FormatError(self.path, f"variable {name!r} must be a numeric array, got a {type(obj).__name__}")
+        if obj.attrs.get("MATLAB_empty", 0):
+            return "empty"
+        if obj.dtype.kind not in "uifb":
+            raise FormatError(self.path, f"variable {name!r} must be numeric, got dtype {obj.dtype}")
+        return obj
+
+    def _v5(self, names=None) -> dict:
+        from scipy.io import loadmat
+        try:
+            return loadmat(self.path, variable_names=names, squeeze_me=False, mat_dtype=False)
+        except Exception as exc:
+            raise _wrap(self.path, "cannot parse the MATLAB v5 file; corrupt or truncated?", exc) from None
+
+    def _load_small(self) -> dict:
+        names = ("im_height", "im_width", "ct", "f_Q", "time_image", "exposure")
+        out = {}
+        if self.version == "7.3":
+            with self._h5() as f:
+                for k in names:
+                    ds = self._h5_var(f, k)
+                    if ds is None or isinstance(ds, str):
+                        continue
+                    if ds.size > 1 << 24:
+                        raise FormatError(self.path, f"variable {k!r} is implausibly large ({ds.shape})")
+                    try:
+                        out[k] = np.asarray(ds[()]).T
+                    except Exception as exc:
+                        raise _wrap(self.path, f"cannot read variable {k!r}", exc) from None
+        else:
+            d = self._v5(list(names) + ["events", "image"])
+            self._v5_cache = d
+            for k in names:
+                if k in d:
+                    v = np.asarray(d[k])
+                    if v.dtype.kind not in "uifb":
+                        raise FormatError(self.path, f"variable {k!r} must be numeric, got {v.dtype}")
+                    out[k] = v
+        return out
+
+    def _scalar(self, small: dict, name: str):
+        v = small.get(name)
+        if v is None:
+            return None
+        a = np.asarray(v, dtype=np.float64).reshape(-1)
+        if a.size != 1 or not np.isfinite(a[0]) or a[0] != np.floor(a[0]):
+            raise FormatError(self.path, f"{name} must be one whole number, got {np.asarray(v).tolist()!r}")
+        return int(a[0])
+
+    def _n_events(self) -> int:
+        if self.version == "7.3":
+            with self._h5() as f:
+                ds = self._h5_var(f, "events", required=True)
+                if isinstance(ds, str):
+                    return 0
+                if ds.ndim != 2 or ds.shape[0] != 4:
+                    raise FormatError(self.path, f"events must be an N x 4 matrix, got MATLAB shape "
+                                                 f"{tuple(reversed(ds.shape))}")
+                return int(ds.shape[1])
+        ev = self._v5_cache.get("events")
+        if ev is None:
+            raise FormatError(self.path, f"MAT-file has no 'events' variable; variables: "
+                                         f"{sorted(k for k in self._v5_cache if not k.startswith('__'))}")
+        ev = np.asarray(ev)
+        if ev.size == 0:
+            return 0
+        if ev.ndim != 2 or ev.shape[1] != 4 or ev.dtype.kind not in "uifb":
+            raise FormatError(self.path, f"events must be a numeric N x 4 matrix, got shape {ev.shape} dtype {ev.dtype}")
+        return int(ev.shape[0])
+
+    def _frame_shape(self) -> tuple[int, int] | None:
+        if self.version == "7.3":
+            with self._h5() as f:
+                ds = self._h5_var(f, "image")
+                if ds is None or isinstance(ds, str):
+                    return None
+                shp = tuple(reversed(ds.shape))
+        else:
+            im = self._v5_cache.get("image")
+            if im is None:
+                return None
+            shp = np.asarray(im).shape
+        if len(shp) not in (2, 3, 4) or 0 in shp[:2]:
+            raise FormatError(self.path, f"image must be H x W x K (or H x W x 3 x K), got shape {shp}")
+        try:
+            SensorSize(int(shp[0]), int(shp[1]))
+        except ValueError as exc:
+            raise FormatError(self.path, f"invalid image shape {shp}: {exc}") from None
+        return int(shp[0]), int(shp[1])
+
+    def _event_blocks(self, chunk_events: int) -> Iterator[tuple[int, np.ndarray]]:
+        """Yield ``(first_index, block)`` with blocks of shape (n, 4), float64."""
+        if self.n_events == 0:
+            return
+        if self.version == "7.3":
+            with self._h5() as f:
+                ds = self._h5_var(f, "events", required=True)
+                for i0 in range(0, self.n_events, chunk_events):
+                    try:
+                        blk = ds[:, i0:i0 + chunk_events]
+                    except Exception as exc:
+                        raise FormatError(self.path, f"cannot read events[{i0}:{i0 + chunk_events}]: "
+                                                     f"{type(exc).__name__}: {exc}", record=i0) from None
+                    yield i0, np.asarray(blk, dtype=np.float64).T
+        else:
+            ev = np.asarray(self._v5_cache["events"])
+            if ev.dtype.kind not in "uifb":
+                raise FormatError(self.path, f"events must be numeric, got dtype {ev.dtype}")
+            for i0 in range(0, self.n_events, chunk_events):
+                yield i0, np.asarray(ev[i0:i0 + chunk_events], dtype=np.float64)
+
+    def _infer_size(self) -> SensorSize:
+        mx = my = 0
+        for i0, b in self._event_blocks(1 << 20):
+            xy = b[:, 1:3]
+            bad = ~np.isfinite(xy).all(axis=1) | (xy < 1).any(axis=1) | (xy > 65536).any(axis=1)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise FormatError(self.path, f"event {i0 + i}: 1-based x, y = {xy[i].tolist()} outside 1..65536",
+                                  record=i0 + i)
+            mx, my = max(mx, int(xy[:, 0].max())), max(my, int(xy[:, 1].max()))
+        if mx == 0:
+            raise FormatError(self.path, "no events, no image and no im_height/im_width: pass sensor_size")
+        return SensorSize(my, mx)
+
+    # -- reader API ---------------------------------------------------------------------------
+    def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
+        ss = self.sensor_size
+        last_t = None
+        for i0, b in self._event_blocks(chunk_events):
+            bad = ~np.isfinite(b).all(axis=1)
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise FormatError(self.path, f"event {i0 + i}: non-finite value {b[i].tolist()}", record=i0 + i)
+            t, x, y, p = b[:, 0], b[:, 1], b[:, 2], b[:, 3]
+            bad = np.abs(t) >= _MAX_SAFE
+            if bad.any():
+                i = int(np.flatnonzero(bad)[0])
+                raise FormatError(self.path, f"event {i0 + i}: t = {t[i]!r} µs is beyond 2^53", record=i0 + i)
+            for name, v, lim, dim in (("x", x, ss.width, "width"), ("y", y, ss.height, "height")):
+                bad = (v != np.floor(v)) | (v < 1) | (v > lim)
+                if bad.any():
+                    i = int(np.flatnonzero(bad)[0])
+                    raise FormatError(self.path, f"event {i0 + i}: 1-based {name} = {v[i]!r} is not in 1..{lim} "
+                                                 f"(sensor {dim})", record=i0 + i)
+            tt = np.rint(t).astype(np.int64)
+            dec = np.flatnonzero(tt[1:] < tt[:-1])
+            if dec.size:
+                i = int(dec[0]) + 1
+                raise FormatError(self.path, f"event {i0 + i}: timestamps must be non-decreasing; {int(tt[i])} µs "
+                                             f"after {int(tt[i - 1])} µs", record=i0 + i)
+            if last_t is not None and tt.size and tt[0] < last_t:
+                raise FormatError(self.path, f"event {i0}: timestamps must be non-decreasing; {int(tt[0])} µs "
+                                             f"after {last_t} µs", record=i0)
+            ev = np.empty(tt.size, EVENT_DTYPE)
+            ev["t"] = tt
+            ev["x"] = (x - 1).astype(np.uint16)
+            ev["y"] = (y - 1).astype(np.uint16)
+            ev["p"] = np.where(p == 1, 1, -1)
+            if ev.size:
+                last_t = int(tt[-1])
+                yield EventChunk(ev)
+
+    def _read_var(self, name: str):
+        """Whole variable in MATLAB axis order (None when absent)."""
+        if self.version == "7.3":
+            with self._h5() as f:
+                ds = self._h5_var(f, name)
+                if ds is None:
+                    return None
+                if isinstance(ds, str):
+                    return np.zeros((0,))
+                try:
+                    return np.asarray(ds[()]).T
+                except Exception as exc:
+                    raise _wrap(self.path, f"cannot read variable {name!r}", exc) from None
+        if self._v5_cache is not None and name in self._v5_cache:
+            return np.asarray(self._v5_cache[name])
+        d = self._v5([name])
+        return None if name not in d else np.asarray(d[name])
+
+    def _times(self, k: int) -> tuple[np.ndarray, np.ndarray]:
+        ti = self._read_var("time_image")
+        if ti is None:
+            raise FormatError(self.path, "MAT-file has an image but no time_image")
+        ti = np.asarray(ti, dtype=np.float64).reshape(-1)
+        if ti.size != k or not np.isfinite(ti).all() or (np.abs(ti) >= _MAX_SAFE).any():
+            raise FormatError(self.path, f"time_image must hold {k} finite µs values, got {ti.size}")
+        ex = self._read_var("exposure")
+        if ex is None:
+            t = np.rint(ti).astype(np.int64)
+            return t, t.copy()
+        ex = np.asarray(ex, dtype=np.float64).reshape(-1)
+        if ex.size == 1:
+            ex = np.full(k, ex[0])
+        if ex.size != k or not np.isfinite(ex).all() or (ex < 0).any() or (ex >= _MAX_SAFE).any():
+            raise FormatError(self.path, f"exposure must hold 1 or {k} non-negative µs values, got {ex.size}")
+        ts = np.rint(ti - ex / 2).astype(np.int64)
+        return ts, ts + np.rint(ex).astype(np.int64)
+
+    def read_frames(self) -> Frames | None:
+        """Frames from ``image`` (H x W x K) with ``time_image``/``exposure`` (see module notes).
+
+        Returns
+        -------
+        Frames or None
+            ``images`` (K, H, W) uint8 (dtype kept) or (K, H, W, 3) for H x W x 3 x K colour;
+            ``encoding`` ``"unknown"``. None when the file has no ``image``.
+        """
+        im = self._read_var("image")
+        if im is None:
+            return None
+        if im.size == 0:
+            return Frames.empty(*self.sensor_size.shape)
+        if im.ndim == 2:
+            frames = im[np.newaxis]
+        elif im.ndim == 3:
+            frames = np.transpose(im, (2, 0, 1))
+        elif im.ndim == 4 and im.shape[2] == 3:
+            frames = np.transpose(im, (3, 0, 1, 2))
+        else:
+            raise FormatError(self.path, f"image must be H x W x K or H x W x 3 x K, got shape {im.shape}")
+        if frames.dtype.kind not in "uif":
+            raise FormatError(self.path, f"image must be numeric, got dtype {frames.dtype}")
+        ts, te = self._times(frames.shape[0])
+        order = np.argsort(ts, kind="stable")
+        try:
+            return Frames(np.ascontiguousarray(frames[order]), ts[order], te[order], encoding="unknown")
+        except ValueError as exc:
+            raise FormatError(self.path, f"invalid frames: {exc}") from None
+
+    def read_hdr(self) -> HDRReferences | None:
+        """HDR references from ``HDR_mat`` (H x W x 3 x K, or H x W x K), timestamped ``time_image``.
+
+        Returns
+        -------
+        HDRReferences or None
+            float32 images (K, H, W, 3) or (K, H, W); ``t_us`` = ``rint(time_image)``. None when
+            the file has no ``HDR_mat``.
+        """
+        hdr = self._read_var("HDR_mat")
+        if hdr is None:
+            return None
+        if hdr.ndim == 4 and hdr.shape[2] == 3:
+            imgs = np.transpose(hdr, (3, 0, 1, 2))
+        elif hdr.ndim == 3 and hdr.shape[2] == 3 and self._count_time_image() == 1:
+            imgs = hdr[np.newaxis]
+        elif hdr.ndim == 3:
+            imgs = np.transpose(hdr, (2, 0, 1))
+        elif hdr.ndim == 2:
+            imgs = hdr[np.newaxis]
+        else:
+            raise FormatError(self.path, f"HDR_mat must be H x W x 3 x K or H x W x K, got shape {hdr.shape}")
+        ti = np.asarray(self._read_var("time_image"), dtype=np.float64).reshape(-1)
+        if ti.size != imgs.shape[0] or not np.isfinite(ti).all():
+            raise FormatError(self.path, f"HDR_mat has {imgs.shape[0]} images but time_image has {ti.size} values")
+        return HDRReferences(imgs.astype(np.float32), np.rint(ti).astype(np.int64))
+
+    def _count_time_image(self) -> int:
+        ti = self._read_var("time_image")
+        return 0 if ti is None else int(np.asarray(ti).size)
+
+
+class AkfMatWriter(EventFileWriter):
+    """Writer of AKF ``.mat`` files in MATLAB v7.3 (HDF5) layout.
+
+    Events go to a resizable, chunked ``events`` dataset (double, MATLAB N x 4, 1-based x and y,
+    p = 1 ON / 0 OFF), appended chunk by chunk, so memory stays bounded. Frames (uint8/uint16/float
+    grey, (K, H, W)) go to ``image`` (MATLAB H x W x K) with ``time_image`` (mid-exposure µs) and
+    ``exposure`` (µs); ``im_height``/``im_width`` hold the sensor size. ``ct`` and ``f_Q`` are
+    written from the options ``ct=``/``f_Q=`` or, failing those, from
+    ``metadata.provenance["akf_mat"]``.
+
+    Every variable carries the ``MATLAB_class`` attribute, and the 512-byte user block starts with
+    the MATLAB v7.3 header (:func:`matlab_v73_header`), so MATLAB ``load`` and MATLAB-aware HDF5
+    readers accept the file.
+    """
+
+    format_name = "akf_mat"
+    supports = frozenset({"frames"})
+
+    def _open(self) -> None:
+        import h5py
+        self._f = h5py.File(self.tmp_path, "w", userblock_size=512, libver="earliest")
+        self._ev = self._f.create_dataset("events", shape=(4, 0), maxshape=(4, None), dtype="<f8",
+                                          chunks=(4, 1 << 15))
+        self._ev.attrs["MATLAB_class"] = np.bytes_(b"double")
+        self._img = None
+        self._last_frame_t: int | None = None
+
+    def _var(self, name: str, matlab_array) -> None:
+        a = np.asarray(matlab_array)
+        if a.ndim < 2:
+            a = a.reshape(1, -1) if a.ndim == 1 else a.reshape(1, 1)
+        ds = self._f.create_dataset(name, data=np.ascontiguousarray(a.T))
+        ds.attrs["MATLAB_class"] = np.bytes_(_MATLAB_CLASS[a.dtype])
+
+    def _write_events(self, events: np.ndarray) -> None:
+        n0 = self._ev.shape[1]
+        blk = np.empty((4, len(events)), np.float64)
+        blk[0] = events["t"]
+        blk[1] = events["x"].astype(np.float64) + 1
+        blk[2] = events["y"].astype(np.float64) + 1
+        blk[3] = (events["p"] > 0)
+        if np.abs(events["t"]).max() >= (1 << 53):
+            raise ValueError("AKF .mat stores t as double: timestamps must be below 2^53 µs")
+        self._ev.resize((4, n0 + len(events)))
+        self._ev[:, n0:] = blk
+
+    def _write_frames(self, frames: Frames) -> None:
+        im = frames.images
+        if im.ndim != 3:
+            raise ValueError(f"AKF .mat frames must be grey (K, H, W), got shape {im.shape}")
+        if im.dtype not in _MATLAB_CLASS:
+            raise ValueError(f"unsupported frame dtype {im.dtype} for a MATLAB array")
+        k, h, w = im.shape
+        if self._img is None:
+            self._img = self._f.create_dataset("image", shape=(0, w, h), maxshape=(None, w, h), dtype=im.dtype,
+                                               chunks=(1, w, h))
+            self._img.attrs["MATLAB_class"] = np.bytes_(_MATLAB_CLASS[im.dtype])
+            self._ti = self._f.create_dataset("time_image", shape=(1, 0), maxshape=(1, None), dtype="<f8",
+                                              chunks=(1, 1024))
+            self._ex = self._f.create_dataset("exposure", shape=(1, 0), maxshape=(1, None), dtype="<f8",
+                                              chunks=(1, 1024))
+            for ds in (self._ti, self._ex):
+                ds.attrs["MATLAB_class"] = np.bytes_(b"double")
+        elif self._img.shape[1:] != (w, h) or self._img.dtype != im.dtype:
+            raise ValueError(f"frames must all have the same shape and dtype; got {im.shape[1:]} {im.dtype} after "
+                             f"{(self._img.shape[2], self._img.shape[1])} {self._img.dtype}")
+        if self._last_frame_t is not None and frames.t_start_us[0] < self._last_frame_t:
+            raise ValueError("frames must be appended in order of exposure start")
+        n0 = self._img.shape[0]
+        self._img.resize((n0 + k, w, h))
+        self._img[n0:] = np.transpose(im, (0, 2, 1))
+        ex = (frames.t_end_us - frames.t_start_us).astype(np.float64)
+        ti = frames.t_start_us.astype(np.float64) + ex / 2
+        for ds, v in ((self._ti, ti), (self._ex, ex)):
+            ds.resize((1, n0 + k))
+            ds[0, n0:] = v
+        self._last_frame_t = int(frames.t_start_us[-1])
+
+    def _finish(self) -> None:
+        if self._ev.shape[1] == 0:  # MATLAB's own encoding of an empty (0 x 4) array
+            del self._f["events"]
+            ds = self._f.create_dataset("events", data=np.array([0, 4], np.uint64))
+            ds.attrs["MATLAB_class"] = np.bytes_(b"double")
+            ds.attrs["MATLAB_empty"] = np.uint8(1)
+        ss = self.sensor_size
+        if ss is not None:
+            self._var("im_height", np.float64(ss.height))
+            self._var("im_width", np.float64(ss.width))
+        prov = (self.metadata.provenance or {}).get("akf_mat") or {}
+        ct = self.options.get("ct", prov.get("ct"))
+        fq = self.options.get("f_Q", prov.get("f_Q"))
+        if ct is not None:
+            self._var("ct", np.asarray(ct, dtype=np.float64))
+        if fq is not None:
+            self._var("f_Q", np.asarray(fq, dtype=np.float64).reshape(-1, 1))
+        self._f.close()
+        with open(self.tmp_path, "r+b") as fh:
+            fh.write(matlab_v73_header())
+
+    def _cleanup(self) -> None:
+        f = getattr(self, "_f", None)
+        if f is not None:
+            try:
+                f.close()
+            except Exception:
+                pass
+
+
+READERS = {"akf_mat": AkfMatReader}
+WRITERS = {"akf_mat": AkfMatWriter}
