@@ -151,7 +151,10 @@ def procedural_recording(sensor_size=SensorSize(90, 120), duration_us: int = 500
         t_hdr = (ts + te) // 2
     else:
         t_hdr = t0_us + np.arange(0, duration_us + 1, 1e6 / hdr_rate_hz).astype(np.int64)
-    hdr = HDRReferences(np.stack([scene.intensity(t) for t in t_hdr]).astype(np.float32), t_hdr)
+    hdr_images = np.zeros((len(t_hdr), h, w), np.float32)
+    for k, t in enumerate(t_hdr):
+        hdr_images[k] = scene.intensity(t)
+    hdr = HDRReferences(hdr_images, t_hdr)
     md = Metadata(event_camera=CameraInfo(ss, "procedural ideal DVS"),
                   frame_camera=CameraInfo(ss, "procedural 8-bit gamma-2.2 camera"),
                   provenance={"generator": "hybridhdr.synthetic.procedural_recording", "seed": seed,

@@ -1,15 +1,17 @@
-"""Numba kernels of the reconstruction filters (private; use the wrappers in ``akf``/``baselines``).
+"""Numba kernels of the reconstruction filters (private; the wrappers are in ``akf``/``baselines``).
 
-Every kernel takes separate contiguous 1-D arrays: events as ``t`` (int64 µs), ``x``, ``y``
-(uint16) and ``p`` (int8, ±1); per-pixel state flattened row-major (index ``y * width + x``).
-Rates are per second and are applied to Δt converted from µs to s inside the kernel.
+Every kernel takes separate contiguous 1-D event arrays: ``t`` (int64 µs), ``x``, ``y`` (uint16)
+and ``p`` (int8, ±1). Per-pixel state is flattened row-major (index ``y * width + x``) and packed
+one record per pixel (array-of-structures, 64 bytes = one cache line for the AKF), because the
+event stream touches pixels in random order and one cache miss per event beats eight. Times in
+the state are float64 µs (exact below 2**53 µs, checked by the wrappers); rates are per second
+and are applied to Δt converted from µs to s inside the kernels.
 
-Event kernels process the events ``[i0, i1)`` whose row lies in ``[row_lo, row_hi)``; events in
-the two neighbouring *ghost* rows ``row_lo - 1`` and ``row_hi`` only update the last-event time
-``te`` (which the isolated-pixel noise reads), and all other events are skipped. With
-``row_lo = 0, row_hi = height`` this is the serial filter; two workers on disjoint row bands,
-each with its own ``te`` array, therefore do exactly the serial arithmetic for their pixels and
-produce bit-identical results.
+Event kernels process the events ``[i0, i1)`` whose row lies in ``[row_lo, row_hi)``. For the AKF,
+events in the two *ghost* rows ``row_lo - 1`` and ``row_hi`` only update the last-event time
+``te`` read by the isolated-pixel noise, and all other events are skipped. With ``row_lo = 0,
+row_hi = height`` this is the serial filter; workers on disjoint row bands, each with its own
+``te`` array, do exactly the serial arithmetic for their pixels, so the result is bit-identical.
 
 Equation numbers refer to Wang, Ng, Scheerlinck, Mahony, "An Asynchronous Kalman Filter for
 Hybrid Event Cameras", ICCV 2021, doi:10.1109/ICCV48922.2021.00050.
@@ -27,42 +29,51 @@ US = 1e-6  # seconds per microsecond
 NOISE_PAPER = 0
 NOISE_REFERENCE = 1
 
+# AKF record fields (columns of the (n_pixels, 8) float64 state array)
+A_L, A_P, A_LA, A_RINV, A_BETA, A_TU, A_KLOG, A_LASTEP = range(8)
+AKF_FIELDS = 8
+# CF record fields (columns of the (n_pixels, 4) float64 state array)
+C_L, C_LF, C_ALPHA, C_TU = range(4)
+CF_FIELDS = 4
+
 
 @njit(cache=True, nogil=True)
-def log1p_over_x(x):
-    """``log1p(x) / x`` with its limit 1 at ``x = 0`` (series below |x| < 1e-4, error < 1e-17)."""
-    if abs(x) < 1e-4:
-        return 1.0 - x * (0.5 - x * (1.0 / 3.0 - x * 0.25))
-    return math.log1p(x) / x
+def rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
+    """∫ R⁻¹(s) ds over [tu0, t1] (µs in, s·R⁻¹ out) for R(t) = R_k (1 + beta u), eq. 7.
 
-
-@njit(cache=True, nogil=True)
-def rinv_integral(rinv, beta, t0, t1, seg_t0, seg_inv_t):
-    """∫ R⁻¹(s) ds over [t0, t1] (µs in, seconds out) for R(t) = R_k (1 + beta u), eq. 7.
-
-    ``u = (t - seg_t0) * seg_inv_t`` runs from 0 at τ_k to 1 at τ_{k+1}; ``rinv`` is 1/R_k in
-    1/(log² s). Exact: ∫ = rinv Δt / (1 + beta u0) · log1p(x)/x with x = beta Δu / (1 + beta u0).
-    ``beta = 0`` (held covariance) gives ``rinv * Δt``.
+    ``u = (t - seg_t0) * seg_inv_t`` runs from 0 at τ_k to 1 at τ_{k+1}; ``rinv = 1/R_k`` in
+    1/(log² s) and ``klog = rinv T_s / beta`` (``T_s`` the segment length in s). The integral is
+    ``rinv Δt / w0 · log1p(x)/x = klog · log1p(x)`` with ``w0 = 1 + beta u0`` and
+    ``x = beta Δu / w0``; for |x| < 1e-2 an 8-term series of log1p(x)/x is used (truncation
+    < 1e-17). ``beta = 0`` (covariance held, or causal mode) gives ``rinv Δt``.
     """
-    dt_s = (t1 - t0) * US
+    dt = t1 - tu0
     if beta == 0.0:
-        return rinv * dt_s
-    w0 = 1.0 + beta * ((t0 - seg_t0) * seg_inv_t)
-    x = beta * ((t1 - t0) * seg_inv_t) / w0
-    return rinv * dt_s / w0 * log1p_over_x(x)
+        return rinv * (dt * US)
+    w0 = 1.0 + beta * ((tu0 - seg_t0) * seg_inv_t)
+    x = beta * (dt * seg_inv_t) / w0
+    if abs(x) < 1e-2:
+        s = 1.0 - x * (0.5 - x * (1.0 / 3.0 - x * (0.25 - x * (0.2 - x * (1.0 / 6.0 - x * (
+            1.0 / 7.0 - x * 0.125))))))
+        return rinv * (dt * US) / w0 * s
+    return klog * math.log1p(x)
 
 
 @njit(cache=True, nogil=True)
-def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height,
-               L, P, tu, te, la, rinv, beta, la_step, has_la_step, seg_t0, seg_inv_t,
-               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
-    """AKF update at each event (eqs. 15, 17, 20, 21 with Q of eq. 2 / §3.1.1).
+def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_step,
+               seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+    """AKF update at each event (eqs. 15, 17, 20, 21 with the Q of eq. 2 and §3.1.1).
 
     For the event at pixel p and time t_i, in order: propagate L̂ and P from the last update
-    ``tu`` with the stable closed forms of eqs. 17 and 20 (g = P ∫R⁻¹, P ← P/(1+g),
+    ``tu`` with the stable closed forms of eqs. 17 and 20 (g = P ∫R⁻¹; P ← P/(1+g);
     L̂ ← L^A + (L̂ - L^A)/(1+g)); add Q = Q_proc + Q_iso + Q_ref to P (eq. 21); jump L̂ by
-    +c_on or -c_off (eq. 15); set ``tu = te = t_i``; advance L^A by ``σ la_step`` when the
-    measurement is event-driven (frame augmentation hook).
+    +c_on or -c_off (eq. 15); set ``tu = te = t_i``; when the measurement is event-driven
+    (``has_la_step``, frame augmentation), move L^A by ±``la_step``.
+
+    Q (``noise_form`` 0, paper §3.1.1): σ²_proc (t_i - t_{i-1}) + σ²_iso (t_i - t*) + σ²_ref·[t_i -
+    t_{i-1} ≤ ρ]; ``noise_form`` 1 (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) +
+    σ_r (t_i - t_{i-1})·[t_i - t_{i-1} ≤ ρ]. t* is the latest event time in the 3×3 window
+    including p (clipped at the border); t_{i-1} starts at the filter's start time.
 
     Returns the number of events applied to pixels of the band.
     """
@@ -77,121 +88,146 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height,
         if yy < row_lo or yy >= row_hi:  # ghost row: neighbour time only
             te[pix] = ti
             continue
+        tif = np.float64(ti)
+        tu0 = S[pix, A_TU]
         # -- propagate to t_i (eqs. 17, 20) --------------------------------------------------
-        tu0 = tu[pix]
-        integ = rinv_integral(rinv[pix], beta[pix], tu0, ti, seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + P[pix] * integ)
-        lav = la[pix]
-        lhat = lav + (L[pix] - lav) * d
-        pp = P[pix] * d
+        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], tu0, tif,
+                              seg_t0, seg_inv_t)
+        pp = S[pix, A_P]
+        d = 1.0 / (1.0 + pp * integ)
+        lav = S[pix, A_LA]
+        lhat = lav + (S[pix, A_L] - lav) * d
+        pp = pp * d
         # -- event noise (eq. 2, §3.1.1) ------------------------------------------------------
         te0 = te[pix]
-        tstar = te0
-        ylo = yy - 1 if yy > 0 else yy
-        yhi = yy + 1 if yy + 1 < height else yy
-        xlo = xx - 1 if xx > 0 else xx
-        xhi = xx + 1 if xx + 1 < width else xx
-        for yn in range(ylo, yhi + 1):
-            base = yn * width
-            for xn in range(xlo, xhi + 1):
-                v = te[base + xn]
-                if v > tstar:
-                    tstar = v
+        if xx > 0 and yy > 0 and xx + 1 < width and yy + 1 < height:
+            b = pix - width
+            tstar = max(max(te[b - 1], te[b]), te[b + 1])
+            tstar = max(tstar, max(max(te[pix - 1], te0), te[pix + 1]))
+            b = pix + width
+            tstar = max(tstar, max(max(te[b - 1], te[b]), te[b + 1]))
+        else:
+            tstar = te0
+            for yn in range(max(yy - 1, 0), min(yy + 2, height)):
+                for xn in range(max(xx - 1, 0), min(xx + 2, width)):
+                    v = te[yn * width + xn]
+                    if v > tstar:
+                        tstar = v
         dte = ti - te0
-        q_iso = s_iso * ((ti - tstar) * US)
+        q = s_iso * ((ti - tstar) * US)
         if noise_form == 0:
-            q = s_proc * (dte * US) + q_iso
+            q += s_proc * (dte * US)
             if dte <= rho_us:
                 q += s_ref
         else:
-            q = s_proc * ((ti - tu0) * US) + q_iso
+            q += s_proc * ((tif - tu0) * US)
             if dte <= rho_us:
                 q += s_ref * (dte * US)
-        P[pix] = pp + q
+        S[pix, A_P] = pp + q
         # -- event jump (eq. 15) --------------------------------------------------------------
         if p[i] > 0:
-            L[pix] = lhat + c_on
+            S[pix, A_L] = lhat + c_on
             if has_la_step:
-                la[pix] = lav + la_step[pix]
+                S[pix, A_LA] = lav + S[pix, A_LASTEP]
         else:
-            L[pix] = lhat - c_off
+            S[pix, A_L] = lhat - c_off
             if has_la_step:
-                la[pix] = lav - la_step[pix]
-        tu[pix] = ti
+                S[pix, A_LA] = lav - S[pix, A_LASTEP]
+        S[pix, A_TU] = tif
         te[pix] = ti
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def akf_propagate(L, P, tu, la, rinv, beta, seg_t0, seg_inv_t, t_to, pix_lo, pix_hi):
-    """Propagate pixels ``[pix_lo, pix_hi)`` to ``t_to`` (eqs. 17, 20) and set ``tu = t_to``.
+def akf_propagate(S, seg_t0, seg_inv_t, t_to, pix_lo, pix_hi):
+    """Propagate pixels ``[pix_lo, pix_hi)`` to ``t_to`` µs (eqs. 17, 20); set ``tu = t_to``.
 
     Used only where L^A or R changes (a frame switch), never at output times.
     """
     for pix in range(pix_lo, pix_hi):
-        integ = rinv_integral(rinv[pix], beta[pix], tu[pix], t_to, seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + P[pix] * integ)
-        lav = la[pix]
-        L[pix] = lav + (L[pix] - lav) * d
-        P[pix] = P[pix] * d
-        tu[pix] = t_to
+        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_to,
+                              seg_t0, seg_inv_t)
+        d = 1.0 / (1.0 + S[pix, A_P] * integ)
+        lav = S[pix, A_LA]
+        S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
+        S[pix, A_P] = S[pix, A_P] * d
+        S[pix, A_TU] = t_to
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True)
-def akf_output(L, P, tu, la, rinv, beta, seg_t0, seg_inv_t, t_out, offset, out, pix_lo, pix_hi):
-    """Write ``exp(L̂(t_out)) - I0`` (float32) into ``out`` without changing the state (eq. 17)."""
+def akf_output(S, seg_t0, seg_inv_t, t_out, offset, out_lin, out_log, out_var, pix_lo, pix_hi):
+    """State at ``t_out`` µs in closed form (eqs. 17, 20) without changing it.
+
+    Writes ``exp(L̂) - offset`` into ``out_lin`` (float32) and, when they have the full size,
+    L̂ into ``out_log`` and P into ``out_var`` (float64; pass empty arrays to skip).
+    """
+    want_log = out_log.shape[0] > 0
+    want_var = out_var.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        integ = rinv_integral(rinv[pix], beta[pix], tu[pix], t_out, seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + P[pix] * integ)
-        lav = la[pix]
-        out[pix] = math.exp(lav + (L[pix] - lav) * d) - offset
+        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_out,
+                              seg_t0, seg_inv_t)
+        d = 1.0 / (1.0 + S[pix, A_P] * integ)
+        lav = S[pix, A_LA]
+        lhat = lav + (S[pix, A_L] - lav) * d
+        out_lin[pix] = math.exp(lhat) - offset
+        if want_log:
+            out_log[pix] = lhat
+        if want_var:
+            out_var[pix] = S[pix, A_P] * d
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True)
-def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, L, tu, lf, alpha, c_on, c_off, event_decay):
+def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay):
     """Complementary filter per event (Scheerlinck et al. 2018): dL̂/dt = e - α(L̂ - L^F).
 
-    Between events L̂ = L^F + (L̂_u - L^F) exp(-α Δt - event_decay) (exact; ``event_decay`` is
-    the per-event decay of the high-pass variant, 0 for CF), then L̂ += +c_on / -c_off.
+    Between events L̂ = L^F + (L̂_u - L^F) exp(-α Δt) (exact for a held L^F); at an event the
+    deviation is further scaled by exp(-event_decay) (the per-event decay of the high-pass
+    variant; 0 for CF) and L̂ jumps by +c_on or -c_off.
     """
     n = 0
     for i in range(i0, i1):
         yy = np.int64(y[i])
         if yy < row_lo or yy >= row_hi:
             continue
-        ti = t[i]
+        tif = np.float64(t[i])
         pix = yy * width + np.int64(x[i])
-        lfv = lf[pix]
-        b = math.exp(-alpha[pix] * ((ti - tu[pix]) * US) - event_decay)
-        lhat = lfv + (L[pix] - lfv) * b
+        lfv = C[pix, C_LF]
+        b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
+        lhat = lfv + (C[pix, C_L] - lfv) * b
         if p[i] > 0:
-            L[pix] = lhat + c_on
+            C[pix, C_L] = lhat + c_on
         else:
-            L[pix] = lhat - c_off
-        tu[pix] = ti
+            C[pix, C_L] = lhat - c_off
+        C[pix, C_TU] = tif
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def cf_propagate(L, tu, lf, alpha, t_to, pix_lo, pix_hi):
-    """Propagate the CF state of pixels ``[pix_lo, pix_hi)`` to ``t_to`` (exact exponential)."""
+def cf_propagate(C, t_to, pix_lo, pix_hi):
+    """Propagate the CF state of pixels ``[pix_lo, pix_hi)`` to ``t_to`` µs (exact exponential)."""
     for pix in range(pix_lo, pix_hi):
-        lfv = lf[pix]
-        L[pix] = lfv + (L[pix] - lfv) * math.exp(-alpha[pix] * ((t_to - tu[pix]) * US))
-        tu[pix] = t_to
+        lfv = C[pix, C_LF]
+        C[pix, C_L] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_to - C[pix, C_TU]) * US))
+        C[pix, C_TU] = t_to
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True)
-def cf_output(L, tu, lf, alpha, t_out, offset, out, pix_lo, pix_hi):
+def cf_output(C, t_out, offset, out_lin, pix_lo, pix_hi):
     """Write ``exp(L̂(t_out)) - offset`` (float32) without changing the CF state."""
     for pix in range(pix_lo, pix_hi):
-        lfv = lf[pix]
-        out[pix] = math.exp(lfv + (L[pix] - lfv) * math.exp(-alpha[pix] * ((t_out - tu[pix]) * US))) - offset
+        lfv = C[pix, C_LF]
+        lhat = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_out - C[pix, C_TU]) * US))
+        out_lin[pix] = math.exp(lhat) - offset
     return pix_hi - pix_lo
 
 
+def aligned_state(n_pixels: int, n_fields: int) -> np.ndarray:
+    """Zeroed C-contiguous float64 array (n_pixels, n_fields) whose rows start on 64-byte lines."""
+    raw = np.zeros(n_pixels * n_fields + 8, dtype=np.float64)
+    off = (-raw.ctypes.data % 64) // 8
+    return raw[off:off + n_pixels * n_fields].reshape(n_pixels, n_fields)

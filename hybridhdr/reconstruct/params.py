@@ -1,0 +1,326 @@
+"""Parameters of the reconstruction methods: frozen, keyword-only dataclasses with units in names.
+
+Each class validates itself in ``__post_init__``, loads from a dict or a TOML file
+(``from_dict`` / ``from_toml``), and offers presets as named constructors.
+
+References
+----------
+Z. Wang, Y. Ng, C. Scheerlinck, R. Mahony, "An Asynchronous Kalman Filter for Hybrid Event
+Cameras", ICCV 2021, doi:10.1109/ICCV48922.2021.00050 (defaults: §6; table in
+``../shared/reference/akf.md`` §5).
+C. Scheerlinck, N. Barnes, R. Mahony, "Continuous-time Intensity Estimation Using Event
+Cameras", ACCV 2018, doi:10.1007/978-3-030-20873-8_20 (CF, high-pass filter).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+from pathlib import Path
+
+__all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
+           "DEFAULT_INTENSITY_OFFSET"]
+
+#: I0 of eq. 8, in the units of the profile's scaled irradiance (1 = the brightest code).
+#: The paper gives no value; the reference code uses 1 (so L ∈ [0, ln 2]), which compresses the
+#: log scale the events live on. We default to 1/255 (one 8-bit code), which keeps
+#: log(I + I0) ≈ log I over the well-exposed range; ``AKFParams.reference_code()`` uses 1.
+DEFAULT_INTENSITY_OFFSET = 1.0 / 255.0
+
+
+def _load_toml(path) -> dict:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python < 3.11
+        import tomli as tomllib
+    with open(Path(path), "rb") as f:
+        return tomllib.load(f)
+
+
+class _ParamsMixin:
+    """from_dict / from_toml / to_dict / replace for the frozen parameter dataclasses."""
+
+    _toml_table: str = ""
+
+    @classmethod
+    def from_dict(cls, d: dict):
+        """Build from a mapping of field names; unknown names raise ``ValueError``."""
+        if not isinstance(d, dict):
+            raise TypeError(f"{cls.__name__}.from_dict expects a dict, got {type(d).__name__}")
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(d) - names)
+        if unknown:
+            raise ValueError(f"unknown {cls.__name__} parameter(s) {unknown}; expected some of {sorted(names)}")
+        return cls(**d)
+
+    @classmethod
+    def from_toml(cls, path):
+        """Read a TOML file: either top-level keys or a table named after the method
+        (``[akf]``, ``[cf]``, ``[highpass]``, ``[direct]``, ``[frames]``)."""
+        d = _load_toml(path)
+        if cls._toml_table in d and isinstance(d[cls._toml_table], dict):
+            d = d[cls._toml_table]
+        d = {k: v for k, v in d.items() if not isinstance(v, dict)}
+        return cls.from_dict(d)
+
+    def to_dict(self) -> dict:
+        return dataclasses.asdict(self)
+
+    def replace(self, **changes):
+        """A copy with some fields changed (validated again)."""
+        return dataclasses.replace(self, **changes)
+
+    # -- validation helpers ---------------------------------------------------------------------
+    def _num(self, name: str, *, lo=None, lo_open=False, hi=None, allow_none=False):
+        v = getattr(self, name)
+        if v is None and allow_none:
+            return
+        if isinstance(v, bool) or not isinstance(v, (int, float)):
+            raise TypeError(f"{type(self).__name__}.{name} must be a number, got {type(v).__name__} {v!r}")
+        v = float(v)
+        if not math.isfinite(v):
+            raise ValueError(f"{type(self).__name__}.{name} must be finite, got {v}")
+        if lo is not None and (v < lo or (lo_open and v == lo)):
+            raise ValueError(f"{type(self).__name__}.{name} must be {'>' if lo_open else '>='} {lo}, got {v}")
+        if hi is not None and v > hi:
+            raise ValueError(f"{type(self).__name__}.{name} must be <= {hi}, got {v}")
+        object.__setattr__(self, name, v)
+
+    def _choice(self, name: str, choices):
+        v = getattr(self, name)
+        if v not in choices:
+            raise ValueError(f"{type(self).__name__}.{name} must be one of {list(choices)}, got {v!r}")
+
+    def _bool(self, name: str):
+        v = getattr(self, name)
+        if not isinstance(v, bool):
+            raise TypeError(f"{type(self).__name__}.{name} must be a bool, got {type(v).__name__} {v!r}")
+
+
+class _ThresholdMixin:
+    @property
+    def c_on(self) -> float:
+        """ON contrast threshold in natural-log units."""
+        return self.contrast_threshold if self.contrast_threshold_on is None else self.contrast_threshold_on
+
+    @property
+    def c_off(self) -> float:
+        """OFF contrast threshold (positive) in natural-log units."""
+        return self.contrast_threshold if self.contrast_threshold_off is None else self.contrast_threshold_off
+
+    def _check_thresholds(self):
+        self._num("contrast_threshold", lo=0, lo_open=True)
+        self._num("contrast_threshold_on", lo=0, lo_open=True, allow_none=True)
+        self._num("contrast_threshold_off", lo=0, lo_open=True, allow_none=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class AKFParams(_ParamsMixin, _ThresholdMixin):
+    """Parameters of the Asynchronous Kalman Filter (Wang et al., ICCV 2021).
+
+    Defaults are the paper's (§6) where it gives values, else the reference code's
+    (``ziweiWWANG/AKF:run_akf.m``), as tabulated in ``akf.md`` §5. Rates are per second.
+
+    Parameters
+    ----------
+    contrast_threshold : float
+        Event contrast threshold c in natural-log units (eq. 1); the paper gives none, the
+        reference code's comments use 0.1.
+    contrast_threshold_on, contrast_threshold_off : float or None
+        Separate ON / OFF thresholds (positive, log units); ``None`` means ``contrast_threshold``.
+    process_noise_per_s : float
+        σ²_proc in log²/s (§3.1.1; paper §6: 5e-4).
+    isolated_noise_per_s : float
+        σ²_iso in log²/s (§3.1.1; paper §6: 0.03).
+    refractory_noise : float
+        σ²_ref: log² (paper form, §6: 0.01) or log²/s (reference form).
+    refractory_period_us : int
+        ρ, the refractory-period bound in µs (§3.1.1 gives none; reference code 10 000 µs).
+    noise_model : {"paper", "reference_code"}
+        Form of Q (akf.md §1): the paper's (time since the previous event for Q_proc, constant
+        Q_ref) or the reference code's (time since the last update, Q_ref ∝ interval).
+    initial_covariance : float
+        P at initialisation from the first frame, log² (§6: "initialised to 0.01").
+    intensity_offset : float
+        I0 of eq. 8, in scaled-irradiance units (brightest code = 1).
+    bias_correction : bool
+        Subtract R/2 from log(I + I0) (eq. 8).
+    covariance_interpolation : {"linear", "hold"}
+        R between frames: eq. 7's linear interpolation (exactly integrated; offline mode only)
+        or held at the frame's value.
+    frame_precision_scale : float or None
+        Overrides the camera profile's 1/σ²_im (eq. 6; §6: 7e5 DAVIS240C, 7e7 FLIR).
+    """
+
+    _toml_table = "akf"
+
+    contrast_threshold: float = 0.1  # c, log units; reference-code comments (akf.md §5)
+    contrast_threshold_on: float | None = None
+    contrast_threshold_off: float | None = None
+    process_noise_per_s: float = 5e-4  # σ²_proc, paper §6
+    isolated_noise_per_s: float = 0.03  # σ²_iso, paper §6
+    refractory_noise: float = 0.01  # σ²_ref, paper §6
+    refractory_period_us: int = 10_000  # ρ, reference code run_akf.m
+    noise_model: str = "paper"  # eq. 2 / §3.1.1
+    initial_covariance: float = 0.01  # paper §6 "initialised to 0.01"
+    intensity_offset: float = DEFAULT_INTENSITY_OFFSET  # I0, eq. 8 (no value in the paper)
+    bias_correction: bool = True  # eq. 8
+    covariance_interpolation: str = "linear"  # eq. 7
+    frame_precision_scale: float | None = None  # 1/σ²_im, eq. 6 (None: from the profile)
+
+    def __post_init__(self):
+        self._check_thresholds()
+        self._num("process_noise_per_s", lo=0)
+        self._num("isolated_noise_per_s", lo=0)
+        self._num("refractory_noise", lo=0)
+        v = self.refractory_period_us
+        if isinstance(v, bool) or not isinstance(v, int) or v < 0:
+            raise ValueError(f"AKFParams.refractory_period_us must be an int >= 0 µs, got {v!r}")
+        self._choice("noise_model", ("paper", "reference_code"))
+        self._num("initial_covariance", lo=0, lo_open=True)
+        self._num("intensity_offset", lo=0, lo_open=True)
+        self._bool("bias_correction")
+        self._choice("covariance_interpolation", ("linear", "hold"))
+        self._num("frame_precision_scale", lo=0, lo_open=True, allow_none=True)
+
+    @classmethod
+    def paper(cls, **overrides) -> "AKFParams":
+        """The paper's §6 settings (the defaults)."""
+        return cls(**overrides)
+
+    @classmethod
+    def reference_code(cls, **overrides) -> "AKFParams":
+        """Settings of ``ziweiWWANG/AKF:run_akf.m`` (akf.md §5): σ_p 5e-3, σ_r 0.05 (per s),
+        p_ini 0.09, I0 = 1, no eq. 8 correction, reference-code noise form."""
+        d = dict(process_noise_per_s=5e-3, isolated_noise_per_s=0.03, refractory_noise=0.05,
+                 refractory_period_us=10_000, noise_model="reference_code", initial_covariance=0.09,
+                 intensity_offset=1.0, bias_correction=False)
+        d.update(overrides)
+        return cls(**d)
+
+
+@dataclass(frozen=True, kw_only=True)
+class CFParams(_ParamsMixin, _ThresholdMixin):
+    """Complementary filter (Scheerlinck et al., ACCV 2018): dL̂/dt = e - α(L̂ - L^F).
+
+    Parameters
+    ----------
+    cutoff_hz : float
+        Crossover frequency f_c in Hz; α = 2π f_c rad/s (akf.md §7: the ROS implementation's
+        default 0.5 Hz → α = π rad/s). 0 integrates events without frame correction.
+    contrast_threshold, contrast_threshold_on, contrast_threshold_off : float
+        As in :class:`AKFParams` (log units; 0.1 in the ROS implementation).
+    intensity_offset : float
+        Offset in L^F = log(I + I0) (scaled-irradiance units).
+    adaptive_gain : bool
+        Per-pixel HDR-adaptive gain: α is multiplied by ``adaptive_gain_scale`` where the frame
+        is under- or over-exposed (I outside [``adaptive_low``, ``adaptive_high``]), so that
+        events dominate there (ACCV 2018, adaptive gain; the exact published form is not
+        verified here).
+    adaptive_gain_scale : float
+        Factor on α at badly exposed pixels, in [0, 1].
+    adaptive_low, adaptive_high : float
+        Well-exposed range of the scaled irradiance I (0..1).
+    """
+
+    _toml_table = "cf"
+
+    cutoff_hz: float = 0.5
+    contrast_threshold: float = 0.1
+    contrast_threshold_on: float | None = None
+    contrast_threshold_off: float | None = None
+    intensity_offset: float = DEFAULT_INTENSITY_OFFSET
+    adaptive_gain: bool = False
+    adaptive_gain_scale: float = 0.1
+    adaptive_low: float = 0.05
+    adaptive_high: float = 0.95
+
+    def __post_init__(self):
+        self._check_thresholds()
+        self._num("cutoff_hz", lo=0)
+        self._num("intensity_offset", lo=0, lo_open=True)
+        self._bool("adaptive_gain")
+        self._num("adaptive_gain_scale", lo=0, hi=1)
+        self._num("adaptive_low", lo=0, hi=1)
+        self._num("adaptive_high", lo=0, hi=1)
+        if self.adaptive_low >= self.adaptive_high:
+            raise ValueError(f"CFParams.adaptive_low ({self.adaptive_low}) must be below "
+                             f"adaptive_high ({self.adaptive_high})")
+
+    @property
+    def alpha_rad_per_s(self) -> float:
+        """α = 2π·cutoff_hz in rad/s."""
+        return 2.0 * math.pi * self.cutoff_hz
+
+    @classmethod
+    def fixed(cls, **overrides) -> "CFParams":
+        """Fixed gain, the ROS implementation's defaults (0.5 Hz, c = 0.1)."""
+        return cls(**overrides)
+
+    @classmethod
+    def adaptive(cls, **overrides) -> "CFParams":
+        """HDR-adaptive per-pixel gain."""
+        overrides.setdefault("adaptive_gain", True)
+        return cls(**overrides)
+
+
+@dataclass(frozen=True, kw_only=True)
+class HighPassParams(_ParamsMixin, _ThresholdMixin):
+    """High-pass filter on events only: the CF with L^F = 0 (AKF paper §2; ACCV 2018).
+
+    Output is the relative intensity exp(L̂) (1 = unchanged since the start).
+
+    Parameters
+    ----------
+    cutoff_hz : float
+        f_c in Hz, α = 2π f_c (akf.md §7: 0.06 Hz in ``pure_event_reconstruction``).
+    event_decay : float
+        Extra dimensionless decay exp(-event_decay) of L̂ at each event (the ROS code's α_e,
+        0.06 there; 0 by default, the pure high-pass filter).
+    """
+
+    _toml_table = "highpass"
+
+    cutoff_hz: float = 0.06
+    contrast_threshold: float = 0.1
+    contrast_threshold_on: float | None = None
+    contrast_threshold_off: float | None = None
+    event_decay: float = 0.0
+
+    def __post_init__(self):
+        self._check_thresholds()
+        self._num("cutoff_hz", lo=0)
+        self._num("event_decay", lo=0)
+
+    @property
+    def alpha_rad_per_s(self) -> float:
+        return 2.0 * math.pi * self.cutoff_hz
+
+
+@dataclass(frozen=True, kw_only=True)
+class DirectParams(_ParamsMixin, _ThresholdMixin):
+    """Direct integration: L̂ = log(I_k + I0) + Σσc since the last frame (Brandli et al. 2014)."""
+
+    _toml_table = "direct"
+
+    contrast_threshold: float = 0.1
+    contrast_threshold_on: float | None = None
+    contrast_threshold_off: float | None = None
+    intensity_offset: float = DEFAULT_INTENSITY_OFFSET
+
+    def __post_init__(self):
+        self._check_thresholds()
+        self._num("intensity_offset", lo=0, lo_open=True)
+
+
+@dataclass(frozen=True, kw_only=True)
+class FramesParams(_ParamsMixin):
+    """Frames only: ``interpolation`` "zoh" (zero-order hold) or "linear" (in linear intensity)."""
+
+    _toml_table = "frames"
+
+    interpolation: str = "zoh"
+
+    def __post_init__(self):
+        self._choice("interpolation", ("zoh", "linear"))

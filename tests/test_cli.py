@@ -1,0 +1,98 @@
+"""The command line: help, info on the sample files, convert, demo."""
+
+import json
+
+import numpy as np
+import pytest
+
+import hybridhdr as hh
+from hybridhdr.cli import main
+from hybridhdr.container import RecordingFile, write_recording
+from hybridhdr.synthetic import procedural_recording
+
+
+def run_cli(capsys, *argv):
+    rc = main(list(argv))
+    out = capsys.readouterr()
+    return rc, out.out, out.err
+
+
+def test_help_lists_subcommands(capsys):
+    with pytest.raises(SystemExit) as e:
+        main(["--help"])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    for cmd in ("capture", "calibrate", "simulate", "reconstruct", "evaluate", "info", "convert", "demo"):
+        assert cmd in out
+
+
+# facts from ../shared/reference/formats.md and ../shared/data/README.md
+SAMPLES = [
+    ("prophesee/sparklers_gen3_evt2.raw", "evt2", 521_252, (95_000, 97_000), 0),
+    ("prophesee/evt2_sample.raw", "evt2", 539_481, (49_000, 51_000), 0),
+    ("prophesee/evt3_sample.raw", "evt3", 219_596, (8_300, 9_300), 0),
+    ("aedat4/sample.aedat4", "aedat4", 111_954, (585_000, 595_000), 0),
+    ("ecd_slider_depth", "ecd", 50_000, (170_345, 170_345), 87),
+]
+
+
+@pytest.mark.parametrize("rel,fmt,n,span,frames", SAMPLES, ids=[s[0] for s in SAMPLES])
+def test_info_on_sample_files(capsys, shared_data, rel, fmt, n, span, frames):
+    path = shared_data(rel)
+    rc, out, _ = run_cli(capsys, "info", str(path), "--json")
+    assert rc == 0
+    info = json.loads(out)
+    assert info["format"] == fmt
+    assert info["events"] == n
+    assert span[0] <= info["span_us"] <= span[1]
+    assert info["frames"] == frames
+    rc, table, _ = run_cli(capsys, "info", str(path))
+    assert rc == 0 and f"{n:,}" in table
+
+
+def test_info_ecd_details(capsys, shared_data):
+    rc, out, _ = run_cli(capsys, "info", str(shared_data("ecd_slider_depth")), "--json")
+    info = json.loads(out)
+    assert info["t_first_us"] == 3811 and info["t_last_us"] == 174156
+    assert info["sensor"] == "240x180"
+    assert abs(info["on_fraction"] - 0.42) < 0.01
+
+
+def test_convert_container_window_and_formats(tmp_path, capsys):
+    rec, _ = procedural_recording((30, 40), 200_000, seed=1)
+    src = write_recording(rec, tmp_path / "src.h5")
+    out = tmp_path / "win.h5"
+    rc, stdout, _ = run_cli(capsys, "convert", str(src), str(out), "--start-us", "50000", "--end-us",
+                            "150000", "--no-progress")
+    assert rc == 0 and "wrote" in stdout
+    with RecordingFile(out) as r:
+        assert np.array_equal(r.events(), hh.slice_time(rec.events, 50_000, 150_000))
+        assert len(r.read_frames()) == len(rec.frames.slice_time(50_000, 150_000))
+        assert len(r.read_hdr()) == len(rec.hdr)
+    for to, name in (("evt2", "o.raw"), ("evt3", "o3.raw"), ("dat", "o.dat"), ("akf_mat", "o.mat"), ("ecd", "o_ecd")):
+        rc, _, err = run_cli(capsys, "convert", str(src), str(tmp_path / name), "--to", to, "--no-progress")
+        assert rc == 0, err
+        assert np.array_equal(hh.read(tmp_path / name).events, rec.events), to
+        if to in ("evt2", "evt3", "dat"):
+            assert "cannot hold" in err and "frames" in err  # dropped parts are reported, never silent
+
+
+def test_cli_errors_are_clear(tmp_path, capsys):
+    rc, _, err = run_cli(capsys, "info", str(tmp_path / "missing.raw"))
+    assert rc == 1 and "no such file" in err
+    (tmp_path / "junk.bin").write_bytes(b"\x00\x01garbage" * 10)
+    rc, _, err = run_cli(capsys, "info", str(tmp_path / "junk.bin"))
+    assert rc == 1 and "could not detect" in err
+    rc, _, err = run_cli(capsys, "info", str(tmp_path / "junk.bin"), "--from", "nosuch")
+    assert rc == 1 and "unknown format" in err
+    rec, _ = procedural_recording((10, 10), 20_000, seed=0)
+    src = write_recording(rec, tmp_path / "s.h5")
+    rc, _, err = run_cli(capsys, "convert", str(src), str(tmp_path / "o.h5"), "--start-us", "5", "--end-us", "5")
+    assert rc == 1 and "--end-us" in err and not (tmp_path / "o.h5").exists()
+
+
+def test_demo_runs(tmp_path, capsys):
+    rc, out, err = run_cli(capsys, "demo", "--out", str(tmp_path / "demo"))
+    assert rc == 0, err
+    assert "identical events" in out and "EVENTS DIFFER" not in out
+    assert (tmp_path / "demo" / "procedural.h5").exists()
