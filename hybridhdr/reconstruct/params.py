@@ -23,10 +23,10 @@ __all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesPar
            "DEFAULT_INTENSITY_OFFSET"]
 
 #: I0 of eq. 8, in the units of the profile's scaled irradiance (1 = the brightest code).
-#: The paper gives no value; the reference code uses 1 (so L ∈ [0, ln 2]), which compresses the
-#: log scale the events live on. We default to 1/255 (one 8-bit code), which keeps
-#: log(I + I0) ≈ log I over the well-exposed range; ``AKFParams.reference_code()`` uses 1.
-DEFAULT_INTENSITY_OFFSET = 1.0 / 255.0
+#: The paper gives no value; the reference code uses 1 with I = I^F/255 (so L ∈ [0, ln 2]), and
+#: CF's ROS code uses log(I^F/255 + 1) too. We keep 1: on ecd_slider_depth it predicts the next
+#: APS frame better than 1/255, 0.02 or 0.1 did with c = 0.1 (see tests/reconstruct/test_ecd.py).
+DEFAULT_INTENSITY_OFFSET = 1.0
 
 
 def _load_toml(path) -> dict:

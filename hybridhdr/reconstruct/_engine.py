@@ -1,0 +1,402 @@
+"""Filter engines and the event/frame/output scheduler shared by all methods (private)."""
+
+from __future__ import annotations
+
+import math
+from concurrent.futures import ThreadPoolExecutor
+from typing import Callable, Iterable, Iterator
+
+import numpy as np
+
+from . import _kernels as K
+
+T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
+
+
+def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:
+    if t.size and (int(t[-1]) >= T_EXACT_LIMIT_US or int(t[0]) <= -T_EXACT_LIMIT_US):
+        raise ValueError(f"{what} must lie within ±2**53 µs (float64-exact), got {int(t[0])}..{int(t[-1])}")
+
+
+def row_bands(height: int, n_workers: int) -> list[tuple[int, int]]:
+    """Split rows 0..height into ``n_workers`` contiguous bands of (nearly) equal size."""
+    n = max(1, min(int(n_workers), height))
+    edges = [round(i * height / n) for i in range(n + 1)]
+    return [(edges[i], edges[i + 1]) for i in range(n) if edges[i + 1] > edges[i]]
+
+
+class Engine:
+    """Base of the per-method engines driven by :func:`drive`.
+
+    The driver calls :meth:`start` once, then interleaves :meth:`process` (events in time
+    order), :meth:`switch` (at :meth:`next_switch_us`) and :meth:`output` (never changes state).
+    """
+
+    uses_events = True
+
+    def __init__(self, shape, n_workers: int = 1):
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.n = self.shape[0] * self.shape[1]
+        self.n_workers = max(1, int(n_workers))
+        self.bands = row_bands(self.shape[0], self.n_workers)
+        self._pool = ThreadPoolExecutor(len(self.bands)) if len(self.bands) > 1 else None
+        self.n_events = 0
+
+    def close(self):
+        if self._pool is not None:
+            self._pool.shutdown(wait=True)
+            self._pool = None
+
+    def _map_bands(self, fn, min_work: int) -> list:
+        """Run ``fn(band_index, row_lo, row_hi)`` per band, in threads when worth it."""
+        if self._pool is None or min_work < 20_000:
+            return [fn(b, lo, hi) for b, (lo, hi) in enumerate(self.bands)]
+        futs = [self._pool.submit(fn, b, lo, hi) for b, (lo, hi) in enumerate(self.bands)]
+        return [f.result() for f in futs]
+
+    # -- interface ----------------------------------------------------------------------------
+    def start(self, t_start_us: int | None) -> int:
+        raise NotImplementedError
+
+    def next_switch_us(self) -> int | None:
+        return None
+
+    def switch(self) -> None:
+        raise NotImplementedError
+
+    def process(self, t, x, y, p, i0: int, i1: int) -> None:
+        raise NotImplementedError
+
+    def output(self, t_us: int) -> np.ndarray:
+        raise NotImplementedError
+
+
+class AKFEngine(Engine):
+    """Asynchronous Kalman filter state (eqs. 14-21) over a measurement provider."""
+
+    def __init__(self, shape, measurements, params, n_workers: int = 1):
+        super().__init__(shape, n_workers)
+        self.m = measurements
+        self.params = params
+        self.S = K.aligned_state(self.n, K.AKF_FIELDS)
+        self.te = [np.zeros(self.n, np.int64) for _ in self.bands]
+        self.k = -1
+        self.seg_t0 = 0.0
+        self.seg_inv_t = 0.0
+        self.has_la_step = False
+        self.noise_form = K.NOISE_PAPER if params.noise_model == "paper" else K.NOISE_REFERENCE
+
+    def _load(self, k: int) -> None:
+        seg = self.m.segment(k)
+        S = self.S
+        S[:, K.A_LA] = seg.log_frame
+        S[:, K.A_RINV] = seg.rinv
+        beta = seg.beta if seg.beta is not None else np.zeros(self.n)
+        S[:, K.A_BETA] = beta
+        if seg.t1_us is not None:
+            T_us = seg.t1_us - seg.t0_us
+            self.seg_inv_t = 1.0 / T_us
+            with np.errstate(divide="ignore", invalid="ignore"):
+                S[:, K.A_KLOG] = np.where(beta != 0.0, seg.rinv * (T_us * K.US) / np.where(beta != 0, beta, 1.0), 0.0)
+        else:
+            self.seg_inv_t = 0.0
+            S[:, K.A_BETA] = 0.0
+            S[:, K.A_KLOG] = 0.0
+        self.has_la_step = seg.la_step is not None
+        S[:, K.A_LASTEP] = seg.la_step if self.has_la_step else 0.0
+        self.seg_t0 = float(seg.t0_us)
+        self.k = k
+        self.segment = seg
+
+    def start(self, t_start_us=None) -> int:
+        times = self.m.times_us
+        k0 = 0 if t_start_us is None else max(int(np.searchsorted(times, t_start_us, side="right")) - 1, 0)
+        t_init = int(times[k0])
+        check_time_range(times, "frame timestamps")
+        self._load(k0)
+        self.S[:, K.A_L] = self.S[:, K.A_LA]  # initialise from the frame, never from t = 0
+        self.S[:, K.A_P] = self.params.initial_covariance
+        self.S[:, K.A_TU] = float(t_init)
+        for te in self.te:
+            te[:] = t_init
+        return t_init
+
+    def next_switch_us(self):
+        return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
+
+    def switch(self) -> None:
+        t_to = float(self.m.times_us[self.k + 1])
+        W = self.shape[1]
+        self._map_bands(lambda b, lo, hi: K.akf_propagate(self.S, self.seg_t0, self.seg_inv_t, t_to,
+                                                            lo * W, hi * W), self.n)
+        self._load(self.k + 1)
+
+    def process(self, t, x, y, p, i0, i1) -> None:
+        if i1 <= i0:
+            return
+        pr = self.params
+        H, W = self.shape
+        rho = np.int64(pr.refractory_period_us)
+        args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+                pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form)
+        res = self._map_bands(lambda b, lo, hi: K.akf_events(t, x, y, p, i0, i1, lo, hi, W, H, self.S,
+                                                               self.te[b], *args), i1 - i0)
+        self.n_events += int(sum(res))
+
+    def output(self, t_us: int, with_state: bool = False):
+        W = self.shape[1]
+        out = np.empty(self.n, np.float32)
+        lg = np.empty(self.n if with_state else 0)
+        var = np.empty(self.n if with_state else 0)
+        self._map_bands(lambda b, lo, hi: K.akf_output(self.S, self.seg_t0, self.seg_inv_t, float(t_us),
+                                                         self.params.intensity_offset, out, lg, var,
+                                                         lo * W, hi * W), self.n)
+        if with_state:
+            return out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)
+        return out.reshape(self.shape)
+
+
+class CFEngine(Engine):
+    """Complementary filter, direct integration and high-pass filter (exact exponential kernels).
+
+    ``mode``: "cf" (L^F from frames, gain α), "direct" (α = 0, reset to the frame at each frame)
+    or "highpass" (L^F = 0, no frames, output exp(L̂)).
+    """
+
+    def __init__(self, shape, measurements, params, mode: str, n_workers: int = 1):
+        super().__init__(shape, n_workers)
+        if mode not in ("cf", "direct", "highpass"):
+            raise ValueError(f"mode must be 'cf', 'direct' or 'highpass', got {mode!r}")
+        self.mode = mode
+        self.m = measurements
+        self.params = params
+        self.C = K.aligned_state(self.n, K.CF_FIELDS)
+        self.k = -1
+        self.event_decay = float(getattr(params, "event_decay", 0.0))
+        self.offset = 0.0 if mode == "highpass" else float(params.intensity_offset)
+
+    def _alpha(self, seg) -> np.ndarray:
+        pr = self.params
+        if self.mode == "direct":
+            return np.zeros(self.n)
+        a = np.full(self.n, pr.alpha_rad_per_s)
+        if self.mode == "cf" and pr.adaptive_gain:
+            bad = (seg.intensity < pr.adaptive_low) | (seg.intensity > pr.adaptive_high)
+            a[bad] *= pr.adaptive_gain_scale
+        return a
+
+    def _load(self, k: int) -> None:
+        seg = self.m.segment(k)
+        self.C[:, K.C_LF] = np.log(seg.intensity + self.offset)
+        self.C[:, K.C_ALPHA] = self._alpha(seg)
+        self.k = k
+
+    def start(self, t_start_us=None) -> int:
+        if self.mode == "highpass":
+            self.C[:, K.C_L] = 0.0
+            self.C[:, K.C_LF] = 0.0
+            self.C[:, K.C_ALPHA] = self._alpha(None)
+            t_init = int(t_start_us)
+        else:
+            times = self.m.times_us
+            k0 = 0 if t_start_us is None else max(int(np.searchsorted(times, t_start_us, side="right")) - 1, 0)
+            check_time_range(times, "frame timestamps")
+            self._load(k0)
+            t_init = int(times[k0])
+            self.C[:, K.C_L] = self.C[:, K.C_LF]
+        self.C[:, K.C_TU] = float(t_init)
+        return t_init
+
+    def next_switch_us(self):
+        if self.m is None or self.mode == "highpass":
+            return None
+        return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
+
+    def switch(self) -> None:
+        t_to = float(self.m.times_us[self.k + 1])
+        W = self.shape[1]
+        if self.mode == "direct":
+            self._load(self.k + 1)
+            self.C[:, K.C_L] = self.C[:, K.C_LF]
+            self.C[:, K.C_TU] = t_to
+            return
+        self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
+        self._load(self.k + 1)
+
+    def process(self, t, x, y, p, i0, i1) -> None:
+        if i1 <= i0:
+            return
+        pr = self.params
+        W = self.shape[1]
+        res = self._map_bands(lambda b, lo, hi: K.cf_events(t, x, y, p, i0, i1, lo, hi, W, self.C, pr.c_on,
+                                                              pr.c_off, self.event_decay), i1 - i0)
+        self.n_events += int(sum(res))
+
+    def output(self, t_us: int) -> np.ndarray:
+        W = self.shape[1]
+        out = np.empty(self.n, np.float32)
+        self._map_bands(lambda b, lo, hi: K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W),
+                        self.n)
+        return out.reshape(self.shape)
+
+
+class FramesEngine(Engine):
+    """Frames only: zero-order hold or linear interpolation (in linear intensity) between τ_k."""
+
+    uses_events = False
+
+    def __init__(self, shape, measurements, params):
+        super().__init__(shape, 1)
+        self.m = measurements
+        self.linear = params.interpolation == "linear"
+        self.k = -1
+
+    def start(self, t_start_us=None) -> int:
+        times = self.m.times_us
+        self.k = 0 if t_start_us is None else max(int(np.searchsorted(times, t_start_us, side="right")) - 1, 0)
+        self._cur = self.m.segment(self.k)
+        self._nxt = self.m.segment(self.k + 1) if self.linear and self.k + 1 < len(self.m) else None
+        return int(times[self.k])
+
+    def next_switch_us(self):
+        return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
+
+    def switch(self) -> None:
+        self.k += 1
+        self._cur = self._nxt if self._nxt is not None else self.m.segment(self.k)
+        self._nxt = self.m.segment(self.k + 1) if self.linear and self.k + 1 < len(self.m) else None
+
+    def process(self, t, x, y, p, i0, i1) -> None:
+        return None
+
+    def output(self, t_us: int) -> np.ndarray:
+        cur = self._cur
+        if self._nxt is None:
+            img = cur.intensity
+        else:
+            u = (t_us - cur.t0_us) / (self._nxt.t0_us - cur.t0_us)
+            img = (1.0 - u) * cur.intensity + u * self._nxt.intensity
+        return img.astype(np.float32).reshape(self.shape)
+
+
+# -- scheduling -------------------------------------------------------------------------------
+
+class OutputClock:
+    """Output times: an explicit sorted array, or ``fps`` from an origin (until the data ends)."""
+
+    def __init__(self, times_us=None, fps: float | None = None):
+        if (times_us is None) == (fps is None):
+            raise ValueError("give exactly one of times_us and fps")
+        self.fps = None
+        self.times = None
+        if times_us is not None:
+            t = np.asarray(times_us)
+            if t.ndim != 1 or (t.size and not np.issubdtype(t.dtype, np.integer)):
+                if t.ndim == 1 and t.size and np.all(np.isfinite(t)) and np.all(t == np.round(t)):
+                    t = t.astype(np.int64)
+                else:
+                    raise ValueError(f"times_us must be a 1-D array of integer µs, got shape {t.shape} "
+                                     f"dtype {t.dtype}")
+            t = t.astype(np.int64)
+            if t.size > 1 and np.any(np.diff(t) <= 0):
+                i = int(np.flatnonzero(np.diff(t) <= 0)[0]) + 1
+                raise ValueError(f"times_us must be strictly increasing; index {i} has {t[i]} after {t[i - 1]}")
+            check_time_range(t, "times_us")
+            self.times = t
+        else:
+            if isinstance(fps, bool) or not isinstance(fps, (int, float)) or not math.isfinite(fps) or fps <= 0:
+                raise ValueError(f"fps must be a positive number of frames per second, got {fps!r}")
+            self.fps = float(fps)
+        self.i = 0
+        self.origin = None
+
+    def set_origin(self, t0_us: int) -> None:
+        self.origin = int(t0_us)
+        if self.times is not None and self.times.size and self.times[0] < t0_us:
+            raise ValueError(f"times_us starts at {int(self.times[0])} µs, before the filter can start "
+                             f"({t0_us} µs: the first frame used); request times at or after it")
+
+    def peek(self) -> int | None:
+        if self.times is not None:
+            return int(self.times[self.i]) if self.i < self.times.size else None
+        return self.origin + int(round(self.i * 1e6 / self.fps))
+
+    def pop(self) -> None:
+        self.i += 1
+
+    @property
+    def bounded(self) -> bool:
+        return self.times is not None
+
+
+def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
+          progress: Callable[[int], None] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Run ``engine`` over event ``chunks`` ((t, x, y, p) contiguous arrays, time-sorted), yielding
+    ``(t_us, image)`` at the clock's output times as soon as all events before them are in.
+
+    Order at equal times: frame switch, then output, then events (an output at t includes the
+    events with timestamps < t). Events before the filter's start are skipped.
+    """
+    t_init = engine.start(t_start_us)
+    t_first_out = t_init if t_start_us is None else max(t_init, int(t_start_us))
+    clock.set_origin(t_first_out)
+    if clock.times is not None:  # explicit: skip nothing, but validate start
+        pass
+    INF = np.iinfo(np.int64).max
+    end_excl = INF if t_end_us is None else int(t_end_us)
+    t_last = t_init
+    t_prev_chunk = None
+
+    def limit_ok(to):
+        return to is not None and to < end_excl
+
+    for t, x, y, p in chunks:
+        n = t.shape[0]
+        if n == 0:
+            continue
+        if t_prev_chunk is not None and t[0] < t_prev_chunk:
+            raise ValueError(f"event chunks must be time-sorted; a chunk starts at {int(t[0])} µs after "
+                             f"{t_prev_chunk} µs")
+        t_prev_chunk = int(t[-1])
+        check_time_range(t)
+        i = int(np.searchsorted(t, t_init, side="left")) if t[0] < t_init else 0
+        j_end = n if t[-1] < end_excl else int(np.searchsorted(t, end_excl, side="left"))
+        while True:
+            ts = engine.next_switch_us()
+            to = clock.peek() if limit_ok(clock.peek()) else None
+            bp = min(ts if ts is not None else INF, to if to is not None else INF)
+            if bp == INF or i >= j_end or t[j_end - 1] < bp:
+                engine.process(t, x, y, p, i, j_end)
+                if progress is not None:
+                    progress(j_end - i)
+                i = j_end
+                break
+            j = i + int(np.searchsorted(t[i:j_end], bp, side="left"))
+            engine.process(t, x, y, p, i, j)
+            if progress is not None:
+                progress(j - i)
+            i = j
+            if ts is not None and ts <= bp:
+                engine.switch()
+            else:
+                yield to, engine.output(to)
+                clock.pop()
+        if j_end > 0:
+            t_last = max(t_last, int(t[j_end - 1]))
+        if j_end < n:
+            break  # past t_end_us
+    # flush: outputs after the last event
+    frames_end = getattr(getattr(engine, "m", None), "times_us", None)
+    if frames_end is not None and len(frames_end):
+        t_last = max(t_last, int(frames_end[-1]))
+    stop = end_excl if t_end_us is not None else (INF if clock.bounded else t_last + 1)
+    while True:
+        to = clock.peek()
+        if to is None or to >= stop:
+            break
+        ts = engine.next_switch_us()
+        if ts is not None and ts <= to:
+            engine.switch()
+            continue
+        yield to, engine.output(to)
+        clock.pop()

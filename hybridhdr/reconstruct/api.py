@@ -1,0 +1,289 @@
+"""``reconstruct`` / ``reconstruct_iter``: HDR video from a hybrid recording, by method name."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass, field
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..events import SensorSize, events_fields
+from ..model import Frames, Recording
+from . import _engine as E
+from .measurement import FrameMeasurements
+from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
+from .profile import load_profile
+
+__all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
+           "make_params"]
+
+#: method name -> (Params class, needs frames, uses events, one-line description)
+METHODS: dict[str, tuple[type, bool, bool, str]] = {
+    "akf": (AKFParams, True, True, "Asynchronous Kalman Filter (Wang et al., ICCV 2021)"),
+    "cf": (CFParams, True, True, "complementary filter, fixed or HDR-adaptive gain (Scheerlinck et al., ACCV 2018)"),
+    "highpass": (HighPassParams, False, True, "high-pass filter on events only (CF with zero frame input)"),
+    "direct": (DirectParams, True, True, "direct integration of events onto the last frame"),
+    "frames_zoh": (FramesParams, True, False, "frames only, zero-order hold"),
+    "frames_linear": (FramesParams, True, False, "frames only, linear interpolation in intensity"),
+}
+METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
+MODES = ("offline", "causal")
+
+
+@dataclass(frozen=True, eq=False)
+class Video:
+    """A reconstructed video.
+
+    Attributes
+    ----------
+    frames : ndarray of shape (K, H, W), float32
+        Linear intensity in the camera profile's scaled-irradiance units (brightest frame code =
+        1); for ``highpass`` the relative intensity exp(L̂) (1 = unchanged).
+    t_us : ndarray of shape (K,), int64
+        Timestamp of each frame in µs (the state at t includes events with timestamps < t).
+    method : str
+    params : dict
+        The resolved parameters.
+    info : dict
+        Mode, number of events used, start time, profile name.
+    """
+
+    frames: np.ndarray
+    t_us: np.ndarray
+    method: str = ""
+    params: dict = field(default_factory=dict)
+    info: dict = field(default_factory=dict)
+
+    def __post_init__(self):
+        fr = np.asarray(self.frames, dtype=np.float32)
+        if fr.ndim != 3:
+            raise ValueError(f"Video.frames must have shape (K, H, W), got {fr.shape}")
+        t = np.asarray(self.t_us, dtype=np.int64)
+        if t.shape != (fr.shape[0],):
+            raise ValueError(f"Video.t_us must have shape ({fr.shape[0]},), got {t.shape}")
+        object.__setattr__(self, "frames", fr)
+        object.__setattr__(self, "t_us", t)
+
+    def __len__(self) -> int:
+        return int(self.frames.shape[0])
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        return tuple(self.frames.shape[1:3])
+
+
+def resolve_method(method: str) -> str:
+    if not isinstance(method, str):
+        raise TypeError(f"method must be a str, got {type(method).__name__}")
+    m = METHOD_ALIASES.get(method, method)
+    if m not in METHODS:
+        raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHODS) + sorted(METHOD_ALIASES)}")
+    return m
+
+
+def make_params(method: str, params=None):
+    """Params for ``method`` from None (defaults), a dict, a TOML path or a Params instance."""
+    method = resolve_method(method)
+    cls = METHODS[method][0]
+    if params is None:
+        p = cls()
+    elif isinstance(params, cls):
+        p = params
+    elif isinstance(params, dict):
+        p = cls.from_dict(params)
+    elif isinstance(params, (str, os.PathLike)):
+        p = cls.from_toml(params)
+    else:
+        raise TypeError(f"params for method {method!r} must be {cls.__name__}, a dict, a TOML path or None, "
+                        f"got {type(params).__name__}")
+    if method == "frames_linear" and p.interpolation != "linear":
+        p = p.replace(interpolation="linear")
+    if method == "frames_zoh" and p.interpolation != "zoh":
+        p = p.replace(interpolation="zoh")
+    return p
+
+
+# -- sources ------------------------------------------------------------------------------------
+
+def _open_source(source):
+    """(sensor_size, frames, chunk iterator factory, closer) for a Recording, reader or path."""
+    if isinstance(source, Recording):
+        ev = source.events
+        ss = source.sensor_size
+
+        def chunks(n):
+            for i in range(0, ev.shape[0], n):
+                yield events_fields(ev[i:i + n])
+        return ss, source.frames, chunks, (lambda: None)
+    reader = source
+    close = (lambda: None)
+    if isinstance(source, (str, os.PathLike)):
+        from ..io import open_reader
+        reader = open_reader(source)
+        close = reader.close
+    if not hasattr(reader, "iter_chunks"):
+        raise TypeError(f"source must be a Recording, a reader (with iter_chunks), a RecordingFile or a path, "
+                        f"got {type(source).__name__}")
+    ss = SensorSize.from_any(getattr(reader, "sensor_size", None))
+    frames = reader.read_frames() if hasattr(reader, "read_frames") else None
+
+    def chunks(n):
+        for c in reader.iter_chunks(n):
+            ev = c.events if hasattr(c, "events") else c
+            if len(ev):
+                yield events_fields(ev)
+    return ss, frames, chunks, close
+
+
+def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
+    if ss is not None:
+        return ss.shape
+    if frames is not None and len(frames):
+        return frames.shape
+    raise ValueError("cannot tell the sensor size: the source has no sensor_size and no frames")
+
+
+def _build_engine(method, params, shape, frames, mode, profile, n_workers, measurements):
+    needs_frames = METHODS[method][1]
+    prof = load_profile(profile)
+    if needs_frames and measurements is None:
+        if frames is None or len(frames) == 0:
+            raise ValueError(f"method {method!r} needs frames, but the recording has none "
+                             f"(use method='highpass' for events only)")
+        if method == "akf":
+            measurements = FrameMeasurements(
+                frames, shape, prof, intensity_offset=params.intensity_offset,
+                bias_correction=params.bias_correction,
+                interpolate_covariance=(mode == "offline" and params.covariance_interpolation == "linear"),
+                precision_scale=params.frame_precision_scale)
+        else:
+            off = getattr(params, "intensity_offset", 1.0)
+            measurements = FrameMeasurements(frames, shape, prof, intensity_offset=off, bias_correction=False,
+                                             interpolate_covariance=False)
+    if method == "akf":
+        return E.AKFEngine(shape, measurements, params, n_workers), prof
+    if method in ("cf", "direct", "highpass"):
+        return E.CFEngine(shape, measurements, params, method, n_workers), prof
+    if mode == "causal" and method == "frames_linear":
+        raise ValueError("method 'frames_linear' needs the next frame, so it cannot run in causal mode")
+    return E.FramesEngine(shape, measurements, params), prof
+
+
+def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
+                     mode: str = "offline", profile=None, t_start_us: int | None = None,
+                     t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
+                     measurements=None, progress: Callable[[int], None] | None = None,
+                     info: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
+
+    Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
+    :func:`hybridhdr.open_reader`, a :class:`hybridhdr.container.RecordingFile` or a path, whose
+    events are read chunk by chunk. ``info``, if given, is filled with run statistics.
+    """
+    method = resolve_method(method)
+    if mode not in MODES:
+        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
+    if isinstance(n_workers, bool) or not isinstance(n_workers, (int, np.integer)) or n_workers < 1:
+        raise ValueError(f"n_workers must be an int >= 1, got {n_workers!r}")
+    if isinstance(chunk_events, bool) or not isinstance(chunk_events, (int, np.integer)) or chunk_events < 1:
+        raise ValueError(f"chunk_events must be an int >= 1, got {chunk_events!r}")
+    for name, v in (("t_start_us", t_start_us), ("t_end_us", t_end_us)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
+            raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
+    p = make_params(method, params)
+    ss, frames, chunk_factory, close = _open_source(source)
+    try:
+        shape = _sensor_shape(ss, frames)
+        engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements)
+        try:
+            if times_us is None and fps is None:
+                if METHODS[method][1] or (frames is not None and len(frames)):
+                    ft = engine.m.times_us if getattr(engine, "m", None) is not None else frames.t_mid_us
+                    times_us = np.unique(ft)
+                    if t_start_us is not None:
+                        times_us = times_us[times_us >= t_start_us]
+                else:
+                    fps = 30.0
+            clock = E.OutputClock(times_us=times_us, fps=fps)
+            start = t_start_us
+            chunks = chunk_factory(int(chunk_events)) if engine.uses_events else iter(())
+            if method == "highpass" and start is None:
+                chunks = iter(chunks)
+                first = next(chunks, None)
+                if first is None:
+                    raise ValueError("method 'highpass' needs events, but the source has none")
+                start = int(first[0][0])
+                import itertools
+                chunks = itertools.chain([first], chunks)
+            if info is not None:
+                info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict())
+            yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=t_end_us, progress=progress)
+            if info is not None:
+                info["n_events_used"] = engine.n_events
+        finally:
+            engine.close()
+    finally:
+        close()
+
+
+def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
+                mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
+                n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
+                progress: Callable[[int], None] | None = None) -> Video:
+    """Reconstruct linear-intensity video from events and frames.
+
+    Parameters
+    ----------
+    source : Recording, reader, RecordingFile or path
+        The hybrid recording (events sorted by ``t`` in µs; frames with exposure intervals).
+    method : {"akf", "cf", "highpass", "direct", "frames_zoh", "frames_linear"}
+        Aliases: "hpf" = "highpass", "frames" = "frames_zoh".
+    params : Params, dict, TOML path or None
+        The method's parameters (:class:`AKFParams`, :class:`CFParams`, ...); None for defaults.
+    times_us : array_like of int (K,), optional
+        Output times in µs, strictly increasing, not before the first frame used.
+    fps : float, optional
+        Output rate in Hz instead of ``times_us``; outputs at ``t0 + round(k 1e6 / fps)`` µs from
+        the start up to the last event or frame. Default (neither): the frame times τ_k.
+    mode : {"offline", "causal"}
+        "offline" may use future frames (eq. 7's interpolation of R towards frame k+1; frame
+        augmentation when a provider is given); "causal" uses only the past.
+    profile : CameraProfile, path or None
+        Camera profile (eqs. 3-6); None is the built-in 8-bit profile.
+    t_start_us, t_end_us : int, optional
+        Half-open window of output times; the filter starts from the last frame at or before
+        ``t_start_us``.
+    n_workers : int
+        Threads for the row-band parallel kernels (bit-identical to 1).
+    chunk_events : int
+        Events per chunk when streaming from a file.
+    measurements : measurement provider, optional
+        Replaces the zero-order-hold frame measurements (hook for frame augmentation, see
+        :mod:`hybridhdr.reconstruct.measurement`).
+    progress : callable, optional
+        Called with the number of events consumed after each batch.
+
+    Returns
+    -------
+    Video
+
+    Notes
+    -----
+    Outputs are computed in closed form from the filter state without changing it, so they do
+    not depend on the output rate, and the timestamp origin does not matter. The filter starts
+    at the first frame (events before it are skipped) and uses the last one.
+    """
+    info: dict = {}
+    ts, imgs = [], []
+    for t, img in reconstruct_iter(source, method, params, times_us=times_us, fps=fps, mode=mode,
+                                   profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
+                                   n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
+                                   progress=progress, info=info):
+        ts.append(t)
+        imgs.append(img)
+    method = resolve_method(method)
+    shape = imgs[0].shape if imgs else (0, 0)
+    frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
+    return Video(frames, np.asarray(ts, np.int64), method, info.pop("params", {}), info)
