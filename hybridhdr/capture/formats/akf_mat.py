@@ -296,12 +296,12 @@ class AkfMatReader(EventFileReader):
             bad = np.abs(t) >= _MAX_SAFE
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
-                raise FormatError(self.path, f"event {i0 + i}: t = {t[i]!r} µs is beyond 2^53", record=i0 + i)
+                raise FormatError(self.path, f"event {i0 + i}: t = {t[i].item()!r} µs is beyond 2^53", record=i0 + i)
             for name, v, lim, dim in (("x", x, ss.width, "width"), ("y", y, ss.height, "height")):
                 bad = (v != np.floor(v)) | (v < 1) | (v > lim)
                 if bad.any():
                     i = int(np.flatnonzero(bad)[0])
-                    raise FormatError(self.path, f"event {i0 + i}: 1-based {name} = {v[i]!r} is not in 1..{lim} "
+                    raise FormatError(self.path, f"event {i0 + i}: 1-based {name} = {v[i].item()!r} is not in 1..{lim} "
                                                  f"(sensor {dim})", record=i0 + i)
             tt = np.rint(t).astype(np.int64)
             dec = np.flatnonzero(tt[1:] < tt[:-1])

@@ -156,7 +156,7 @@ def _build_events(path, i0: int, t_us: np.ndarray, x, y, p, ss: SensorSize, last
             bad = ~np.isfinite(v) | (v != np.floor(v))
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
-                raise FormatError(path, f"event {i0 + i}: {name} = {v[i]!r} is not an integer", record=i0 + i)
+                raise FormatError(path, f"event {i0 + i}: {name} = {v[i].item()!r} is not an integer", record=i0 + i)
         if v.dtype.kind in "if" or v.dtype.kind == "b":
             bad = v < 0
             if np.any(bad):
@@ -175,7 +175,7 @@ def _build_events(path, i0: int, t_us: np.ndarray, x, y, p, ss: SensorSize, last
         bad = (pv != 0) & (pv != 1) & (pv != -1)
         if np.any(bad):
             i = int(np.flatnonzero(bad)[0])
-            raise FormatError(path, f"event {i0 + i}: polarity {p[i]!r} is not 0/1 (or -1/1)", record=i0 + i)
+            raise FormatError(path, f"event {i0 + i}: polarity {p[i].item()!r} is not 0/1 (or -1/1)", record=i0 + i)
         pol = np.where(pv > 0, 1, -1).astype(np.int8)
     dec = np.flatnonzero(t_us[1:] < t_us[:-1])
     if dec.size:
@@ -199,7 +199,7 @@ def _int_time(path, i0: int, t: np.ndarray, offset: int = 0) -> np.ndarray:
         bad = ~np.isfinite(t) | (t != np.floor(t))
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise FormatError(path, f"event {i0 + i}: t = {t[i]!r} is not a whole number of µs", record=i0 + i)
+            raise FormatError(path, f"event {i0 + i}: t = {t[i].item()!r} is not a whole number of µs", record=i0 + i)
     if t.dtype.kind == "u" and t.dtype.itemsize == 8 and t.size and t.max() > np.iinfo(np.int64).max - abs(offset):
         raise FormatError(path, "event timestamps overflow int64 µs", record=i0)
     tt = t.astype(np.int64)
@@ -390,7 +390,7 @@ class MonashReader(EventFileReader):
                     bad = ~np.isfinite(ts) | (np.abs(ts) * 1e6 >= 9.2e18)
                     if bad.any():
                         i = int(np.flatnonzero(bad)[0])
-                        raise FormatError(self.path, f"event {i0 + i}: timestamp {ts[i]!r} s is not finite or "
+                        raise FormatError(self.path, f"event {i0 + i}: timestamp {ts[i].item()!r} s is not finite or "
                                                      f"overflows int64 µs", record=i0 + i)
                     t = np.rint(ts * 1e6).astype(np.int64)
                 else:

@@ -299,7 +299,7 @@ class RosbagReader(EventFileReader):
         except ImportError as exc:
             raise FormatError(self.path, "EventPacket encoding 'evt3' needs hybridhdr.capture.formats.prophesee."
                                          f"Evt3Decoder, which is not available: {exc}") from None
-        return Evt3Decoder()
+        return Evt3Decoder(self.sensor_size)
 
     def _check(self, ev: np.ndarray, rec: int, n_before: int, last_t: int | None) -> None:
         if ev.size == 0:
@@ -324,11 +324,12 @@ class RosbagReader(EventFileReader):
                                              f"outside the sensor {dim} {lim}", record=rec)
 
     def _iter_decoded(self) -> Iterator[tuple[np.ndarray, np.ndarray]]:
-        """Yield ``(events, triggers)`` per message, validated."""
+        """Yield ``(events, triggers)`` per message, validated (EVT 3.0 decoded as one stream)."""
         last_t = None
         n = 0
+        rec = -1
+        dec = None
         with self._reader() as r:
-            dec = None
             for rec, (conn, ts, raw) in self._messages(r):
                 trig = empty_triggers()
                 if self.msgtype == EVENT_ARRAY:
@@ -343,13 +344,21 @@ class RosbagReader(EventFileReader):
                     try:
                         ev, trig = dec.decode(payload)
                     except FormatError as exc:
-                        raise FormatError(self.path, f"message {rec}: invalid EVT 3.0 payload: {exc.message}",
-                                          record=rec) from None
+                        raise FormatError(self.path, f"message {rec}: invalid EVT 3.0 payload at stream byte "
+                                                     f"{exc.offset}: {exc.message}", record=rec) from None
                 self._check(ev, rec, n, last_t)
                 if ev.size:
                     last_t = int(ev["t"][-1])
                     n += ev.size
                 yield ev, trig
+        if dec is not None:
+            try:
+                ev, trig = dec.flush()
+            except FormatError as exc:
+                raise FormatError(self.path, f"the concatenated EVT 3.0 payload is incomplete: {exc.message}",
+                                  record=rec) from None
+            self._check(ev, rec, n, last_t)
+            yield ev, trig
 
     def _infer_size(self) -> SensorSize:
         saved, self.sensor_size = self.sensor_size, None

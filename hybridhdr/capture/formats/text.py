@@ -43,6 +43,7 @@ from ...model import CameraInfo, Frames, Metadata
 __all__ = ["EcdReader", "E2vidReader", "EcdWriter", "READERS", "WRITERS", "sniff", "parse_seconds_exact"]
 
 _BLOCK_BYTES = 1 << 22
+_MAX_LINE_BYTES = 1 << 20
 #: Above this many µs a float64 ``t * 1e6`` may round to the wrong integer; parse exactly instead.
 _EXACT_LIMIT_US = float(1 << 49)
 _NUM = rb"[-+]?(?:\d+\.?\d*|\.\d+)(?:[eE][-+]?\d+)?"
@@ -169,8 +170,9 @@ def _line_numbers(block: bytes, first_line: int) -> np.ndarray:
     return np.asarray(nums, np.int64)
 
 
-def _iter_blocks(f: BinaryIO, first_line: int, block_bytes: int = _BLOCK_BYTES) -> Iterator[tuple[int, bytes]]:
+def _iter_blocks(f: BinaryIO, first_line: int, block_bytes: int | None = None, path=None) -> Iterator[tuple[int, bytes]]:
     """Yield ``(first_line_number, block)`` with whole lines, reading ``block_bytes`` at a time."""
+    block_bytes = _BLOCK_BYTES if block_bytes is None else block_bytes
     rest = b""
     line = first_line
     while True:
@@ -180,6 +182,9 @@ def _iter_blocks(f: BinaryIO, first_line: int, block_bytes: int = _BLOCK_BYTES) 
         buf = rest + data
         cut = buf.rfind(b"\n")
         if cut < 0:
+            if len(buf) > _MAX_LINE_BYTES:
+                raise FormatError(path, f"line {line} is longer than {_MAX_LINE_BYTES} bytes; "
+                                                            "not a text event file", record=line)
             rest = buf
             continue
         block, rest = buf[:cut + 1], buf[cut + 1:]
@@ -226,16 +231,16 @@ class _TextEventParser:
             bad = (v != np.floor(v)) | (v < 0) | (v > 65535)
             if bad.any():
                 i = int(np.flatnonzero(bad)[0])
-                raise FormatError(self.path, f"line {line_of(i)}: {name} = {v[i]!r} is not a pixel index in 0..65535",
+                raise FormatError(self.path, f"line {line_of(i)}: {name} = {v[i].item()!r} is not a pixel index in 0..65535",
                                   record=line_of(i))
         bad = (p != 0) & (p != 1) & (p != -1)
         if bad.any():
             i = int(np.flatnonzero(bad)[0])
-            raise FormatError(self.path, f"line {line_of(i)}: polarity {p[i]!r} is not 0, 1 or -1", record=line_of(i))
+            raise FormatError(self.path, f"line {line_of(i)}: polarity {p[i].item()!r} is not 0, 1 or -1", record=line_of(i))
         if np.abs(t_s).max() * 1e6 >= _EXACT_LIMIT_US:
             if np.abs(t_s).max() * 1e6 >= 9.2e18:
                 i = int(np.argmax(np.abs(t_s)))
-                raise FormatError(self.path, f"line {line_of(i)}: timestamp {t_s[i]!r} s overflows int64 µs",
+                raise FormatError(self.path, f"line {line_of(i)}: timestamp {t_s[i].item()!r} s overflows int64 µs",
                                   record=line_of(i))
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore", UserWarning)
@@ -292,7 +297,7 @@ def _scan_max_xy(path, opener, first_line: int) -> tuple[int, int, int]:
     mx = my = -1
     n = 0
     with opener() as f:
-        for line, block in _iter_blocks(f, first_line):
+        for line, block in _iter_blocks(f, first_line, path=path):
             ev = parser.parse(block, line)
             if ev.size:
                 mx, my = max(mx, int(ev["x"].max())), max(my, int(ev["y"].max()))
@@ -446,7 +451,7 @@ class EcdReader(EventFileReader):
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
         parser = _TextEventParser(self.events_path, self.sensor_size)
         with open(self.events_path, "rb") as f:
-            yield from _chunked((parser.parse(b, ln) for ln, b in _iter_blocks(f, 1)), chunk_events)
+            yield from _chunked((parser.parse(b, ln) for ln, b in _iter_blocks(f, 1, path=self.events_path)), chunk_events)
 
     def read_frames(self) -> Frames | None:
         """The frames listed in ``images.txt`` (None when there is no ``images.txt``).
@@ -638,7 +643,7 @@ class E2vidReader(EventFileReader):
                 f.readline(256)
 
                 def gen():
-                    for ln, b in _iter_blocks(f, 2):
+                    for ln, b in _iter_blocks(f, 2, path=self.path):
                         yield parser.parse(b, ln)
                 yield from _chunked(gen(), chunk_events)
         except (zipfile.BadZipFile, EOFError, OSError) as exc:
