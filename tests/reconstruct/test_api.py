@@ -1,0 +1,162 @@
+"""API behaviour: parameter validation and TOML, profiles, streaming, outputs, CLI."""
+
+from __future__ import annotations
+
+import argparse
+import json
+
+import numpy as np
+import pytest
+
+from hybridhdr import Recording, make_events
+from hybridhdr.reconstruct import (AKFParams, CameraProfile, CFParams, HighPassParams, default_profile,
+                                   reconstruct, reconstruct_iter)
+
+from .conftest import ideal_recording
+
+
+@pytest.mark.parametrize("cls, kw, exc", [
+    (AKFParams, dict(process_noise_per_s=-1.0), ValueError),
+    (AKFParams, dict(noise_model="matlab"), ValueError),
+    (AKFParams, dict(initial_covariance=0.0), ValueError),
+    (AKFParams, dict(refractory_period_us=1.5), ValueError),
+    (AKFParams, dict(contrast_threshold="0.1"), TypeError),
+    (AKFParams, dict(bias_correction=1), TypeError),
+    (AKFParams, dict(covariance_interpolation="cubic"), ValueError),
+    (AKFParams, dict(intensity_offset=float("nan")), ValueError),
+    (CFParams, dict(cutoff_hz=-0.5), ValueError),
+    (CFParams, dict(adaptive_low=0.9, adaptive_high=0.1), ValueError),
+    (HighPassParams, dict(contrast_threshold_on=0.0), ValueError),
+])
+def test_bad_params(cls, kw, exc):
+    with pytest.raises(exc, match=list(kw)[0]):
+        cls(**kw)
+
+
+def test_params_positional_and_frozen():
+    with pytest.raises(TypeError):
+        AKFParams(0.1)  # keyword-only
+    p = AKFParams()
+    with pytest.raises(Exception):
+        p.contrast_threshold = 0.2
+
+
+def test_params_toml_and_presets(tmp_path):
+    f = tmp_path / "run.toml"
+    f.write_text('[akf]\ncontrast_threshold = 0.2\nnoise_model = "reference_code"\n[cf]\ncutoff_hz = 2.0\n')
+    assert AKFParams.from_toml(f) == AKFParams(contrast_threshold=0.2, noise_model="reference_code")
+    assert CFParams.from_toml(f).alpha_rad_per_s == pytest.approx(4 * np.pi)
+    with pytest.raises(ValueError, match="unknown AKFParams"):
+        AKFParams.from_dict({"sigma_p": 1})
+    r = AKFParams.reference_code()
+    assert (r.process_noise_per_s, r.initial_covariance, r.intensity_offset) == (5e-3, 0.09, 1.0)
+    assert AKFParams.paper() == AKFParams()
+    assert AKFParams(contrast_threshold_on=0.2).c_on == 0.2 and AKFParams(contrast_threshold_on=0.2).c_off == 0.1
+
+
+def test_bad_calls():
+    rec, _ = ideal_recording()
+    with pytest.raises(ValueError, match="unknown method"):
+        reconstruct(rec, "e2vid")
+    with pytest.raises(ValueError, match="strictly increasing"):
+        reconstruct(rec, "akf", times_us=[30_000, 20_000])
+    with pytest.raises(ValueError, match="before the filter can start"):
+        reconstruct(rec, "akf", times_us=[10])
+    with pytest.raises(ValueError, match="exactly one"):
+        reconstruct(rec, "akf", times_us=[10_000], fps=30)
+    with pytest.raises(ValueError, match="mode"):
+        reconstruct(rec, "akf", mode="online")
+    with pytest.raises(ValueError, match="fps"):
+        reconstruct(rec, "akf", fps=-3)
+    with pytest.raises(TypeError, match="params"):
+        reconstruct(rec, "akf", CFParams())
+    with pytest.raises(ValueError, match="needs frames"):
+        reconstruct(Recording(rec.events, rec.sensor_size), "akf")
+    with pytest.raises(ValueError, match="causal"):
+        reconstruct(rec, "frames_linear", mode="causal")
+
+
+def test_highpass_events_only():
+    rec, _ = ideal_recording()
+    v = reconstruct(Recording(rec.events, rec.sensor_size), "hpf", fps=100)
+    assert len(v) > 10 and np.isfinite(v.frames).all() and v.frames.dtype == np.float32
+
+
+def test_profile_roundtrip_and_errors(tmp_path):
+    p = default_profile(8)
+    assert p.max_code == 255 and p.weighting.max() == 1.0
+    path = p.save(tmp_path / "cam.json")
+    q = CameraProfile.load(path)
+    np.testing.assert_array_equal(q.weighting, p.weighting)
+    assert q.frame_precision_scale == 7e5
+    d = json.loads(path.read_text())
+    d["format"] = "other"
+    (tmp_path / "bad.json").write_text(json.dumps(d))
+    with pytest.raises(ValueError, match="format"):
+        CameraProfile.load(tmp_path / "bad.json")
+    with pytest.raises(ValueError, match="weighting"):
+        CameraProfile(weighting=[0.5, 2.0])
+    with pytest.raises(ValueError, match="non-decreasing"):
+        CameraProfile(weighting=[1.0, 1.0, 1.0], inverse_crf=[0.0, 0.7, 0.5])
+    # eq. 6: R̄ = 1/(scale max(f_w, floor))
+    assert p.variance(np.array([0, 128]))[1] == pytest.approx(1 / 7e5)
+    assert p.variance(np.array([0]))[0] == pytest.approx(1 / (7e5 * 0.09))
+    v1 = reconstruct(ideal_recording()[0], "akf", profile=path)
+    v2 = reconstruct(ideal_recording()[0], "akf")
+    np.testing.assert_array_equal(v1.frames, v2.frames)
+
+
+def test_streaming_from_container_equals_in_memory(tmp_path):
+    container = pytest.importorskip("hybridhdr.container")
+    rec, _ = ideal_recording()
+    path = tmp_path / "rec.h5"
+    container.write_recording(rec, path)
+    a = reconstruct(rec, "akf", fps=300)
+    with container.RecordingFile(path) as f:
+        b = list(reconstruct_iter(f, "akf", fps=300, chunk_events=97))
+    assert [t for t, _ in b] == a.t_us.tolist()
+    np.testing.assert_array_equal(np.stack([im for _, im in b]), a.frames)
+    c = reconstruct(str(path), "akf", fps=300, chunk_events=1000)
+    np.testing.assert_array_equal(c.frames, a.frames)
+
+
+def test_window_and_empty_events():
+    rec, _ = ideal_recording()
+    v = reconstruct(rec, "akf", fps=100, t_start_us=50_000, t_end_us=100_000)
+    assert v.t_us[0] == 50_000 and v.t_us[-1] < 100_000
+    rec0 = Recording(make_events(np.zeros(0, np.int64), [], [], []), rec.sensor_size, rec.frames)
+    v0 = reconstruct(rec0, "akf")
+    assert len(v0) == len(rec.frames) and np.isfinite(v0.frames).all()
+
+
+def test_outputs(tmp_path):
+    from hybridhdr.reconstruct.output import read_exr, tone_map, write_exr_sequence, write_png_previews
+    v = reconstruct(ideal_recording()[0], "akf", fps=100)
+    paths = write_exr_sequence(v, tmp_path / "exr")
+    np.testing.assert_array_equal(read_exr(paths[3]), v.frames[3])
+    lines = (tmp_path / "exr" / "timestamps.txt").read_text().splitlines()
+    assert lines[4].split() == [str(v.t_us[3]), "frame_000003.exr"]
+    assert len(write_png_previews(v, tmp_path / "png", every=5)) == (len(v) + 4) // 5
+    img, (lo, hi) = tone_map(np.array([[1e-3, 1.0], [10.0, 100.0]]), low_percentile=0, high_percentile=100)
+    assert img.dtype == np.uint8 and img.min() == 0 and img.max() == 255
+    assert not list((tmp_path / "exr").glob("*.partial*"))
+
+
+def test_cli_run(tmp_path):
+    from hybridhdr.container import write_recording
+    from hybridhdr.reconstruct import cli
+    rec, _ = ideal_recording()
+    write_recording(rec, tmp_path / "rec.h5")
+    ap = argparse.ArgumentParser()
+    cli.add_parser(ap.add_subparsers())
+    toml = tmp_path / "run.toml"
+    toml.write_text("[akf]\nprocess_noise_per_s = 1e-3\n")
+    args = ap.parse_args(["reconstruct", str(tmp_path / "rec.h5"), "--out", str(tmp_path / "out"), "--fps", "50",
+                          "--config", str(toml), "--set", "refractory_period_us=5000", "--png", "--no-progress"])
+    assert args.func(args) == 0
+    info = json.loads((tmp_path / "out" / "run.json").read_text())
+    assert info["params"]["process_noise_per_s"] == 1e-3 and info["params"]["refractory_period_us"] == 5000
+    assert (tmp_path / "out" / "timestamps.txt").exists()
+    bad = ap.parse_args(["reconstruct", str(tmp_path / "rec.h5"), "--out", str(tmp_path / "o2"),
+                         "--set", "nonsense=1", "--no-progress"])
+    assert bad.func(bad) == 2
