@@ -96,8 +96,13 @@ class AKFEngine(Engine):
         if seg.t1_us is not None:
             T_us = seg.t1_us - seg.t0_us
             self.seg_inv_t = 1.0 / T_us
-            with np.errstate(divide="ignore", invalid="ignore"):
-                S[:, K.A_KLOG] = np.where(beta != 0.0, seg.rinv * (T_us * K.US) / np.where(beta != 0, beta, 1.0), 0.0)
+            nz = beta != 0.0
+            if nz.any():
+                klog = np.zeros(self.n)
+                klog[nz] = seg.rinv[nz] * (T_us * K.US) / beta[nz]
+                S[:, K.A_KLOG] = klog
+            else:
+                S[:, K.A_KLOG] = 0.0
         else:
             self.seg_inv_t = 0.0
             S[:, K.A_BETA] = 0.0

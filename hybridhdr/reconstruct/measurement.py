@@ -109,6 +109,16 @@ class FrameMeasurements:
         self.interpolate_covariance = bool(interpolate_covariance)
         self.scale_factor = 1.0 if precision_scale is None else profile.frame_precision_scale / float(precision_scale)
         self.shape = tuple(sensor_shape)
+        self._lut = None
+        if codes.dtype.kind in "ui" and profile.max_code <= 65535:
+            # every per-pixel quantity of a frame depends only on its code: tabulate once
+            c = np.arange(profile.max_code + 1)
+            inten = profile.intensity(c)
+            rbar = profile.variance(c) * self.scale_factor
+            ip = inten + self.offset
+            r_log = rbar / (ip * ip)
+            logf = np.log(ip) - (0.5 * r_log if self.bias_correction else 0.0)
+            self._lut = (inten, rbar, logf, 1.0 / r_log)
 
     def __len__(self) -> int:
         return int(self.times_us.shape[0])
@@ -121,6 +131,17 @@ class FrameMeasurements:
         if not 0 <= k < len(self):
             raise IndexError(f"segment {k} out of range 0..{len(self) - 1}")
         code = self._codes[self._idx[k]]
+        last = k + 1 >= len(self)
+        if self._lut is not None:
+            c = np.clip(code.ravel(), 0, self.profile.max_code)
+            inten_l, rbar_l, logf_l, rinv_l = self._lut
+            if self.interpolate_covariance and not last:
+                c1 = np.clip(self._codes[self._idx[k + 1]].ravel(), 0, self.profile.max_code)
+                beta = rbar_l[c1] / rbar_l[c] - 1.0
+            else:
+                beta = np.zeros(c.shape[0])
+            return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
+                           log_frame=logf_l[c], intensity=inten_l[c], rinv=rinv_l[c], beta=beta, la_step=None)
         inten = self.profile.intensity(code).ravel()
         ip = inten + self.offset
         rbar = self._rbar(k)
@@ -128,7 +149,6 @@ class FrameMeasurements:
         logf = np.log(ip)
         if self.bias_correction:
             logf = logf - 0.5 * r_log  # eq. 8
-        last = k + 1 >= len(self)
         if self.interpolate_covariance and not last:
             beta = self._rbar(k + 1) / rbar - 1.0  # eq. 7, R̄ linear in t
         else:
