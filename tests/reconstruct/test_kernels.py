@@ -12,6 +12,11 @@ from hybridhdr.reconstruct import _kernels as K
 from .conftest import ideal_recording
 
 
+def _py(f):
+    """The Python original of a kernel (the function itself under NUMBA_DISABLE_JIT=1)."""
+    return getattr(f, "py_func", f)
+
+
 def _events(n=300, h=5, w=6, seed=1):
     rng = np.random.default_rng(seed)
     t = np.sort(rng.integers(1_000, 60_000, n)).astype(np.int64)
@@ -42,7 +47,7 @@ def test_akf_events_equals_py_func(noise_form, has_la_step):
     h, w = 5, 6
     t, x, y, p = _events(h=h, w=w)
     outs = []
-    for fn in (K.akf_events, K.akf_events.py_func):
+    for fn in (K.akf_events, _py(K.akf_events)):
         S = _akf_state(h * w)
         te = np.full(h * w, 1_000, np.int64)
         n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, has_la_step, 1_000.0, 1.0 / 100_000, 0.12, 0.08,
@@ -56,7 +61,7 @@ def test_akf_events_equals_py_func(noise_form, has_la_step):
 def test_akf_propagate_and_output_equal_py_func():
     n = 30
     res = []
-    for prop, outk in ((K.akf_propagate, K.akf_output), (K.akf_propagate.py_func, K.akf_output.py_func)):
+    for prop, outk in ((K.akf_propagate, K.akf_output), (_py(K.akf_propagate), _py(K.akf_output))):
         S = _akf_state(n)
         o = np.empty(n, np.float32); lg = np.empty(n); var = np.empty(n)
         outk(S, 1_000.0, 1.0 / 100_000, 77_777.0, 1.0, o, lg, var, 0, n)
@@ -71,7 +76,7 @@ def test_cf_kernels_equal_py_func():
     t, x, y, p = _events(h=h, w=w)
     res = []
     for ev, prop, outk in ((K.cf_events, K.cf_propagate, K.cf_output),
-                           (K.cf_events.py_func, K.cf_propagate.py_func, K.cf_output.py_func)):
+                           (_py(K.cf_events), _py(K.cf_propagate), _py(K.cf_output))):
         rng = np.random.default_rng(3)
         C = K.aligned_state(h * w, K.CF_FIELDS)
         C[:, K.C_LF] = rng.normal(0, 0.3, h * w)
@@ -90,7 +95,7 @@ def test_rinv_integral_series_and_log_branches_agree():
     # x just below and above the series threshold give the same integral to 1e-15
     for beta in (0.3, -0.4, 1e-9):
         for du in (0.0333333, 0.0333334, 1e-6, 0.9):
-            a = K.rinv_integral.py_func(5.0, beta, 5.0 * 1.0 / beta, 0.0, du * 1e6, 0.0, 1e-6)
+            a = _py(K.rinv_integral)(5.0, beta, 5.0 * 1.0 / beta, 0.0, du * 1e6, 0.0, 1e-6)
             exact = 5.0 / beta * np.log1p(beta * du)
             assert a == pytest.approx(exact, rel=1e-13)
 
