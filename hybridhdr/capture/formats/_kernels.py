@@ -70,6 +70,12 @@ def new_state() -> np.ndarray:
     return st
 
 
+#: De Bruijn table: index of the lowest set bit of a 32-bit value v is
+#: _DEBRUIJN32[((v & -v) * 0x077CB531 >> 27) & 31]
+_DEBRUIJN32 = np.array([0, 1, 28, 2, 29, 14, 24, 3, 30, 22, 20, 15, 25, 17, 4, 8,
+                        31, 27, 13, 23, 21, 19, 16, 7, 26, 12, 18, 6, 11, 5, 10, 9], np.int64)
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _pack_xyp(x, y, pbyte):
     return np.int64(x) | (np.int64(y) << 16) | (np.int64(pbyte) << 32)
@@ -231,18 +237,19 @@ def evt21_decode(words, start, out, n, cap, trig_t, trig_ch, trig_edge, nt, tcap
                             st[ST_ERR_B] = tmax
                             break
                         disorder += 1
-                    pb = 1 if typ == 1 else 0xFF
-                    for b in range(32):
-                        if (m >> b) & 1:
-                            x = x0 + b
-                            if x >= width:
-                                err = ERR_X_RANGE
-                                st[ST_ERR_A] = x
-                                st[ST_ERR_B] = width
-                                break
-                            out[2 * n] = t
-                            out[2 * n + 1] = _pack_xyp(x, y, pb)
-                            n += 1
+                    yp = (np.int64(y) << 16) | (np.int64(1 if typ == 1 else 0xFF) << 32)
+                    while m != 0:
+                        low = m & (-m)
+                        x = x0 + _DEBRUIJN32[((low * 0x077CB531) >> 27) & 31]
+                        m ^= low
+                        if x >= width:
+                            err = ERR_X_RANGE
+                            st[ST_ERR_A] = x
+                            st[ST_ERR_B] = width
+                            break
+                        out[2 * n] = t
+                        out[2 * n + 1] = yp | x
+                        n += 1
                     if err:
                         break
         elif typ == 8:
@@ -367,19 +374,26 @@ def evt3_decode(words, start, out, n, cap, trig_t, trig_ch, trig_edge, nt, tcap,
                             break
                         disorder += 1
                     yp = (np.int64(y) << 16) | (np.int64(1 if vp else 0xFF) << 32)
-                    for b in range(nb):
-                        if (m >> b) & 1:
-                            x = bx + b
-                            if x >= width:
-                                err = ERR_X_RANGE
-                                st[ST_ERR_A] = x
-                                st[ST_ERR_B] = width
-                                break
+                    if bx + nb <= width:
+                        # branch-free: write all nb slots, advance n by the valid bits only
+                        for b in range(nb):
                             out[2 * n] = t
-                            out[2 * n + 1] = yp | x
-                            n += 1
-                    if err:
-                        break
+                            out[2 * n + 1] = yp | (bx + b)
+                            n += (m >> b) & 1
+                    else:
+                        for b in range(nb):
+                            if (m >> b) & 1:
+                                x = bx + b
+                                if x >= width:
+                                    err = ERR_X_RANGE
+                                    st[ST_ERR_A] = x
+                                    st[ST_ERR_B] = width
+                                    break
+                                out[2 * n] = t
+                                out[2 * n + 1] = yp | x
+                                n += 1
+                        if err:
+                            break
                 bx += nb
         elif typ == 3:  # VECT_BASE_X
             bx = w & 0x7FF
@@ -415,6 +429,46 @@ def evt3_decode(words, start, out, n, cap, trig_t, trig_ch, trig_edge, nt, tcap,
     st[ST_TMAX] = tmax
     st[ST_DISORDER] = disorder
     return i, n, nt, err, i
+
+
+# ---------------------------------------------------------------------------------------------
+# Counting (upper bounds used to size the output of a whole-file read)
+# ---------------------------------------------------------------------------------------------
+@njit(cache=True, nogil=True)
+def evt3_count(words):
+    """Upper bound of the events in EVT 3.0 ``words``: ADDR_X words plus VECT_12/VECT_8 bits."""
+    c = 0
+    for i in range(words.shape[0]):
+        w = np.int64(words[i])
+        typ = w >> 12
+        if typ == 2:
+            c += 1
+        elif typ == 4:
+            m = w & 0xFFF
+            while m:
+                m &= m - 1
+                c += 1
+        elif typ == 5:
+            m = w & 0xFF
+            while m:
+                m &= m - 1
+                c += 1
+    return c
+
+
+@njit(cache=True, nogil=True)
+def evt21_count(words, legacy):
+    """Upper bound of the events in EVT 2.1 ``words`` (uint32 pairs): set mask bits of CD words."""
+    hoff = 0 if legacy else 1
+    c = 0
+    for i in range(words.shape[0] // 2):
+        h = np.int64(words[2 * i + hoff])
+        if (h >> 28) <= 1:
+            m = np.int64(words[2 * i + 1 - hoff])
+            while m:
+                m &= m - 1
+                c += 1
+    return c
 
 
 # ---------------------------------------------------------------------------------------------

@@ -6,7 +6,7 @@ and the DAT layout of openeb's ``dat_tools.py``); the code is written from those
 Reading
 -------
 Readers parse only the ``%`` header on construction and then decode the file in blocks
-(``block_bytes``, default 16 MiB), so memory does not grow with the file size; the decoder state
+(``block_bytes``, default 8 MiB), so memory does not grow with the file size; the decoder state
 (time high, loop count, row, vector base, ...) carries across blocks. The per-word loops are Numba
 kernels in :mod:`._kernels`. :meth:`_PropheseeReader.read_all` decodes a whole file into one
 preallocated array (the fast path used by :meth:`read` without a time window).
@@ -15,7 +15,7 @@ Reader options (keyword arguments of every reader and of :func:`hybridhdr.open_r
 
 ``sensor_size``
     ``(height, width)`` overriding the header geometry.
-``block_bytes`` : int, default 16 MiB
+``block_bytes`` : int, default 8 MiB
     Bytes read per block.
 ``reorder_window_us`` : int, default 1000
     Events may arrive up to this many µs earlier than the latest event decoded so far; they are
@@ -27,6 +27,10 @@ Reader options (keyword arguments of every reader and of :func:`hybridhdr.open_r
     Unused word types are errors (else skipped).
 ``allow_truncated`` : bool, default False
     Ignore a partial word (or DAT record) at the end of the file instead of raising.
+``parallel`` : bool, default False
+    DAT only: decode large blocks with the two-pass multi-threaded kernel (identical output).
+    On a 2-core VM it measured no faster than the serial kernel (both are bound by page faults
+    of the output array) and slower when other processes compete for the cores.
 
 Time
 ----
@@ -75,7 +79,7 @@ if sys.byteorder != "little":  # pragma: no cover - the packed-record kernels as
 
 #: Longest header accepted (bytes); a file without a newline in it cannot hang the parser.
 HEADER_MAX_BYTES = 1 << 20
-DEFAULT_BLOCK_BYTES = 16 << 20
+DEFAULT_BLOCK_BYTES = 8 << 20
 DEFAULT_REORDER_WINDOW_US = 1000
 #: Largest timestamp the EVT writers accept (µs, about 203 days).
 EVT_MAX_T_US = 1 << 44
@@ -279,8 +283,13 @@ def sniff(path, head: bytes) -> str | None:
     """
     if not head or head[:1] != b"%":
         return None
+    text = head
+    if len(head) >= 4096:  # possibly cut mid-line: only look at whole lines
+        text = head[:head.rfind(b"\n") + 1]
+        if not text:
+            return None
     try:
-        h = parse_header(head, complete=True)
+        h = parse_header(text, complete=True)
     except FormatError:
         return None
     if not h.lines:
@@ -332,6 +341,12 @@ class _Core:
     def estimate(self, n_words: int) -> int:
         return n_words
 
+    #: whether :meth:`count` gives an upper bound of the events in some words (else estimate)
+    counts = False
+
+    def count(self, words) -> int:
+        return self.estimate(self.n_words(words))
+
     def run(self, words, start, out, n, cap, tt, tc, te, nt, tcap):
         raise NotImplementedError
 
@@ -376,6 +391,11 @@ class _Evt21Core(_Core):
     def estimate(self, n_words):
         return 4 * n_words
 
+    counts = True
+
+    def count(self, words):
+        return int(K.evt21_count(words, self.legacy))
+
     def run(self, words, start, out, n, cap, tt, tc, te, nt, tcap):
         return K.evt21_decode(words, start, out, n, cap, tt, tc, te, nt, tcap, self.st, self.width,
                               self.height, self.window_us, self.strict, self.legacy)
@@ -389,6 +409,11 @@ class _Evt3Core(_Core):
     valid_types = ("0x0 ADDR_Y, 0x2 ADDR_X, 0x3 VECT_BASE_X, 0x4 VECT_12, 0x5 VECT_8, 0x6 TIME_LOW, "
                    "0x7 CONTINUED_4, 0x8 TIME_HIGH, 0xA EXT_TRIGGER, 0xD IMU, 0xE OTHERS, 0xF CONTINUED_12")
 
+    counts = True
+
+    def count(self, words):
+        return int(K.evt3_count(words))
+
     def run(self, words, start, out, n, cap, tt, tc, te, nt, tcap):
         return K.evt3_decode(words, start, out, n, cap, tt, tc, te, nt, tcap, self.st, self.width,
                              self.height, self.window_us, self.strict)
@@ -397,6 +422,7 @@ class _Evt3Core(_Core):
 class _DatCore(_Core):
     format_name = "DAT"
     word_bytes = 8
+    parallel = False
 
     def n_words(self, words):
         return words.shape[0] // 2
@@ -408,9 +434,9 @@ class _DatCore(_Core):
             return start, n, nt, 0, start
         w = words[2 * start:2 * (start + k)]
         o = out[2 * n:2 * (n + k)]
-        if k >= _DAT_PARALLEL_MIN:
+        if self.parallel and k >= _DAT_PARALLEL_MIN:
             import numba
-            nseg = 4 * numba.get_num_threads()
+            nseg = numba.get_num_threads()
             done, err, erec = K.dat_decode_parallel(w, o, self.st, self.width, self.height,
                                                     self.window_us, nseg)
         else:
@@ -623,7 +649,8 @@ def decode_evt21(buf, sensor_size=None, *, legacy: bool = False, **options):
 # =============================================================================================
 # Readers
 # =============================================================================================
-_READER_OPTIONS = {"sensor_size", "block_bytes", "reorder_window_us", "strict", "allow_truncated"}
+_READER_OPTIONS = {"sensor_size", "block_bytes", "reorder_window_us", "strict", "allow_truncated",
+                   "parallel"}
 
 
 class _PropheseeReader(EventFileReader):
@@ -639,8 +666,8 @@ class _PropheseeReader(EventFileReader):
             raise TypeError(f"{type(self).__name__}: unknown option(s) {sorted(unknown)}; expected "
                             f"some of {sorted(_READER_OPTIONS)}")
         self.block_bytes = int(options.get("block_bytes", DEFAULT_BLOCK_BYTES))
-        if self.block_bytes < 8:
-            raise ValueError(f"block_bytes must be >= 8, got {self.block_bytes}")
+        if self.block_bytes < 1:
+            raise ValueError(f"block_bytes must be >= 1 (rounded to whole words), got {self.block_bytes}")
         self.reorder_window_us = int(options.get("reorder_window_us", DEFAULT_REORDER_WINDOW_US))
         if self.reorder_window_us < 0:
             raise ValueError(f"reorder_window_us must be >= 0 µs, got {self.reorder_window_us}")
@@ -683,7 +710,9 @@ class _PropheseeReader(EventFileReader):
     def _new_core(self) -> _Core:
         ss = self.sensor_size
         w, h = (self._max_coord, self._max_coord) if ss is None else (ss.width, ss.height)
-        return self._core_cls(w, h, self.reorder_window_us, self.strict)
+        core = self._core_cls(w, h, self.reorder_window_us, self.strict)
+        core.parallel = bool(self.options.get("parallel", False))
+        return core
 
     # -- block reading ---------------------------------------------------------------------------
     def _blocks(self, core: _Core) -> Iterator[tuple[np.ndarray, int]]:
@@ -771,7 +800,10 @@ class _PropheseeReader(EventFileReader):
         wb = core.word_bytes
         mpw = core.max_per_word
         nbytes = max(0, self._file_size - self._data_offset)
-        cap = core.estimate(nbytes // wb) + mpw
+        if core.counts:  # exact upper bound from a cheap first pass (no regrowth of the output)
+            cap = sum(core.count(words) for words, _ in self._blocks(core)) + mpw
+        else:
+            cap = core.estimate(nbytes // wb) + mpw
         raw = np.empty(2 * cap, np.int64)
         tt = np.empty(_TRIG_CAP, np.int64)
         tc = np.empty(_TRIG_CAP, np.uint16)
@@ -1104,3 +1136,43 @@ class DatWriter(EventFileWriter):
 
 
 WRITERS = {"evt2": Evt2Writer, "evt3": Evt3Writer, "dat": DatWriter}
+
+
+# =============================================================================================
+# EVT 2.1 encoder (tests and benchmarks only: Prophesee's cameras write EVT 2.1 themselves)
+# =============================================================================================
+def _encode_evt21(events: np.ndarray, legacy: bool = False) -> bytes:
+    """Encode sorted events as EVT 2.1 64-bit words (no header, no 2^34 µs loop bridging).
+
+    Consecutive events with equal t, y and p, the same 32-column group (x >> 5) and strictly
+    increasing x share one word (mask bit x & 31 over base x & ~31), so decoding restores the exact
+    order. A TIME_HIGH word precedes each change of t >> 6. ``legacy`` puts the header in bytes
+    0-3 and the mask in bytes 4-7; otherwise the whole word is little-endian (mask first).
+    """
+    n = len(events)
+    if n == 0:
+        words = np.array([[0, 8 << 28]], np.uint32)
+        return (words[:, ::-1] if legacy else words).tobytes()
+    t = events["t"].astype(np.int64)
+    x = events["x"].astype(np.int64)
+    y = events["y"].astype(np.int64)
+    p = events["p"]
+    new = np.ones(n, bool)
+    new[1:] = ((t[1:] != t[:-1]) | (y[1:] != y[:-1]) | (p[1:] != p[:-1])
+               | ((x[1:] >> 5) != (x[:-1] >> 5)) | (x[1:] <= x[:-1]))
+    starts = np.flatnonzero(new)
+    mask = np.bitwise_or.reduceat(np.left_shift(np.int64(1), x & 31), starts).astype(np.uint32)
+    gt, gx, gy, gp = t[starts], x[starts] & ~31, y[starts], p[starts]
+    header = ((np.where(gp > 0, 1, 0) << 28) | ((gt & 63) << 22) | (gx << 11) | gy).astype(np.uint32)
+    hi = gt >> 6
+    th_needed = np.ones(len(starts), bool)
+    th_needed[1:] = hi[1:] != hi[:-1]
+    nth = int(th_needed.sum())
+    words = np.zeros((len(starts) + nth, 2), np.uint32)  # [mask, header]
+    pos = np.arange(len(starts)) + np.cumsum(th_needed)
+    words[pos, 0] = mask
+    words[pos, 1] = header
+    words[pos[th_needed] - 1, 1] = ((8 << 28) | (hi[th_needed] & 0xFFFFFFF)).astype(np.uint32)
+    if legacy:
+        words = words[:, ::-1]
+    return np.ascontiguousarray(words).tobytes()
