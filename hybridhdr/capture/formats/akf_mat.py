@@ -12,7 +12,9 @@ The datasets of Wang et al., "An Asynchronous Kalman Filter for Hybrid Event Cam
 
 MATLAB v7.3 files are HDF5 with a 512-byte MATLAB header as the HDF5 user block; h5py returns each
 array with its axes reversed (``events`` reads as 4 x N), which this module undoes. v5 files are
-read with :func:`scipy.io.loadmat`.
+parsed by :func:`read_mat5`, a small bounds-checked reader of numeric variables written from the
+MAT-file format description (MathWorks, "MAT-File Format", level 5): ``scipy.io.loadmat`` crashes
+the interpreter (segmentation fault) on some corrupt files, found by fuzzing.
 
 Conversions:
 
@@ -39,7 +41,7 @@ from ...events import EVENT_DTYPE, SensorSize
 from ...io import EventChunk, EventFileReader, EventFileWriter
 from ...model import CameraInfo, Frames, HDRReferences, Metadata
 
-__all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header"]
+__all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5"]
 
 _V73 = b"MATLAB 7.3 MAT-file"
 _V5 = b"MATLAB 5.0 MAT-file"
@@ -66,12 +68,152 @@ def matlab_v73_header(created: str | None = None) -> bytes:
     return text[:116].ljust(116, b" ") + b"\x00" * 8 + (0x0200).to_bytes(2, "little") + b"IM"
 
 
+# MAT v5 data types (miXXX) -> NumPy element type; array classes (mxXXX) -> NumPy dtype.
+_MI_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 9: "f8", 12: "i8", 13: "u8"}
+_MX_CLASSES = {6: "f8", 7: "f4", 8: "i1", 9: "u1", 10: "i2", 11: "u2", 12: "i4", 13: "u4", 14: "i8", 15: "u8"}
+_MI_MATRIX, _MI_COMPRESSED = 14, 15
+_MAX_MAT5_BYTES = 1 << 31
+
+
+def _mat5_tag(path, buf: bytes, pos: int, end: int, e: str, what: str) -> tuple[int, int, int, int]:
+    """``(type, nbytes, data_start, next_pos)`` of the data element at ``pos`` (bounds-checked)."""
+    if pos + 8 > end:
+        raise FormatError(path, f"{what}: data element tag runs past the end", offset=pos)
+    word = int.from_bytes(buf[pos:pos + 4], "little" if e == "<" else "big")
+    if word >> 16:  # small data element: bytes in the upper 16 bits, data in the next 4 bytes
+        typ, nbytes = word & 0xFFFF, word >> 16
+        if nbytes > 4:
+            raise FormatError(path, f"{what}: small data element claims {nbytes} bytes", offset=pos)
+        return typ, nbytes, pos + 4, pos + 8
+    typ = word
+    nbytes = int.from_bytes(buf[pos + 4:pos + 8], "little" if e == "<" else "big")
+    start = pos + 8
+    if start + nbytes > end:
+        raise FormatError(path, f"{what}: element of {nbytes} bytes runs past the end ({end - start} left)",
+                          offset=pos)
+    nxt = start + nbytes
+    if typ not in (_MI_MATRIX, _MI_COMPRESSED):
+        nxt += (-nbytes) % 8  # padding to 8 bytes (may be absent at the very end)
+    return typ, nbytes, start, nxt
+
+
+def _mat5_matrix(path, buf: bytes, pos: int, end: int, e: str, base: int):
+    """Parse one miMATRIX body ``buf[pos:end]``: returns ``(name, array)``.
+
+    Non-numeric classes (cell, struct, char, sparse, object) give an empty object array.
+    ``base`` is the file offset of the element, for error messages.
+    """
+    where = f"variable at byte {base}"
+    typ, n, p, nxt = _mat5_tag(path, buf, pos, end, e, where)
+    if typ != 6 or n != 8:
+        raise FormatError(path, f"{where}: expected the 8-byte array-flags element, got type {typ}", offset=base)
+    flags = int.from_bytes(buf[p:p + 4], "little" if e == "<" else "big")
+    cls, complex_ = flags & 0xFF, bool(flags & 0x0800)
+    typ, n, p, nxt = _mat5_tag(path, buf, nxt, end, e, where)
+    if typ != 5 or n % 4 or n < 8:
+        raise FormatError(path, f"{where}: invalid dimensions element (type {typ}, {n} bytes)", offset=base)
+    dims = np.frombuffer(buf, e + "i4", n // 4, p).astype(np.int64)
+    if (dims < 0).any():
+        raise FormatError(path, f"{where}: negative dimension {dims.tolist()}", offset=base)
+    typ, n, p, nxt = _mat5_tag(path, buf, nxt, end, e, where)
+    if typ not in (1, 2, 16):
+        raise FormatError(path, f"{where}: invalid array-name element (type {typ})", offset=base)
+    try:
+        name = bytes(buf[p:p + n]).decode("ascii")
+    except UnicodeDecodeError:
+        raise FormatError(path, f"{where}: variable name is not ASCII", offset=base) from None
+    if cls not in _MX_CLASSES:
+        return name, np.empty(0, dtype=object)
+    if complex_:
+        raise FormatError(path, f"{where}: variable {name!r} is complex; expected a real array", offset=base)
+    count = int(np.prod(dims)) if dims.size else 0
+    if count > _MAX_MAT5_BYTES:
+        raise FormatError(path, f"{where}: variable {name!r} has implausible dimensions {dims.tolist()}", offset=base)
+    typ, n, p, nxt = _mat5_tag(path, buf, nxt, end, e, where)
+    if typ not in _MI_TYPES:
+        raise FormatError(path, f"{where}: variable {name!r} has unsupported data type {typ}", offset=base)
+    item = np.dtype(_MI_TYPES[typ]).itemsize
+    if n != count * item:
+        raise FormatError(path, f"{where}: variable {name!r} of shape {dims.tolist()} needs {count * item} data "
+                                f"bytes, element has {n}", offset=base)
+    data = np.frombuffer(buf, e + _MI_TYPES[typ], count, p)
+    with np.errstate(all="ignore"):
+        arr = data.astype(_MX_CLASSES[cls])
+    return name, arr.reshape(tuple(dims.tolist()), order="F")
+
+
+def read_mat5(path, names=None) -> dict:
+    """Numeric variables of a MATLAB level-5 MAT-file, with every length checked.
+
+    Parameters
+    ----------
+    path : str or os.PathLike
+    names : collection of str, optional
+        Variables to return (default all).
+
+    Returns
+    -------
+    dict
+        name -> ndarray in MATLAB axis order (at least 2-D, Fortran data reordered), with the
+        class's dtype (``double`` -> float64, ``uint8`` -> uint8 ...). Cell, struct, char, sparse
+        and object variables map to an empty object array.
+
+    Raises
+    ------
+    FormatError
+        On any structural problem (truncation, inconsistent sizes, bad compression).
+    """
+    import zlib
+    with open(path, "rb") as f:
+        buf = f.read(_MAX_MAT5_BYTES + 1)
+    if len(buf) > _MAX_MAT5_BYTES:
+        raise FormatError(path, "MAT v5 files are limited to 2 GB")
+    if len(buf) < 128:
+        raise FormatError(path, f"truncated MAT-file header ({len(buf)} bytes)", offset=len(buf))
+    e = {b"IM": "<", b"MI": ">"}.get(bytes(buf[126:128]))
+    if e is None:
+        raise FormatError(path, f"invalid endian indicator {bytes(buf[126:128])!r} (expected b'IM' or b'MI')",
+                          offset=126)
+    want = None if names is None else set(names)
+    out: dict = {}
+    pos = 128
+    while pos < len(buf):
+        if len(buf) - pos < 8 and not any(buf[pos:]):
+            break  # zero padding at the end
+        typ, n, p, nxt = _mat5_tag(path, buf, pos, len(buf), e, f"element at byte {pos}")
+        if typ == _MI_COMPRESSED:
+            d = zlib.decompressobj()
+            try:
+                inner = d.decompress(bytes(buf[p:p + n]), _MAX_MAT5_BYTES)
+            except zlib.error as exc:
+                raise FormatError(path, f"corrupt compressed variable: {exc}", offset=pos) from None
+            if d.unconsumed_tail:
+                raise FormatError(path, "compressed variable expands beyond 2 GB", offset=pos)
+            ityp, inn, ip, _ = _mat5_tag(path, inner, 0, len(inner), e, f"compressed element at byte {pos}")
+            if ityp != _MI_MATRIX:
+                raise FormatError(path, f"compressed element holds type {ityp}, expected a matrix", offset=pos)
+            name, arr = _mat5_matrix(path, inner, ip, ip + inn, e, pos)
+        elif typ == _MI_MATRIX:
+            if n == 0:
+                pos = nxt
+                continue
+            name, arr = _mat5_matrix(path, buf, p, p + n, e, pos)
+        else:
+            raise FormatError(path, f"unexpected top-level data element type {typ} (expected a matrix)", offset=pos)
+        if want is None or name in want:
+            if name in out:
+                raise FormatError(path, f"variable {name!r} appears twice", offset=pos)
+            out[name] = arr
+        pos = nxt
+    return out
+
+
 def _wrap(path, what: str, exc: BaseException) -> FormatError:
     return FormatError(path, f"{what}: {type(exc).__name__}: {exc}")
 
 
 class AkfMatReader(EventFileReader):
-    """Reader of AKF ``.mat`` files (MATLAB v7.3 via h5py, v5 via scipy).
+    """Reader of AKF ``.mat`` files (MATLAB v7.3 via h5py, v5 via :func:`read_mat5`).
 
     Parameters
     ----------
@@ -83,7 +225,7 @@ class AkfMatReader(EventFileReader):
     Notes
     -----
     v7.3 files are streamed by slices of the ``events`` dataset. v5 files cannot be sliced:
-    ``events`` is loaded whole (scipy) and then yielded in chunks.
+    ``events`` is loaded whole and then yielded in chunks.
     """
 
     format_name = "akf_mat"
@@ -166,11 +308,7 @@ class AkfMatReader(EventFileReader):
         return obj
 
     def _v5(self, names=None) -> dict:
-        from scipy.io import loadmat
-        try:
-            return loadmat(self.path, variable_names=names, squeeze_me=False, mat_dtype=False)
-        except Exception as exc:
-            raise _wrap(self.path, "cannot parse the MATLAB v5 file; corrupt or truncated?", exc) from None
+        return read_mat5(self.path, names)
 
     def _load_small(self) -> dict:
         names = ("im_height", "im_width", "ct", "f_Q", "time_image", "exposure")
@@ -339,18 +477,24 @@ class AkfMatReader(EventFileReader):
         d = self._v5([name])
         return None if name not in d else np.asarray(d[name])
 
+    def _numeric(self, name: str, v) -> np.ndarray:
+        a = np.asarray(v)
+        if a.dtype.kind not in "uifb":
+            raise FormatError(self.path, f"{name} must be numeric, got dtype {a.dtype}")
+        return a.astype(np.float64).reshape(-1)
+
     def _times(self, k: int) -> tuple[np.ndarray, np.ndarray]:
         ti = self._read_var("time_image")
         if ti is None:
             raise FormatError(self.path, "MAT-file has an image but no time_image")
-        ti = np.asarray(ti, dtype=np.float64).reshape(-1)
+        ti = self._numeric("time_image", ti)
         if ti.size != k or not np.isfinite(ti).all() or (np.abs(ti) >= _MAX_SAFE).any():
             raise FormatError(self.path, f"time_image must hold {k} finite µs values, got {ti.size}")
         ex = self._read_var("exposure")
         if ex is None:
             t = np.rint(ti).astype(np.int64)
             return t, t.copy()
-        ex = np.asarray(ex, dtype=np.float64).reshape(-1)
+        ex = self._numeric("exposure", ex)
         if ex.size == 1:
             ex = np.full(k, ex[0])
         if ex.size != k or not np.isfinite(ex).all() or (ex < 0).any() or (ex >= _MAX_SAFE).any():
@@ -411,9 +555,22 @@ class AkfMatReader(EventFileReader):
             imgs = hdr[np.newaxis]
         else:
             raise FormatError(self.path, f"HDR_mat must be H x W x 3 x K or H x W x K, got shape {hdr.shape}")
-        ti = np.asarray(self._read_var("time_image"), dtype=np.float64).reshape(-1)
-        if ti.size != imgs.shape[0] or not np.isfinite(ti).all():
-            raise FormatError(self.path, f"HDR_mat has {imgs.shape[0]} images but time_image has {ti.size} values")
+        if imgs.dtype.kind not in "uif":
+            raise FormatError(self.path, f"HDR_mat must be numeric, got dtype {imgs.dtype}")
+        if imgs.dtype.kind == "f":
+            finite = np.isfinite(imgs)
+            if not finite.all() or (np.abs(imgs) > np.finfo(np.float32).max).any():
+                raise FormatError(self.path, "HDR_mat holds values that are not finite float32 numbers")
+        ti = self._read_var("time_image")
+        if ti is None:
+            raise FormatError(self.path, "MAT-file has HDR_mat but no time_image")
+        ti = np.asarray(ti)
+        if ti.dtype.kind not in "uif":
+            raise FormatError(self.path, f"time_image must be numeric, got dtype {ti.dtype}")
+        ti = ti.astype(np.float64).reshape(-1)
+        if ti.size != imgs.shape[0] or not np.isfinite(ti).all() or (np.abs(ti) >= _MAX_SAFE).any():
+            raise FormatError(self.path, f"HDR_mat has {imgs.shape[0]} images but time_image has {ti.size} "
+                                         f"finite µs values below 2^53")
         return HDRReferences(imgs.astype(np.float32), np.rint(ti).astype(np.int64))
 
     def _count_time_image(self) -> int:
