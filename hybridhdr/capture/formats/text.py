@@ -25,7 +25,6 @@ bounded by the block and chunk sizes. Blank lines and ``#`` comment lines are sk
 from __future__ import annotations
 
 import io
-import os
 import re
 import shutil
 import warnings
