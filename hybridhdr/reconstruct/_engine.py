@@ -11,6 +11,7 @@ import numpy as np
 from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
+PARALLEL_MIN_WORK = 20_000  # events or pixels per call below which bands run in the caller
 
 
 def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:
@@ -39,7 +40,8 @@ class Engine:
         self.n = self.shape[0] * self.shape[1]
         self.n_workers = max(1, int(n_workers))
         self.bands = row_bands(self.shape[0], self.n_workers)
-        self._pool = ThreadPoolExecutor(len(self.bands)) if len(self.bands) > 1 else None
+        self._pool = ThreadPoolExecutor(len(self.bands) - 1) if len(self.bands) > 1 else None
+        self._idx = [np.empty(0, np.int32) for _ in self.bands]
         self.n_events = 0
 
     def close(self):
@@ -48,11 +50,26 @@ class Engine:
             self._pool = None
 
     def _map_bands(self, fn, min_work: int) -> list:
-        """Run ``fn(band_index, row_lo, row_hi)`` per band, in threads when worth it."""
-        if self._pool is None or min_work < 20_000:
+        """Run ``fn(band_index, row_lo, row_hi)`` per band, in threads when worth it.
+
+        The last band runs in the calling thread (one hand-off fewer per call).
+        """
+        if self._pool is None or min_work < PARALLEL_MIN_WORK:
             return [fn(b, lo, hi) for b, (lo, hi) in enumerate(self.bands)]
-        futs = [self._pool.submit(fn, b, lo, hi) for b, (lo, hi) in enumerate(self.bands)]
-        return [f.result() for f in futs]
+        futs = [self._pool.submit(fn, b, lo, hi) for b, (lo, hi) in enumerate(self.bands[:-1])]
+        b = len(self.bands) - 1
+        last = fn(b, *self.bands[b])
+        return [f.result() for f in futs] + [last]
+
+    def _index_buffer(self, b: int, n: int) -> np.ndarray:
+        """Band ``b``'s int32 index buffer for :func:`_kernels.band_select`, at least ``n`` long."""
+        if n >= 1 << 31:
+            raise ValueError(f"a batch of {n} events is too large for the parallel kernels (< 2**31)")
+        buf = self._idx[b]
+        if buf.shape[0] < n:
+            buf = np.empty(max(n, 2 * buf.shape[0]), np.int32)
+            self._idx[b] = buf
+        return buf
 
     # -- interface ----------------------------------------------------------------------------
     def start(self, t_start_us: int | None) -> int:
@@ -144,9 +161,16 @@ class AKFEngine(Engine):
         rho = np.int64(pr.refractory_period_us)
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form)
-        res = self._map_bands(lambda b, lo, hi: K.akf_events(t, x, y, p, i0, i1, lo, hi, W, H, self.S,
-                                                               self.te[b], *args), i1 - i0)
-        self.n_events += int(sum(res))
+        if len(self.bands) == 1:
+            self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
+            return
+
+        def band(b, lo, hi):
+            # select the band's rows plus the two ghost rows, then filter only those events
+            idx = self._index_buffer(b, i1 - i0)
+            m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
+            return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self.S, self.te[b], *args)
+        self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
     def output(self, t_us: int, with_state: bool = False):
         W = self.shape[1]
@@ -233,9 +257,16 @@ class CFEngine(Engine):
             return
         pr = self.params
         W = self.shape[1]
-        res = self._map_bands(lambda b, lo, hi: K.cf_events(t, x, y, p, i0, i1, lo, hi, W, self.C, pr.c_on,
-                                                              pr.c_off, self.event_decay), i1 - i0)
-        self.n_events += int(sum(res))
+        if len(self.bands) == 1:
+            self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
+                                         self.event_decay)
+            return
+
+        def band(b, lo, hi):
+            idx = self._index_buffer(b, i1 - i0)
+            m = K.band_select(y, i0, i1, lo, hi, idx)
+            return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay)
+        self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
     def output(self, t_us: int) -> np.ndarray:
         W = self.shape[1]

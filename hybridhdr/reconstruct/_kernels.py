@@ -12,6 +12,9 @@ events in the two *ghost* rows ``row_lo - 1`` and ``row_hi`` only update the las
 ``te`` read by the isolated-pixel noise, and all other events are skipped. With ``row_lo = 0,
 row_hi = height`` this is the serial filter; workers on disjoint row bands, each with its own
 ``te`` array, do exactly the serial arithmetic for their pixels, so the result is bit-identical.
+The parallel engines do not make every worker scan the whole stream: each worker first selects
+its band's events (plus ghost rows) with the branch-free :func:`band_select`, then runs the
+``*_indexed`` kernel over that index list only.
 
 Equation numbers refer to Wang, Ng, Scheerlinck, Mahony, "An Asynchronous Kalman Filter for
 Hybrid Event Cameras", ICCV 2021, doi:10.1109/ICCV48922.2021.00050.
@@ -60,6 +63,78 @@ def rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
 
 
 @njit(cache=True, nogil=True)
+def band_select(y, i0, i1, row_lo, row_hi, out):
+    """Indices (relative to ``i0``) of the events ``[i0, i1)`` whose row lies in ``[row_lo, row_hi)``.
+
+    Writes them, in order, to ``out`` (int32, at least ``i1 - i0`` long) and returns their count.
+    Branch-free (one store per event, the count advances only on a match), so it runs at memory
+    speed whatever the band layout. Used by the row-band parallel filters: each worker selects
+    its band (plus ghost rows for the AKF) and processes only those events.
+    """
+    m = 0
+    for i in range(i0, i1):
+        yy = np.int64(y[i])
+        out[m] = np.int32(i - i0)
+        m += np.int64((yy >= row_lo) & (yy < row_hi))
+    return m
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _akf_event(S, te, pix, xx, yy, ti, positive, width, height, has_la_step, seg_t0, seg_inv_t,
+               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+    """One AKF event at pixel ``pix`` = (``yy``, ``xx``), time ``ti`` µs (see :func:`akf_events`)."""
+    tif = np.float64(ti)
+    tu0 = S[pix, A_TU]
+    # -- propagate to t_i (eqs. 17, 20): g = P ∫R⁻¹, P ← P/(1+g), L̂ ← L^A + (L̂ - L^A)/(1+g) -------
+    beta = S[pix, A_BETA]
+    if beta == 0.0:  # R held over the segment (and always in causal mode): no log needed
+        integ = S[pix, A_RINV] * ((tif - tu0) * US)
+    else:
+        integ = rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, tif, seg_t0, seg_inv_t)
+    pp = S[pix, A_P]
+    d = 1.0 / (1.0 + pp * integ)
+    lav = S[pix, A_LA]
+    lhat = lav + (S[pix, A_L] - lav) * d
+    pp = pp * d
+    # -- event noise (eq. 2, §3.1.1): t* = latest event time in the 3×3 window ------------------
+    te0 = te[pix]
+    if xx > 0 and yy > 0 and xx + 1 < width and yy + 1 < height:
+        b = pix - width
+        c = pix + width
+        tstar = max(max(max(te[b - 1], te[b]), max(te[b + 1], te[pix - 1])),
+                    max(max(te0, te[pix + 1]), max(max(te[c - 1], te[c]), te[c + 1])))
+    else:
+        tstar = te0
+        for yn in range(max(yy - 1, 0), min(yy + 2, height)):
+            for xn in range(max(xx - 1, 0), min(xx + 2, width)):
+                v = te[yn * width + xn]
+                if v > tstar:
+                    tstar = v
+    dte = ti - te0
+    q = s_iso * ((ti - tstar) * US)
+    if noise_form == 0:
+        q += s_proc * (dte * US)
+        if dte <= rho_us:
+            q += s_ref
+    else:
+        q += s_proc * ((tif - tu0) * US)
+        if dte <= rho_us:
+            q += s_ref * (dte * US)
+    S[pix, A_P] = pp + q
+    # -- event jump (eq. 15) ------------------------------------------------------------------
+    if positive:
+        S[pix, A_L] = lhat + c_on
+        if has_la_step:
+            S[pix, A_LA] = lav + S[pix, A_LASTEP]
+    else:
+        S[pix, A_L] = lhat - c_off
+        if has_la_step:
+            S[pix, A_LA] = lav - S[pix, A_LASTEP]
+    S[pix, A_TU] = tif
+    te[pix] = ti
+
+
+@njit(cache=True, nogil=True)
 def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_step,
                seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
     """AKF update at each event (eqs. 15, 17, 20, 21 with the Q of eq. 2 and §3.1.1).
@@ -75,66 +150,44 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     σ_r (t_i - t_{i-1})·[t_i - t_{i-1} ≤ ρ]. t* is the latest event time in the 3×3 window
     including p (clipped at the border); t_{i-1} starts at the filter's start time.
 
-    Returns the number of events applied to pixels of the band.
+    Processes the events ``[i0, i1)``; events in the ghost rows ``row_lo - 1`` and ``row_hi``
+    only set ``te`` and all other rows outside ``[row_lo, row_hi)`` are skipped (``0, height``
+    is the serial filter). Returns the number of events applied to pixels of the band.
     """
     n = 0
     for i in range(i0, i1):
         yy = np.int64(y[i])
-        if yy + 1 < row_lo or yy > row_hi:
+        if yy < row_lo or yy >= row_hi:
+            if yy + 1 == row_lo or yy == row_hi:  # ghost row: neighbour time only
+                te[yy * width + np.int64(x[i])] = t[i]
             continue
         xx = np.int64(x[i])
-        ti = t[i]
+        _akf_event(S, te, yy * width + xx, xx, yy, t[i], p[i] > 0, width, height, has_la_step, seg_t0,
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S, te, has_la_step,
+                       seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+    """:func:`akf_events` over the events ``i0 + idx[:m]`` (from :func:`band_select`).
+
+    ``idx`` selects the band's rows ``[row_lo - 1, row_hi + 1)``: the ghost rows ``row_lo - 1``
+    and ``row_hi`` only set ``te``. The arithmetic per event is that of the serial kernel, so
+    disjoint bands with private ``te`` arrays reproduce it bit for bit.
+    """
+    n = 0
+    for k in range(m):
+        i = i0 + np.int64(idx[k])
+        yy = np.int64(y[i])
+        xx = np.int64(x[i])
         pix = yy * width + xx
-        if yy < row_lo or yy >= row_hi:  # ghost row: neighbour time only
-            te[pix] = ti
+        if yy < row_lo or yy >= row_hi:  # ghost row
+            te[pix] = t[i]
             continue
-        tif = np.float64(ti)
-        tu0 = S[pix, A_TU]
-        # -- propagate to t_i (eqs. 17, 20) --------------------------------------------------
-        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], tu0, tif,
-                              seg_t0, seg_inv_t)
-        pp = S[pix, A_P]
-        d = 1.0 / (1.0 + pp * integ)
-        lav = S[pix, A_LA]
-        lhat = lav + (S[pix, A_L] - lav) * d
-        pp = pp * d
-        # -- event noise (eq. 2, §3.1.1) ------------------------------------------------------
-        te0 = te[pix]
-        if xx > 0 and yy > 0 and xx + 1 < width and yy + 1 < height:
-            b = pix - width
-            tstar = max(max(te[b - 1], te[b]), te[b + 1])
-            tstar = max(tstar, max(max(te[pix - 1], te0), te[pix + 1]))
-            b = pix + width
-            tstar = max(tstar, max(max(te[b - 1], te[b]), te[b + 1]))
-        else:
-            tstar = te0
-            for yn in range(max(yy - 1, 0), min(yy + 2, height)):
-                for xn in range(max(xx - 1, 0), min(xx + 2, width)):
-                    v = te[yn * width + xn]
-                    if v > tstar:
-                        tstar = v
-        dte = ti - te0
-        q = s_iso * ((ti - tstar) * US)
-        if noise_form == 0:
-            q += s_proc * (dte * US)
-            if dte <= rho_us:
-                q += s_ref
-        else:
-            q += s_proc * ((tif - tu0) * US)
-            if dte <= rho_us:
-                q += s_ref * (dte * US)
-        S[pix, A_P] = pp + q
-        # -- event jump (eq. 15) --------------------------------------------------------------
-        if p[i] > 0:
-            S[pix, A_L] = lhat + c_on
-            if has_la_step:
-                S[pix, A_LA] = lav + S[pix, A_LASTEP]
-        else:
-            S[pix, A_L] = lhat - c_off
-            if has_la_step:
-                S[pix, A_LA] = lav - S[pix, A_LASTEP]
-        S[pix, A_TU] = tif
-        te[pix] = ti
+        _akf_event(S, te, pix, xx, yy, t[i], p[i] > 0, width, height, has_la_step, seg_t0,
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
         n += 1
     return n
 
@@ -194,6 +247,26 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
             continue
         tif = np.float64(t[i])
         pix = yy * width + np.int64(x[i])
+        lfv = C[pix, C_LF]
+        b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
+        lhat = lfv + (C[pix, C_L] - lfv) * b
+        if p[i] > 0:
+            C[pix, C_L] = lhat + c_on
+        else:
+            C[pix, C_L] = lhat - c_off
+        C[pix, C_TU] = tif
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay):
+    """:func:`cf_events` over the events ``i0 + idx[:m]`` (one row band, from :func:`band_select`)."""
+    n = 0
+    for k in range(m):
+        i = i0 + np.int64(idx[k])
+        tif = np.float64(t[i])
+        pix = np.int64(y[i]) * width + np.int64(x[i])
         lfv = C[pix, C_LF]
         b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
         lhat = lfv + (C[pix, C_L] - lfv) * b

@@ -1,0 +1,210 @@
+"""Row-band parallel filters: per-band event selection, and output bit-identical to the serial filter."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybridhdr import Frames
+from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, default_profile
+from hybridhdr.reconstruct import _kernels as K
+from hybridhdr.reconstruct._engine import AKFEngine, CFEngine, row_bands
+
+
+def _py(f):
+    return getattr(f, "py_func", f)
+
+
+def _stream(n, h, w, seed, t0=0, span=200_000, boundary_rows=()):
+    """Random events; half of them on ``boundary_rows`` (band edges and their ghost rows)."""
+    rng = np.random.default_rng(seed)
+    t = np.sort(rng.integers(t0, t0 + span, n)).astype(np.int64)
+    t[100:140] = t[100]  # equal timestamps
+    x = rng.integers(0, w, n).astype(np.uint16)
+    y = rng.integers(0, h, n).astype(np.uint16)
+    if boundary_rows:
+        sel = rng.random(n) < 0.5
+        y[sel] = rng.choice(np.asarray(boundary_rows, np.uint16), int(sel.sum()))
+    p = rng.choice(np.array([-1, 1], np.int8), n)
+    return t, x, y, p
+
+
+def _frames(h, w, times, seed=3):
+    rng = np.random.default_rng(seed)
+    codes = rng.integers(0, 256, (len(times), h, w)).astype(np.uint8)
+    codes[:, :2, :3] = 255  # saturated corner: R changes between frames (eq. 7)
+    t = np.asarray(times, np.int64)
+    return Frames(codes, t, t, encoding="raw")
+
+
+class _StepMeasurements:
+    """A measurement provider with an event-driven L^A (la_step), as frame augmentation makes."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.times_us = inner.times_us
+
+    def __len__(self):
+        return len(self.inner)
+
+    def segment(self, k):
+        import dataclasses
+        s = self.inner.segment(k)
+        return dataclasses.replace(s, la_step=np.linspace(0.05, 0.15, s.log_frame.shape[0]))
+
+
+def _run_akf(n_workers, t, x, y, p, fr, params, shape, step=False, batches=(0.3, 0.7)):
+    h, w = shape
+    m = FrameMeasurements(fr, shape, default_profile(), intensity_offset=params.intensity_offset,
+                          interpolate_covariance=params.covariance_interpolation == "linear")
+    if step:
+        m = _StepMeasurements(m)
+    eng = AKFEngine(shape, m, params, n_workers=n_workers)
+    eng.start(None)
+    outs = []
+    n = t.shape[0]
+    cuts = [0] + [int(f * n) for f in batches] + [n]
+    for a, b in zip(cuts[:-1], cuts[1:]):
+        # apply switches inside the batch at their event positions
+        i = a
+        while eng.next_switch_us() is not None and i < b and eng.next_switch_us() <= t[b - 1]:
+            j = i + int(np.searchsorted(t[i:b], eng.next_switch_us(), side="left"))
+            eng.process(t, x, y, p, i, j)
+            eng.switch()
+            i = j
+        eng.process(t, x, y, p, i, b)
+        outs.append(eng.output(int(t[b - 1]) + 1, with_state=True))
+    S = eng.S.copy()
+    eng.close()
+    return S, outs, eng.n_events
+
+
+@pytest.mark.parametrize("n_workers", [2, 3, 5])
+@pytest.mark.parametrize("noise_model", ["paper", "reference_code"])
+@pytest.mark.parametrize("cov", ["linear", "hold"])
+def test_akf_parallel_bit_identical_threaded(n_workers, noise_model, cov):
+    """Large batches (threaded path), many events on band edges and ghost rows."""
+    h, w, n = 23, 17, 90_000
+    edges = sorted({e for lo, hi in row_bands(h, n_workers) for e in (lo - 1, lo, hi - 1, hi) if 0 <= e < h})
+    t, x, y, p = _stream(n, h, w, seed=n_workers, boundary_rows=edges)
+    fr = _frames(h, w, [0, 70_000, 140_000, 210_000])
+    params = AKFParams(noise_model=noise_model, covariance_interpolation=cov, frame_precision_scale=1e3)
+    S1, o1, n1 = _run_akf(1, t, x, y, p, fr, params, (h, w))
+    S2, o2, n2 = _run_akf(n_workers, t, x, y, p, fr, params, (h, w))
+    assert n1 == n2 == n
+    np.testing.assert_array_equal(S1, S2)
+    for a, b in zip(o1, o2):
+        for u, v in zip(a, b):
+            np.testing.assert_array_equal(u, v)
+    assert np.isfinite(S1).all()
+
+
+def test_akf_parallel_bit_identical_with_la_step():
+    h, w, n = 16, 11, 40_000
+    t, x, y, p = _stream(n, h, w, seed=9, boundary_rows=(7, 8))
+    fr = _frames(h, w, [0, 100_000, 200_000])
+    S1, _, _ = _run_akf(1, t, x, y, p, fr, AKFParams(), (h, w), step=True)
+    S2, _, _ = _run_akf(2, t, x, y, p, fr, AKFParams(), (h, w), step=True)
+    np.testing.assert_array_equal(S1, S2)
+
+
+def test_akf_more_workers_than_rows_and_timestamps_past_2_31():
+    h, w, n = 3, 40, 30_000
+    t, x, y, p = _stream(n, h, w, seed=4, t0=(1 << 33) + 5)
+    fr = _frames(h, w, [(1 << 33), (1 << 33) + 300_000])
+    S1, _, _ = _run_akf(1, t, x, y, p, fr, AKFParams(), (h, w))
+    S8, _, _ = _run_akf(8, t, x, y, p, fr, AKFParams(), (h, w))  # clamped to 3 one-row bands
+    np.testing.assert_array_equal(S1, S8)
+
+
+@pytest.mark.parametrize("n_workers", [2, 4])
+def test_cf_parallel_bit_identical_threaded(n_workers):
+    h, w, n = 20, 13, 60_000
+    t, x, y, p = _stream(n, h, w, seed=7)
+    fr = _frames(h, w, [0, 100_000, 200_000])
+    states = []
+    for nw in (1, n_workers):
+        m = FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0, bias_correction=False,
+                              interpolate_covariance=False)
+        eng = CFEngine((h, w), m, CFParams(cutoff_hz=3.0), "cf", n_workers=nw)
+        eng.start(None)
+        eng.process(t, x, y, p, 0, n // 2)
+        o = eng.output(int(t[n // 2]))
+        eng.switch()
+        eng.process(t, x, y, p, n // 2, n)
+        states.append((eng.C.copy(), o, eng.output(int(t[-1]) + 10), eng.n_events))
+        eng.close()
+    for a, b in zip(*states):
+        np.testing.assert_array_equal(a, b)
+
+
+# -- kernels ---------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("lo,hi", [(0, 5), (-1, 3), (2, 4), (4, 6), (3, 3)])
+def test_band_select_matches_numpy_and_py_func(lo, hi):
+    rng = np.random.default_rng(1)
+    y = rng.integers(0, 5, 200).astype(np.uint16)
+    want = np.flatnonzero((y[7:180] >= lo) & (y[7:180] < hi))
+    for fn in (K.band_select, _py(K.band_select)):
+        out = np.full(200, -7, np.int32)
+        m = fn(y, 7, 180, lo, hi, out)
+        assert m == want.size
+        np.testing.assert_array_equal(out[:m], want)
+    assert K.band_select(y, 5, 5, 0, 5, np.empty(0, np.int32)) == 0
+
+
+def test_indexed_kernels_equal_py_func_and_scan_kernels():
+    """akf_events_indexed over band_select equals akf_events on the same band (and its py_func)."""
+    h, w, n = 6, 5, 400
+    t, x, y, p = _stream(n, h, w, seed=2, span=50_000)
+    rng = np.random.default_rng(0)
+
+    def state():
+        S = K.aligned_state(h * w, K.AKF_FIELDS)
+        S[:, K.A_L] = rng.normal(0, 0.3, h * w)
+        S[:, K.A_P] = 0.05
+        S[:, K.A_LA] = 0.1
+        S[:, K.A_RINV] = 500.0
+        S[:, K.A_BETA] = np.where(np.arange(h * w) % 3 == 0, 0.4, 0.0)
+        S[:, K.A_KLOG] = np.where(S[:, K.A_BETA] != 0, 500.0 * 0.1 / 0.4, 0.0)
+        S[:, K.A_TU] = 0.0
+        S[:, K.A_LASTEP] = 0.07
+        return S
+
+    args = (True, 0.0, 1.0 / 100_000, 0.12, 0.08, 5e-4, 0.03, 0.01, np.int64(10_000), 0)
+    lo, hi = 2, 4
+    res = []
+    S0 = state()
+    for kind in ("scan", "indexed", "indexed_py"):
+        S = S0.copy()
+        te = np.zeros(h * w, np.int64)
+        if kind == "scan":
+            c = K.akf_events(t, x, y, p, 3, n, lo, hi, w, h, S, te, *args)
+        else:
+            fn = K.akf_events_indexed if kind == "indexed" else _py(K.akf_events_indexed)
+            idx = np.empty(n, np.int32)
+            m = K.band_select(y, 3, n, lo - 1, hi + 1, idx)
+            c = fn(t, x, y, p, 3, idx, m, lo, hi, w, h, S, te, *args)
+        rows = slice((lo - 1) * w, (hi + 1) * w)
+        res.append((c, S.copy(), te[rows].copy()))
+    for r in res[1:]:
+        assert r[0] == res[0][0] == int(((y[3:] >= lo) & (y[3:] < hi)).sum())
+        np.testing.assert_array_equal(r[1], res[0][1])
+        np.testing.assert_array_equal(r[2], res[0][2])
+
+    # CF indexed kernel against its py_func and the scanning kernel
+    cres = []
+    for kind in ("scan", "indexed", "indexed_py"):
+        C = K.aligned_state(h * w, K.CF_FIELDS)
+        C[:, K.C_LF] = np.linspace(-1, 0.5, h * w)
+        C[:, K.C_ALPHA] = 7.0
+        if kind == "scan":
+            K.cf_events(t, x, y, p, 0, n, lo, hi, w, C, 0.1, 0.12, 0.0)
+        else:
+            fn = K.cf_events_indexed if kind == "indexed" else _py(K.cf_events_indexed)
+            idx = np.empty(n, np.int32)
+            m = K.band_select(y, 0, n, lo, hi, idx)
+            fn(t, x, y, p, 0, idx, m, w, C, 0.1, 0.12, 0.0)
+        cres.append(C.copy())
+    for c in cres[1:]:
+        np.testing.assert_array_equal(c, cres[0])
