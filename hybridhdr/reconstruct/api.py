@@ -14,10 +14,12 @@ from ..model import Frames, Recording
 from . import _engine as E
 from .measurement import FrameMeasurements
 from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
+from .augment import AugmentedMeasurements, AugmentParams
+from .edi import EDIEngine, EDIParams, EventArrays
 from .profile import load_profile
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
-           "make_params"]
+           "make_params", "make_augment_params"]
 
 #: method name -> (Params class, needs frames, uses events, one-line description)
 METHODS: dict[str, tuple[type, bool, bool, str]] = {
@@ -27,6 +29,8 @@ METHODS: dict[str, tuple[type, bool, bool, str]] = {
     "direct": (DirectParams, True, True, "direct integration of events onto the last frame"),
     "frames_zoh": (FramesParams, True, False, "frames only, zero-order hold"),
     "frames_linear": (FramesParams, True, False, "frames only, linear interpolation in intensity"),
+    "edi": (EDIParams, True, True, "EDI deblurring: high-rate video from each blurred frame and its events "
+                                   "(Pan et al., CVPR 2019)"),
 }
 METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
 MODES = ("offline", "causal")
@@ -145,9 +149,37 @@ def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
     raise ValueError("cannot tell the sensor size: the source has no sensor_size and no frames")
 
 
-def _build_engine(method, params, shape, frames, mode, profile, n_workers, measurements):
+def make_augment_params(augment) -> AugmentParams:
+    """AugmentParams from None/True (defaults), False (off), a dict, a TOML path or an instance."""
+    if augment is None or augment is True:
+        return AugmentParams()
+    if augment is False:
+        return AugmentParams.off()
+    if isinstance(augment, AugmentParams):
+        return augment
+    if isinstance(augment, dict):
+        return AugmentParams.from_dict(augment)
+    if isinstance(augment, (str, os.PathLike)):
+        return AugmentParams.from_toml(augment)
+    raise TypeError(f"augment must be AugmentParams, a dict, a TOML path, a bool or None, "
+                    f"got {type(augment).__name__}")
+
+
+def _build_engine(method, params, shape, frames, mode, profile, n_workers, measurements, events=None,
+                  augment: AugmentParams | None = None):
     needs_frames = METHODS[method][1]
     prof = load_profile(profile)
+    if method == "edi":
+        if frames is None or len(frames) == 0:
+            raise ValueError("method 'edi' needs frames, but the recording has none")
+        if mode == "causal":
+            raise ValueError("method 'edi' needs the events of the whole exposure, so it cannot run in causal mode")
+        return EDIEngine(shape, frames, events, prof, params), prof
+    if method == "akf" and measurements is None and augment is not None and augment.enabled and mode == "offline":
+        if frames is None or len(frames) == 0:
+            raise ValueError("method 'akf' needs frames, but the recording has none "
+                             "(use method='highpass' for events only)")
+        measurements = AugmentedMeasurements(frames, events, shape, prof, akf_params=params, params=augment)
     if needs_frames and measurements is None:
         if frames is None or len(frames) == 0:
             raise ValueError(f"method {method!r} needs frames, but the recording has none "
@@ -175,7 +207,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                      mode: str = "offline", profile=None, t_start_us: int | None = None,
                      t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                      measurements=None, progress: Callable[[int], None] | None = None,
-                     info: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
+                     info: dict | None = None, augment=None) -> Iterator[tuple[int, np.ndarray]]:
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
@@ -193,14 +225,24 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
             raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
     p = make_params(method, params)
+    aug = make_augment_params(augment)
     ss, frames, chunk_factory, close = _open_source(source)
     try:
         shape = _sensor_shape(ss, frames)
-        engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements)
+        use_aug = (method == "akf" and mode == "offline" and measurements is None and aug.enabled
+                   and frames is not None and len(frames) > 0)
+        events = None
+        if use_aug or method == "edi":
+            # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
+            events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+            chunk_factory = events.chunks
+        engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
+                                     events=events, augment=aug if use_aug else None)
         try:
             if times_us is None and fps is None:
                 if METHODS[method][1] or (frames is not None and len(frames)):
-                    ft = engine.m.times_us if getattr(engine, "m", None) is not None else frames.t_mid_us
+                    m = getattr(engine, "m", None)
+                    ft = (frames.t_mid_us if m is None else getattr(m, "frame_times_us", m.times_us))
                     times_us = np.unique(ft)
                     if t_start_us is not None:
                         times_us = times_us[times_us >= t_start_us]
@@ -219,9 +261,16 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                 chunks = itertools.chain([first], chunks)
             if info is not None:
                 info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict())
+                if method == "akf":
+                    info["augment"] = aug.to_dict() if use_aug else {"enabled": False}
             yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=t_end_us, progress=progress)
             if info is not None:
                 info["n_events_used"] = engine.n_events
+                stats = getattr(getattr(engine, "m", None), "stats", None)
+                if stats is not None:
+                    info["augmentation"] = stats.to_dict()
+                if method == "edi":
+                    info["edi_thresholds"] = {int(k): v for k, v in sorted(engine.thresholds.items())}
         finally:
             engine.close()
     finally:
@@ -231,14 +280,14 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
 def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
                 mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
                 n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
-                progress: Callable[[int], None] | None = None) -> Video:
+                progress: Callable[[int], None] | None = None, augment=None) -> Video:
     """Reconstruct linear-intensity video from events and frames.
 
     Parameters
     ----------
     source : Recording, reader, RecordingFile or path
         The hybrid recording (events sorted by ``t`` in µs; frames with exposure intervals).
-    method : {"akf", "cf", "highpass", "direct", "frames_zoh", "frames_linear"}
+    method : {"akf", "cf", "highpass", "direct", "frames_zoh", "frames_linear", "edi"}
         Aliases: "hpf" = "highpass", "frames" = "frames_zoh".
     params : Params, dict, TOML path or None
         The method's parameters (:class:`AKFParams`, :class:`CFParams`, ...); None for defaults.
@@ -264,6 +313,14 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         :mod:`hybridhdr.reconstruct.measurement`).
     progress : callable, optional
         Called with the number of events consumed after each batch.
+    augment : AugmentParams, dict, TOML path, bool or None
+        Frame augmentation of the AKF in offline mode (paper §4.1, eqs. 10-13:
+        :class:`~hybridhdr.reconstruct.augment.AugmentedMeasurements`): None or True for the
+        defaults (on), False for zero-order-hold frames; its ``deblur``, ``interpolate`` and
+        ``calibrate`` switches turn off each piece. Ignored in causal mode (the augmentation
+        needs the next frame) and by other methods. Calibration fallbacks are reported in
+        ``Video.info["augmentation"]``. With augmentation (and for ``method="edi"``) the events
+        are held in memory.
 
     Returns
     -------
@@ -280,7 +337,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     for t, img in reconstruct_iter(source, method, params, times_us=times_us, fps=fps, mode=mode,
                                    profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
                                    n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
-                                   progress=progress, info=info):
+                                   progress=progress, info=info, augment=augment):
         ts.append(t)
         imgs.append(img)
     method = resolve_method(method)

@@ -1,0 +1,426 @@
+"""Frame augmentation for the AKF (Wang et al., ICCV 2021, §4.1, eqs. 10-13).
+
+For frames k with exposure ``[s_k, e_k)`` (``T_k = e_k - s_k``, each frame's own exposure):
+
+* **Deblur** (EDI, :mod:`.edi`): ``L^D(s_k)`` and ``L^D(e_k) = L^D(s_k) + c Σσ[s_k, e_k)``.
+* **Interpolate** (eqs. 10, 11): on interval k, ``[s_k, e_{k+1})``, the forward estimate
+  ``A_k(t) = L^D(s_k) + c_k Σσ[s_k, t)``; with the calibrated threshold it equals the backward
+  estimate ``L^D(e_{k+1}) - c_k Σσ[t, e_{k+1})`` exactly.
+* **Calibrate** (eq. 12): ``c_k = ΔL^D / Σσ`` per pixel, ``ΔL^D = L^D(e_{k+1}) - L^D(s_k)``, kept
+  when the scale ``c / c_k`` lies in ``[calibration_scale_min, calibration_scale_max]`` (the
+  reference code's [0.6, 100], ``akf.md`` §4); otherwise ``c_k = c`` with the reason counted
+  (no events, Σσ = 0, ΔL^D = 0 or opposite sign, out of range) in :class:`AugmentStats`.
+* **Blend** (eq. 13): inside exposure k, ``L^A = w A_{k-1} + (1 - w) A_k`` with
+  ``w = (e_k - t)/T_k``; in the gap ``[e_k, s_{k+1})``, ``L^A = A_k``.
+
+:class:`AugmentedMeasurements` gives this L^A to the AKF through the measurement-provider hook
+(``Segment.la_step``: the filter moves L^A by ±la_step at each event), with R from the camera
+profile exactly as :class:`~.measurement.FrameMeasurements` (eqs. 6-9, eq. 7 across frames).
+The cross-fade weight of eq. 13 is held piecewise constant on ``blend_steps`` sub-intervals of
+each exposure (the filter holds L^A between events), so L^A jumps by at most
+``|A_{k-1} - A_k| / blend_steps`` at sub-interval boundaries; both estimates agree on
+noise-free data.
+
+Augmentation is non-causal (interval k needs frame k+1), so it runs in ``offline`` mode only,
+and it needs the events in memory (13 bytes per event).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from ..model import Frames
+from . import _augment_kernels as AK
+from .edi import EventArrays, edi_log_latent, estimate_threshold
+from .measurement import FrameMeasurements, Segment
+from .params import _ParamsMixin
+
+__all__ = ["AugmentParams", "AugmentStats", "AugmentedMeasurements", "calibrate_thresholds",
+           "CALIBRATION_CATEGORIES"]
+
+#: reasons of :func:`calibrate_thresholds`, in the order of the kernel's category codes
+CALIBRATION_CATEGORIES = ("calibrated", "no_events", "zero_net_events", "sign_mismatch", "out_of_range")
+
+
+@dataclass(frozen=True, kw_only=True)
+class AugmentParams(_ParamsMixin):
+    """Frame augmentation of the AKF (Wang et al., ICCV 2021, §4.1, doi:10.1109/ICCV48922.2021.00050).
+
+    Parameters
+    ----------
+    enabled : bool
+        Use the augmented frame as the AKF measurement in offline mode (False: zero-order hold).
+    deblur : bool
+        EDI-deblur each frame (§4.1 "Deblur"); False takes the blurred frame as sharp at both
+        ends of its exposure.
+    interpolate : bool
+        Event interpolation between frames (eqs. 10, 11, 13); False holds the (deblurred)
+        mid-exposure image from τ_k to τ_{k+1}.
+    calibrate : bool
+        Per-pixel threshold calibration (eq. 12); False interpolates with the nominal c.
+    contrast_threshold : float or None
+        c for EDI and interpolation, log units; None uses the AKF's (mean of ON and OFF).
+    search_threshold : bool
+        Estimate c per frame for EDI by the sharpness search (:func:`.edi.estimate_threshold`)
+        instead of using ``contrast_threshold``. The reference code fixes c (``akf.md`` §7).
+    threshold_min, threshold_max : float
+        Bounds of that search, log units.
+    tv_weight : float
+        λ of the sharpness energy (Pan et al.: 0.2).
+    calibration_scale_min, calibration_scale_max : float
+        Accepted range of c / c_k (the reference code's stored 1/c_p^k: [0.6, 100], ``akf.md`` §4).
+    blend_steps : int
+        Sub-intervals of each exposure on which eq. 13's weight is held.
+    """
+
+    _toml_table = "augment"
+
+    enabled: bool = True
+    deblur: bool = True  # §4.1 Deblur (EDI)
+    interpolate: bool = True  # eqs. 10, 11, 13
+    calibrate: bool = True  # eq. 12
+    contrast_threshold: float | None = None  # log units; None: the AKF's c
+    search_threshold: bool = False  # reference code fixes c (akf.md §7)
+    threshold_min: float = 0.05
+    threshold_max: float = 0.5
+    tv_weight: float = 0.2  # λ, Pan et al. TVnorm.m
+    calibration_scale_min: float = 0.6  # reference compute_ct_scale.m (akf.md §4)
+    calibration_scale_max: float = 100.0  # idem
+    blend_steps: int = 4
+
+    def __post_init__(self):
+        for name in ("enabled", "deblur", "interpolate", "calibrate", "search_threshold"):
+            self._bool(name)
+        self._num("contrast_threshold", lo=0, lo_open=True, allow_none=True)
+        self._num("threshold_min", lo=0, lo_open=True)
+        self._num("threshold_max", lo=0, lo_open=True)
+        if self.threshold_min >= self.threshold_max:
+            raise ValueError(f"AugmentParams.threshold_min ({self.threshold_min}) must be below threshold_max "
+                             f"({self.threshold_max})")
+        self._num("tv_weight", lo=0)
+        self._num("calibration_scale_min", lo=0, lo_open=True)
+        self._num("calibration_scale_max", lo=0, lo_open=True)
+        if self.calibration_scale_min > self.calibration_scale_max:
+            raise ValueError(f"AugmentParams.calibration_scale_min ({self.calibration_scale_min}) must not "
+                             f"exceed calibration_scale_max ({self.calibration_scale_max})")
+        v = self.blend_steps
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"AugmentParams.blend_steps must be an int >= 1, got {v!r}")
+
+    @classmethod
+    def off(cls) -> "AugmentParams":
+        """Augmentation disabled (zero-order-hold frames)."""
+        return cls(enabled=False)
+
+
+@dataclass
+class AugmentStats:
+    """Counts of the calibration outcome over all (interval, pixel) pairs, and EDI thresholds.
+
+    Attributes
+    ----------
+    calibrated, no_events, zero_net_events, sign_mismatch, out_of_range : int
+        Pixel-intervals per outcome of eq. 12 (all but ``calibrated`` fall back to c).
+    intervals : int
+        Calibrated intervals (frame pairs).
+    frames_deblurred : int
+    thresholds : dict
+        EDI threshold used per frame index (log units).
+    """
+
+    calibrated: int = 0
+    no_events: int = 0
+    zero_net_events: int = 0
+    sign_mismatch: int = 0
+    out_of_range: int = 0
+    intervals: int = 0
+    frames_deblurred: int = 0
+    thresholds: dict = field(default_factory=dict)
+
+    @property
+    def fallbacks(self) -> int:
+        return self.no_events + self.zero_net_events + self.sign_mismatch + self.out_of_range
+
+    def add(self, category: np.ndarray) -> None:
+        n = np.bincount(category, minlength=len(CALIBRATION_CATEGORIES))
+        for name, v in zip(CALIBRATION_CATEGORIES, n):
+            setattr(self, name, getattr(self, name) + int(v))
+        self.intervals += 1
+
+    def to_dict(self) -> dict:
+        d = {name: getattr(self, name) for name in CALIBRATION_CATEGORIES}
+        d.update(fallbacks=self.fallbacks, intervals=self.intervals, frames_deblurred=self.frames_deblurred)
+        if self.thresholds:
+            v = np.array(list(self.thresholds.values()))
+            d["edi_threshold"] = {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max())}
+        return d
+
+
+def calibrate_thresholds(delta_ld, sum_sigma, n_events, contrast_threshold: float, *,
+                         scale_min: float = 0.6, scale_max: float = 100.0):
+    """Per-pixel calibrated threshold of eq. 12, ``c_k = ΔL^D / Σσ``, with explicit fallbacks.
+
+    Parameters
+    ----------
+    delta_ld : array_like of shape (N,), float
+        ΔL^D = L^D(e_{k+1}) - L^D(s_k), log units.
+    sum_sigma : array_like of shape (N,), int
+        Σσ, the signed event count over ``[s_k, e_{k+1})``.
+    n_events : array_like of shape (N,), int
+        Number of events over the same interval (0 selects the "no events" fallback).
+    contrast_threshold : float
+        Nominal c, log units (> 0).
+    scale_min, scale_max : float
+        Accepted range of c / c_k.
+
+    Returns
+    -------
+    c_eff : ndarray of shape (N,), float64
+        Calibrated threshold, or c where a fallback applies.
+    category : ndarray of shape (N,), int64
+        Index into :data:`CALIBRATION_CATEGORIES`.
+
+    Examples
+    --------
+    >>> c, cat = calibrate_thresholds([0.5, 0.5, 0.5, -0.5], [4, 2, 0, 4], [4, 2, 2, 4], 0.1)
+    >>> c.round(12).tolist(), [CALIBRATION_CATEGORIES[i] for i in cat]
+    ([0.125, 0.1, 0.1, 0.1], ['calibrated', 'out_of_range', 'zero_net_events', 'sign_mismatch'])
+    """
+    d = np.ascontiguousarray(delta_ld, dtype=np.float64).ravel()
+    s = np.ascontiguousarray(sum_sigma, dtype=np.int64).ravel()
+    a = np.ascontiguousarray(n_events, dtype=np.int64).ravel() != 0
+    if not (d.shape == s.shape == a.shape):
+        raise ValueError(f"delta_ld, sum_sigma and n_events must have one shape, got {d.shape}, {s.shape}, "
+                         f"{a.shape}")
+    c = float(contrast_threshold)
+    if not c > 0:
+        raise ValueError(f"contrast_threshold must be > 0 (log units), got {c}")
+    c_eff = np.empty(d.shape[0])
+    cat = np.empty(d.shape[0], np.int64)
+    AK.calibrate_threshold(d, s, a, c, float(scale_min), float(scale_max), c_eff, cat)
+    return c_eff, cat
+
+
+class AugmentedMeasurements:
+    """Measurement provider (see :mod:`.measurement`) giving the AKF the augmented frame L^A.
+
+    Parameters
+    ----------
+    frames : Frames
+        Frames (K, H, W) with each frame's own exposure ``[t_start_us, t_end_us)``; exposures
+        must not overlap and start times must increase.
+    events : EventArrays
+        All events of the recording, in memory.
+    sensor_shape : (int, int)
+    profile : CameraProfile
+        Inverse CRF (B = CRF⁻¹(code), eq. 3) and noise model (R, eqs. 6-9).
+    akf_params : AKFParams
+        I0, bias correction (eq. 8), covariance interpolation (eq. 7), nominal c.
+    params : AugmentParams
+
+    Attributes
+    ----------
+    times_us : ndarray of int64
+        Segment starts: each exposure split into ``blend_steps`` pieces (and at τ_k, where R
+        changes its linear piece), then the gap ``[e_k, s_{k+1})``.
+    frame_times_us : ndarray of int64
+        τ_k, the default output times.
+    stats : AugmentStats
+        Calibration fallbacks, filled as segments are requested.
+    """
+
+    def __init__(self, frames: Frames, events: EventArrays, sensor_shape, profile, *, akf_params, params=None):
+        params = AugmentParams() if params is None else params
+        if not isinstance(params, AugmentParams):
+            raise TypeError(f"params must be AugmentParams, got {type(params).__name__}")
+        if not isinstance(frames, Frames):
+            raise TypeError(f"frames must be a hybridhdr Frames, got {type(frames).__name__}")
+        if len(frames) == 0:
+            raise ValueError("frame augmentation needs at least one frame")
+        s, e = frames.t_start_us, frames.t_end_us
+        if len(frames) > 1:
+            bad = np.flatnonzero(s[1:] <= s[:-1])
+            if bad.size:
+                i = int(bad[0]) + 1
+                raise ValueError(f"frame augmentation needs increasing exposure starts; frame {i} starts at "
+                                 f"{int(s[i])} µs, not after frame {i - 1} ({int(s[i - 1])} µs)")
+            bad = np.flatnonzero(e[:-1] > s[1:])
+            if bad.size:
+                i = int(bad[0])
+                raise ValueError(f"frame augmentation needs non-overlapping exposures; frame {i} ends at "
+                                 f"{int(e[i])} µs after frame {i + 1} starts ({int(s[i + 1])} µs); "
+                                 f"disable augmentation for this recording")
+        self.params = params
+        self.akf = akf_params
+        self.events = events
+        self.shape = tuple(sensor_shape)
+        self.n = self.shape[0] * self.shape[1]
+        self.c = float(params.contrast_threshold if params.contrast_threshold is not None
+                       else 0.5 * (akf_params.c_on + akf_params.c_off))
+        self.fm = FrameMeasurements(frames, sensor_shape, profile, intensity_offset=akf_params.intensity_offset,
+                                    bias_correction=akf_params.bias_correction,
+                                    interpolate_covariance=akf_params.covariance_interpolation == "linear",
+                                    precision_scale=akf_params.frame_precision_scale)
+        self.ts = s.astype(np.int64)
+        self.te = e.astype(np.int64)
+        self.tau = frames.t_mid_us.astype(np.int64)
+        self.K = len(frames)
+        self.frame_times_us = self.tau.copy()
+        self.stats = AugmentStats()
+        self._frames_cache: dict = {}
+        self._interval_cache: dict = {}
+        self._count_cache = None
+        self._pre = None
+        self._build_segments()
+
+    # -- segment layout ---------------------------------------------------------------------
+    def _build_segments(self):
+        segs = []  # (t0, kind, k, w): kind 0 exposure piece, 1 gap, 2 hold (no interpolation)
+        if not self.params.interpolate:
+            for k in range(self.K):
+                segs.append((int(self.tau[k]), 2, k, 0.0))
+        else:
+            J = int(self.params.blend_steps)
+            for k in range(self.K):
+                a, b = int(self.ts[k]), int(self.te[k])
+                T = b - a
+                if T > 0:
+                    cuts = sorted({a + (j * T) // J for j in range(J)} | {int(self.tau[k])})
+                    cuts = [u for u in cuts if a <= u < b]
+                    for i, u in enumerate(cuts):
+                        v = cuts[i + 1] if i + 1 < len(cuts) else b
+                        w = 0.0 if k == 0 else (b - 0.5 * (u + v)) / T  # eq. 13 weight of A_{k-1}
+                        segs.append((u, 0, k, w))
+                if k + 1 < self.K:
+                    if self.ts[k + 1] > b:
+                        segs.append((b, 1, k, 0.0))
+                else:
+                    segs.append((b, 1, k, 0.0))
+            # a zero-length final gap would duplicate the last exposure end; keep strictly increasing
+            out = []
+            for sg in segs:
+                if out and sg[0] <= out[-1][0]:
+                    out[-1] = sg
+                else:
+                    out.append(sg)
+            segs = out
+        self._segs = segs
+        self.times_us = np.array([sg[0] for sg in segs], dtype=np.int64)
+
+    def __len__(self) -> int:
+        return int(self.times_us.shape[0])
+
+    # -- per-frame and per-interval quantities ----------------------------------------------
+    def _frame(self, k: int):
+        """(L^D(s_k), Σσ over exposure k, number of events over exposure k)."""
+        if k in self._frames_cache:
+            return self._frames_cache[k]
+        seg = self.fm.segment(k)
+        logb = seg.log_frame  # log(B + I0), bias-corrected (eq. 8)
+        a, b = int(self.ts[k]), int(self.te[k])
+        cnt, tot = self.events.counts(a, b)
+        if self.params.deblur and b > a:
+            c = self.c
+            if self.params.search_threshold:
+                c, _ = estimate_threshold(seg.intensity, self.events, a, b,
+                                          bounds=(self.params.threshold_min, self.params.threshold_max),
+                                          tv_weight=self.params.tv_weight, intensity_offset=self.akf.intensity_offset,
+                                          log_blurred=logb)
+            lds, _ = edi_log_latent(None, self.events, a, b, c, log_blurred=logb)
+            self.stats.frames_deblurred += 1
+            self.stats.thresholds[k] = float(c)
+            lde = lds + c * cnt
+        else:
+            lds = logb
+            lde = logb
+        out = (lds, lde, cnt, tot)
+        self._frames_cache[k] = out
+        for old in [j for j in self._frames_cache if j < k - 2]:
+            del self._frames_cache[old]
+        return out
+
+    def _interval(self, k: int):
+        """(L^D(s_k), c_k) of interval k = [s_k, e_{k+1}); c_k = c for the last frame."""
+        if k in self._interval_cache:
+            return self._interval_cache[k]
+        lds, _, cnt_k, tot_k = self._frame(k)
+        if k + 1 >= self.K or not self.params.calibrate:
+            c_eff = np.full(self.n, self.c)
+        else:
+            _, lde1, cnt_1, tot_1 = self._frame(k + 1)
+            g, gt = self.events.counts(int(self.te[k]), int(self.ts[k + 1]))
+            c_eff, cat = calibrate_thresholds(lde1 - lds, cnt_k + g + cnt_1, tot_k + gt + tot_1, self.c,
+                                              scale_min=self.params.calibration_scale_min,
+                                              scale_max=self.params.calibration_scale_max)
+            self.stats.add(cat)
+        out = (lds, c_eff)
+        self._interval_cache[k] = out
+        for old in [j for j in self._interval_cache if j < k - 2]:
+            del self._interval_cache[old]
+        return out
+
+    def _count_since(self, k: int, t_us: int) -> np.ndarray:
+        """Σσ over [s_k, t_us) (incremental when called with increasing t for one k)."""
+        cc = self._count_cache
+        a = int(self.ts[k])
+        if cc is not None and cc[0] == k and cc[1] <= t_us:
+            d, _ = self.events.counts(cc[1], t_us)
+            cnt = cc[2] + d
+        else:
+            cnt, _ = self.events.counts(a, t_us)
+        self._count_cache = (k, int(t_us), cnt)
+        return cnt
+
+    def _estimate(self, k: int, t_us: int, *, back_count=None):
+        """A_k(t) = L^D(s_k) + c_k Σσ[s_k, t) (eq. 10; equal to eq. 11 when calibrated), and c_k."""
+        lds, c_eff = self._interval(k)
+        cnt = self._count_since(k, t_us) if back_count is None else back_count
+        return lds + c_eff * cnt, c_eff
+
+    def _r_pieces(self, t0: int, t1: int | None):
+        """1/R at t0 and β over [t0, t1) following eq. 7's linear R̄ between the τ_j."""
+        j = max(int(np.searchsorted(self.tau, t0, side="right")) - 1, 0)
+        seg = self.fm.segment(j)
+        rinv_j, beta_j = seg.rinv, seg.beta
+        if t1 is None or seg.t1_us is None or t0 < int(self.tau[j]):
+            return rinv_j, np.zeros(self.n)  # before the first τ or after the last: R held
+        span = float(seg.t1_us - seg.t0_us)
+        w0 = 1.0 + beta_j * ((t0 - seg.t0_us) / span)
+        w1 = 1.0 + beta_j * ((t1 - seg.t0_us) / span)
+        return rinv_j / w0, w1 / w0 - 1.0
+
+    def segment(self, i: int) -> Segment:
+        """Measurement on ``[times_us[i], times_us[i+1])``: L^A at its start and its per-event step."""
+        if not 0 <= i < len(self):
+            raise IndexError(f"segment {i} out of range 0..{len(self) - 1}")
+        t0, kind, k, w = self._segs[i]
+        t1 = int(self.times_us[i + 1]) if i + 1 < len(self) else None
+        rinv, beta = self._r_pieces(t0, t1)
+        if kind == 2:  # no interpolation: hold the (deblurred) image at τ_k
+            lds, _, _, _ = self._frame(k)
+            cnt = self._count_since(k, int(self.tau[k])) if self.params.deblur else 0
+            c = self.c if self.params.deblur else 0.0
+            la = lds + c * cnt
+            step = None
+        else:
+            ak, ck = self._estimate(k, t0)
+            if kind == 0 and w > 0.0:
+                # A_{k-1}(t0) = L^D(s_{k-1}) + c_{k-1} (Σσ[s_{k-1}, s_k) + Σσ[s_k, t0))
+                lds_p, c_p = self._interval(k - 1)
+                if self._pre is None or self._pre[0] != k:
+                    self._pre = (k, self.events.counts(int(self.ts[k - 1]), int(self.ts[k]))[0])
+                pre = self._pre[1]
+                cnt_k = self._count_cache[2]
+                ap = lds_p + c_p * (pre + cnt_k)
+                la = w * ap + (1.0 - w) * ak  # eq. 13
+                step = w * c_p + (1.0 - w) * ck
+            else:
+                la = ak
+                step = ck
+        inten = np.exp(la) - self.akf.intensity_offset
+        return Segment(t0_us=int(t0), t1_us=t1, log_frame=np.ascontiguousarray(la, dtype=np.float64),
+                       intensity=inten, rinv=np.ascontiguousarray(rinv, dtype=np.float64),
+                       beta=np.ascontiguousarray(beta, dtype=np.float64),
+                       la_step=None if step is None else np.ascontiguousarray(step, dtype=np.float64))
