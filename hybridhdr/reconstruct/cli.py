@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear"]
+_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi"]
 
 
 def add_parser(subparsers) -> None:
@@ -33,6 +33,14 @@ def add_parser(subparsers) -> None:
                    help="AKF parameter preset (before --config and --set)")
     p.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
     p.add_argument("--cutoff-hz", type=float, default=None, help="CF / high-pass cutoff frequency (Hz)")
+    a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
+    a.add_argument("--no-augmentation", action="store_true",
+                   help="zero-order-hold frames instead of the augmented frame")
+    a.add_argument("--no-deblur", action="store_true", help="skip EDI deblurring of the frames")
+    a.add_argument("--no-interpolation", action="store_true",
+                   help="hold the (deblurred) frame instead of interpolating with events (eqs. 10, 11, 13)")
+    a.add_argument("--no-calibration", action="store_true",
+                   help="interpolate with the nominal threshold (no per-pixel eq. 12)")
     p.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: built-in 8-bit)")
     p.add_argument("--start-us", type=int, default=None, help="first output time (µs)")
     p.add_argument("--end-us", type=int, default=None, help="outputs before this time (µs)")
@@ -94,6 +102,26 @@ def build_params(args):
     return make_params(method, cls.from_dict(d))
 
 
+def build_augment(args):
+    """AugmentParams from the ``[augment]`` table of --config and the --no-* flags."""
+    from .augment import AugmentParams
+    d = {}
+    if getattr(args, "config", None) is not None:
+        from .params import _load_toml
+        t = _load_toml(args.config).get("augment")
+        if isinstance(t, dict):
+            d.update(t)
+    if args.no_augmentation:
+        d["enabled"] = False
+    if args.no_deblur:
+        d["deblur"] = False
+    if args.no_interpolation:
+        d["interpolate"] = False
+    if args.no_calibration:
+        d["calibrate"] = False
+    return AugmentParams.from_dict(d)
+
+
 def _toml_fields(cls, path) -> dict:
     from .params import _load_toml
     d = _load_toml(path)
@@ -114,6 +142,7 @@ def run(args) -> int:
     try:
         method = resolve_method(args.method)
         params = build_params(args)
+        augment = build_augment(args)
         times = None
         if args.times_us is not None:
             times = np.loadtxt(args.times_us, dtype=np.int64, ndmin=1, comments="#")
@@ -131,7 +160,8 @@ def run(args) -> int:
             for t, img in reconstruct_iter(str(args.recording), method, params, times_us=times, fps=args.fps,
                                            mode=args.mode, profile=args.profile, t_start_us=args.start_us,
                                            t_end_us=args.end_us, n_workers=args.workers,
-                                           chunk_events=args.chunk_events, progress=progress, info=info):
+                                           chunk_events=args.chunk_events, progress=progress, info=info,
+                                           augment=augment):
                 ts.append(t)
                 imgs.append(img)
         finally:
@@ -151,6 +181,9 @@ def run(args) -> int:
                     "method_description": METHODS[method][3], "mode": args.mode, "params": params.to_dict(),
                     "profile": str(args.profile) if args.profile else "built-in 8-bit",
                     "n_frames": len(video), "n_events_used": info.get("n_events_used"), "written": written}
+        for key in ("augment", "augmentation", "edi_thresholds"):
+            if key in info:
+                run_info[key] = info[key]
         (out / "run.json").write_text(json.dumps(run_info, indent=1, default=str) + "\n")
         print(f"{method}: {len(video)} frames {int(video.t_us[0])}..{int(video.t_us[-1])} µs, "
               f"{info.get('n_events_used', 0)} events -> {out}")

@@ -1,0 +1,210 @@
+"""Frame augmentation (AKF paper §4.1, eqs. 10-13): calibration, interpolation, blending, AKF use."""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from hybridhdr import Frames, Recording, SensorSize, make_events
+from hybridhdr.reconstruct import AKFParams, reconstruct
+from hybridhdr.reconstruct import _augment_kernels as AK
+from hybridhdr.reconstruct.augment import (CALIBRATION_CATEGORIES, AugmentedMeasurements, AugmentParams,
+                                           calibrate_thresholds)
+from hybridhdr.reconstruct.edi import EventArrays
+from hybridhdr.reconstruct.profile import CameraProfile, default_profile
+
+#: linear response with float codes = scaled irradiance 0..100 (no clipping in these tests)
+LIN = CameraProfile(weighting=np.ones(101), inverse_crf=np.arange(101.0), name="test-linear")
+
+from .blur_data import shifted_sequence
+
+
+def py(f):
+    return getattr(f, "py_func", f)
+
+
+# -- akf.md §9 test 6 --------------------------------------------------------------------------
+
+@pytest.mark.parametrize("dld, ssum, want, cat", [
+    (0.5, 4, 0.125, "calibrated"),
+    (0.5, 2, 0.1, "out_of_range"),
+    (0.5, 0, 0.1, "zero_net_events"),
+    (-0.5, 4, 0.1, "sign_mismatch"),
+    (0.0, 4, 0.1, "sign_mismatch"),
+])
+def test_calibration_cases(dld, ssum, want, cat):
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        c, k = calibrate_thresholds([dld], [ssum], [max(abs(ssum), 2)], 0.1)
+    assert np.isfinite(c).all()
+    assert c[0] == pytest.approx(want, abs=1e-15)
+    assert CALIBRATION_CATEGORIES[k[0]] == cat
+
+
+def test_calibration_no_events_and_clamps():
+    c, k = calibrate_thresholds([0.5, 0.5, 0.001], [0, 4, 4], [0, 4, 4], 0.1, scale_min=0.6, scale_max=100)
+    assert c.tolist() == [0.1, 0.125, 0.1] or np.allclose(c, [0.1, 0.125, 0.1])
+    assert [CALIBRATION_CATEGORIES[i] for i in k] == ["no_events", "calibrated", "out_of_range"]
+    c, k = calibrate_thresholds([0.5], [4], [4], 0.1, scale_min=0.9, scale_max=1.1)  # 0.8: out
+    assert c[0] == 0.1 and CALIBRATION_CATEGORIES[k[0]] == "out_of_range"
+    with pytest.raises(ValueError, match="one shape"):
+        calibrate_thresholds([0.5], [4, 1], [4], 0.1)
+    with pytest.raises(ValueError, match="> 0"):
+        calibrate_thresholds([0.5], [4], [4], 0.0)
+
+
+def test_calibration_kernel_matches_py_func():
+    rng = np.random.default_rng(0)
+    d = rng.normal(0, 0.5, 100); s = rng.integers(-5, 6, 100); a = rng.random(100) < 0.9
+    outs = []
+    for f in (AK.calibrate_threshold, py(AK.calibrate_threshold)):
+        c = np.empty(100); k = np.empty(100, np.int64)
+        n = f(d, s, a, 0.1, 0.6, 100.0, c, k)
+        outs.append((n, c, k))
+    assert outs[0][0] == outs[1][0]
+    np.testing.assert_array_equal(outs[0][1], outs[1][1])
+    np.testing.assert_array_equal(outs[0][2], outs[1][2])
+
+
+def _provider(rec, **aug):
+    ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
+    return AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
+                                 akf_params=AKFParams(contrast_threshold=0.1, bias_correction=False),
+                                 params=AugmentParams(**aug))
+
+
+def _ramp_recording(c_true=0.12, exposure_us=0):
+    """One pixel, L(t) = log(0.3 + I0) + 2.4 t/1 s; ideal events at c_true; frames at 0 and 1 s."""
+    I0 = 1.0
+    L0 = np.log(0.3 + I0)
+    slope = 2.4 / 1e6
+    n = int(2.4 / c_true + 1e-9)
+    t_ev = np.array([int(round((k + 0.5) * c_true / slope)) for k in range(n)], np.int64)
+    ev = make_events(t_ev, np.zeros(n), np.zeros(n), np.ones(n))
+    L = lambda t: L0 + slope * t  # noqa: E731
+    fr = Frames(np.array([[[np.exp(L(0)) - I0]], [[np.exp(L(1_000_000)) - I0]]]),
+                np.array([0, 1_000_000], np.int64), np.array([0, 1_000_000], np.int64) + exposure_us,
+                encoding="linear")
+    return Recording(ev, SensorSize(1, 1), fr), L
+
+
+def test_calibration_recovers_known_threshold_within_2_percent():
+    rec, L = _ramp_recording(c_true=0.12)
+    m = _provider(rec)
+    lds, c_eff = m._interval(0)
+    assert abs(c_eff[0] - 0.12) / 0.12 < 0.02  # nominal c = 0.1
+    assert m.stats.calibrated == 1 and m.stats.fallbacks == 0
+    # forward integration lands exactly on the next L^D (akf.md §9 test 6)
+    _, lde1, _, _ = m._frame(1)
+    assert lds[0] + c_eff[0] * 20 == pytest.approx(lde1[0], abs=1e-12)
+
+
+def test_forward_backward_agree_on_noise_free_data():
+    """Exact blurred frames and events: eq. 10 (forward from L^D(s_0)) equals eq. 11 (backward
+    from L^D(e_1)) with the true c, and calibration keeps c (scale 1) wherever events exist."""
+    rec, truth = shifted_sequence(c=0.2)
+    ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
+    m = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
+                              akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False),
+                              params=AugmentParams(calibrate=False))
+    lds0, _, _, _ = m._frame(0)
+    _, lde1, _, _ = m._frame(1)
+    for t in (0, 3_500, 8_000, 14_500, 20_000, 27_999):
+        fwd = lds0 + 0.2 * ev.counts(0, t)[0]
+        bwd = lde1 - 0.2 * ev.counts(t, 28_000)[0]
+        np.testing.assert_allclose(fwd, bwd, atol=1e-12)
+        np.testing.assert_allclose(np.exp(fwd), truth(max(t - 1, 0)).ravel() + 1.0, rtol=1e-12)
+    m2 = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
+                               akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False))
+    _, c_eff = m2._interval(0)
+    np.testing.assert_allclose(c_eff, 0.2, rtol=1e-12)
+    st = m2.stats.to_dict()
+    assert st["calibrated"] + st["fallbacks"] == rec.sensor_size.shape[0] * rec.sensor_size.shape[1]
+    assert st["calibrated"] > 0 and st["zero_net_events"] > 0  # a bar passed in and out: explicit fallback
+
+
+def test_segments_blend_and_layout():
+    rec, _ = shifted_sequence(c=0.2)
+    m = _provider(rec, blend_steps=4)
+    # exposure 0 in 4 pieces (τ_0 = 4000 is a cut), gap, exposure 1 in 4 pieces, final open gap
+    assert m.times_us.tolist() == [0, 2000, 4000, 6000, 8000, 20000, 22000, 24000, 26000, 28000]
+    assert m.frame_times_us.tolist() == [4000, 24000]
+    segs = [m.segment(i) for i in range(len(m))]
+    assert all(s.la_step is not None for s in segs)
+    assert segs[-1].t1_us is None and not segs[-1].beta.any()
+    # eq. 13 weights of A_{k-1}: 7/8, 5/8, 3/8, 1/8 in exposure 1; the step blends c_0 and c_1
+    w = 7 / 8
+    _, c0 = m._interval(0)
+    _, c1 = m._interval(1)
+    np.testing.assert_allclose(segs[5].la_step, w * c0 + (1 - w) * c1)
+    with pytest.raises(IndexError):
+        m.segment(len(m))
+    m_hold = _provider(rec, interpolate=False)
+    assert m_hold.times_us.tolist() == [4000, 24000] and m_hold.segment(0).la_step is None
+
+
+def test_provider_validation():
+    rec, _ = shifted_sequence(c=0.2)
+    ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
+    fr = rec.frames
+    bad = Frames(fr.images, np.array([0, 5_000]), np.array([8_000, 13_000]), encoding="linear")
+    with pytest.raises(ValueError, match="non-overlapping"):
+        AugmentedMeasurements(bad, ev, rec.sensor_size.shape, default_profile(8), akf_params=AKFParams())
+    with pytest.raises(TypeError, match="AugmentParams"):
+        AugmentedMeasurements(fr, ev, rec.sensor_size.shape, default_profile(8), akf_params=AKFParams(),
+                              params={"deblur": False})
+    with pytest.raises(ValueError, match="blend_steps"):
+        AugmentParams(blend_steps=0)
+    with pytest.raises(ValueError, match="calibration_scale_min"):
+        AugmentParams(calibration_scale_min=2.0, calibration_scale_max=1.0)
+    with pytest.raises(ValueError, match="unknown"):
+        AugmentParams.from_dict({"debluring": True})
+
+
+# -- AKF with augmented measurements -----------------------------------------------------------
+
+def _codes(rec, gain=0.5):
+    fr = rec.frames
+    c = np.clip(np.round((fr.images * gain) * 255), 0, 255).astype(np.uint8)
+    return Recording(rec.events, rec.sensor_size, Frames(c, fr.t_start_us, fr.t_end_us, encoding="linear"))
+
+
+def test_akf_offline_augmented_beats_zero_order_hold():
+    rec, truth = shifted_sequence(c=0.1, base=np.log(1.05), duration_us=60_000,
+                                  frame_starts=(0, 20_000, 40_000), exposure_us=12_000)
+    rec8 = _codes(rec, gain=1.0)
+    times = np.arange(6_000, 46_000, 1_000, dtype=np.int64) + 500
+    gt = np.stack([truth(t) for t in times])
+    p = AKFParams(contrast_threshold=0.1)
+    va = reconstruct(rec8, "akf", p, times_us=times)
+    vz = reconstruct(rec8, "akf", p, times_us=times, augment=False)
+    va_c = reconstruct(rec8, "akf", p, times_us=times, mode="causal")
+    mse = lambda v: float(np.mean((v.frames - gt) ** 2))  # noqa: E731
+    assert mse(va) < 0.25 * mse(vz)
+    assert mse(va_c) == pytest.approx(mse(vz), rel=1e-12)  # causal: zero-order hold
+    assert va.info["augment"]["enabled"] and not vz.info["augment"]["enabled"]
+    st = va.info["augmentation"]
+    assert st["intervals"] == 2 and st["frames_deblurred"] == 3
+    assert st["calibrated"] + st["fallbacks"] == 2 * 16 * 48
+    for switch in ("deblur", "interpolate", "calibrate"):
+        v = reconstruct(rec8, "akf", p, times_us=times, augment={switch: False})
+        assert np.isfinite(v.frames).all()
+    vd = reconstruct(rec8, "akf", p, times_us=times, augment={"deblur": False})
+    assert mse(va) < mse(vd)
+
+
+def test_cli_flags(tmp_path):
+    import argparse
+    from hybridhdr.reconstruct import cli
+    ap = argparse.ArgumentParser()
+    sub = ap.add_subparsers()
+    cli.add_parser(sub)
+    args = ap.parse_args(["reconstruct", "x.aedat4", "--out", str(tmp_path), "--no-deblur", "--no-calibration"])
+    a = cli.build_augment(args)
+    assert a == AugmentParams(deblur=False, calibrate=False)
+    args = ap.parse_args(["reconstruct", "x", "--out", str(tmp_path), "--no-augmentation", "--no-interpolation"])
+    assert cli.build_augment(args).enabled is False
+    args = ap.parse_args(["reconstruct", "x", "--out", str(tmp_path), "--method", "edi"])
+    assert cli.build_params(args).contrast_threshold is None
