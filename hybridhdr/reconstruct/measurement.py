@@ -20,7 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import Frames
-from .profile import CameraProfile
+from .profile import CameraProfile, profile_for_frames
 
 __all__ = ["Segment", "FrameMeasurements", "frames_to_codes"]
 
@@ -76,7 +76,10 @@ class FrameMeasurements:
     sensor_shape : (int, int)
         (H, W) of the event sensor.
     profile : CameraProfile
-        Weighting LUT, inverse CRF and precision scale (eqs. 3-6).
+        Weighting LUT, inverse CRF and precision scale (eqs. 3-6). The built-in default profile
+        is adapted to ``frames.encoding`` (gamma frames get the gamma inverse CRF, see
+        :func:`~hybridhdr.reconstruct.profile.profile_for_frames`); the profile used is
+        ``self.profile``.
     intensity_offset : float
         I0 of eq. 8.
     bias_correction : bool
@@ -95,6 +98,9 @@ class FrameMeasurements:
         if len(frames) == 0:
             raise ValueError("the recording has no frames; this method needs at least one frame")
         codes = frames_to_codes(frames, sensor_shape)
+        if not isinstance(profile, CameraProfile):
+            raise TypeError(f"profile must be a CameraProfile, got {type(profile).__name__}")
+        profile = profile_for_frames(profile, frames)
         tau = frames.t_mid_us
         order = np.argsort(tau, kind="stable")
         tau, codes_idx = tau[order], order

@@ -30,7 +30,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CameraProfile", "default_profile", "load_profile", "PROFILE_FORMAT", "PROFILE_VERSION"]
+__all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames",
+           "weighting_from_inverse_crf", "PROFILE_FORMAT", "PROFILE_VERSION"]
 
 PROFILE_FORMAT = "hybridhdr-camera-profile"
 PROFILE_VERSION = 1
@@ -194,24 +195,127 @@ class CameraProfile:
         return cls.from_dict(d)
 
 
-def default_profile(bit_depth: int = 8, frame_precision_scale: float = 7e5) -> CameraProfile:
-    """Built-in profile for a linear camera with ``bit_depth``-bit codes.
+#: Gamma of the built-in profile for ``Frames.encoding == "gamma"`` (code = max (I)^(1/2.2)).
+DEFAULT_GAMMA = 2.2
 
-    The weighting function is a trapezoid: 1 over the well-exposed codes and falling linearly to
-    0 over the lowest and highest 1/16 of the code range, where quantisation, dark current and
-    clipping dominate (paper §3.2.1); eq. 6 then floors it at ``min_weighting = 0.09``. The
-    inverse CRF is linear (``code / max_code``). The precision scale defaults to the paper's
-    DAVIS240C value 7e5 (§6). Measured profiles (``hybridhdr calibrate``) should replace this.
+
+def _trapezoid(n: int) -> np.ndarray:
+    """1 over the well-exposed codes, falling linearly to 0 over the lowest and highest 1/16."""
+    codes = np.arange(n, dtype=np.float64)
+    ramp = max((n - 1) / 16.0, 1.0)
+    return np.clip(np.minimum(codes / ramp, (n - 1 - codes) / ramp), 0.0, 1.0)
+
+
+def weighting_from_inverse_crf(inverse_crf, trapezoid=None) -> np.ndarray:
+    """Weighting function ``f_w(code)`` (eqs. 4-5) of a camera with the given inverse CRF.
+
+    The certainty ``f_c = dCRF/dI`` (eq. 4) composed with ``CRF^-1`` (eq. 5) is the reciprocal of
+    the slope of the inverse CRF, ``1 / (dCRF^-1/dcode)``, taken here by central differences of
+    the lookup table. Where that slope vanishes (flat or clipped ends of the table) the
+    certainty is 0. A gamma curve's slope is unbounded at code 0, so ``f_c`` is normalised to a
+    maximum of 1 over the codes where ``trapezoid`` is 1 (the well-exposed codes) and clipped at
+    1 below them, then multiplied by ``trapezoid`` (quantisation, dark current and clipping,
+    paper §3.2.1).
+
+    Parameters
+    ----------
+    inverse_crf : array_like of shape (max_code + 1,)
+        Scaled irradiance per code, non-decreasing.
+    trapezoid : array_like of shape (max_code + 1,), optional
+        Extra per-code factor in [0, 1]; default the built-in trapezoid.
+
+    Returns
+    -------
+    ndarray of shape (max_code + 1,), float64, in [0, 1]
+    """
+    inv = np.asarray(inverse_crf, dtype=np.float64)
+    n = inv.shape[0]
+    tr = _trapezoid(n) if trapezoid is None else np.asarray(trapezoid, dtype=np.float64)
+    slope = np.gradient(inv)
+    fc = np.where(slope > 0, 1.0 / np.where(slope > 0, slope, 1.0), 0.0)
+    good = tr >= 1.0
+    top = fc[good].max() if good.any() and fc[good].max() > 0 else fc.max()
+    if not top > 0:
+        raise ValueError("the inverse CRF is flat everywhere; it gives no certainty (eq. 4)")
+    return np.clip(fc / top, 0.0, 1.0) * tr
+
+
+def default_profile(bit_depth: int = 8, frame_precision_scale: float = 7e5, *, encoding: str = "linear",
+                    gamma: float = DEFAULT_GAMMA) -> CameraProfile:
+    """Built-in profile for ``bit_depth``-bit codes with a linear or gamma response.
+
+    Parameters
+    ----------
+    bit_depth : int
+        Code depth, 1..16 (``max_code = 2**bit_depth - 1``).
+    frame_precision_scale : float
+        1/σ²_im of eq. 6; default the paper's DAVIS240C value 7e5 (§6).
+    encoding : {"linear", "raw", "unknown", "gamma"}
+        The frames' ``Frames.encoding``. "gamma" means ``code = max_code (I)^(1/gamma)``; every
+        other value is read as a linear response.
+    gamma : float
+        Display gamma of a "gamma" encoding (2.2: the sRGB-like curve of
+        :func:`hybridhdr.synthetic.procedural_recording`).
+
+    Notes
+    -----
+    Linear response: ``CRF^-1(code) = code / max_code`` and the weighting function is a
+    trapezoid, 1 over the well-exposed codes and falling linearly to 0 over the lowest and
+    highest 1/16 of the code range, where quantisation, dark current and clipping dominate
+    (paper §3.2.1). Gamma response: ``CRF^-1(code) = (code / max_code)**gamma`` (eq. 3) and the
+    weighting is that trapezoid times the certainty of eqs. 4-5 derived from this CRF (see
+    :func:`weighting_from_inverse_crf`): dark codes, where the curve is steep, resolve
+    irradiance more finely and weigh more than bright ones. Eq. 6 floors either at
+    ``min_weighting = 0.09``. Measured profiles (``hybridhdr calibrate``) should replace this.
+
+    The profile is marked built-in (``extra["builtin"]``), so :class:`FrameMeasurements` swaps it
+    for the one matching ``Frames.encoding`` (see :func:`profile_for_frames`).
     """
     if isinstance(bit_depth, bool) or not isinstance(bit_depth, (int, np.integer)) or not 1 <= bit_depth <= 16:
         raise ValueError(f"bit_depth must be an int in 1..16, got {bit_depth!r}")
+    if encoding not in ("linear", "raw", "unknown", "gamma"):
+        raise ValueError(f"encoding must be 'linear', 'raw', 'unknown' or 'gamma', got {encoding!r}")
+    if isinstance(gamma, bool) or not isinstance(gamma, (int, float)) or not (math.isfinite(gamma) and gamma > 0):
+        raise ValueError(f"gamma must be a positive number, got {gamma!r}")
     n = 1 << int(bit_depth)
-    codes = np.arange(n, dtype=np.float64)
-    ramp = max((n - 1) / 16.0, 1.0)
-    w = np.clip(np.minimum(codes / ramp, (n - 1 - codes) / ramp), 0.0, 1.0)
-    return CameraProfile(weighting=w, inverse_crf=None, frame_precision_scale=frame_precision_scale,
+    tr = _trapezoid(n)
+    extra = {"builtin": True, "bit_depth": int(bit_depth)}
+    if encoding == "gamma":
+        inv = (np.arange(n, dtype=np.float64) / (n - 1)) ** float(gamma)
+        extra.update(encoding="gamma", gamma=float(gamma))
+        return CameraProfile(weighting=weighting_from_inverse_crf(inv, tr), inverse_crf=inv,
+                             frame_precision_scale=frame_precision_scale, min_weighting=0.09,
+                             name=f"default-{bit_depth}bit-gamma{float(gamma):g}",
+                             source=f"hybridhdr built-in: gamma {float(gamma):g} response, trapezoid times "
+                                    f"the CRF certainty (eqs. 4-5)", extra=extra)
+    extra.update(encoding="linear")
+    return CameraProfile(weighting=tr, inverse_crf=None, frame_precision_scale=frame_precision_scale,
                          min_weighting=0.09, name=f"default-{bit_depth}bit",
-                         source="hybridhdr built-in trapezoid weighting, linear response")
+                         source="hybridhdr built-in trapezoid weighting, linear response", extra=extra)
+
+
+def profile_for_frames(profile: CameraProfile, frames) -> CameraProfile:
+    """The profile to read ``frames`` with: the built-in one adapted to ``frames.encoding``.
+
+    A built-in profile (``extra["builtin"]``, from :func:`default_profile`) whose response does
+    not match the frames' encoding is replaced by the built-in profile of that encoding, with
+    the same bit depth and precision scale; e.g. gamma-encoded frames get the inverse CRF
+    ``(code/max)**2.2``. Any other (measured) profile is returned unchanged: it states the
+    camera's response itself.
+    """
+    extra = profile.extra or {}
+    if not extra.get("builtin"):
+        return profile
+    enc = getattr(frames, "encoding", "unknown")
+    want = "gamma" if enc == "gamma" else "linear"
+    if extra.get("encoding", "linear") == want:
+        return profile
+    bits = int(extra.get("bit_depth", int(round(math.log2(profile.max_code + 1)))))
+    kw = {"gamma": float(extra.get("gamma", DEFAULT_GAMMA))} if want == "gamma" else {}
+    prof = default_profile(bits, profile.frame_precision_scale, encoding=want, **kw)
+    if prof.max_code != profile.max_code:
+        return profile
+    return prof
 
 
 def load_profile(profile) -> CameraProfile:
