@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import math
+import queue
+import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable, Iterator
 
@@ -365,14 +367,92 @@ class OutputClock:
         return self.times is not None
 
 
+class _Prefetcher:
+    """Iterate ``chunks`` in a background thread, ``depth`` chunks ahead of the consumer.
+
+    Reading (HDF5 decompression in h5py, which releases the GIL, and the column copies) then
+    overlaps the filter kernels, which release the GIL too. Exceptions raised by the source are
+    re-raised in the consumer, in order. :meth:`close` stops the thread and waits for it, so the
+    source can be closed safely afterwards; it is called when the consumer stops early too.
+    """
+
+    _END = object()
+
+    def __init__(self, chunks: Iterable, depth: int = 1):
+        self._src = iter(chunks)
+        self._q: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="hybridhdr-prefetch", daemon=True)
+        self._thread.start()
+
+    def _put(self, item) -> bool:
+        while not self._stop.is_set():
+            try:
+                self._q.put(item, timeout=0.05)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def _run(self):
+        try:
+            for c in self._src:
+                if not self._put(("chunk", c)):
+                    return
+        except BaseException as e:  # handed to the consumer
+            self._put(("error", e))
+            return
+        self._put(("end", None))
+
+    def __iter__(self):
+        return self
+
+    def __next__(self):
+        if self._thread is None:
+            raise StopIteration
+        kind, v = self._q.get()
+        if kind == "chunk":
+            return v
+        self.close()
+        if kind == "error":
+            raise v
+        raise StopIteration
+
+    def close(self):
+        if self._thread is None:
+            return
+        self._stop.set()
+        while self._thread.is_alive():
+            try:  # unblock a producer waiting on a full queue
+                self._q.get_nowait()
+            except queue.Empty:
+                pass
+            self._thread.join(0.01)
+        self._thread = None
+
+
 def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
-          progress: Callable[[int], None] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+          progress: Callable[[int], None] | None = None, prefetch: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     """Run ``engine`` over event ``chunks`` ((t, x, y, p) contiguous arrays, time-sorted), yielding
     ``(t_us, image)`` at the clock's output times as soon as all events before them are in.
 
     Order at equal times: frame switch, then output, then events (an output at t includes the
-    events with timestamps < t). Events before the filter's start are skipped.
+    events with timestamps < t). Events before the filter's start are skipped. With
+    ``prefetch`` (and an engine that uses events), the next chunk is read in a background
+    thread while the current one is filtered (one chunk ahead, so memory stays bounded).
     """
+    pf = None
+    if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
+        chunks = pf = _Prefetcher(chunks)
+    try:
+        yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress)
+    finally:
+        if pf is not None:
+            pf.close()
+
+
+def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
+           progress: Callable[[int], None] | None = None) -> Iterator[tuple[int, np.ndarray]]:
     t_init = engine.start(t_start_us)
     t_first_out = t_init if t_start_us is None else max(t_init, int(t_start_us))
     clock.set_origin(t_first_out)

@@ -1,6 +1,6 @@
 """Prophesee RAW (EVT 2.0, EVT 2.1, EVT 3.0) and DAT readers, writers and streaming decoders.
 
-Layouts follow ``/work/shared/reference/formats.md`` (Prophesee's "EVT 2.0/2.1/3.0 Format" pages
+Layouts follow the project reference notes (``../shared/reference/formats.md``) (Prophesee's "EVT 2.0/2.1/3.0 Format" pages
 and the DAT layout of openeb's ``dat_tools.py``); the code is written from those specifications.
 
 Reading
