@@ -15,7 +15,6 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import resource
 import subprocess
 import sys
 import time
@@ -46,16 +45,30 @@ def make_evt2(path: Path, target_bytes: int, seed: int = 0) -> int:
     return n_total
 
 
+_CHILD = ("import atexit, sys\n"
+          "def _hwm():\n"
+          "    for line in open('/proc/self/status'):\n"
+          "        if line.startswith('VmHWM:'):\n"
+          "            sys.stderr.write('HWM_KB ' + line.split()[1] + '\\n')\n"
+          "atexit.register(_hwm)\n"
+          "from hybridhdr.cli import main\n"
+          "sys.exit(main(sys.argv[1:]))\n")
+
+
 def run_child(args: list[str]) -> tuple[float, float]:
-    """Run ``hybridhdr`` in a child process; return (seconds, peak RSS in MB of that child)."""
-    before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+    """Run ``hybridhdr ARGS`` in a child process; return (seconds, the child's own peak RSS in MB).
+
+    The peak is the child's ``VmHWM`` read from /proc at exit (``ru_maxrss`` of children would
+    report the largest of all children so far).
+    """
     t = time.perf_counter()
-    subprocess.run([sys.executable, "-m", "hybridhdr", *args], check=True, stdout=subprocess.DEVNULL)
+    proc = subprocess.run([sys.executable, "-c", _CHILD, *args], check=True, stdout=subprocess.DEVNULL,
+                          stderr=subprocess.PIPE, text=True)
     dt = time.perf_counter() - t
-    after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
-    # ru_maxrss of children is the max over all waited-for children: run the biggest last or
-    # compare; we report max(after, before) which is an upper bound for this child.
-    return dt, max(after, before) / 1024.0
+    hwm = [int(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("HWM_KB ")]
+    if not hwm:
+        raise RuntimeError(f"child did not report its peak memory: {proc.stderr[-2000:]}")
+    return dt, hwm[-1] / 1024.0
 
 
 def main() -> None:
