@@ -107,27 +107,32 @@ class AKFEngine(Engine):
 
     def _load(self, k: int) -> None:
         seg = self.m.segment(k)
-        S = self.S
-        S[:, K.A_LA] = seg.log_frame
-        S[:, K.A_RINV] = seg.rinv
-        beta = seg.beta if seg.beta is not None else np.zeros(self.n)
-        S[:, K.A_BETA] = beta
+        n = self.n
+
+        def col(a, name, required):
+            if a is None:
+                if required:
+                    raise ValueError(f"measurement segment {k} has no {name}; the AKF needs it")
+                return np.empty(0)
+            a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+            if a.shape[0] != n:
+                raise ValueError(f"measurement segment {k}: {name} has {a.shape[0]} values, expected {n} (H*W)")
+            return a
+
+        lf = col(seg.log_frame, "log_frame", True)
+        rinv = col(seg.rinv, "rinv", True)
+        beta = col(seg.beta, "beta", False)
+        step = col(seg.la_step, "la_step", False)
         if seg.t1_us is not None:
             T_us = seg.t1_us - seg.t0_us
             self.seg_inv_t = 1.0 / T_us
-            nz = beta != 0.0
-            if nz.any():
-                klog = np.zeros(self.n)
-                klog[nz] = seg.rinv[nz] * (T_us * K.US) / beta[nz]
-                S[:, K.A_KLOG] = klog
-            else:
-                S[:, K.A_KLOG] = 0.0
+            seg_t_s = T_us * K.US
         else:
             self.seg_inv_t = 0.0
-            S[:, K.A_BETA] = 0.0
-            S[:, K.A_KLOG] = 0.0
+            seg_t_s = 0.0
+        W = self.shape[1]
+        self._map_bands(lambda b, lo, hi: K.akf_load(self.S, lf, rinv, beta, step, seg_t_s, lo * W, hi * W), n)
         self.has_la_step = seg.la_step is not None
-        S[:, K.A_LASTEP] = seg.la_step if self.has_la_step else 0.0
         self.seg_t0 = float(seg.t0_us)
         self.k = k
         self.segment = seg

@@ -210,21 +210,48 @@ def akf_propagate(S, seg_t0, seg_inv_t, t_to, pix_lo, pix_hi):
 
 
 @njit(cache=True, nogil=True)
+def akf_load(S, log_frame, rinv, beta, la_step, seg_t_s, pix_lo, pix_hi):
+    """Load a measurement segment into pixels ``[pix_lo, pix_hi)`` of the AKF state (one pass).
+
+    Sets L^A = ``log_frame``, 1/R = ``rinv``, β = ``beta`` and ``klog = rinv T / β`` (β ≠ 0; 0
+    otherwise) of :func:`rinv_integral`, with ``T = seg_t_s`` the segment length in s; pass
+    ``seg_t_s = 0`` for an open-ended segment (β is then stored as 0: R held), and empty
+    ``beta`` / ``la_step`` arrays for zeros.
+    """
+    has_beta = beta.shape[0] > 0 and seg_t_s > 0.0
+    has_step = la_step.shape[0] > 0
+    for pix in range(pix_lo, pix_hi):
+        r = rinv[pix]
+        S[pix, A_LA] = log_frame[pix]
+        S[pix, A_RINV] = r
+        b = beta[pix] if has_beta else 0.0
+        S[pix, A_BETA] = b
+        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else 0.0
+        S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
+    return pix_hi - pix_lo
+
+
+@njit(cache=True, nogil=True)
 def akf_output(S, seg_t0, seg_inv_t, t_out, offset, out_lin, out_log, out_var, pix_lo, pix_hi):
     """State at ``t_out`` µs in closed form (eqs. 17, 20) without changing it.
 
-    Writes ``exp(L̂) - offset`` into ``out_lin`` (float32) and, when they have the full size,
+    Writes ``exp(L̂) - offset`` into ``out_lin`` (float32, computed in single precision: L̂ is
+    rounded to float32 first, a relative error below 1e-6 for |L̂| < 8) and, when they have the full size,
     L̂ into ``out_log`` and P into ``out_var`` (float64; pass empty arrays to skip).
     """
     want_log = out_log.shape[0] > 0
     want_var = out_var.shape[0] > 0
+    off32 = np.float32(offset)
     for pix in range(pix_lo, pix_hi):
-        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_out,
-                              seg_t0, seg_inv_t)
+        beta = S[pix, A_BETA]
+        if beta == 0.0:
+            integ = S[pix, A_RINV] * ((t_out - S[pix, A_TU]) * US)
+        else:
+            integ = rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], S[pix, A_TU], t_out, seg_t0, seg_inv_t)
         d = 1.0 / (1.0 + S[pix, A_P] * integ)
         lav = S[pix, A_LA]
         lhat = lav + (S[pix, A_L] - lav) * d
-        out_lin[pix] = math.exp(lhat) - offset
+        out_lin[pix] = math.exp(np.float32(lhat)) - off32  # float32 output: single-precision exp
         if want_log:
             out_log[pix] = lhat
         if want_var:

@@ -133,3 +133,25 @@ def test_parallel_threads_bit_identical_on_large_chunk():
         states.append(eng.S.copy())
         eng.close()
     np.testing.assert_array_equal(states[0], states[1])
+
+
+def test_akf_load_equals_py_func_and_numpy():
+    n = 40
+    rng = np.random.default_rng(8)
+    lf, rinv = rng.normal(0, 0.3, n), rng.uniform(1e3, 1e6, n)
+    beta = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(-0.5, 2.0, n))
+    step = rng.uniform(0.05, 0.2, n)
+    T_s = 0.0333
+    res = []
+    for fn in (K.akf_load, _py(K.akf_load)):
+        for b, st, ts in ((beta, step, T_s), (np.empty(0), np.empty(0), T_s), (beta, step, 0.0)):
+            S = _akf_state(n)
+            fn(S, lf, rinv, b, st, ts, 0, n)
+            res.append(S.copy())
+    for a, b in zip(res[:3], res[3:]):
+        np.testing.assert_array_equal(a, b)
+    S = res[0]
+    np.testing.assert_array_equal(S[:, K.A_LA], lf)
+    np.testing.assert_array_equal(S[:, K.A_KLOG], np.where(beta != 0, rinv * T_s / np.where(beta != 0, beta, 1), 0))
+    assert not res[1][:, K.A_BETA].any() and not res[1][:, K.A_LASTEP].any()
+    assert not res[2][:, K.A_BETA].any() and not res[2][:, K.A_KLOG].any()
