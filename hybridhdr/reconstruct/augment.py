@@ -88,7 +88,7 @@ class AugmentParams(_ParamsMixin):
     tv_weight: float = 0.2  # λ, Pan et al. TVnorm.m
     calibration_scale_min: float = 0.6  # reference compute_ct_scale.m (akf.md §4)
     calibration_scale_max: float = 100.0  # idem
-    blend_steps: int = 4
+    blend_steps: int = 2  # eq. 13 held on T/2 halves (cost: one AKF segment switch each)
 
     def __post_init__(self):
         for name in ("enabled", "deblur", "interpolate", "calibrate", "search_threshold"):
@@ -273,6 +273,7 @@ class AugmentedMeasurements:
         self._interval_cache: dict = {}
         self._count_cache = None
         self._pre = None
+        self._fm_cache: dict = {}
         self._build_segments()
 
     # -- segment layout ---------------------------------------------------------------------
@@ -317,7 +318,7 @@ class AugmentedMeasurements:
         """(L^D(s_k), Σσ over exposure k, number of events over exposure k)."""
         if k in self._frames_cache:
             return self._frames_cache[k]
-        seg = self.fm.segment(k)
+        seg = self._fm_segment(k)
         logb = seg.log_frame  # log(B + I0), bias-corrected (eq. 8)
         a, b = int(self.ts[k]), int(self.te[k])
         cnt, tot = self.events.counts(a, b)
@@ -379,13 +380,25 @@ class AugmentedMeasurements:
         cnt = self._count_since(k, t_us) if back_count is None else back_count
         return lds + c_eff * cnt, c_eff
 
+    def _fm_segment(self, j: int) -> Segment:
+        """Zero-order-hold measurement of frame j (cached: two frames are live at a time)."""
+        seg = self._fm_cache.get(j)
+        if seg is None:
+            seg = self.fm.segment(j)
+            self._fm_cache[j] = seg
+            for old in [i for i in self._fm_cache if i < j - 1]:
+                del self._fm_cache[old]
+        return seg
+
     def _r_pieces(self, t0: int, t1: int | None):
         """1/R at t0 and β over [t0, t1) following eq. 7's linear R̄ between the τ_j."""
         j = max(int(np.searchsorted(self.tau, t0, side="right")) - 1, 0)
-        seg = self.fm.segment(j)
+        seg = self._fm_segment(j)
         rinv_j, beta_j = seg.rinv, seg.beta
         if t1 is None or seg.t1_us is None or t0 < int(self.tau[j]):
             return rinv_j, np.zeros(self.n)  # before the first τ or after the last: R held
+        if t0 == seg.t0_us and t1 == seg.t1_us:
+            return rinv_j, beta_j
         span = float(seg.t1_us - seg.t0_us)
         w0 = 1.0 + beta_j * ((t0 - seg.t0_us) / span)
         w1 = 1.0 + beta_j * ((t1 - seg.t0_us) / span)
@@ -419,8 +432,8 @@ class AugmentedMeasurements:
             else:
                 la = ak
                 step = ck
-        inten = np.exp(la) - self.akf.intensity_offset
+        # ``intensity`` is the blurred frame's B (the AKF reads log_frame; other engines read B)
         return Segment(t0_us=int(t0), t1_us=t1, log_frame=np.ascontiguousarray(la, dtype=np.float64),
-                       intensity=inten, rinv=np.ascontiguousarray(rinv, dtype=np.float64),
+                       intensity=self._fm_segment(k).intensity, rinv=np.ascontiguousarray(rinv, dtype=np.float64),
                        beta=np.ascontiguousarray(beta, dtype=np.float64),
                        la_step=None if step is None else np.ascontiguousarray(step, dtype=np.float64))

@@ -127,7 +127,7 @@ def test_forward_backward_agree_on_noise_free_data():
 
 def test_segments_blend_and_layout():
     rec, _ = shifted_sequence(c=0.2)
-    m = _provider(rec, blend_steps=4)
+    m = _provider(rec, blend_steps=4)  # not the default (2)
     # exposure 0 in 4 pieces (τ_0 = 4000 is a cut), gap, exposure 1 in 4 pieces, final open gap
     assert m.times_us.tolist() == [0, 2000, 4000, 6000, 8000, 20000, 22000, 24000, 26000, 28000]
     assert m.frame_times_us.tolist() == [4000, 24000]
