@@ -259,6 +259,19 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, offset, out_lin, out_log, out_var, p
     return pix_hi - pix_lo
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _cf_update(C, pix, tif, pol, c_on, c_off, event_decay):
+    """One CF event at pixel ``pix``, time ``tif`` µs: exact decay towards L^F, then the jump."""
+    lfv = C[pix, C_LF]
+    b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
+    lhat = lfv + (C[pix, C_L] - lfv) * b
+    if pol > 0:
+        C[pix, C_L] = lhat + c_on
+    else:
+        C[pix, C_L] = lhat - c_off
+    C[pix, C_TU] = tif
+
+
 @njit(cache=True, nogil=True)
 def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay):
     """Complementary filter per event (Scheerlinck et al. 2018): dL̂/dt = e - α(L̂ - L^F).
@@ -274,14 +287,7 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
             continue
         tif = np.float64(t[i])
         pix = yy * width + np.int64(x[i])
-        lfv = C[pix, C_LF]
-        b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
-        lhat = lfv + (C[pix, C_L] - lfv) * b
-        if p[i] > 0:
-            C[pix, C_L] = lhat + c_on
-        else:
-            C[pix, C_L] = lhat - c_off
-        C[pix, C_TU] = tif
+        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay)
         n += 1
     return n
 
@@ -294,14 +300,7 @@ def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay
         i = i0 + np.int64(idx[k])
         tif = np.float64(t[i])
         pix = np.int64(y[i]) * width + np.int64(x[i])
-        lfv = C[pix, C_LF]
-        b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
-        lhat = lfv + (C[pix, C_L] - lfv) * b
-        if p[i] > 0:
-            C[pix, C_L] = lhat + c_on
-        else:
-            C[pix, C_L] = lhat - c_off
-        C[pix, C_TU] = tif
+        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay)
         n += 1
     return n
 
