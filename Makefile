@@ -14,7 +14,7 @@ $(VENV)/.created:
 	touch $@
 
 $(VENV)/.installed: $(VENV)/.created pyproject.toml
-	$(PIP) install --quiet -e .
+	$(PIP) install --quiet -e ".[all]"
 	touch $@
 
 $(VENV)/.installed-test: $(VENV)/.created pyproject.toml
