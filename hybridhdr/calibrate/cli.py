@@ -1,0 +1,36 @@
+"""``hybridhdr calibrate``: ``rig`` (stereo event/frame rig), ``crf`` (response and noise profile),
+``hdr-reference`` (merged, registered HDR references).
+
+Each step lives in its own module with ``register(subparsers)``; a step whose module is not
+present in this version is simply not listed.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+
+_STEP_MODULES = ("_cli_rig", "_cli_photometric")
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("calibrate", help="stereo rig, camera response and noise profile, HDR references",
+                       description="Calibrate a hybrid event/frame rig: geometry (rig), photometry (crf) "
+                                   "and HDR references (hdr-reference). Each step writes a JSON report "
+                                   "and PNG plots.",
+                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+    steps = p.add_subparsers(dest="calibrate_step", metavar="STEP")
+    for name in _STEP_MODULES:
+        try:
+            mod = importlib.import_module(f"{__package__}.{name}")
+        except ModuleNotFoundError as e:
+            if e.name != f"{__package__}.{name}":
+                raise
+            continue
+        mod.register(steps)
+
+    def _no_step(args) -> int:
+        p.print_help()
+        return 2
+
+    p.set_defaults(func=_no_step)
