@@ -1,0 +1,504 @@
+"""Image-quality metrics for reconstructed HDR video, with an explicit normalisation policy.
+
+All metrics take **linear intensities**. A reconstruction and its reference rarely share units:
+frame-anchored methods (AKF, CF, direct, frames, EDI) return intensity in the camera profile's
+scaled-irradiance units (brightest frame code = 1, ``hybridhdr.reconstruct.Video``), while
+references are scene radiance; events-only methods (``highpass``) return a *relative* intensity
+exp(L̂) with an unknown offset and gain in log. Scoring therefore goes through three steps,
+each stated in the result:
+
+1. **Normalisation** (``normalise``), fitted once per sequence by least squares over all matched
+   frames and all finite pixels:
+
+   - ``"none"``: the reconstruction as is (use when both are in the same absolute units);
+   - ``"scale"``: ``g·x`` with ``g = <x, r>/<x, x>`` (an unknown camera gain/exposure);
+   - ``"affine"``: ``a·x + b`` (a relative, events-only reconstruction).
+
+   Defaults (:data:`DEFAULT_NORMALISE`): ``"affine"`` for ``highpass`` (events only are
+   relative), ``"scale"`` for every frame-anchored method.
+2. **Range**: both are divided by the reference's maximum over the sequence, so the reference
+   lies in [0, 1]; the reconstruction is clipped to [0, 1] (as EVREAL does,
+   ``ercanburak/EVREAL:utils/eval_metrics.py``). MSE, PSNR and SSIM then use **data range 1**.
+3. **Absolute luminance** for PU21 and HDR-VDP: the [0, 1] images are multiplied by
+   ``peak_luminance_cd_m2`` (default 4000 cd/m², as ``I/max·4000`` in the PU21 usage notes)
+   before encoding.
+
+Metrics
+-------
+- :func:`mse`, :func:`psnr` (``10·log10(R²/MSE)``, R = data range).
+- :func:`ssim`: mean SSIM with a Gaussian window (σ = 1.5, truncated at 3.5σ, reflect
+  boundary), population covariance, K1 = 0.01, K2 = 0.03, the border of width
+  ``int(3.5σ + 0.5)`` cropped before averaging: the settings of scikit-image's
+  ``structural_similarity(..., gaussian_weights=True, sigma=1.5, use_sample_covariance=False,
+  data_range=R)``, which match Wang et al. 2004 (doi:10.1109/TIP.2003.819861). Own
+  implementation with :func:`scipy.ndimage.gaussian_filter`; equal to scikit-image to 1e-6
+  (tested).
+- :func:`global_ssim`: **global SSIM**, a single window over the whole image. ``variant="eaf"``
+  reproduces the AKF follow-up's evaluation code (``ziweiWWANG/Event-Asynchronous-Filter:
+  code/eval/computeSSIM.m``: per-column means, whole-image *sample* covariance, L = 255, and a
+  MATLAB ``/`` between row vectors, i.e. a least-squares ratio); ``variant="standard"`` uses the
+  whole-image means, population variances and covariance. It is *not* comparable with
+  windowed SSIM.
+- :func:`pu21_encode`, :func:`pu_psnr`, :func:`pu_ssim`: PU21 (Mantiuk & Azimi, "PU21: A novel
+  perceptually uniform encoding for adapting existing quality metrics for HDR", PCS 2021,
+  doi:10.1109/PCS50896.2021.9477471). ``V = p6·(((p0 + p1·Y^p3)/(1 + p2·Y^p3))^p4 − p5)`` with
+  Y clipped to [0.005, 10000] cd/m²; PU-PSNR and PU-SSIM use a peak / data range of 256 as in
+  the authors' ``gfxdisp/pu21:matlab/pu21_metric.m`` (``peak="pu_max"`` uses PU(10000)).
+- :func:`hdrvdp_q`: HDR-VDP 3 Q through the user's own installation (GNU Octave or MATLAB).
+- :func:`match_frames`: pair reconstructed frames with references by timestamp.
+- :func:`score_video`: everything above on a matched sequence, plus the count of non-finite
+  reconstructed pixels (numerical failures).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "global_ssim",
+           "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
+           "normalise_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
+           "find_hdrvdp", "HDRVDPNotFound"]
+
+NORMALISE_MODES = ("none", "scale", "affine")
+#: Per-method default normalisation (methods not listed: "scale").
+DEFAULT_NORMALISE = {"highpass": "affine", "hpf": "affine"}
+
+
+def default_normalise(method: str) -> str:
+    """The default normalisation for a reconstruction method (see the module docstring)."""
+    return DEFAULT_NORMALISE.get(method, "scale")
+
+
+def _pair(a, b, name="images"):
+    a = np.asarray(a, dtype=np.float64)
+    b = np.asarray(b, dtype=np.float64)
+    if a.shape != b.shape:
+        raise ValueError(f"{name}: test and reference must have the same shape, got {a.shape} and {b.shape}")
+    if a.size == 0:
+        raise ValueError(f"{name}: empty images (shape {a.shape})")
+    return a, b
+
+
+def mse(test, reference) -> float:
+    """Mean squared error over all pixels (and frames)."""
+    a, b = _pair(test, reference, "mse")
+    return float(np.mean((a - b) ** 2))
+
+
+def psnr(test, reference, data_range: float = 1.0) -> float:
+    """PSNR in dB, ``10·log10(data_range² / MSE)``; ``inf`` for identical images."""
+    if not data_range > 0:
+        raise ValueError(f"data_range must be > 0, got {data_range}")
+    m = mse(test, reference)
+    if m == 0:
+        return math.inf
+    return float(10.0 * math.log10(data_range ** 2 / m))
+
+
+def _ssim2d(x, y, data_range, sigma, truncate, k1, k2):
+    from scipy.ndimage import gaussian_filter
+    r = int(truncate * sigma + 0.5)
+    if min(x.shape) < 2 * r + 1:
+        raise ValueError(f"ssim: images must be at least {2 * r + 1}x{2 * r + 1} px for sigma={sigma}, "
+                         f"got {x.shape[1]}x{x.shape[0]}")
+
+    def f(z):
+        return gaussian_filter(z, sigma, truncate=truncate, mode="reflect")
+    ux, uy = f(x), f(y)
+    vx = f(x * x) - ux * ux
+    vy = f(y * y) - uy * uy
+    vxy = f(x * y) - ux * uy
+    c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
+    s = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
+    return float(s[r:s.shape[0] - r, r:s.shape[1] - r].mean(dtype=np.float64))
+
+
+def ssim(test, reference, data_range: float = 1.0, *, sigma: float = 1.5, truncate: float = 3.5,
+         k1: float = 0.01, k2: float = 0.03) -> float:
+    """Mean SSIM with a Gaussian window (Wang et al. 2004, doi:10.1109/TIP.2003.819861).
+
+    Parameters
+    ----------
+    test, reference : ndarray of shape (H, W) or (K, H, W)
+        For (K, H, W) the per-frame SSIMs are averaged.
+    data_range : float
+        R in C1 = (K1 R)², C2 = (K2 R)².
+
+    Notes
+    -----
+    Same value as ``skimage.metrics.structural_similarity(test, reference,
+    gaussian_weights=True, sigma=1.5, use_sample_covariance=False, data_range=R)`` per frame
+    (tested to 1e-6).
+    """
+    a, b = _pair(test, reference, "ssim")
+    if not data_range > 0:
+        raise ValueError(f"data_range must be > 0, got {data_range}")
+    if a.ndim == 2:
+        return _ssim2d(a, b, data_range, sigma, truncate, k1, k2)
+    if a.ndim == 3:
+        return float(np.mean([_ssim2d(x, y, data_range, sigma, truncate, k1, k2) for x, y in zip(a, b)]))
+    raise ValueError(f"ssim: expected images of shape (H, W) or (K, H, W), got {a.shape}")
+
+
+def global_ssim(test, reference, data_range: float = 255.0, *, variant: str = "eaf") -> float:
+    """Global SSIM: one window over the whole image (the AKF follow-up's evaluation).
+
+    Parameters
+    ----------
+    test, reference : ndarray (H, W) or (K, H, W)
+        For ``variant="eaf"`` the follow-up scales the reconstruction by 255 and uses L = 255.
+    variant : {"eaf", "standard"}
+        ``"eaf"``: as ``ziweiWWANG/Event-Asynchronous-Filter:code/eval/computeSSIM.m``: column
+        means μ (row vectors), the 2×2 *sample* covariance of the flattened images, and MATLAB's
+        right division of the numerator row vector by the denominator row vector, which is the
+        least-squares scalar ``sum(n·d)/sum(d·d)``. ``"standard"``: whole-image means,
+        population variances and covariance, one window.
+    """
+    a, b = _pair(test, reference, "global_ssim")
+    if variant not in ("eaf", "standard"):
+        raise ValueError(f"variant must be 'eaf' or 'standard', got {variant!r}")
+    if a.ndim == 3:
+        return float(np.mean([global_ssim(x, y, data_range, variant=variant) for x, y in zip(a, b)]))
+    if a.ndim != 2:
+        raise ValueError(f"global_ssim: expected (H, W) or (K, H, W), got {a.shape}")
+    c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
+    if variant == "standard":
+        mx, my = a.mean(), b.mean()
+        vx, vy = a.var(), b.var()
+        vxy = np.mean((a - mx) * (b - my))
+        return float(((2 * mx * my + c1) * (2 * vxy + c2)) / ((mx * mx + my * my + c1) * (vx + vy + c2)))
+    mu1, mu2 = a.mean(axis=0), b.mean(axis=0)
+    cov = np.cov(a.ravel(), b.ravel())  # sample covariance (N - 1), as MATLAB cov
+    num = (2 * mu1 * mu2 + c1) * (2 * cov[0, 1] + c2)
+    den = (mu1 ** 2 + mu2 ** 2 + c1) * (cov[0, 0] + cov[1, 1] + c2)
+    return float(np.dot(num, den) / np.dot(den, den))
+
+
+# -- PU21 ---------------------------------------------------------------------------------------
+
+#: PU21 parameters p0..p6 (Mantiuk & Azimi 2021, doi:10.1109/PCS50896.2021.9477471; values as in
+#: ``../shared/reference/calibration.md`` and the authors' ``gfxdisp/pu21``).
+PU21_PARAMS = {
+    "banding_glare": (0.353487901, 0.3734658629, 8.277049286e-05, 0.9062562627, 0.09150303166,
+                      0.9099517204, 596.3148142),
+    "banding": (1.070275272, 0.4088273932, 0.153224308, 0.2520326168, 1.063512885, 1.14115047,
+                521.4527484),
+}
+PU21_L_MIN_CD_M2 = 0.005
+PU21_L_MAX_CD_M2 = 10000.0
+#: Peak / data range used by the authors' ``pu21_metric.m`` for PSNR and SSIM on PU values.
+PU21_METRIC_PEAK = 256.0
+
+
+def pu21_encode(luminance_cd_m2, variant: str = "banding_glare") -> np.ndarray:
+    """PU21 encoding of absolute luminance (cd/m²): ``p6·(((p0 + p1 Y^p3)/(1 + p2 Y^p3))^p4 − p5)``.
+
+    Y is clipped to [0.005, 10000] cd/m² first. About 0 at 0.005 cd/m² and ≈ 256 near
+    100 cd/m² (the range of an SDR display); NaN stays NaN.
+    """
+    if variant not in PU21_PARAMS:
+        raise ValueError(f"unknown PU21 variant {variant!r}; expected one of {sorted(PU21_PARAMS)}")
+    p0, p1, p2, p3, p4, p5, p6 = PU21_PARAMS[variant]
+    y = np.clip(np.asarray(luminance_cd_m2, dtype=np.float64), PU21_L_MIN_CD_M2, PU21_L_MAX_CD_M2)
+    yp = y ** p3
+    return p6 * (((p0 + p1 * yp) / (1.0 + p2 * yp)) ** p4 - p5)
+
+
+def _pu_peak(peak, variant):
+    if peak == "pu_max":
+        return float(pu21_encode(PU21_L_MAX_CD_M2, variant))
+    if isinstance(peak, (int, float)) and peak > 0:
+        return float(peak)
+    raise ValueError(f"peak must be a positive number or 'pu_max', got {peak!r}")
+
+
+def pu_psnr(test_cd_m2, reference_cd_m2, *, peak=PU21_METRIC_PEAK, variant: str = "banding_glare") -> float:
+    """PSNR (dB) of PU21-encoded absolute luminance; peak 256 as ``gfxdisp/pu21`` (or "pu_max")."""
+    a, b = _pair(test_cd_m2, reference_cd_m2, "pu_psnr")
+    return psnr(pu21_encode(a, variant), pu21_encode(b, variant), _pu_peak(peak, variant))
+
+
+def pu_ssim(test_cd_m2, reference_cd_m2, *, peak=PU21_METRIC_PEAK, variant: str = "banding_glare") -> float:
+    """SSIM (Gaussian σ = 1.5) of PU21-encoded absolute luminance, data range 256 (or "pu_max")."""
+    a, b = _pair(test_cd_m2, reference_cd_m2, "pu_ssim")
+    return ssim(pu21_encode(a, variant), pu21_encode(b, variant), _pu_peak(peak, variant))
+
+
+# -- matching and normalisation -----------------------------------------------------------------
+
+def match_frames(video_t_us, ref_t_us, tolerance_us: int) -> tuple[np.ndarray, np.ndarray]:
+    """Pair each reference time with the nearest reconstructed frame within ``tolerance_us``.
+
+    Parameters
+    ----------
+    video_t_us, ref_t_us : array_like of int64 (µs), non-decreasing
+    tolerance_us : int
+        Largest accepted ``|t_video − t_ref|`` in µs (inclusive). Ties pick the earlier frame.
+
+    Returns
+    -------
+    video_index, ref_index : int64 arrays of equal length
+        References with no frame within the tolerance are left out.
+    """
+    v = np.asarray(video_t_us)
+    r = np.asarray(ref_t_us)
+    for name, t in (("video_t_us", v), ("ref_t_us", r)):
+        if t.ndim != 1 or (t.size and t.dtype.kind not in "iu"):
+            raise TypeError(f"{name} must be a 1-D integer array of µs, got shape {t.shape} dtype {t.dtype}")
+        if t.size > 1 and np.any(np.diff(t) < 0):
+            i = int(np.flatnonzero(np.diff(t) < 0)[0]) + 1
+            raise ValueError(f"{name} must be non-decreasing; index {i} has {int(t[i])} after {int(t[i - 1])}")
+    if isinstance(tolerance_us, bool) or not isinstance(tolerance_us, (int, np.integer)) or tolerance_us < 0:
+        raise ValueError(f"tolerance_us must be an int >= 0 (µs), got {tolerance_us!r}")
+    if v.size == 0 or r.size == 0:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    v = v.astype(np.int64)
+    r = r.astype(np.int64)
+    j = np.searchsorted(v, r, side="left")
+    lo = np.clip(j - 1, 0, v.size - 1)
+    hi = np.clip(j, 0, v.size - 1)
+    dlo, dhi = np.abs(r - v[lo]), np.abs(v[hi] - r)
+    best = np.where(dlo <= dhi, lo, hi)
+    d = np.minimum(dlo, dhi)
+    ok = d <= tolerance_us
+    return best[ok].astype(np.int64), np.flatnonzero(ok).astype(np.int64)
+
+
+def fit_normalisation(test, reference, mode: str) -> tuple[float, float]:
+    """Least-squares ``(gain, offset)`` mapping ``test`` onto ``reference`` over finite pixels.
+
+    ``"none"`` → (1, 0); ``"scale"`` → (<x,r>/<x,x>, 0); ``"affine"`` → the linear regression.
+    A degenerate fit (constant or all-zero test) falls back to matching the means.
+    """
+    if mode not in NORMALISE_MODES:
+        raise ValueError(f"normalise must be one of {NORMALISE_MODES}, got {mode!r}")
+    a, b = _pair(test, reference, "normalise")
+    if mode == "none":
+        return 1.0, 0.0
+    ok = np.isfinite(a) & np.isfinite(b)
+    x, r = a[ok], b[ok]
+    if x.size == 0:
+        return float("nan"), float("nan")
+    if mode == "scale":
+        xx = float(np.dot(x, x))
+        return (float(np.dot(x, r) / xx) if xx > 0 else 1.0), 0.0
+    mx, mr = float(x.mean()), float(r.mean())
+    vx = float(np.mean((x - mx) ** 2))
+    if vx <= 0:
+        return 1.0, mr - mx
+    g = float(np.mean((x - mx) * (r - mr)) / vx)
+    return g, mr - g * mx
+
+
+def normalise_pair(test, reference, mode: str = "scale"):
+    """Apply the policy of the module docstring: fit, divide by the reference max, clip.
+
+    Returns ``(test01, ref01, info)`` with both in [0, 1] (NaN kept) and ``info`` holding the
+    gain, offset and the reference maximum (the unit of the [0, 1] range).
+    """
+    a, b = _pair(test, reference, "normalise")
+    g, o = fit_normalisation(a, b, mode)
+    ref_max = float(np.nanmax(b)) if np.isfinite(b).any() else float("nan")
+    if not ref_max > 0:
+        raise ValueError(f"the reference must have a positive maximum, got {ref_max}")
+    t = (g * a + o) / ref_max
+    with np.errstate(invalid="ignore"):
+        t = np.where(np.isnan(t), np.nan, np.clip(t, 0.0, 1.0))
+    return t, np.clip(b / ref_max, 0.0, 1.0), {"gain": g, "offset": o, "reference_max": ref_max,
+                                                "normalise": mode}
+
+
+def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak_luminance_cd_m2: float = 4000.0,
+                pu21: bool = True, hdrvdp: dict | None = None) -> dict:
+    """All metrics on matched sequences (K, H, W) of linear intensity.
+
+    Parameters
+    ----------
+    test_frames, reference_frames : ndarray of shape (K, H, W)
+        Already matched in time (:func:`match_frames`). NaN/Inf in ``test_frames`` are counted
+        in ``n_nonfinite`` and make the metrics NaN (a numerical failure is never hidden).
+    normalise : {"none", "scale", "affine"}
+    peak_luminance_cd_m2 : float
+        Luminance of the reference maximum for PU21 and HDR-VDP (cd/m²).
+    hdrvdp : dict, optional
+        Keyword arguments for :func:`hdrvdp_q` (e.g. ``{"hdrvdp_dir": ...}``); when given, Q is
+        the mean over frames and its settings are stored under ``q_*``.
+
+    Returns
+    -------
+    dict with ``mse``, ``psnr_db``, ``ssim``, ``global_ssim`` (EAF variant, on ×255),
+    ``pu_psnr_db``, ``pu_ssim``, ``n_frames``, ``n_nonfinite``, ``gain``, ``offset``,
+    ``reference_max``, ``normalise`` and (with ``hdrvdp``) ``q`` plus its settings.
+    """
+    a, b = _pair(test_frames, reference_frames, "score_video")
+    if a.ndim != 3:
+        raise ValueError(f"score_video expects (K, H, W) sequences, got {a.shape}")
+    if not peak_luminance_cd_m2 > 0:
+        raise ValueError(f"peak_luminance_cd_m2 must be > 0, got {peak_luminance_cd_m2}")
+    n_bad = int(np.count_nonzero(~np.isfinite(a)))
+    t01, r01, info = normalise_pair(a, b, normalise)
+    out = {"n_frames": int(a.shape[0]), "n_nonfinite": n_bad}
+    out.update(info)
+    out["mse"] = mse(t01, r01)
+    out["psnr_db"] = psnr(t01, r01, 1.0) if np.isfinite(out["mse"]) else float("nan")
+    out["ssim"] = ssim(t01, r01, 1.0)
+    out["global_ssim"] = global_ssim(t01 * 255.0, r01 * 255.0, 255.0, variant="eaf")
+    if pu21:
+        lt, lr = t01 * peak_luminance_cd_m2, r01 * peak_luminance_cd_m2
+        out["pu_psnr_db"] = pu_psnr(lt, lr) if n_bad == 0 else float("nan")
+        out["pu_ssim"] = pu_ssim(lt, lr) if n_bad == 0 else float("nan")
+        out["peak_luminance_cd_m2"] = float(peak_luminance_cd_m2)
+    if hdrvdp is not None:
+        kw = dict(hdrvdp)
+        kw.setdefault("luminance_scale_cd_m2", peak_luminance_cd_m2)
+        qs, res = [], None
+        for x, y in zip(t01, r01):
+            res = hdrvdp_q(x, y, **kw)
+            qs.append(res.q)
+        out["q"] = float(np.mean(qs))
+        out.update({f"q_{k}": v for k, v in asdict(res).items() if k != "q"})
+    return out
+
+
+# -- HDR-VDP 3 bridge ---------------------------------------------------------------------------
+
+class HDRVDPNotFound(ImportError):
+    """No HDR-VDP 3 installation or no Octave/MATLAB to run it."""
+
+
+def pixels_per_degree(diagonal_in: float = 21.0, resolution_wh=(640, 480), distance_m: float = 1.0) -> float:
+    """Pixels per visual degree of a display, from its vertical extent (a flat screen seen head on).
+
+    ``height = diagonal / sqrt(1 + (w/h)²)``, ``ppd = h_px / (2·atan(height / (2·distance)))`` in
+    degrees. The defaults are the AKF follow-up's setting (21-inch 640×480 display at 1 m,
+    ``../shared/reference/akf.md`` §8): about 26.4 ppd.
+    """
+    w, h = resolution_wh
+    if not (diagonal_in > 0 and distance_m > 0 and w > 0 and h > 0):
+        raise ValueError("diagonal_in, distance_m and the resolution must be > 0")
+    height_m = diagonal_in * 0.0254 / math.sqrt(1.0 + (w / h) ** 2)
+    return float(h / math.degrees(2.0 * math.atan(height_m / (2.0 * distance_m))))
+
+
+_default_ppd = pixels_per_degree
+
+
+@dataclass(frozen=True)
+class HDRVDPResult:
+    """One HDR-VDP Q with the settings it depends on (never compare Q across versions)."""
+
+    q: float
+    version: str
+    task: str
+    color_encoding: str
+    pixels_per_degree: float
+    luminance_scale_cd_m2: float
+    engine: str
+
+
+def find_hdrvdp(hdrvdp_dir=None) -> Path:
+    """The HDR-VDP folder (containing ``hdrvdp3.m``) from the argument or ``HYBRIDHDR_HDRVDP_DIR``."""
+    d = hdrvdp_dir if hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
+    if not d:
+        raise HDRVDPNotFound("HDR-VDP 3 not configured: pass hdrvdp_dir / --hdrvdp-dir or set HYBRIDHDR_HDRVDP_DIR "
+                             "to the folder holding hdrvdp3.m (download HDR-VDP 3 from "
+                             "https://sourceforge.net/projects/hdrvdp/); Q is reported as n/a")
+    p = Path(d).expanduser()
+    if not (p / "hdrvdp3.m").is_file():
+        raise HDRVDPNotFound(f"HDR-VDP 3 not found: expected {p / 'hdrvdp3.m'}, but it does not exist")
+    return p
+
+
+def _engine(engine: str) -> tuple[str, str]:
+    if engine not in ("auto", "octave", "matlab"):
+        raise ValueError(f"engine must be 'auto', 'octave' or 'matlab', got {engine!r}")
+    order = ("octave", "matlab") if engine == "auto" else (engine,)
+    for e in order:
+        exe = shutil.which(e)
+        if exe:
+            return e, exe
+    raise HDRVDPNotFound(f"no {' or '.join(order)} executable on PATH to run HDR-VDP 3 "
+                         f"(install GNU Octave: apt-get install octave)")
+
+
+_Q_RE = re.compile(r"HYBRIDHDR_Q=([-+0-9.eEinfaINFA]+)")
+_V_RE = re.compile(r"HYBRIDHDR_VERSION=(.*)")
+
+
+def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: str = "side-by-side",
+             color_encoding: str = "luminance", pixels_per_degree: float | None = None,
+             luminance_scale_cd_m2: float = 4000.0, timeout_s: float = 600.0) -> HDRVDPResult:
+    """HDR-VDP 3 quality Q of ``test`` against ``reference`` via the user's installation.
+
+    Parameters
+    ----------
+    test, reference : ndarray of shape (H, W)
+        Linear intensity in [0, 1] (after :func:`normalise_pair`); multiplied by
+        ``luminance_scale_cd_m2`` to give absolute luminance (cd/m²) for ``color_encoding =
+        "luminance"``.
+    hdrvdp_dir : path, optional
+        Folder holding ``hdrvdp3.m``; default ``$HYBRIDHDR_HDRVDP_DIR``.
+    engine : {"auto", "octave", "matlab"}
+        ``octave --no-gui --quiet --eval`` or ``matlab -batch``; auto prefers Octave.
+    task, color_encoding : str
+        Passed to ``hdrvdp3(task, test, reference, color_encoding, ppd)``.
+    pixels_per_degree : float, optional
+        Default :func:`pixels_per_degree` () (21-inch 640×480 at 1 m, as the AKF follow-up).
+
+    Returns
+    -------
+    HDRVDPResult
+        Q (3.x: 10 = indistinguishable) with the version reported by ``hdrvdp_version`` when the
+        installation has it (else "unknown"), task, encoding, ppd, luminance scale and engine.
+
+    Raises
+    ------
+    HDRVDPNotFound
+        No installation or no engine (a clear message; callers report Q as n/a).
+    """
+    from scipy.io import savemat
+    a, b = _pair(test, reference, "hdrvdp_q")
+    if a.ndim != 2:
+        raise ValueError(f"hdrvdp_q expects (H, W) luminance images, got {a.shape}")
+    if not luminance_scale_cd_m2 > 0:
+        raise ValueError(f"luminance_scale_cd_m2 must be > 0, got {luminance_scale_cd_m2}")
+    d = find_hdrvdp(hdrvdp_dir)
+    eng, exe = _engine(engine)
+    ppd = _default_ppd() if pixels_per_degree is None else float(pixels_per_degree)
+    for name, s in (("task", task), ("color_encoding", color_encoding)):
+        if not re.fullmatch(r"[A-Za-z0-9_\-]+", s):
+            raise ValueError(f"{name} must be a plain word, got {s!r}")
+    with tempfile.TemporaryDirectory(prefix="hybridhdr_hdrvdp_") as tmp:
+        mat = Path(tmp) / "images.mat"
+        savemat(mat, {"test": a * luminance_scale_cd_m2, "ref": b * luminance_scale_cd_m2})
+        q = lambda s: "'" + str(s).replace("'", "''") + "'"  # noqa: E731  MATLAB string literal
+        script = (f"addpath(genpath({q(d)})); S = load({q(mat)}); "
+                  f"res = hdrvdp3({q(task)}, S.test, S.ref, {q(color_encoding)}, {ppd!r}); "
+                  "v = 'unknown'; if exist('hdrvdp_version') == 2, v = hdrvdp_version(); end; "
+                  "fprintf('HYBRIDHDR_Q=%.17g\\nHYBRIDHDR_VERSION=%s\\n', res.Q, v);")
+        cmd = ([exe, "--no-gui", "--quiet", "--no-window-system", "--eval", script] if eng == "octave"
+               else [exe, "-batch", script])
+        try:
+            pr = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
+        except subprocess.TimeoutExpired as e:
+            raise RuntimeError(f"HDR-VDP via {eng} did not finish within {timeout_s} s") from e
+    mq, mv = _Q_RE.search(pr.stdout), _V_RE.search(pr.stdout)
+    if pr.returncode != 0 or mq is None:
+        tail = (pr.stderr or pr.stdout).strip().splitlines()[-5:]
+        raise RuntimeError(f"HDR-VDP via {eng} failed (exit {pr.returncode}): " + " | ".join(tail))
+    return HDRVDPResult(float(mq.group(1)), mv.group(1).strip() if mv else "unknown", task, color_encoding, ppd,
+                        float(luminance_scale_cd_m2), eng)
+
+
+def result_json(res: HDRVDPResult) -> str:
+    return json.dumps(asdict(res))
