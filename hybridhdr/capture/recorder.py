@@ -1,0 +1,691 @@
+"""Recorder: live sources -> bounded queue -> writer thread -> crash-safe journal -> container.
+
+Design (see ``docs/capture.md``):
+
+* One producer thread per source moves chunks/frames into a bounded :class:`queue.Queue` of
+  ``queue_chunks`` items (memory bound: ``queue_chunks`` × chunk size).
+* When the queue is full the policy ``on_full`` applies: ``"block"`` makes the producer wait (only
+  for sources that can be back-pressured: file replay, generators); ``"drop"`` drops the item and
+  counts it; ``"auto"`` (default) blocks for back-pressurable sources and drops for live devices,
+  whose driver buffers would overflow anyway. Drops are never silent: they are counted (events,
+  triggers, frames and chunks), logged with ``logging.warning``, written into every flush record,
+  stored in the recording metadata (``metadata.provenance["recorder"]``) and returned in
+  :class:`RecorderStats`.
+* The writer thread appends length-prefixed, CRC-32-checked records to an append-only journal
+  ``REC.h5.journal`` and writes a FLUSH record (with cumulative counts) every ``flush_interval_s``,
+  handing the bytes to the OS (``fsync=True`` also forces them to the disk, for power loss).
+  HDF5 files killed mid-write are often unreadable, so the HDF5 container is not written while
+  recording; :meth:`Recorder.finish` replays the journal into a container ``REC.h5.partial`` with
+  :class:`~hybridhdr.container.RecordingWriter`, renames it to ``REC.h5`` and deletes the journal.
+* After ``kill -9`` (or a power cut with ``fsync=True``) :func:`recover` performs the same replay
+  on whatever the journal holds: every record whose length and checksum are intact, which includes
+  everything up to the last flush. ``hybridhdr capture recover REC.h5`` runs it.
+
+Journal layout (little endian): an 8-byte magic ``b"HHDRJNL1"``, then records, each a 32-byte
+header ``<I B B H Q Q I I>`` (sync word 0x4A524543, type, flags (bit 0: payload is an LZ4 block),
+reserved, stored payload length, raw payload length, CRC-32 of the stored payload, CRC-32 of the
+first 28 header bytes) followed by the payload. Types: 1 HEADER (JSON), 2 EVENTS (u64 n, columns
+t i8, x u2, y u2, p i1), 3 TRIGGERS (u64 n, columns t i8, channel u2, edge i1), 4 FRAME (u32 JSON
+length, JSON, pixel bytes), 5 FLUSH (JSON cumulative counts), 6 END (JSON final stats).
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+import os
+import queue
+import struct
+import sys
+import threading
+import time
+import zlib
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize
+from ..model import CameraInfo, Frames, Metadata
+
+__all__ = ["Recorder", "RecorderStats", "recover", "journal_path", "JournalWriter", "read_journal",
+           "ON_FULL_POLICIES"]
+
+log = logging.getLogger(__name__)
+
+ON_FULL_POLICIES = ("auto", "block", "drop")
+_MAGIC = b"HHDRJNL1"
+_SYNC = 0x4A524543
+_HDR = struct.Struct("<IBBHQQII")
+T_HEADER, T_EVENTS, T_TRIGGERS, T_FRAME, T_FLUSH, T_END = 1, 2, 3, 4, 5, 6
+_F_LZ4 = 1
+
+
+def journal_path(path) -> Path:
+    """The journal next to a recording: ``REC.h5`` -> ``REC.h5.journal``."""
+    p = Path(path)
+    return p if p.name.endswith(".journal") else p.with_name(p.name + ".journal")
+
+
+def _lz4():
+    try:
+        import lz4.block
+    except ImportError:
+        return None
+    return lz4.block
+
+
+# -- journal ----------------------------------------------------------------------------------
+class JournalWriter:
+    """Append-only journal of checksummed records (see the module docstring for the layout)."""
+
+    def __init__(self, path, header: dict, *, compression: str | None = "lz4", fsync: bool = False):
+        if compression not in (None, "none", "lz4"):
+            raise ValueError(f"journal compression must be 'lz4' or None, got {compression!r}")
+        self._lz4 = _lz4() if compression == "lz4" else None
+        if compression == "lz4" and self._lz4 is None:
+            raise ImportError("journal compression 'lz4' needs the lz4 package: pip install lz4 "
+                              "(or pass journal_compression=None)")
+        self.path = Path(path)
+        if self.path.exists():
+            raise FileExistsError(f"{self.path}: a journal already exists (an interrupted recording?); "
+                                  f"run 'hybridhdr capture recover' on it or delete it first")
+        self.fsync = bool(fsync)
+        self._f = open(self.path, "xb", buffering=1 << 20)
+        self._f.write(_MAGIC)
+        self.bytes_written = len(_MAGIC)
+        self._record(T_HEADER, json.dumps(header).encode(), compress=False)
+        self.flush()
+
+    def _record(self, rtype: int, payload, compress: bool = True) -> None:
+        raw_len = len(payload)
+        flags = 0
+        if compress and self._lz4 is not None and raw_len > 256:
+            payload = self._lz4.compress(payload, store_size=False)
+            flags |= _F_LZ4
+        head = struct.pack("<IBBHQQI", _SYNC, rtype, flags, 0, len(payload), raw_len, zlib.crc32(payload))
+        self._f.write(head + struct.pack("<I", zlib.crc32(head)))
+        self._f.write(payload)
+        self.bytes_written += _HDR.size + len(payload)
+
+    def write_events(self, ev: np.ndarray) -> None:
+        n = len(ev)
+        buf = bytearray(8 + 13 * n)
+        struct.pack_into("<Q", buf, 0, n)
+        o = 8
+        for name, size in (("t", 8), ("x", 2), ("y", 2), ("p", 1)):
+            np.frombuffer(buf, dtype=ev.dtype[name], count=n, offset=o)[:] = ev[name]
+            o += size * n
+        self._record(T_EVENTS, buf)
+
+    def write_triggers(self, tr: np.ndarray) -> None:
+        n = len(tr)
+        parts = [struct.pack("<Q", n)] + [np.ascontiguousarray(tr[k]).tobytes() for k in ("t", "channel", "edge")]
+        self._record(T_TRIGGERS, b"".join(parts))
+
+    def write_frame(self, item) -> None:
+        im = np.ascontiguousarray(item.image)
+        meta = {"t_start_us": item.t_start_us, "t_end_us": item.t_end_us, "exposure_us": item.exposure_us,
+                "iso": item.iso, "gain": item.gain, "sequence": item.sequence, "shape": list(im.shape),
+                "dtype": im.dtype.str}
+        mj = json.dumps(meta).encode()
+        self._record(T_FRAME, struct.pack("<I", len(mj)) + mj + im.tobytes())
+
+    def write_json(self, rtype: int, obj: dict) -> None:
+        self._record(rtype, json.dumps(obj).encode(), compress=False)
+
+    def flush(self) -> None:
+        self._f.flush()
+        if self.fsync:
+            os.fsync(self._f.fileno())
+
+    def close(self) -> None:
+        if not self._f.closed:
+            self.flush()
+            self._f.close()
+
+
+@dataclass
+class JournalContents:
+    """What :func:`read_journal` found (records are streamed, this is the summary)."""
+
+    header: dict
+    records: int = 0
+    flushes: int = 0
+    last_flush: dict | None = None
+    end: dict | None = None
+    events_after_last_flush: int = 0
+    truncated_bytes: int = 0
+    stop_reason: str = "end of file"
+
+
+def _decode(rtype: int, payload: bytes):
+    if rtype == T_EVENTS:
+        n = struct.unpack_from("<Q", payload, 0)[0]
+        if len(payload) != 8 + 13 * n:
+            raise ValueError(f"EVENTS record holds {len(payload)} bytes, expected {8 + 13 * n} for {n} events")
+        ev = np.empty(n, EVENT_DTYPE)
+        o = 8
+        for name, size in (("t", 8), ("x", 2), ("y", 2), ("p", 1)):
+            ev[name] = np.frombuffer(payload, dtype=EVENT_DTYPE[name], count=n, offset=o)
+            o += size * n
+        return ev
+    if rtype == T_TRIGGERS:
+        n = struct.unpack_from("<Q", payload, 0)[0]
+        if len(payload) != 8 + 11 * n:
+            raise ValueError(f"TRIGGERS record holds {len(payload)} bytes, expected {8 + 11 * n}")
+        tr = np.empty(n, TRIGGER_DTYPE)
+        o = 8
+        for name, size in (("t", 8), ("channel", 2), ("edge", 1)):
+            tr[name] = np.frombuffer(payload, dtype=TRIGGER_DTYPE[name], count=n, offset=o)
+            o += size * n
+        return tr
+    if rtype == T_FRAME:
+        ml = struct.unpack_from("<I", payload, 0)[0]
+        meta = json.loads(payload[4:4 + ml])
+        im = np.frombuffer(payload, dtype=np.dtype(meta["dtype"]), offset=4 + ml).reshape(meta["shape"])
+        return meta, im
+    return json.loads(payload)
+
+
+def read_journal(path, on_record=None) -> JournalContents:
+    """Stream a journal; call ``on_record(rtype, decoded)`` for every intact record.
+
+    Reading stops at the first record whose header or payload is truncated or fails its CRC (the
+    tail a ``kill -9`` leaves behind); :attr:`JournalContents.stop_reason` says why.
+    """
+    path = Path(path)
+    lz4 = _lz4()
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        magic = f.read(8)
+        if magic != _MAGIC:
+            raise FormatError(path, f"not a hybridhdr journal (magic {magic!r}, expected {_MAGIC!r})")
+        pos = 8
+        contents = None
+        while True:
+            head = f.read(_HDR.size)
+            if len(head) < _HDR.size:
+                reason = "end of file" if not head else f"truncated record header at byte {pos}"
+                break
+            sync, rtype, flags, _, stored, raw_len, crc, hcrc = _HDR.unpack(head)
+            if sync != _SYNC or zlib.crc32(head[:28]) != hcrc:
+                reason = f"corrupt record header at byte {pos}"
+                break
+            payload = f.read(stored)
+            if len(payload) < stored:
+                reason = f"truncated record at byte {pos} ({len(payload)} of {stored} payload bytes)"
+                break
+            if zlib.crc32(payload) != crc:
+                reason = f"checksum mismatch in record at byte {pos}"
+                break
+            if flags & _F_LZ4:
+                if lz4 is None:
+                    raise ImportError("this journal is LZ4-compressed; install lz4 to recover it")
+                payload = lz4.decompress(payload, uncompressed_size=raw_len)
+            try:
+                obj = _decode(rtype, payload)
+            except (ValueError, KeyError, json.JSONDecodeError) as e:
+                reason = f"undecodable record at byte {pos} ({e})"
+                break
+            if contents is None:
+                if rtype != T_HEADER:
+                    raise FormatError(path, "journal does not start with a HEADER record", offset=pos)
+                contents = JournalContents(header=obj)
+            else:
+                contents.records += 1
+                if rtype == T_FLUSH:
+                    contents.flushes += 1
+                    contents.last_flush = obj
+                    contents.events_after_last_flush = 0
+                elif rtype == T_END:
+                    contents.end = obj
+                elif rtype == T_EVENTS:
+                    contents.events_after_last_flush += len(obj)
+                if on_record is not None:
+                    on_record(rtype, obj)
+            pos += _HDR.size + stored
+        if contents is None:
+            raise FormatError(path, f"journal has no intact HEADER record ({reason})")
+        contents.stop_reason = reason
+        contents.truncated_bytes = size - pos
+        return contents
+
+
+# -- recorder ---------------------------------------------------------------------------------
+@dataclass
+class RecorderStats:
+    """Counters of one recording (all cumulative)."""
+
+    events_received: int = 0
+    events_written: int = 0
+    events_dropped: int = 0
+    event_chunks_dropped: int = 0
+    triggers_written: int = 0
+    triggers_dropped: int = 0
+    frames_received: int = 0
+    frames_written: int = 0
+    frames_dropped: int = 0
+    frames_missing_by_sequence: int = 0
+    flushes: int = 0
+    journal_bytes: int = 0
+    max_queue_depth: int = 0
+    duration_s: float = 0.0
+    finish_s: float = 0.0
+    policy: str = ""
+    recovered: bool = False
+    errors: list = field(default_factory=list)
+
+    @property
+    def dropped_anything(self) -> bool:
+        return bool(self.events_dropped or self.triggers_dropped or self.frames_dropped)
+
+    def to_dict(self) -> dict:
+        return asdict(self)
+
+
+_SENTINEL = object()
+
+
+class Recorder:
+    """Record an event source (and optionally a frame source) into a hybridhdr container.
+
+    Parameters
+    ----------
+    path : path-like
+        Output container (``.h5``). While recording, data goes to ``path + '.journal'``.
+    event_source : EventSource
+    frame_source : FrameSource, optional
+    queue_chunks : int
+        Capacity of the queue between the sources and the writer thread, in items (event chunks or
+        frames). Bounds memory to about ``queue_chunks`` × the largest item.
+    flush_interval_s : float
+        Seconds between FLUSH records; a ``kill -9`` loses at most this much data.
+    on_full : {"auto", "block", "drop"}
+        Queue-full policy (module docstring). ``"block"`` on a source that cannot be back-pressured
+        is refused.
+    compression : {"gzip", "lzf", None}
+        Compression of the final container (:class:`~hybridhdr.container.RecordingWriter`).
+    journal_compression : {"lz4", None}
+        LZ4 block compression of journal records (default when ``lz4`` is installed).
+    fsync : bool
+        ``os.fsync`` the journal at every flush (survives power loss, not only process death).
+    metadata : Metadata, optional
+        Camera descriptions and calibration to store; recorder statistics are added to
+        ``provenance["recorder"]``.
+    on_flush : callable, optional
+        Called from the writer thread as ``on_flush(stats_dict)`` after each flush.
+    """
+
+    def __init__(self, path, event_source, frame_source=None, *, queue_chunks: int = 64,
+                 flush_interval_s: float = 1.0, on_full: str = "auto", compression="gzip",
+                 journal_compression: str | None = "auto", fsync: bool = False,
+                 metadata: Metadata | None = None, on_flush=None, progress: bool = False):
+        if on_full not in ON_FULL_POLICIES:
+            raise ValueError(f"on_full must be one of {ON_FULL_POLICIES}, got {on_full!r}")
+        if int(queue_chunks) < 1:
+            raise ValueError(f"queue_chunks must be >= 1, got {queue_chunks}")
+        if not (float(flush_interval_s) > 0):
+            raise ValueError(f"flush_interval_s must be > 0 s, got {flush_interval_s}")
+        self.path = Path(path)
+        self.journal_path = journal_path(self.path)
+        self.event_source = event_source
+        self.frame_source = frame_source
+        self.queue_chunks = int(queue_chunks)
+        self.flush_interval_s = float(flush_interval_s)
+        self.on_full = on_full
+        self.compression = compression
+        if journal_compression == "auto":
+            journal_compression = "lz4" if _lz4() is not None else None
+        self.journal_compression = journal_compression
+        self.fsync = fsync
+        self.metadata = metadata or Metadata()
+        self.on_flush = on_flush
+        self.progress = progress
+        self.stats = RecorderStats()
+        self._q: queue.Queue = queue.Queue(maxsize=self.queue_chunks)
+        self._threads: list[threading.Thread] = []
+        self._stop = threading.Event()
+        self._lock = threading.Lock()
+        self._errors: list[BaseException] = []
+        self._started = False
+        self._finished = False
+        self._last_drop_log = 0.0
+        self._last_seq = None
+
+    # -- policy --------------------------------------------------------------------------------
+    def _policy_for(self, source) -> str:
+        can = bool(getattr(source, "can_backpressure", False))
+        if self.on_full == "auto":
+            return "block" if can else "drop"
+        if self.on_full == "block" and not can:
+            raise ValueError(f"on_full='block' needs a source that can be back-pressured; "
+                             f"{type(source).__name__} is live (use 'drop' or 'auto')")
+        return self.on_full
+
+    def _put(self, item, policy: str, kind: str, n_events: int = 0, n_trig: int = 0) -> None:
+        if policy == "block":
+            while not self._stop.is_set():
+                try:
+                    self._q.put(item, timeout=0.1)
+                    break
+                except queue.Full:
+                    continue
+            else:
+                # stopping while blocked: the item was never accepted -> count it, never silent
+                self._count_drop(kind, n_events, n_trig)
+                return
+        else:
+            try:
+                self._q.put_nowait(item)
+            except queue.Full:
+                self._count_drop(kind, n_events, n_trig)
+                return
+        d = self._q.qsize()
+        if d > self.stats.max_queue_depth:
+            self.stats.max_queue_depth = d
+
+    def _count_drop(self, kind, n_events, n_trig):
+        with self._lock:
+            s = self.stats
+            if kind == "events":
+                s.events_dropped += n_events
+                s.triggers_dropped += n_trig
+                s.event_chunks_dropped += 1
+            else:
+                s.frames_dropped += 1
+            now = time.monotonic()
+            if now - self._last_drop_log > 1.0:
+                self._last_drop_log = now
+                log.warning("recorder queue full: dropped so far %d events, %d triggers, %d frames "
+                            "(writer cannot keep up; see stats)", s.events_dropped, s.triggers_dropped,
+                            s.frames_dropped)
+
+    # -- threads -------------------------------------------------------------------------------
+    def _run_events(self):
+        src = self.event_source
+        policy = self._policy_for(src)
+        try:
+            for chunk in src:
+                n, m = len(chunk.events), len(chunk.triggers)
+                with self._lock:
+                    self.stats.events_received += n
+                if n or m:
+                    self._put(("ev", chunk), policy, "events", n, m)
+                if self._stop.is_set():
+                    break
+        except BaseException as e:  # reported by finish()
+            self._errors.append(e)
+            self._stop.set()
+
+    def _run_frames(self):
+        src = self.frame_source
+        policy = self._policy_for(src)
+        try:
+            for item in src:
+                with self._lock:
+                    self.stats.frames_received += 1
+                self._put(("fr", item), policy, "frames")
+                if self._stop.is_set():
+                    break
+        except BaseException as e:
+            self._errors.append(e)
+            self._stop.set()
+
+    def _flush(self, jw: JournalWriter):
+        s = self.stats
+        s.flushes += 1
+        s.journal_bytes = jw.bytes_written
+        jw.write_json(T_FLUSH, s.to_dict())
+        jw.flush()
+        s.journal_bytes = jw.bytes_written
+        if self.on_flush is not None:
+            self.on_flush(s.to_dict())
+
+    def _run_writer(self, jw: JournalWriter):
+        s = self.stats
+        next_flush = time.monotonic() + self.flush_interval_s
+        try:
+            while True:
+                try:
+                    item = self._q.get(timeout=min(0.1, self.flush_interval_s))
+                except queue.Empty:
+                    item = None
+                if item is _SENTINEL:
+                    break
+                if item is not None:
+                    kind, obj = item
+                    if kind == "ev":
+                        if len(obj.events):
+                            jw.write_events(obj.events)
+                            s.events_written += len(obj.events)
+                        if len(obj.triggers):
+                            jw.write_triggers(obj.triggers)
+                            s.triggers_written += len(obj.triggers)
+                    else:
+                        if self._last_seq is not None and obj.sequence > self._last_seq + 1:
+                            s.frames_missing_by_sequence += obj.sequence - self._last_seq - 1
+                        self._last_seq = obj.sequence
+                        jw.write_frame(obj)
+                        s.frames_written += 1
+                if time.monotonic() >= next_flush:
+                    self._flush(jw)
+                    next_flush = time.monotonic() + self.flush_interval_s
+            self._flush(jw)
+        except BaseException as e:
+            self._errors.append(e)
+            self._stop.set()
+            # keep draining so producers never block forever
+            while True:
+                try:
+                    if self._q.get(timeout=0.5) is _SENTINEL:
+                        break
+                except queue.Empty:
+                    break
+
+    # -- public --------------------------------------------------------------------------------
+    def start(self) -> "Recorder":
+        """Open the sources and the journal and start the threads."""
+        if self._started:
+            raise RuntimeError("Recorder.start() called twice")
+        if self.path.exists():
+            raise FileExistsError(f"{self.path} exists; choose another output name")
+        self.stats.policy = self._policy_for(self.event_source)
+        self.event_source.open()
+        if self.frame_source is not None:
+            self.frame_source.open()
+        ss = getattr(self.event_source, "sensor_size", None)
+        if ss is None:
+            raise ValueError(f"{type(self.event_source).__name__} does not report its sensor size")
+        from .. import __version__
+        header = {"format": "hybridhdr-journal", "version": 1, "sensor_height": ss.height,
+                  "sensor_width": ss.width, "metadata": self.metadata.to_dict(),
+                  "event_source": self.event_source.device_info(),
+                  "frame_source": None if self.frame_source is None else self.frame_source.device_info(),
+                  "frame_encoding": None if self.frame_source is None else self.frame_source.encoding,
+                  "created_by": f"hybridhdr {__version__}", "created_unix_s": time.time(),
+                  "policy": self.stats.policy, "flush_interval_s": self.flush_interval_s}
+        self._jw = JournalWriter(self.journal_path, header, compression=self.journal_compression,
+                                 fsync=self.fsync)
+        self._t0 = time.perf_counter()
+        self._writer = threading.Thread(target=self._run_writer, args=(self._jw,), name="recorder-writer",
+                                        daemon=True)
+        self._writer.start()
+        self._threads = [threading.Thread(target=self._run_events, name="recorder-events", daemon=True)]
+        if self.frame_source is not None:
+            self._threads.append(threading.Thread(target=self._run_frames, name="recorder-frames", daemon=True))
+        for t in self._threads:
+            t.start()
+        self._started = True
+        return self
+
+    def wait(self, duration_s: float | None = None) -> None:
+        """Block until the sources end, ``duration_s`` passes, or an error occurs."""
+        t_end = None if duration_s is None else time.perf_counter() + float(duration_s)
+        while any(t.is_alive() for t in self._threads) and not self._stop.is_set():
+            if t_end is not None and time.perf_counter() >= t_end:
+                break
+            time.sleep(0.02)
+
+    def stop(self) -> None:
+        """Stop the sources, let the writer drain the queue, write the final flush."""
+        if not self._started:
+            return
+        for src in (self.event_source, self.frame_source):
+            if src is not None:
+                src.stop()
+        for t in self._threads:
+            t.join()
+        self._q.put(_SENTINEL)
+        self._writer.join()
+        self.stats.duration_s = time.perf_counter() - self._t0
+        for src in (self.event_source, self.frame_source):
+            if src is not None:
+                src.close()
+
+    def finish(self) -> RecorderStats:
+        """Stop, then convert the journal into the container atomically and delete the journal."""
+        if self._finished:
+            return self.stats
+        self.stop()
+        self._finished = True
+        if self._errors:
+            self._jw.close()
+            e = self._errors[0]
+            raise RuntimeError(f"recording failed ({type(e).__name__}: {e}); the journal {self.journal_path} "
+                               f"keeps everything written so far: run 'hybridhdr capture recover "
+                               f"{self.path}'") from e
+        self._jw.write_json(T_END, self.stats.to_dict())
+        self._jw.close()
+        t = time.perf_counter()
+        _convert(self.journal_path, self.path, compression=self.compression, progress=self.progress,
+                 final_stats=self.stats)
+        self.stats.finish_s = time.perf_counter() - t
+        self.journal_path.unlink()
+        if self.stats.dropped_anything:
+            log.warning("recording %s: %d events, %d triggers and %d frames were dropped (queue full)",
+                        self.path, self.stats.events_dropped, self.stats.triggers_dropped,
+                        self.stats.frames_dropped)
+        return self.stats
+
+    def record(self, duration_s: float | None = None) -> RecorderStats:
+        """``start``, ``wait(duration_s)``, ``finish``."""
+        self.start()
+        try:
+            self.wait(duration_s)
+        except KeyboardInterrupt:
+            pass
+        return self.finish()
+
+    def __enter__(self):
+        return self.start()
+
+    def __exit__(self, *exc):
+        self.finish()
+
+
+def _convert(jpath: Path, out: Path, *, compression="gzip", progress=False, final_stats=None,
+             recovered=False) -> tuple[dict, JournalContents]:
+    """Replay a journal into a container written atomically (``out.partial`` then rename)."""
+    from ..container import RecordingWriter
+    from .sources import FrameItem
+
+    # the metadata needs the final stats: after a crash they come from the last intact FLUSH
+    # record, found by a first pass over the journal
+    if final_stats is None:
+        c = read_journal(jpath)
+        stats = dict(c.end or c.last_flush or {})
+        stats["recovered"] = recovered
+        stats["recovery"] = {"records": c.records, "flushes": c.flushes, "stop_reason": c.stop_reason,
+                             "discarded_tail_bytes": c.truncated_bytes,
+                             "events_after_last_flush": c.events_after_last_flush}
+        header = c.header
+    else:
+        stats = final_stats.to_dict()
+        header = None
+    if header is None:
+        with open(jpath, "rb") as f:
+            f.read(8)
+            sync, rtype, flags, _, stored, raw_len, crc, hcrc = _HDR.unpack(f.read(_HDR.size))
+            header = json.loads(f.read(stored))
+    ss = SensorSize(int(header["sensor_height"]), int(header["sensor_width"]))
+    md = Metadata.from_dict(header.get("metadata"))
+    prov = dict(md.provenance)
+    prov["recorder"] = stats
+    prov["sources"] = {"events": header.get("event_source"), "frames": header.get("frame_source")}
+    md = Metadata(md.event_camera, md.frame_camera, md.calibration, prov)
+    enc = header.get("frame_encoding") or "unknown"
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=jpath.stat().st_size, unit="B", unit_scale=True, desc=f"finish {out.name}",
+                   file=sys.stderr, dynamic_ncols=True)
+    state = {"has_iso": None, "has_gain": None, "events": 0, "frames": 0, "triggers": 0}
+
+    with RecordingWriter(out, ss, md, compression=compression) as w:
+        def on_record(rtype, obj):
+            if rtype == T_EVENTS:
+                w.write_events(obj)
+                state["events"] += len(obj)
+                if bar is not None:
+                    bar.update(13 * len(obj))
+            elif rtype == T_TRIGGERS:
+                w.write_triggers(obj)
+                state["triggers"] += len(obj)
+            elif rtype == T_FRAME:
+                meta, im = obj
+                if state["has_iso"] is None:
+                    state["has_iso"] = meta.get("iso") is not None
+                    state["has_gain"] = meta.get("gain") is not None
+                it = FrameItem(im, meta["t_start_us"], meta["t_end_us"], meta["exposure_us"],
+                               meta.get("iso"), meta.get("gain"), meta.get("sequence", 0))
+                kw = {}
+                if state["has_iso"]:
+                    kw["iso"] = np.array([np.nan if it.iso is None else it.iso])
+                if state["has_gain"]:
+                    kw["gain"] = np.array([np.nan if it.gain is None else it.gain])
+                w.write_frames(Frames(it.image[None], np.array([it.t_start_us]), np.array([it.t_end_us]),
+                                      encoding=enc, **kw))
+                state["frames"] += 1
+        try:
+            contents = read_journal(jpath, on_record)
+        finally:
+            if bar is not None:
+                bar.close()
+    return state, contents
+
+
+def recover(path, out=None, *, compression="gzip", progress: bool = False) -> dict:
+    """Rebuild a container from the journal of an interrupted recording.
+
+    Parameters
+    ----------
+    path : path-like
+        The recording name (``REC.h5``) or its journal (``REC.h5.journal``).
+    out : path-like, optional
+        Output container (default: the recording name).
+
+    Returns
+    -------
+    dict
+        Counts recovered (``events``, ``triggers``, ``frames``), the number of flushes, the events
+        after the last flush that were intact, the reason reading stopped and the output path.
+    """
+    jp = journal_path(path)
+    if not jp.exists():
+        raise FileNotFoundError(f"{jp}: no journal to recover (expected the '.journal' file an interrupted "
+                                f"'hybridhdr capture record' leaves next to its output)")
+    out = Path(out) if out is not None else jp.with_name(jp.name[: -len(".journal")])
+    if out.exists():
+        raise FileExistsError(f"{out} already exists; pass another output name")
+    partial = out.with_name(out.name + ".partial")
+    if partial.exists():
+        partial.unlink()  # a stale, unreadable container from an interrupted finish
+    state, contents = _convert(jp, out, compression=compression, progress=progress, recovered=True)
+    return {"output": str(out), "events": state["events"], "triggers": state["triggers"],
+            "frames": state["frames"], "flushes": contents.flushes,
+            "events_after_last_flush": contents.events_after_last_flush,
+            "last_flush_events": None if contents.last_flush is None else contents.last_flush.get("events_written"),
+            "stop_reason": contents.stop_reason, "discarded_tail_bytes": contents.truncated_bytes,
+            "clean_end": contents.end is not None}
