@@ -98,7 +98,7 @@ class AKFEngine(Engine):
         self.m = measurements
         self.params = params
         self.S = K.aligned_state(self.n, K.AKF_FIELDS)
-        self.te = [np.zeros(self.n, np.int64) for _ in self.bands]
+        self.te = [K.padded_te(shape[0], shape[1], 0) for _ in self.bands]
         self.k = -1
         self.seg_t0 = 0.0
         self.seg_inv_t = 0.0

@@ -28,6 +28,7 @@ import numpy as np
 from numba import njit
 
 US = 1e-6  # seconds per microsecond
+ONE = np.uint64(1)  # unsigned index arithmetic: no negative-index wraparound code in the kernels
 
 NOISE_PAPER = 0
 NOISE_REFERENCE = 1
@@ -80,9 +81,13 @@ def band_select(y, i0, i1, row_lo, row_hi, out):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _akf_event(S, te, pix, xx, yy, ti, positive, width, height, has_la_step, seg_t0, seg_inv_t,
+def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
-    """One AKF event at pixel ``pix`` = (``yy``, ``xx``), time ``ti`` µs (see :func:`akf_events`)."""
+    """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs.
+
+    See :func:`akf_events`. Indices are unsigned (no negative-index wraparound code) and ``te``
+    is padded by one pixel on every side, so the 3×3 window needs no border branch.
+    """
     tif = np.float64(ti)
     tu0 = S[pix, A_TU]
     # -- propagate to t_i (eqs. 17, 20): g = P ∫R⁻¹, P ← P/(1+g), L̂ ← L^A + (L̂ - L^A)/(1+g) -------
@@ -97,19 +102,11 @@ def _akf_event(S, te, pix, xx, yy, ti, positive, width, height, has_la_step, seg
     lhat = lav + (S[pix, A_L] - lav) * d
     pp = pp * d
     # -- event noise (eq. 2, §3.1.1): t* = latest event time in the 3×3 window ------------------
-    te0 = te[pix]
-    if xx > 0 and yy > 0 and xx + 1 < width and yy + 1 < height:
-        b = pix - width
-        c = pix + width
-        tstar = max(max(max(te[b - 1], te[b]), max(te[b + 1], te[pix - 1])),
-                    max(max(te0, te[pix + 1]), max(max(te[c - 1], te[c]), te[c + 1])))
-    else:
-        tstar = te0
-        for yn in range(max(yy - 1, 0), min(yy + 2, height)):
-            for xn in range(max(xx - 1, 0), min(xx + 2, width)):
-                v = te[yn * width + xn]
-                if v > tstar:
-                    tstar = v
+    te0 = te[tp]
+    b = tp - wp
+    c = tp + wp
+    tstar = max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
+                max(max(te0, te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE])))
     dte = ti - te0
     q = s_iso * ((ti - tstar) * US)
     if noise_form == 0:
@@ -131,7 +128,22 @@ def _akf_event(S, te, pix, xx, yy, ti, positive, width, height, has_la_step, seg
         if has_la_step:
             S[pix, A_LA] = lav - S[pix, A_LASTEP]
     S[pix, A_TU] = tif
-    te[pix] = ti
+    te[tp] = ti
+
+
+def padded_te(height: int, width: int, t_init: int) -> np.ndarray:
+    """Last-event times for the AKF kernels: int64 ``(height + 2) * (width + 2)``, all ``t_init``.
+
+    Pixel (y, x) lives at ``(y + 1) * (width + 2) + x + 1`` (see :func:`te_view`). The one-pixel
+    border is never written and holds the start time, which no in-sensor time is below, so the
+    3×3 maximum over the padded window equals the maximum over the window clipped at the border.
+    """
+    return np.full((height + 2) * (width + 2), t_init, dtype=np.int64)
+
+
+def te_view(te: np.ndarray, height: int, width: int) -> np.ndarray:
+    """The in-sensor (height, width) view of a :func:`padded_te` array."""
+    return te.reshape(height + 2, width + 2)[1:-1, 1:-1]
 
 
 @njit(cache=True, nogil=True)
@@ -148,21 +160,27 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     Q (``noise_form`` 0, paper §3.1.1): σ²_proc (t_i - t_{i-1}) + σ²_iso (t_i - t*) + σ²_ref·[t_i -
     t_{i-1} ≤ ρ]; ``noise_form`` 1 (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) +
     σ_r (t_i - t_{i-1})·[t_i - t_{i-1} ≤ ρ]. t* is the latest event time in the 3×3 window
-    including p (clipped at the border); t_{i-1} starts at the filter's start time.
+    including p (clipped at the border); t_{i-1} starts at the filter's start time. ``te`` is
+    the padded last-event-time array of :func:`padded_te`.
 
     Processes the events ``[i0, i1)``; events in the ghost rows ``row_lo - 1`` and ``row_hi``
     only set ``te`` and all other rows outside ``[row_lo, row_hi)`` are skipped (``0, height``
     is the serial filter). Returns the number of events applied to pixels of the band.
     """
     n = 0
+    w = np.uint64(width)
+    wp = w + ONE + ONE
+    lo = np.uint64(max(row_lo, 0))
+    hi = np.uint64(max(row_hi, 0))
     for i in range(i0, i1):
-        yy = np.int64(y[i])
-        if yy < row_lo or yy >= row_hi:
-            if yy + 1 == row_lo or yy == row_hi:  # ghost row: neighbour time only
-                te[yy * width + np.int64(x[i])] = t[i]
+        yy = np.uint64(y[i])
+        xx = np.uint64(x[i])
+        tp = (yy + ONE) * wp + xx + ONE
+        if yy < lo or yy >= hi:
+            if yy + ONE == lo or yy == hi:  # ghost row: neighbour time only
+                te[tp] = t[i]
             continue
-        xx = np.int64(x[i])
-        _akf_event(S, te, yy * width + xx, xx, yy, t[i], p[i] > 0, width, height, has_la_step, seg_t0,
+        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
                    seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
         n += 1
     return n
@@ -178,15 +196,19 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
     disjoint bands with private ``te`` arrays reproduce it bit for bit.
     """
     n = 0
+    w = np.uint64(width)
+    wp = w + ONE + ONE
+    lo = np.uint64(max(row_lo, 0))
+    hi = np.uint64(max(row_hi, 0))
     for k in range(m):
         i = i0 + np.int64(idx[k])
-        yy = np.int64(y[i])
-        xx = np.int64(x[i])
-        pix = yy * width + xx
-        if yy < row_lo or yy >= row_hi:  # ghost row
-            te[pix] = t[i]
+        yy = np.uint64(y[i])
+        xx = np.uint64(x[i])
+        tp = (yy + ONE) * wp + xx + ONE
+        if yy < lo or yy >= hi:  # ghost row
+            te[tp] = t[i]
             continue
-        _akf_event(S, te, pix, xx, yy, t[i], p[i] > 0, width, height, has_la_step, seg_t0,
+        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
                    seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
         n += 1
     return n

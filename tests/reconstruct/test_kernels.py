@@ -49,7 +49,7 @@ def test_akf_events_equals_py_func(noise_form, has_la_step):
     outs = []
     for fn in (K.akf_events, _py(K.akf_events)):
         S = _akf_state(h * w)
-        te = np.full(h * w, 1_000, np.int64)
+        te = K.padded_te(h, w, 1_000)
         n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, has_la_step, 1_000.0, 1.0 / 100_000, 0.12, 0.08,
                5e-4, 0.03, 0.01, np.int64(10_000), noise_form)
         outs.append((n, S.copy(), te.copy()))
@@ -155,3 +155,36 @@ def test_akf_load_equals_py_func_and_numpy():
     np.testing.assert_array_equal(S[:, K.A_KLOG], np.where(beta != 0, rinv * T_s / np.where(beta != 0, beta, 1), 0))
     assert not res[1][:, K.A_BETA].any() and not res[1][:, K.A_LASTEP].any()
     assert not res[2][:, K.A_BETA].any() and not res[2][:, K.A_KLOG].any()
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_isolated_noise_window_clipped_at_border(jit):
+    """t* (eq. 2, §3.1.1) is the latest event time in the 3×3 window clipped at the sensor border.
+
+    With R⁻¹ = 0 (no propagation) and only σ²_iso non-zero, each event adds exactly
+    σ²_iso·(t_i − t*)·1e-6 to P, so P reveals which neighbour times the kernel saw. The padded
+    last-event-time array must behave like the clipped window at corners and edges, and a
+    neighbour just outside the window must not count.
+    """
+    h, w = 4, 5
+    fn = K.akf_events if jit else _py(K.akf_events)
+    # (x, y, t) in time order; the corner (0,0) sees (1,1); the edge pixel (4,2) sees (3,3) but
+    # not (2,2), one column outside its window; (4,0) sees nobody
+    ev = [(1, 1, 1_500), (3, 3, 1_700), (2, 2, 1_800), (0, 0, 2_000), (4, 2, 2_500), (4, 0, 3_000)]
+    t = np.array([e[2] for e in ev], np.int64)
+    x = np.array([e[0] for e in ev], np.uint16)
+    y = np.array([e[1] for e in ev], np.uint16)
+    p = np.ones(len(ev), np.int8)
+    S = K.aligned_state(h * w, K.AKF_FIELDS)
+    S[:, K.A_TU] = 1_000.0
+    te = K.padded_te(h, w, 1_000)
+    s_iso = 1e3
+    fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, False, 1_000.0, 0.0, 0.1, 0.1, 0.0, s_iso, 0.0,
+       np.int64(0), 0)
+    P = S[:, K.A_P].reshape(h, w)
+    # t_i − t*, keyed (y, x); the start time 1000 counts as every pixel's last event time
+    expect = {(1, 1): 500, (3, 3): 700, (2, 2): 100, (0, 0): 500, (2, 4): 800, (0, 4): 2_000}
+    for (yy, xx), dt in expect.items():
+        assert P[yy, xx] == pytest.approx(s_iso * dt * 1e-6, rel=1e-12, abs=1e-15), (yy, xx)
+    np.testing.assert_array_equal(K.te_view(te, h, w)[y.astype(int), x.astype(int)], t)
+    assert (te.reshape(h + 2, w + 2)[[0, -1]] == 1_000).all()  # the border is never written

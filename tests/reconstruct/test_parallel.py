@@ -177,7 +177,7 @@ def test_indexed_kernels_equal_py_func_and_scan_kernels():
     S0 = state()
     for kind in ("scan", "indexed", "indexed_py"):
         S = S0.copy()
-        te = np.zeros(h * w, np.int64)
+        te = K.padded_te(h, w, 0)
         if kind == "scan":
             c = K.akf_events(t, x, y, p, 3, n, lo, hi, w, h, S, te, *args)
         else:
@@ -185,8 +185,7 @@ def test_indexed_kernels_equal_py_func_and_scan_kernels():
             idx = np.empty(n, np.int32)
             m = K.band_select(y, 3, n, lo - 1, hi + 1, idx)
             c = fn(t, x, y, p, 3, idx, m, lo, hi, w, h, S, te, *args)
-        rows = slice((lo - 1) * w, (hi + 1) * w)
-        res.append((c, S.copy(), te[rows].copy()))
+        res.append((c, S.copy(), K.te_view(te, h, w)[lo - 1:hi + 1].copy()))
     for r in res[1:]:
         assert r[0] == res[0][0] == int(((y[3:] >= lo) & (y[3:] < hi)).sum())
         np.testing.assert_array_equal(r[1], res[0][1])
