@@ -339,7 +339,7 @@ class EventSensor:
         K.crossings(*args, False, hist, pos, np.int64(t0), dummy_i8, np.zeros(0, np.uint16),
                     np.zeros(0, np.uint16), np.zeros(0, np.int8))
         total = K.exclusive_cumsum(hist, pos)
-        ev = np.empty(total, EVENT_DTYPE)
+        ev = np.zeros(total, EVENT_DTYPE)  # zeroed: the padding bytes are deterministic too
         K.crossings(*args, True, hist, pos, np.int64(t0), ev["t"], ev["x"], ev["y"], ev["p"])
         self.n_noise_events += len(nk)
         return ev
