@@ -73,45 +73,46 @@ def crossings(l0, l1, ref, blind, c_on, c_off, leak_per_us, dt_us, refractory_us
             else:
                 tc = bl
                 d = 0.0  # re-referenced at the end of the refractory period (IEBCS behaviour)
-        con = c_on[i]
-        coff = c_off[i]
-        while not tracking:
-            if s > 0.0:
-                tx = tc + (con - d) / s
-                pol = 1
-            elif s < 0.0:
-                tx = tc + (-coff - d) / s
-                pol = -1
-            else:
-                break
-            if tx < tc:
-                tx = tc
-            if tx > dtf:
-                break
-            k = int(math.floor(tx + 0.5))
-            if k < 1:
-                k = 1
-            elif k > nb:
-                k = nb
-            if fill:
-                j = pos[k - 1]
-                pos[k - 1] = j + 1
-                out_t[j] = t_base + k
-                out_x[j] = i % width
-                out_y[j] = i // width
-                out_p[j] = pol
-            else:
-                hist[k - 1] += 1
-            n_sig += 1
-            tc = tx
-            d = 0.0  # the reference moves to the crossing (ESIM)
-            if refractory_us > 0.0:
-                tb = tc + refractory_us
+        if s > 0.0:
+            target = c_on[i]
+            pol = 1
+        else:
+            target = -c_off[i]
+            pol = -1
+        if s != 0.0 and not tracking:
+            inv_s = 1.0 / s
+            px = i % width
+            py = i // width
+            while True:
+                tx = tc + (target - d) * inv_s
+                if tx < tc:
+                    tx = tc
+                if tx > dtf:
+                    break
+                k = int(math.floor(tx + 0.5))
+                if k < 1:
+                    k = 1
+                elif k > nb:
+                    k = nb
                 if fill:
-                    bl = tb
-                if tb >= dtf:
-                    tracking = True
+                    j = pos[k - 1]
+                    pos[k - 1] = j + 1
+                    out_t[j] = t_base + k
+                    out_x[j] = px
+                    out_y[j] = py
+                    out_p[j] = pol
                 else:
+                    hist[k - 1] += 1
+                n_sig += 1
+                tc = tx
+                d = 0.0  # the reference moves to the crossing (ESIM)
+                if refractory_us > 0.0:
+                    tb = tc + refractory_us
+                    if fill:
+                        bl = tb
+                    if tb >= dtf:
+                        tracking = True
+                        break
                     tc = tb  # blind until tb; the reference follows the input meanwhile
         if fill:
             if tracking:
