@@ -390,16 +390,16 @@ class RecordingFile(EventFileReader):
                     raise FormatError(self.path, f"corrupt events in records {i0}..{i1}: {e}", record=i0) from None
         return out
 
-    @_guarded
-    def event_columns(self, t_start_us=None, t_end_us=None) -> dict[str, np.ndarray]:
-        """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy)."""
-        i0, i1 = self.index_range(t_start_us, t_end_us)
+    def _columns(self, i0: int, i1: int, t_prev: int | None = None) -> dict[str, np.ndarray]:
+        """Validated contiguous columns of the records ``[i0, i1)``; ``t_prev`` = last t before."""
         try:
             cols = {name: np.ascontiguousarray(ds[i0:i1]) for name, ds in self._ev.items()}
         except Exception as e:
             raise FormatError(self.path, f"cannot read events {i0}..{i1} ({type(e).__name__}: {e})",
                               record=i0) from None
         t = cols["t"]
+        if t.size and t_prev is not None and t[0] < t_prev:
+            raise FormatError(self.path, f"events/t decreases at index {i0}", record=i0)
         if t.size and np.any(t[1:] < t[:-1]):
             i = int(np.flatnonzero(t[1:] < t[:-1])[0]) + 1
             raise FormatError(self.path, f"events/t decreases at index {i0 + i}", record=i0 + i)
@@ -416,6 +416,33 @@ class RecordingFile(EventFileReader):
             raise FormatError(self.path, f"events/p must be +1 or -1; record {i0 + i} has {int(p[i])}",
                               record=i0 + i)
         return cols
+
+    @_guarded
+    def event_columns(self, t_start_us=None, t_end_us=None) -> dict[str, np.ndarray]:
+        """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy)."""
+        return self._columns(*self.index_range(t_start_us, t_end_us))
+
+    def iter_event_columns(self, chunk_events: int = 1 << 20, t_start_us=None, t_end_us=None):
+        """Yield validated ``(t, x, y, p)`` column tuples of about ``chunk_events`` events each.
+
+        Reads the columns straight into contiguous arrays (no structured-record copy), which is
+        what the reconstruction kernels take; time order is checked across chunk boundaries.
+        """
+        chunk_events = int(chunk_events)
+        if chunk_events < 1:
+            raise ValueError(f"chunk_events must be >= 1, got {chunk_events}")
+        i0, i1 = self.index_range(t_start_us, t_end_us)
+        t_prev = None
+        for a in range(i0, i1, chunk_events):
+            try:
+                c = self._columns(a, min(a + chunk_events, i1), t_prev)
+            except FormatError:
+                raise
+            except Exception as e:  # corrupt internals surface as many h5py errors
+                raise FormatError(self.path, f"cannot read events from record {a} ({type(e).__name__}: {e})",
+                                  record=a) from None
+            t_prev = int(c["t"][-1])
+            yield c["t"], c["x"], c["y"], c["p"]
 
     @_guarded
     def events(self, t_start_us=None, t_end_us=None) -> np.ndarray:

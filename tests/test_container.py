@@ -164,3 +164,28 @@ def test_bad_files(tmp_path):
         f.attrs["hybridhdr_format_version"] = "9.0"
     with pytest.raises(FormatError, match="version 9.0 is not supported"):
         RecordingFile(q)
+
+
+def test_iter_event_columns_matches_events_and_checks_order(tmp_path):
+    """Column chunks concatenate to the stored events; a decrease across a chunk boundary is caught."""
+    from hybridhdr import Recording, SensorSize, make_events
+    from hybridhdr.container import RecordingFile, write_recording
+    from hybridhdr.errors import FormatError
+    rng = np.random.default_rng(3)
+    n = 10_007
+    t = np.sort(rng.integers(0, 50_000, n))
+    ev = make_events(t, rng.integers(0, 20, n), rng.integers(0, 10, n), rng.choice([-1, 1], n))
+    path = write_recording(Recording(ev, SensorSize(10, 20)), tmp_path / "r.h5")
+    with RecordingFile(path) as f:
+        chunks = list(f.iter_event_columns(1_000, t_start_us=5_000, t_end_us=45_000))
+        ref = f.events(5_000, 45_000)
+    assert all(len(c[0]) <= 1_000 for c in chunks)
+    for k, name in enumerate(("t", "x", "y", "p")):
+        got = np.concatenate([c[k] for c in chunks])
+        np.testing.assert_array_equal(got, ref[name])
+        assert all(c[k].flags.c_contiguous for c in chunks)
+    import h5py
+    with h5py.File(path, "r+") as h:  # break time order exactly at a chunk boundary
+        h["events/t"][1_000] = h["events/t"][999] - 1
+    with RecordingFile(path) as f, pytest.raises(FormatError, match="decreases at index 1000"):
+        list(f.iter_event_columns(1_000))

@@ -160,3 +160,39 @@ def test_cli_run(tmp_path):
     bad = ap.parse_args(["reconstruct", str(tmp_path / "rec.h5"), "--out", str(tmp_path / "o2"),
                          "--set", "nonsense=1", "--no-progress"])
     assert bad.func(bad) == 2
+
+
+def test_prefetch_order_errors_and_early_stop():
+    """The reader thread keeps order, re-raises the reader's error in the consumer, and stops
+    (and is joined) when the consumer stops early."""
+    import threading
+
+    from hybridhdr.reconstruct.api import _prefetch
+
+    assert list(_prefetch(iter(range(50)))) == list(range(50))
+
+    def failing():
+        yield 1
+        yield 2
+        raise OSError("disk gone")
+
+    got = []
+    with pytest.raises(OSError, match="disk gone"):
+        for v in _prefetch(failing()):
+            got.append(v)
+    assert got == [1, 2]
+
+    produced = []
+
+    def endless():
+        i = 0
+        while True:
+            produced.append(i)
+            yield i
+            i += 1
+
+    it = _prefetch(endless(), depth=2)
+    assert [next(it) for _ in range(5)] == [0, 1, 2, 3, 4]
+    it.close()
+    assert not any(th.name == "hybridhdr-prefetch" for th in threading.enumerate())
+    assert len(produced) <= 5 + 2 + 1  # at most depth items (plus one in flight) read ahead
