@@ -88,6 +88,9 @@ def test_drops_are_counted_logged_and_stored(tmp_path, monkeypatch, caplog):
     ev, md = _read_all(out)
     assert len(ev) == stats.events_written
     assert md.provenance["recorder"]["events_dropped"] == stats.events_dropped
+    # every chunk in the file is complete and exact; the missing ones are exactly the counted drops
+    res = src.check_stream([ev])
+    assert src.chunks_emitted - res["chunks_present"] == stats.event_chunks_dropped
     assert any("dropped" in r.getMessage() for r in caplog.records)
 
 

@@ -108,3 +108,18 @@ def test_synthetic_stream_and_check():
     # a lost chunk is detected at the first event after the gap
     with pytest.raises(ValueError, match="event 3000 differs"):
         src.check_events(np.concatenate([ev[:3_000], ev[4_000:]]))
+
+
+def test_synthetic_check_stream_counts_missing_chunks():
+    src = SyntheticEventSource(1e6, sensor_size=(10, 20), chunk_us=1_000, duration_s=0.01, pace="fast", seed=5)
+    chunks = [c.events for c in src]
+    kept = [c for i, c in enumerate(chunks) if i not in (3, 4, 8)]
+    ev = concatenate_events(kept)
+    res = src.check_stream([ev[:1500], ev[1500:4200], ev[4200:]])  # blocks cut inside chunks
+    assert res == {"events": 7_000, "chunks_present": 7, "chunks_missing": 3, "first_missing": [3, 4, 8]}
+    res = src.check_stream([concatenate_events(kept[:-1])])  # a missing tail is not visible in the stream
+    assert res["chunks_missing"] == 2 and res["chunks_present"] == 6
+    with pytest.raises(ValueError, match="partially lost"):
+        src.check_stream([ev[:-1]])
+    with pytest.raises(ValueError, match="duplicated or reordered"):
+        src.check_stream([concatenate_events([chunks[0], chunks[2], chunks[1]])])
