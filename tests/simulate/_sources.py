@@ -42,3 +42,32 @@ class BlobSource:
 
     def describe(self):
         return {"name": "blob", "speed_px_s": self.speed, "flicker_hz": self.flicker_hz}
+
+
+class SwitchSource:
+    """A static random texture whose right half brightens by ``factor`` over ``ramp_us``
+    starting at ``t_switch_us`` (a light switching on: no motion, a sudden brightness change)."""
+
+    def __init__(self, height=16, width=20, duration_us=100_000, t_switch_us=40_000, ramp_us=500,
+                 factor=8.0, seed=0):
+        self.sensor_size = SensorSize(height, width)
+        self.duration_us = int(duration_us)
+        self.renders = 0
+        self.times = []
+        self.t_switch, self.ramp, self.factor = int(t_switch_us), int(ramp_us), float(factor)
+        self.base = np.random.default_rng(seed).uniform(0.1, 1.0, (height, width))
+        self.mask = np.zeros((height, width))
+        self.mask[:, width // 2:] = 1.0
+
+    def render(self, t_us):
+        self.renders += 1
+        self.times.append(int(t_us))
+        f = np.clip((t_us - self.t_switch) / self.ramp, 0.0, 1.0)
+        gain = 1.0 + (self.factor - 1.0) * f * self.mask
+        return (self.base * gain).astype(np.float32)
+
+    def max_image_speed_px_per_s(self, t0_us, t1_us):
+        return 0.0
+
+    def describe(self):
+        return {"name": "switch"}
