@@ -1,0 +1,142 @@
+"""``hybridhdr simulate``: render a scene (TOML file or built-in) to a hybrid recording."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_parser(subparsers) -> None:
+    """Add the ``simulate`` subcommand (sets ``func=run``)."""
+    p = subparsers.add_parser(
+        "simulate", help="render scenes to events, LDR frames and HDR ground truth",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Render a Mitsuba 3 scene (a TOML scene file or builtin:NAME) with adaptive time "
+                    "sampling into events, LDR frames and HDR ground truth, written as a hybridhdr "
+                    "recording (HDF5) that 'hybridhdr reconstruct' reads. Scene format: docs/simulate.md.")
+    p.add_argument("scene", nargs="?", default=None, help="SCENE.toml or builtin:NAME (see --list)")
+    p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
+    p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
+    p.add_argument("--preset", default="clean", choices=["ideal", "clean", "noisy"],
+                   help="event-sensor preset (noise tiers; docs/simulate.md)")
+    p.add_argument("--fixed-rate-hz", type=float, default=None,
+                   help="render at this fixed rate (Hz) instead of adaptive sampling")
+    p.add_argument("--min-rate-hz", type=float, default=None, help="adaptive sampling: lowest render rate (Hz)")
+    p.add_argument("--max-rate-hz", type=float, default=None, help="adaptive sampling: highest render rate (Hz)")
+    p.add_argument("--seed", type=int, default=0, help="seed of the sensor and camera noise")
+    p.add_argument("--duration-s", type=float, default=None, help="scene length in seconds (default: the scene's)")
+    p.add_argument("--spp", type=int, default=None, help="Mitsuba samples per pixel (default: the scene's)")
+    p.add_argument("--render-seed", type=int, default=None,
+                   help="Mitsuba sampler seed, the same for every render (default: the scene's)")
+    p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb"],
+                   help="Mitsuba variant (default: llvm_ad_mono if LLVM works, else scalar_rgb)")
+    p.add_argument("--width", type=int, default=None, help="image width in pixels (intrinsics scale with it)")
+    p.add_argument("--height", type=int, default=None, help="image height in pixels")
+    f = p.add_argument_group("frame camera")
+    f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
+    f.add_argument("--frame-rate-hz", type=float, default=20.0, help="frame rate (Hz)")
+    f.add_argument("--exposure-us", type=int, default=10_000, help="exposure time (µs)")
+    f.add_argument("--auto-exposure", action="store_true", help="adapt the exposure from frame to frame")
+    f.add_argument("--crf", default="gamma", help="camera response: linear, gamma, srgb, akf_s_curve_<K>")
+    f.add_argument("--bit-depth", type=int, default=8, choices=[8, 10, 12], help="frame bit depth")
+    f.add_argument("--electrons-per-radiance-s", type=float, default=None,
+                   help="sensitivity: electrons per second per unit radiance (default: the camera model's)")
+    p.add_argument("--gt-rate-hz", type=float, default=None,
+                   help="also store HDR ground truth at this rate (Hz), besides every frame's mid-exposure")
+    p.add_argument("--preview", type=Path, default=None,
+                   help="only render a PNG strip of a few frames (log radiance) to this file and exit")
+    p.add_argument("--preview-frames", type=int, default=4, help="frames in the --preview strip")
+    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.set_defaults(func=run)
+
+
+def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=None, render_seed=None):
+    """A :class:`Scene` from ``builtin:NAME`` or a TOML path, with the overrides applied."""
+    from .builtin import builtin_scene
+    from .scene import load_scene
+    if spec.startswith("builtin:"):
+        sc = builtin_scene(spec, duration_s=duration_s)
+    else:
+        sc = load_scene(spec)
+        if duration_s is not None:
+            if not duration_s > 0:
+                raise ValueError(f"--duration-s: expected > 0, found {duration_s}")
+            sc = sc.with_changes(duration_us=int(round(duration_s * 1e6)))
+    if (width is None) != (height is None):
+        raise ValueError("give both --width and --height, or neither")
+    if width is not None and (width < 1 or height < 1):
+        raise ValueError(f"--width/--height: expected positive integers, found {width}x{height}")
+    return sc.with_changes(width=width, height=height, spp=spp, seed=render_seed)
+
+
+def run(args) -> int:
+    from .builtin import BUILTIN_SCENES
+    if args.list:
+        w = max(len(n) for n in BUILTIN_SCENES)
+        for n, d in BUILTIN_SCENES.items():
+            print(f"builtin:{n:<{w}}  {d}")
+        return 0
+    if args.scene is None:
+        raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
+    scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
+                           spp=args.spp, render_seed=args.render_seed)
+    from .render import MitsubaSource
+    source = MitsubaSource(scene, variant=args.variant)
+    if args.preview is not None:
+        from .render import preview_strip
+        preview_strip(source, args.preview, n=args.preview_frames)
+        print(f"scene {scene.name}: variant {source.variant}, wrote {args.preview}")
+        return 0
+    if args.out is None:
+        raise ValueError("--out REC.h5 is required (or use --list / --preview)")
+
+    import time
+
+    import numpy as np
+
+    from .camera import FrameCameraParams
+    from .pipeline import simulate_to_file
+    from .sampling import SamplingParams
+
+    if args.fixed_rate_hz is not None:
+        sampling = SamplingParams(mode="fixed", fixed_rate_hz=args.fixed_rate_hz)
+    else:
+        kw = {}
+        if args.min_rate_hz is not None:
+            kw["min_rate_hz"] = args.min_rate_hz
+        if args.max_rate_hz is not None:
+            kw["max_rate_hz"] = args.max_rate_hz
+        sampling = SamplingParams(mode="adaptive", **kw)
+    camera = None
+    if not args.no_frames:
+        ckw = dict(frame_rate_hz=args.frame_rate_hz, exposure_us=args.exposure_us, crf=args.crf,
+                   bit_depth=args.bit_depth, auto_exposure=args.auto_exposure)
+        if args.electrons_per_radiance_s is not None:
+            ckw["electrons_per_radiance_s"] = args.electrons_per_radiance_s
+        camera = FrameCameraParams(**ckw)
+    gt = None
+    if args.gt_rate_hz is not None:
+        if not args.gt_rate_hz > 0:
+            raise ValueError(f"--gt-rate-hz: expected > 0, found {args.gt_rate_hz}")
+        step = 1e6 / args.gt_rate_hz
+        gt = np.unique(np.round(np.arange(0, scene.duration_us + 1, step)).astype(np.int64))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    print(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
+          f"variant {source.variant}, spp {source.spp}, {sampling.mode} sampling", file=sys.stderr)
+    t0 = time.perf_counter()
+    res = simulate_to_file(source, args.out, sensor=args.preset, camera=camera, sampling=sampling,
+                           gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
+    wall = time.perf_counter() - t0
+    st = res.stats
+    summary = {"out": str(args.out), "scene": scene.name, "variant": source.variant, "renders": res.renders,
+               "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
+               "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
+               "render_s": round(source.render_time_s, 3)}
+    print(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders, {summary['events']} events, "
+          f"{summary['frames']} frames, {summary['hdr_references']} HDR references, {wall:.2f} s wall "
+          f"({source.render_time_s:.2f} s rendering)")
+    print(json.dumps(summary))
+    return 0
