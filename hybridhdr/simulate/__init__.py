@@ -7,8 +7,16 @@ from .sampling import SamplingParams, TimeSampler, event_fidelity
 from .sensor import PRESETS, EventSensor, EventSensorParams, sensor_preset
 from .source import RadianceSource
 
+# scenes, Mitsuba rendering and built-in scenes (docs/simulate.md)
+from .builtin import BUILTIN_SCENES, builtin_scene
+from .render import MitsubaSource, preview_strip, select_variant
+from .scene import Scene, SceneError, load_scene, save_scene
+
 __all__: list[str] = [
     "RadianceSource",
+    # scenes, rendering, built-in scenes
+    "Scene", "SceneError", "load_scene", "save_scene", "MitsubaSource", "select_variant", "preview_strip",
+    "BUILTIN_SCENES", "builtin_scene",
     # sensor models, sampling, pipeline
     "EventSensorParams", "EventSensor", "PRESETS", "sensor_preset",
     "FrameCameraParams", "FrameCamera",

@@ -124,6 +124,15 @@ def _check_keys(d: dict, allowed, where: str) -> None:
         raise SceneError(f"unknown scene key {where + extra[0]!r}; expected one of: {', '.join(sorted(allowed))}")
 
 
+def _floats(obj, *names) -> None:
+    """Normalise numeric fields of a frozen dataclass to float / tuples of float (exact round trips)."""
+    for n in names:
+        v = getattr(obj, n)
+        if v is None:
+            continue
+        object.__setattr__(obj, n, tuple(float(x) for x in v) if isinstance(v, (tuple, list, np.ndarray)) else float(v))
+
+
 # ----------------------------------------------------------------------------------------------
 # rotations
 # ----------------------------------------------------------------------------------------------
@@ -288,6 +297,7 @@ class Pattern:
     high: float = 1.0
 
     def __post_init__(self):
+        _floats(self, "value", "low", "high")
         if self.texture is not None and self.checkerboard is not None:
             raise SceneError("a pattern has either 'texture' or 'checkerboard', not both")
         if self.checkerboard is not None and (len(self.checkerboard) != 2 or min(self.checkerboard) < 1):
@@ -434,6 +444,7 @@ class MeshSpec:
     path: str | None = None
 
     def __post_init__(self):
+        _floats(self, "extents", "radius", "height", "size")
         if self.kind not in MESH_KINDS:
             raise SceneError(f"mesh.type: expected one of {', '.join(MESH_KINDS)}, found {self.kind!r}")
         need = {"box": ("extents",), "sphere": ("radius",), "icosphere": ("radius",), "plane": ("size",),
@@ -527,6 +538,8 @@ class Keyframe:
     quaternion: tuple[float, float, float, float] = (1.0, 0.0, 0.0, 0.0)
 
     def __post_init__(self):
+        object.__setattr__(self, "t_us", int(self.t_us))
+        _floats(self, "position", "quaternion")
         n = math.sqrt(sum(c * c for c in self.quaternion))
         if not 0.999 < n < 1.001:
             raise SceneError(f"keyframe at t_us={self.t_us}: quaternion {self.quaternion} is not unit length (norm {n:.4g})")
@@ -724,6 +737,7 @@ class CameraSpec:
     trajectory: Trajectory = field(default_factory=Trajectory.static)
 
     def __post_init__(self):
+        _floats(self, "fx", "fy", "cx", "cy")
         if self.width < 1 or self.height < 1:
             raise SceneError(f"camera size: expected positive width and height, found {self.width}x{self.height}")
         if self.fx <= 0 or self.fy <= 0:
@@ -816,6 +830,8 @@ class Emitter:
     sampling_weight: float = 1.0
 
     def __post_init__(self):
+        _floats(self, "position", "look_at", "direction", "intensity", "irradiance", "radiance", "cutoff_deg",
+                "beam_width_deg", "sampling_weight")
         if self.kind not in EMITTER_KINDS:
             raise SceneError(f"emitter type: expected one of {', '.join(EMITTER_KINDS)}, found {self.kind!r}")
         if min(self.intensity, self.irradiance, self.radiance) < 0:
@@ -875,6 +891,11 @@ class SceneObject:
     emission: Emission | None = None
     scale: tuple[float, float, float] = (1.0, 1.0, 1.0)
     trajectory: Trajectory = field(default_factory=Trajectory.static)
+
+    def __post_init__(self):
+        _floats(self, "scale")
+        if len(self.scale) != 3 or min(self.scale) <= 0:
+            raise SceneError(f"object {self.name!r}: scale must be 3 numbers > 0, found {self.scale}")
 
     @classmethod
     def from_dict(cls, d: dict, where: str) -> "SceneObject":

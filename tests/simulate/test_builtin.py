@@ -1,0 +1,100 @@
+"""Built-in scenes: they build, render fast at tiny sizes, and show the situations they name."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from hybridhdr.simulate.builtin import BUILTIN_SCENES, builtin_scene  # noqa: E402
+from hybridhdr.simulate.render import MitsubaSource  # noqa: E402
+
+
+@pytest.mark.parametrize("name", list(BUILTIN_SCENES))
+def test_builtin_renders(name):
+    sc = builtin_scene(name, width=48, height=36, duration_s=0.2, spp=1)
+    assert sc.duration_us == 200_000 and (sc.camera.width, sc.camera.height) == (48, 36)
+    src = MitsubaSource(sc)
+    for t in (0, 100_000, 200_000):
+        img = src.render(t)
+        assert img.shape == (36, 48) and img.dtype == np.float32
+        assert np.isfinite(img).all() and img.min() >= 0 and img.max() > 0
+    b = src.max_image_speed_px_per_s(0, 10_000)
+    assert b >= 0
+    d = src.describe()
+    assert d["scene"] == name and d["width"] == 48
+
+
+def test_builtin_prefix_and_errors():
+    assert builtin_scene("builtin:slow_static", width=32, height=24).name == "slow_static"
+    with pytest.raises(ValueError, match="unknown built-in scene"):
+        builtin_scene("teapot")
+    with pytest.raises(ValueError, match="duration_s"):
+        builtin_scene("slow_static", duration_s=0)
+    with pytest.raises(ValueError, match="options"):
+        builtin_scene("slow_static", poses=2)
+
+
+def test_default_resolution_is_davis346():
+    sc = builtin_scene("dark_room_window")
+    assert (sc.camera.width, sc.camera.height) == (346, 260)
+
+
+def test_dark_room_window_dynamic_range():
+    src = MitsubaSource(builtin_scene("dark_room_window", width=64, height=48, spp=1))
+    start, end = src.render(0), src.render(src.duration_us)
+    room = np.median(start[start > 0])
+    window = end.max()
+    # the window is ~10^4 brighter than the room (window 150-250, room walls ~0.005-0.03)
+    assert 3e3 < window / room < 1e5
+    assert start.max() < 1.0  # the pan starts on the dark wall, window out of view
+
+
+def test_fast_object_over_exposed_background_and_motion():
+    src = MitsubaSource(builtin_scene("fast_object_bright_background", width=64, height=48, spp=1))
+    a, b = src.render(100_000), src.render(400_000)
+    wall = np.median(a[5:20, 10:54])
+    assert wall > 100  # sunlit wall (sun irradiance 1000, reflectance 0.5-0.8)
+    changed = np.abs(np.log(a + 1e-3) - np.log(b + 1e-3)) > 0.5
+    assert 5 < changed.sum() < 0.3 * a.size  # only the ball (and its shadow) moves
+    assert src.max_image_speed_px_per_s(0, 500_000) > 100  # a fast object
+
+
+def test_slow_static_has_little_motion():
+    src = MitsubaSource(builtin_scene("slow_static", width=64, height=48, spp=1))
+    assert src.max_image_speed_px_per_s(0, src.duration_us) < 10  # px/s at 64 px width
+    a, b = src.render(0), src.render(100_000)
+    assert np.mean(np.abs(np.log(a + 1e-3) - np.log(b + 1e-3)) > 0.2) < 0.01
+
+
+def test_blinking_checkerboard_describes_geometry_and_blinks():
+    sc = builtin_scene("blinking_checkerboard", width=64, height=48, spp=1, period_us=40_000, squares=(6, 4))
+    src = MitsubaSource(sc)
+    d = src.describe()
+    info = d["info"]
+    assert info["board_squares"] == [6, 4] and info["board_inner_corners"] == [5, 3]
+    assert info["square_size_m"] == 0.04 and info["blink_period_us"] == 40_000
+    K = np.array(d["K"])
+    assert K.shape == (3, 3) and K[0, 0] == pytest.approx(280.0 * 64 / 346)
+    # board centre projects through the true intrinsics onto the bright board
+    M = np.array(info["board_to_world"])
+    u, v = sc.camera.project(M[:3, 3])[0]
+    on, off = src.render(10_000), src.render(30_000)
+    assert 10 < u < 54 and 8 < v < 40
+    # corner square (0, 0) is white: its centre at (-w/2 + s/2, -h/2 + s/2) in the board frame
+    s = info["square_size_m"]
+    c00 = M[:3, :3] @ np.array([-3 * s + s / 2, -2 * s + s / 2, 0.0]) + M[:3, 3]
+    c10 = M[:3, :3] @ np.array([-3 * s + 1.5 * s, -2 * s + s / 2, 0.0]) + M[:3, 3]
+    (u0, v0), (u1, v1) = sc.camera.project(np.stack([c00, c10]))
+    assert on[int(round(v0)), int(round(u0))] == pytest.approx(50.0, rel=1e-3)
+    assert on[int(round(v1)), int(round(u1))] == pytest.approx(0.5, rel=1e-3)
+    assert off[int(round(v0)), int(round(u0))] == 0.0  # blinked off
+    assert src.max_image_speed_px_per_s(0, sc.duration_us) == 0.0  # static camera
+
+
+def test_blinking_checkerboard_poses():
+    sc = builtin_scene("blinking_checkerboard", width=32, height=24, poses=3)
+    kfs = sc.camera.trajectory.keyframes
+    assert len({k.position for k in kfs}) == 3
+    assert len(sc.info["camera_pose_change_times_us"]) == 4  # hold/move keyframes between 3 views
