@@ -1,0 +1,82 @@
+"""``hybridhdr simulate`` end to end: builtin scene -> recording -> ``hybridhdr reconstruct``."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+pytest.importorskip("mitsuba")
+
+from hybridhdr.cli import main  # noqa: E402
+from hybridhdr.simulate.builtin import BUILTIN_SCENES  # noqa: E402
+
+
+def test_list(capsys):
+    assert main(["simulate", "--list"]) == 0
+    out = capsys.readouterr().out
+    for n in BUILTIN_SCENES:
+        assert f"builtin:{n}" in out
+
+
+def test_end_to_end_reconstruct(tmp_path, capsys):
+    from hybridhdr.container import read_recording
+    rec_path = tmp_path / "rec.h5"
+    # a 64x48 blinking checkerboard for 120 ms: the board switches off at 50 ms and on at 100 ms
+    rc = main(["simulate", "builtin:blinking_checkerboard", "--width", "64", "--height", "48", "--duration-s", "0.12",
+               "--spp", "1", "--preset", "ideal", "--out", str(rec_path), "--frame-rate-hz", "25",
+               "--exposure-us", "5000", "--no-progress"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    summary = json.loads(out.strip().splitlines()[-1])
+    assert summary["variant"] in ("llvm_ad_mono", "scalar_rgb") and f"variant {summary['variant']}" in out
+    assert rec_path.exists() and not (tmp_path / "rec.h5.partial").exists()
+    rec = read_recording(rec_path)
+    assert rec.sensor_size.width == 64 and rec.sensor_size.height == 48
+    assert summary["events"] == len(rec.events) > 0
+    # the blink edges produce OFF events at 50 ms and ON events at 100 ms
+    t, p = rec.events["t"], rec.events["p"]
+    assert np.all(p[(t > 45_000) & (t <= 55_000)] == -1) and np.any((t > 45_000) & (t <= 55_000))
+    assert np.all(p[(t > 95_000) & (t <= 105_000)] == 1) and np.any((t > 95_000) & (t <= 105_000))
+    assert len(rec.frames) == summary["frames"] >= 2
+    assert rec.hdr is not None and rec.hdr.images.dtype == np.float32
+    prov = json.dumps(rec.metadata.provenance)
+    assert "blinking_checkerboard" in prov and summary["variant"] in prov
+    out_dir = tmp_path / "akf"
+    assert main(["reconstruct", str(rec_path), "--method", "akf", "--out", str(out_dir), "--no-progress"]) == 0
+    assert (out_dir / "timestamps.txt").exists()
+    assert len(list(out_dir.glob("*.exr"))) == len(rec.frames)
+
+
+def test_fixed_rate_and_preview(tmp_path, capsys):
+    rec_path = tmp_path / "fixed.h5"
+    assert main(["simulate", "builtin:slow_static", "--width", "32", "--height", "24", "--duration-s", "0.02",
+                 "--spp", "1", "--fixed-rate-hz", "500", "--no-frames", "--out", str(rec_path), "--no-progress"]) == 0
+    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert summary["renders"] == 11  # 0, 2, ..., 20 ms
+    png = tmp_path / "strip.png"
+    assert main(["simulate", "builtin:slow_static", "--width", "32", "--height", "24", "--preview", str(png),
+                 "--preview-frames", "2"]) == 0
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+
+
+def test_toml_scene(tmp_path):
+    from hybridhdr.simulate.builtin import builtin_scene
+    from hybridhdr.simulate.scene import save_scene
+    p = save_scene(builtin_scene("slow_static", width=32, height=24, duration_s=0.02, spp=1), tmp_path / "s.toml")
+    assert main(["simulate", str(p), "--out", str(tmp_path / "r.h5"), "--no-frames", "--no-progress"]) == 0
+    assert (tmp_path / "r.h5").exists()
+
+
+@pytest.mark.parametrize("argv, needle", [
+    (["simulate", "builtin:teapot", "--out", "x.h5"], "unknown built-in scene"),
+    (["simulate", "builtin:slow_static"], "--out"),
+    (["simulate"], "--list"),
+    (["simulate", "builtin:slow_static", "--width", "32", "--out", "x.h5"], "--height"),
+    (["simulate", "nope.toml", "--out", "x.h5"], "not found"),
+])
+def test_errors(tmp_path, monkeypatch, capsys, argv, needle):
+    monkeypatch.chdir(tmp_path)
+    assert main(argv) == 1
+    assert needle in capsys.readouterr().err
