@@ -11,8 +11,13 @@ each stated in the result:
    frames and all finite pixels:
 
    - ``"none"``: the reconstruction as is (use when both are in the same absolute units);
-   - ``"scale"``: ``g·x`` with ``g = <x, r>/<x, x>`` (an unknown camera gain/exposure);
-   - ``"affine"``: ``a·x + b`` (a relative, events-only reconstruction).
+   - ``"scale"``: ``g·x``, g fitted in log intensity (an unknown camera gain/exposure);
+   - ``"affine"``: ``g·x^a``, i.e. affine in log intensity (a relative, events-only
+     reconstruction: log intensity up to an offset, and a scale if its threshold is off);
+   - ``"scale_linear"``, ``"affine_linear"``: the same fitted by linear least squares.
+
+   Fits in log weigh all pixels alike; a linear fit on an HDR scene is decided by its brightest
+   pixels (:func:`fit_normalisation`).
 
    Defaults (:data:`DEFAULT_NORMALISE`): ``"affine"`` for ``highpass`` (events only are
    relative), ``"scale"`` for every frame-anchored method.
@@ -45,6 +50,9 @@ Metrics
   Y clipped to [0.005, 10000] cd/m²; PU-PSNR and PU-SSIM use a peak / data range of 256 as in
   the authors' ``gfxdisp/pu21:matlab/pu21_metric.m`` (``peak="pu_max"`` uses PU(10000)).
 - :func:`hdrvdp_q`: HDR-VDP 3 Q through the user's own installation (GNU Octave or MATLAB).
+- :func:`log_pair`: ``log_mse`` and ``log_ssim``, MSE and SSIM on log intensity mapped to [0, 1]
+  by the reference's log range (floored at 1e-4 of the reference maximum): HDR-aware, every
+  decade weighs alike; the linear metrics are decided by the brightest pixels.
 - :func:`match_frames`: pair reconstructed frames with references by timestamp.
 - :func:`score_video`: everything above on a matched sequence, plus the count of non-finite
   reconstructed pixels (numerical failures).
@@ -66,10 +74,10 @@ import numpy as np
 
 __all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
-           "normalise_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
+           "normalise_pair", "apply_normalisation", "log_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
            "find_hdrvdp", "HDRVDPNotFound"]
 
-NORMALISE_MODES = ("none", "scale", "affine")
+NORMALISE_MODES = ("none", "scale", "affine", "scale_linear", "affine_linear")
 #: Per-method default normalisation (methods not listed: "scale").
 DEFAULT_NORMALISE = {"highpass": "affine", "hpf": "affine"}
 
@@ -275,10 +283,25 @@ def match_frames(video_t_us, ref_t_us, tolerance_us: int) -> tuple[np.ndarray, n
 
 
 def fit_normalisation(test, reference, mode: str) -> tuple[float, float]:
-    """Least-squares ``(gain, offset)`` mapping ``test`` onto ``reference`` over finite pixels.
+    """Least-squares ``(gain, offset)`` or ``(gain, exponent)`` mapping ``test`` onto ``reference``.
 
-    ``"none"`` → (1, 0); ``"scale"`` → (<x,r>/<x,x>, 0); ``"affine"`` → the linear regression.
-    A degenerate fit (constant or all-zero test) falls back to matching the means.
+    ``"none"`` → (1, 0).
+
+    ``"scale"`` → ``(g, 0)`` with ``log g = mean(log r − log x)`` over pixels where both are
+    positive and finite: the least-squares fit of a gain **in log intensity**. A camera gain is
+    multiplicative; a linear least-squares fit would be decided by the few brightest pixels of an
+    HDR scene (a saturated frame then sets the gain of the whole image), the log fit weighs every
+    pixel alike.
+
+    ``"affine"`` → ``(g, a)`` with ``log r ≈ a·log x + log g`` (least squares in log intensity):
+    an events-only reconstruction recovers log intensity up to an offset, and up to a scale when
+    its contrast threshold is off, so it maps as ``r = g·x^a``.
+
+    ``"scale_linear"`` → ``(<x,r>/<x,x>, 0)``; ``"affine_linear"`` → linear regression
+    ``(gain, offset)``: for data whose units are already nearly right.
+
+    A degenerate fit (no usable pixel, constant input) falls back to the identity or to matching
+    the means.
     """
     if mode not in NORMALISE_MODES:
         raise ValueError(f"normalise must be one of {NORMALISE_MODES}, got {mode!r}")
@@ -286,10 +309,23 @@ def fit_normalisation(test, reference, mode: str) -> tuple[float, float]:
     if mode == "none":
         return 1.0, 0.0
     ok = np.isfinite(a) & np.isfinite(b)
+    if mode in ("scale", "affine"):
+        ok &= (a > 0) & (b > 0)
+        if not ok.any():
+            return 1.0, (0.0 if mode == "scale" else 1.0)
+        lx, lr = np.log(a[ok]), np.log(b[ok])
+        if mode == "scale":
+            return float(np.exp(np.mean(lr - lx))), 0.0
+        mx, mr = float(lx.mean()), float(lr.mean())
+        vx = float(np.mean((lx - mx) ** 2))
+        if vx <= 0:
+            return float(np.exp(mr - mx)), 1.0
+        e = float(np.mean((lx - mx) * (lr - mr)) / vx)
+        return float(np.exp(mr - e * mx)), e
     x, r = a[ok], b[ok]
     if x.size == 0:
-        return float("nan"), float("nan")
-    if mode == "scale":
+        return 1.0, 0.0
+    if mode == "scale_linear":
         xx = float(np.dot(x, x))
         return (float(np.dot(x, r) / xx) if xx > 0 else 1.0), 0.0
     mx, mr = float(x.mean()), float(r.mean())
@@ -298,6 +334,15 @@ def fit_normalisation(test, reference, mode: str) -> tuple[float, float]:
         return 1.0, mr - mx
     g = float(np.mean((x - mx) * (r - mr)) / vx)
     return g, mr - g * mx
+
+
+def apply_normalisation(test, gain: float, second: float, mode: str) -> np.ndarray:
+    """Apply a :func:`fit_normalisation` result (``second`` = offset, or exponent for "affine")."""
+    x = np.asarray(test, dtype=np.float64)
+    if mode == "affine":
+        with np.errstate(invalid="ignore"):
+            return gain * np.where(x > 0, np.abs(x), 0.0) ** second
+    return gain * x + second
 
 
 def normalise_pair(test, reference, mode: str = "scale"):
@@ -311,15 +356,38 @@ def normalise_pair(test, reference, mode: str = "scale"):
     ref_max = float(np.nanmax(b)) if np.isfinite(b).any() else float("nan")
     if not ref_max > 0:
         raise ValueError(f"the reference must have a positive maximum, got {ref_max}")
-    t = (g * a + o) / ref_max
+    t = apply_normalisation(a, g, o, mode) / ref_max
     with np.errstate(invalid="ignore"):
         t = np.where(np.isnan(t), np.nan, np.clip(t, 0.0, 1.0))
-    return t, np.clip(b / ref_max, 0.0, 1.0), {"gain": g, "offset": o, "reference_max": ref_max,
-                                                "normalise": mode}
+    second = "exponent" if mode == "affine" else "offset"
+    return t, np.clip(b / ref_max, 0.0, 1.0), {"gain": g, "offset": o if second == "offset" else 0.0,
+                                                "exponent": o if second == "exponent" else 1.0,
+                                                "reference_max": ref_max, "normalise": mode}
+
+
+def log_pair(test01, ref01, floor: float = 1e-4):
+    """Log intensity of [0, 1] images mapped to [0, 1] by the reference's log range.
+
+    ``v = (log max(I, floor) − lo)/(hi − lo)`` with ``lo``, ``hi`` the min and max of the
+    reference's ``log max(I, floor)``; the test is clipped to [0, 1] (NaN kept). This is the
+    HDR-aware scoring of ``hybridhdr demo`` (every decade of intensity weighs alike), used for
+    ``log_mse`` and ``log_ssim``.
+    """
+    if not 0 < floor < 1:
+        raise ValueError(f"log floor must be in (0, 1), got {floor}")
+    a, b = _pair(test01, ref01, "log_pair")
+    lr = np.log(np.maximum(b, floor))
+    with np.errstate(invalid="ignore"):
+        lt = np.log(np.where(np.isnan(a), np.nan, np.maximum(a, floor)))
+    lo, hi = float(lr.min()), float(lr.max())
+    span = (hi - lo) or 1.0
+    with np.errstate(invalid="ignore"):
+        t = np.where(np.isnan(lt), np.nan, np.clip((lt - lo) / span, 0.0, 1.0))
+    return t, (lr - lo) / span
 
 
 def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak_luminance_cd_m2: float = 4000.0,
-                pu21: bool = True, hdrvdp: dict | None = None) -> dict:
+                pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4) -> dict:
     """All metrics on matched sequences (K, H, W) of linear intensity.
 
     Parameters
@@ -334,9 +402,14 @@ def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak
         Keyword arguments for :func:`hdrvdp_q` (e.g. ``{"hdrvdp_dir": ...}``); when given, Q is
         the mean over frames and its settings are stored under ``q_*``.
 
+    log_floor : float
+        Floor of the [0, 1] intensities before the log of ``log_mse``/``log_ssim`` (1e-4: a
+        10 000:1 range).
+
     Returns
     -------
     dict with ``mse``, ``psnr_db``, ``ssim``, ``global_ssim`` (EAF variant, on ×255),
+    ``log_mse``, ``log_ssim`` (:func:`log_pair`),
     ``pu_psnr_db``, ``pu_ssim``, ``n_frames``, ``n_nonfinite``, ``gain``, ``offset``,
     ``reference_max``, ``normalise`` and (with ``hdrvdp``) ``q`` plus its settings.
     """
@@ -353,6 +426,9 @@ def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak
     out["psnr_db"] = psnr(t01, r01, 1.0) if np.isfinite(out["mse"]) else float("nan")
     out["ssim"] = ssim(t01, r01, 1.0)
     out["global_ssim"] = global_ssim(t01 * 255.0, r01 * 255.0, 255.0, variant="eaf")
+    lt_, lr_ = log_pair(t01, r01, log_floor)
+    out["log_mse"] = mse(lt_, lr_)
+    out["log_ssim"] = ssim(lt_, lr_, 1.0)
     if pu21:
         lt, lr = t01 * peak_luminance_cd_m2, r01 * peak_luminance_cd_m2
         out["pu_psnr_db"] = pu_psnr(lt, lr) if n_bad == 0 else float("nan")

@@ -1,0 +1,496 @@
+"""Benchmark runner: methods × datasets × parameter grids from a TOML bench file.
+
+See ``docs/evaluate.md`` for the file format. Each *task* is one dataset variant (one point of
+its grid) and runs every method variant on it in a worker process (local processes by default,
+a Dask cluster with ``scheduler=ADDRESS``); each *run* yields one CSV row: quality metrics
+(:func:`hybridhdr.evaluate.metrics.score_video`), wall time, time per second of data, events per
+second and the worker's peak RSS during the run (Linux ``VmHWM``, reset before each run through
+``/proc/self/clear_refs``; NaN elsewhere). Results are ordered by (task, method variant) whatever
+the scheduler, and every random choice is seeded from the bench file, so local and Dask runs give
+identical metric columns (tested).
+"""
+
+from __future__ import annotations
+
+import copy
+import csv
+import itertools
+import json
+import math
+import os
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench", "run_task", "write_results",
+           "TIMING_COLUMNS", "METRIC_COLUMNS", "bundled_bench", "BUNDLED"]
+
+TIMING_COLUMNS = ("wall_s", "time_per_data_s", "events_per_s", "peak_rss_mb")
+METRIC_COLUMNS = ("mse", "psnr_db", "ssim", "global_ssim", "log_mse", "log_ssim", "pu_psnr_db", "pu_ssim", "q")
+BUNDLED = ("demo", "speed_accuracy", "stability", "tiny")
+
+_BENCH_KEYS = {"name", "seed", "tolerance_us", "peak_luminance_cd_m2", "hdrvdp_dir", "strips", "fps",
+               "warmup"}
+_METHOD_KEYS = {"name", "method", "params", "augment", "mode", "normalise", "threshold_factor", "grid"}
+
+
+@dataclass(frozen=True)
+class Bench:
+    """A parsed bench file (see docs/evaluate.md)."""
+
+    name: str
+    seed: int
+    tolerance_us: int
+    peak_luminance_cd_m2: float
+    datasets: list
+    methods: list
+    charts: dict = field(default_factory=dict)
+    hdrvdp_dir: str | None = None
+    strips: int = 4
+    fps: float | None = None
+    warmup: bool = True
+    source: str = ""
+
+
+@dataclass(frozen=True)
+class RunSpec:
+    """One method variant: label, method name and the resolved settings."""
+
+    label: str
+    name: str
+    method: str
+    params: dict
+    augment: object
+    mode: str
+    normalise: str | None
+    threshold_factor: float
+    grid_values: dict
+
+
+def _grid(grid: dict, where: str):
+    if grid is None:
+        return [{}]
+    if not isinstance(grid, dict):
+        raise TypeError(f"{where}.grid must be a table of name = [values], got {type(grid).__name__}")
+    names = list(grid)
+    for n in names:
+        if not isinstance(grid[n], list) or not grid[n]:
+            raise ValueError(f"{where}.grid.{n} must be a non-empty list, got {grid[n]!r}")
+    return [dict(zip(names, vals)) for vals in itertools.product(*(grid[n] for n in names))]
+
+
+def _set_dotted(d: dict, key: str, value):
+    parts = key.split(".")
+    cur = d
+    for p in parts[:-1]:
+        cur = cur.setdefault(p, {})
+        if not isinstance(cur, dict):
+            raise ValueError(f"grid key {key!r}: {p!r} is not a table")
+    cur[parts[-1]] = value
+
+
+def parse_bench(d: dict, source: str = "") -> Bench:
+    """Validate a bench dict (as loaded from TOML)."""
+    if not isinstance(d, dict):
+        raise TypeError(f"a bench must be a dict, got {type(d).__name__}")
+    unknown = sorted(set(d) - {"bench", "datasets", "methods", "charts"})
+    if unknown:
+        raise ValueError(f"{source or 'bench'}: unknown top-level key(s) {unknown}; expected bench, datasets, "
+                         f"methods, charts")
+    b = d.get("bench", {})
+    bad = sorted(set(b) - _BENCH_KEYS)
+    if bad:
+        raise ValueError(f"[bench]: unknown key(s) {bad}; expected some of {sorted(_BENCH_KEYS)}")
+    ds, ms = d.get("datasets"), d.get("methods")
+    if not isinstance(ds, list) or not ds:
+        raise ValueError(f"{source or 'bench'}: needs at least one [[datasets]] entry")
+    if not isinstance(ms, list) or not ms:
+        raise ValueError(f"{source or 'bench'}: needs at least one [[methods]] entry")
+    from .datasets import DATASET_KINDS
+    from ..reconstruct.api import resolve_method
+    names = set()
+    for i, x in enumerate(ds):
+        if not isinstance(x, dict) or x.get("kind") not in DATASET_KINDS:
+            raise ValueError(f"datasets[{i}]: 'kind' must be one of {DATASET_KINDS}, got {x.get('kind')!r}")
+        x.setdefault("name", f"{x['kind']}{i}")
+        if x["name"] in names:
+            raise ValueError(f"datasets[{i}]: duplicate name {x['name']!r}")
+        names.add(x["name"])
+        _grid(x.get("grid"), f"datasets[{i}]")
+        _grid(x.get("method_grid"), f"datasets[{i}].method_grid")
+    labels = set()
+    for i, m in enumerate(ms):
+        if not isinstance(m, dict) or "method" not in m:
+            raise ValueError(f"methods[{i}]: needs 'method'")
+        bad = sorted(set(m) - _METHOD_KEYS)
+        if bad:
+            raise ValueError(f"methods[{i}]: unknown key(s) {bad}; expected some of {sorted(_METHOD_KEYS)}")
+        resolve_method(m["method"])
+        m.setdefault("name", m["method"])
+        if m["name"] in labels:
+            raise ValueError(f"methods[{i}]: duplicate name {m['name']!r}")
+        labels.add(m["name"])
+        _grid(m.get("grid"), f"methods[{i}]")
+    tol = b.get("tolerance_us", 1000)
+    if isinstance(tol, bool) or not isinstance(tol, int) or tol < 0:
+        raise ValueError(f"[bench].tolerance_us must be an int >= 0 (µs), got {tol!r}")
+    return Bench(name=str(b.get("name", Path(source).stem if source else "bench")), seed=int(b.get("seed", 0)),
+                 tolerance_us=tol, peak_luminance_cd_m2=float(b.get("peak_luminance_cd_m2", 4000.0)),
+                 datasets=ds, methods=ms, charts=d.get("charts", {}), hdrvdp_dir=b.get("hdrvdp_dir"),
+                 strips=int(b.get("strips", 4)), fps=b.get("fps"), warmup=bool(b.get("warmup", True)),
+                 source=str(source))
+
+
+def _load_toml_bytes(data: bytes) -> dict:
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python < 3.11
+        import tomli as tomllib
+    return tomllib.loads(data.decode("utf-8"))
+
+
+def bundled_bench(name: str) -> str:
+    """Text of a bench file bundled in ``hybridhdr/evaluate/benches/NAME.toml``."""
+    from importlib import resources
+    f = resources.files("hybridhdr.evaluate").joinpath("benches", f"{name}.toml")
+    if not f.is_file():
+        raise FileNotFoundError(f"no bundled bench {name!r}; bundled: {list(BUNDLED)}")
+    return f.read_text(encoding="utf-8")
+
+
+def load_bench(path_or_name) -> Bench:
+    """Load a bench file, or a bundled one by name (``demo``, ``speed_accuracy``, ``stability``, ``tiny``)."""
+    p = Path(path_or_name)
+    if p.is_file():
+        return parse_bench(_load_toml_bytes(p.read_bytes()), str(p))
+    if str(path_or_name) in BUNDLED:
+        return parse_bench(_load_toml_bytes(bundled_bench(str(path_or_name)).encode()), f"<bundled {path_or_name}>")
+    raise FileNotFoundError(f"bench file {path_or_name} not found (bundled benches: {list(BUNDLED)})")
+
+
+def expand(bench: Bench):
+    """The task list: ``[(dataset_name, dataset_spec, dataset_grid_values, [RunSpec ...]), ...]``."""
+    from .metrics import default_normalise
+    from ..reconstruct.api import resolve_method
+    runs = []
+    for m in bench.methods:
+        for gv in _grid(m.get("grid"), f"methods[{m['name']}]"):
+            mm = copy.deepcopy({k: v for k, v in m.items() if k != "grid"})
+            for k, v in gv.items():
+                _set_dotted(mm, k, v)
+            label = m["name"] + ("" if not gv else " [" + ", ".join(f"{k}={v}" for k, v in gv.items()) + "]")
+            method = resolve_method(mm["method"])
+            runs.append(RunSpec(label, m["name"], method, dict(mm.get("params", {})), mm.get("augment"),
+                                mm.get("mode", "offline"), mm.get("normalise") or default_normalise(method),
+                                float(mm.get("threshold_factor", 1.0)), gv))
+    tasks = []
+    for x in bench.datasets:
+        ds_runs = runs
+        if x.get("methods") is not None:
+            want = x["methods"]
+            missing = sorted(set(want) - {r.name for r in runs})
+            if missing:
+                raise ValueError(f"datasets[{x['name']}].methods names unknown method(s) {missing}")
+            ds_runs = [r for r in runs if r.name in want]
+        if x.get("method_grid"):
+            # a per-dataset grid over method settings (e.g. threshold_factor for the misestimate sweep)
+            base, ds_runs = ds_runs, []
+            for r in base:
+                for gv in _grid(x["method_grid"], f"datasets[{x['name']}].method_grid"):
+                    params, aug, tf = dict(r.params), r.augment, r.threshold_factor
+                    for k, v in gv.items():
+                        if k == "threshold_factor":
+                            tf = float(v)
+                        elif k == "augment":
+                            aug = v
+                        elif k.startswith("params."):
+                            params[k[7:]] = v
+                        else:
+                            raise ValueError(f"datasets[{x['name']}].method_grid: key {k!r} must be threshold_factor, "
+                                             f"augment or params.NAME")
+                    label = r.label + " [" + ", ".join(f"{k}={v}" for k, v in gv.items()) + "]"
+                    ds_runs.append(RunSpec(label, r.name, r.method, params, aug, r.mode, r.normalise, tf,
+                                           {**r.grid_values, **gv}))
+        for gv in _grid(x.get("grid"), f"datasets[{x['name']}]"):
+            spec = {k: v for k, v in x.items() if k not in ("grid", "method_grid", "methods")}
+            spec.update(gv)
+            tasks.append((x["name"], spec, gv, ds_runs))
+    return tasks
+
+
+# -- worker side --------------------------------------------------------------------------------
+
+def _peak_rss_reset() -> bool:
+    try:
+        with open("/proc/self/clear_refs", "w") as f:
+            f.write("5")
+        return True
+    except OSError:
+        return False
+
+
+def _peak_rss_mb() -> float:
+    try:
+        with open("/proc/self/status") as f:
+            for line in f:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return float("nan")
+
+
+_WARM: set = set()
+
+
+def _method_params(run: RunSpec, c_sensor):
+    p = dict(run.params)
+    if run.method in ("akf", "cf", "highpass", "direct", "edi") and c_sensor is not None:
+        # the method's threshold: the sensor's nominal one times threshold_factor, unless given
+        if not any(k.startswith("contrast_threshold") for k in p) and run.method != "edi":
+            p["contrast_threshold"] = float(c_sensor) * run.threshold_factor
+    if run.method == "edi" and c_sensor is not None and "contrast_threshold" not in p:
+        p["contrast_threshold"] = float(c_sensor) * run.threshold_factor
+    return p
+
+
+def _warmup(run: RunSpec):
+    """JIT-load each method's kernels once per worker so that timings exclude compilation."""
+    key = (run.method, json.dumps(run.augment, sort_keys=True, default=str), run.mode)
+    if key in _WARM:
+        return
+    from ..reconstruct.api import reconstruct
+    from ..synthetic import procedural_recording
+    rec, _ = procedural_recording((16, 16), 120_000, seed=0, frame_rate_hz=20.0)
+    try:
+        reconstruct(rec, run.method, _method_params(run, 0.2), mode=run.mode, augment=run.augment)
+    except Exception:  # the real run reports the error
+        pass
+    _WARM.add(key)
+
+
+def _strip_frame(video_frames, vi, ri, ref_images, frames, ref_t):
+    """Middle matched frame of a run: (reconstruction, reference, LDR input) images."""
+    k = len(ri) // 2
+    rec_img = video_frames[vi[k]]
+    ref_img = ref_images[ri[k]]
+    ldr = None
+    if frames is not None and len(frames):
+        j = int(np.argmin(np.abs(frames.t_mid_us - ref_t[ri[k]])))
+        ldr = np.asarray(frames.images[j])
+    return rec_img, ref_img, ldr
+
+
+def run_task(task, bench_opts: dict) -> list[dict]:
+    """Run every method variant of one dataset variant; returns one row dict per run."""
+    from ..reconstruct.api import reconstruct
+    from .datasets import load_dataset
+    from .metrics import match_frames, score_video
+    ds_name, spec, ds_gv, runs = task
+    seed = int(bench_opts["seed"])
+    rows = []
+    t_load = time.perf_counter()
+    try:
+        data = load_dataset(spec, seed=seed)
+        err = None
+    except Exception as e:  # reported per run
+        data, err = None, f"{type(e).__name__}: {e}"
+    t_load = time.perf_counter() - t_load
+    strip = {}
+    for run in runs:
+        row = {"dataset": ds_name, "kind": spec["kind"], **{f"ds.{k}": v for k, v in ds_gv.items()},
+               "method_label": run.label, "method_name": run.name, "method": run.method, **{f"m.{k}": v for k, v in run.grid_values.items()},
+               "augment": json.dumps(run.augment, sort_keys=True) if run.augment is not None else "",
+               "mode": run.mode, "normalise": run.normalise, "threshold_factor": run.threshold_factor,
+               "dataset_seconds": float("nan"), "dataset_load_s": t_load}
+        if data is None:
+            row.update(status="error: " + err)
+            rows.append(row)
+            continue
+        rec = data.recording
+        hdr = rec.hdr
+        ref = hdr.images if hdr.images.ndim == 3 else hdr.images.mean(axis=3)
+        row["dataset_seconds"] = data.duration_us * 1e-6
+        row["n_events"] = int(len(rec.events))
+        try:
+            if bench_opts.get("warmup", True):
+                _warmup(run)
+            params = _method_params(run, data.contrast_threshold)
+            first = int(rec.frames.t_start_us.min()) if rec.frames is not None and len(rec.frames) else None
+            times = hdr.t_us if first is None else hdr.t_us[hdr.t_us >= first]
+            if run.method == "highpass":
+                times = times[times > int(rec.events["t"][0])] if len(rec.events) else times
+            _peak_rss_reset()
+            t0 = time.perf_counter()
+            v = reconstruct(rec, run.method, params, times_us=times, mode=run.mode, augment=run.augment)
+            wall = time.perf_counter() - t0
+            row["peak_rss_mb"] = _peak_rss_mb()
+            vi, ri = match_frames(v.t_us, hdr.t_us, int(bench_opts["tolerance_us"]))
+            if len(vi) == 0:
+                raise ValueError("no reconstructed frame within tolerance_us of any reference")
+            hv = None
+            if bench_opts.get("hdrvdp_dir"):
+                hv = {"hdrvdp_dir": bench_opts["hdrvdp_dir"]}
+            sc = score_video(v.frames[vi], ref[ri], normalise=run.normalise,
+                             peak_luminance_cd_m2=float(bench_opts["peak_luminance_cd_m2"]), hdrvdp=hv)
+            row.update(sc)
+            row.update(wall_s=wall, time_per_data_s=wall / max(data.duration_us * 1e-6, 1e-12),
+                       events_per_s=(v.info.get("n_events_used", len(rec.events)) / wall if wall > 0 else float("nan")),
+                       status="ok")
+            r_img, ref_img, ldr = _strip_frame(v.frames, vi, ri, ref, rec.frames, hdr.t_us)
+            from .metrics import apply_normalisation
+            t01 = apply_normalisation(r_img, sc["gain"], sc["exponent"] if run.normalise == "affine" else sc["offset"],
+                                      run.normalise)
+            strip[run.label] = t01.astype(np.float32)
+            strip.setdefault("__reference__", ref_img.astype(np.float32))
+            if ldr is not None:
+                strip.setdefault("__ldr__", ldr)
+        except Exception as e:
+            row.update(status=f"error: {type(e).__name__}: {e}")
+        rows.append(row)
+    if rows:
+        rows[0]["_strip"] = strip
+    return rows
+
+
+# -- driver -------------------------------------------------------------------------------------
+
+def _bench_opts(bench: Bench) -> dict:
+    return {"seed": bench.seed, "tolerance_us": bench.tolerance_us, "peak_luminance_cd_m2": bench.peak_luminance_cd_m2,
+            "hdrvdp_dir": bench.hdrvdp_dir, "warmup": bench.warmup}
+
+
+def _pool_context():
+    import multiprocessing as mp
+    try:
+        ctx = mp.get_context("forkserver")
+        ctx.set_forkserver_preload(["hybridhdr.evaluate.bench"])
+        return ctx
+    except ValueError:  # pragma: no cover - platforms without forkserver
+        return mp.get_context("spawn")
+
+
+def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None = None,
+              progress: bool = True) -> list[dict]:
+    """Run all tasks; returns rows in (task, method) order.
+
+    Parameters
+    ----------
+    workers : int, optional
+        Local worker processes (default ``min(2, cpu_count)``); 0 runs in this process.
+    scheduler : str, optional
+        Dask scheduler address (``tcp://host:8786``) or a ``dask.distributed`` Client/cluster;
+        the tasks are submitted in order and gathered in order.
+    """
+    tasks = expand(bench)
+    opts = _bench_opts(bench)
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=len(tasks), desc=f"bench {bench.name}", unit="task", file=sys.stderr, dynamic_ncols=True)
+    results: list = [None] * len(tasks)
+    try:
+        if scheduler is not None:
+            try:
+                from dask.distributed import Client, as_completed
+            except ImportError as e:
+                raise ImportError("--scheduler needs dask[distributed] (pip install 'hybridhdr[evaluate]')") from e
+            own = isinstance(scheduler, str)
+            client = Client(scheduler) if own else (scheduler if hasattr(scheduler, "submit") else Client(scheduler))
+            try:
+                futs = [client.submit(run_task, t, opts, key=f"hybridhdr-bench-{bench.name}-{i}-{os.getpid()}",
+                                      pure=False) for i, t in enumerate(tasks)]
+                index = {f.key: i for i, f in enumerate(futs)}
+                for f in as_completed(futs):
+                    results[index[f.key]] = f.result()
+                    if bar is not None:
+                        bar.update(1)
+            finally:
+                if own or not hasattr(scheduler, "submit"):
+                    client.close()
+        else:
+            n = min(2, os.cpu_count() or 1) if workers is None else int(workers)
+            if n < 0:
+                raise ValueError(f"workers must be >= 0, got {n}")
+            if n == 0:
+                for i, t in enumerate(tasks):
+                    results[i] = run_task(t, opts)
+                    if bar is not None:
+                        bar.update(1)
+            else:
+                from concurrent.futures import ProcessPoolExecutor, as_completed as cf_done
+                with ProcessPoolExecutor(max_workers=n, mp_context=_pool_context()) as ex:
+                    futs = {ex.submit(run_task, t, opts): i for i, t in enumerate(tasks)}
+                    for f in cf_done(futs):
+                        results[futs[f]] = f.result()
+                        if bar is not None:
+                            bar.update(1)
+    finally:
+        if bar is not None:
+            bar.close()
+    rows = []
+    for i, rs in enumerate(results):
+        for j, r in enumerate(rs):
+            r["task"] = i
+            r["run"] = j
+            rows.append(r)
+    return rows
+
+
+def _columns(rows):
+    first = ["task", "run", "dataset", "kind"]
+    ds = sorted({k for r in rows for k in r if k.startswith("ds.")})
+    mid = ["method_label", "method_name", "method"]
+    mg = sorted({k for r in rows for k in r if k.startswith("m.")})
+    rest = ["augment", "mode", "normalise", "threshold_factor", "status", "n_frames", *METRIC_COLUMNS,
+            "n_nonfinite", "gain", "offset", "reference_max", "peak_luminance_cd_m2", "dataset_seconds", "n_events",
+            *TIMING_COLUMNS, "dataset_load_s"]
+    extra = sorted({k for r in rows for k in r} - set(first + ds + mid + mg + rest) - {"_strip"})
+    return first + ds + mid + mg + rest + extra
+
+
+def _fmt(v):
+    if isinstance(v, float):
+        return repr(v)
+    return "" if v is None else str(v)
+
+
+def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = True) -> dict:
+    """Write ``results.csv``, ``strips/*.png``, charts and ``report.md`` / ``report.html``.
+
+    Returns the paths written (name -> Path).
+    """
+    from .report import write_report
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    cols = _columns(rows)
+    path = out / "results.csv"
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "w", newline="", encoding="utf-8") as f:
+        w = csv.writer(f)
+        w.writerow(cols)
+        for r in rows:
+            w.writerow([_fmt(r.get(c)) for c in cols])
+    os.replace(tmp, path)
+    written = {"csv": path}
+    written.update(write_report(rows, out, bench, charts=charts))
+    return written
+
+
+def read_results(path) -> list[dict]:
+    """Read ``results.csv`` back (numbers as float where they parse)."""
+    rows = []
+    with open(path, newline="", encoding="utf-8") as f:
+        for r in csv.DictReader(f):
+            d = {}
+            for k, v in r.items():
+                try:
+                    d[k] = float(v) if v not in ("",) and k not in ("dataset", "kind", "method_label", "method_name", "method",
+                                                                     "augment", "mode", "normalise", "status") else v
+                except ValueError:
+                    d[k] = v
+            rows.append(d)
+    return rows

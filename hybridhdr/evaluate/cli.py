@@ -1,0 +1,174 @@
+"""``hybridhdr evaluate``: metrics of a reconstruction, benchmarks, the paper table."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+
+def add_parser(sub) -> None:
+    fmt = argparse.ArgumentDefaultsHelpFormatter
+    p = sub.add_parser("evaluate", help="metrics and benchmarks", formatter_class=fmt,
+                       description="Score reconstructions (MSE, SSIM, PU21, HDR-VDP Q), run benchmarks, "
+                                   "reproduce the paper's Table 1. See docs/evaluate.md.")
+    esub = p.add_subparsers(dest="evaluate_command", metavar="STEP")
+
+    m = esub.add_parser("metrics", formatter_class=fmt, help="score a reconstruction folder against a recording's "
+                                                              "HDR references",
+                        description="Score RECON_DIR (frame_*.exr + timestamps.txt as written by 'hybridhdr "
+                                    "reconstruct') against the HDR references of REC, matched by timestamp.")
+    m.add_argument("recon_dir", type=Path, help="folder with timestamps.txt and EXR frames")
+    m.add_argument("--reference", type=Path, required=True, help="recording holding HDR references (any readable "
+                                                                 "format)")
+    m.add_argument("--tolerance-us", type=int, default=1000, help="largest |t_recon - t_ref| accepted, in µs")
+    m.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],
+                   default=None, help="normalisation (default: from the method in run.json: affine for highpass, "
+                                      "scale otherwise)")
+    m.add_argument("--peak-luminance-cd-m2", type=float, default=4000.0,
+                   help="luminance of the reference maximum for PU21 and HDR-VDP, in cd/m²")
+    m.add_argument("--hdrvdp-dir", type=Path, default=None,
+                   help="HDR-VDP 3 folder (holding hdrvdp3.m); default $HYBRIDHDR_HDRVDP_DIR; Q is n/a without it")
+    m.add_argument("--engine", choices=["auto", "octave", "matlab"], default="auto", help="HDR-VDP engine")
+    m.add_argument("--json", action="store_true", help="print JSON")
+    m.add_argument("--debug", action="store_true", help="show tracebacks")
+    m.set_defaults(func=run_metrics)
+
+    b = esub.add_parser("bench", formatter_class=fmt, help="run a TOML bench file",
+                        description="Run methods x datasets x parameter grids from BENCH (a TOML file, or a "
+                                    "bundled name: demo, speed_accuracy, stability, tiny); write results.csv, "
+                                    "report.md/.html, strips and charts to --out.")
+    b.add_argument("bench", help="bench TOML file or bundled bench name")
+    b.add_argument("--out", type=Path, required=True, help="output folder")
+    b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
+                                                     "processes")
+    b.add_argument("--workers", type=int, default=None, help="local worker processes (0 = in this process; "
+                                                             "default min(2, CPUs))")
+    b.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    b.add_argument("--debug", action="store_true", help="show tracebacks")
+    b.set_defaults(func=run_bench_cmd)
+
+    q = esub.add_parser("paper", formatter_class=fmt, help="Table 1 of the paper on simulated HDR and AHDR sets",
+                        description="Build an HDR set and an AHDR set (simulator when available), run every "
+                                    "method, print a table shaped like the paper's Table 1.")
+    q.add_argument("--out", type=Path, required=True, help="output folder")
+    q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
+    q.add_argument("--workers", type=int, default=None, help="local worker processes")
+    q.add_argument("--scheduler", default=None, help="Dask scheduler address")
+    q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
+    q.add_argument("--debug", action="store_true", help="show tracebacks")
+    q.set_defaults(func=run_paper_cmd)
+    p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+
+
+def _read_timestamps(path: Path):
+    import numpy as np
+    ts, names = [], []
+    with open(path, encoding="utf-8") as f:
+        for i, line in enumerate(f, 1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            parts = s.split()
+            if len(parts) != 2:
+                raise ValueError(f"{path}:{i}: expected 't_us filename', found {s!r}")
+            try:
+                ts.append(int(parts[0]))
+            except ValueError:
+                raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
+            names.append(parts[1])
+    return np.asarray(ts, np.int64), names
+
+
+def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, normalise: str | None = None,
+                         peak_luminance_cd_m2: float = 4000.0, hdrvdp_dir=None, engine: str = "auto") -> dict:
+    """Score an EXR reconstruction folder against a recording's HDR references (see the CLI help)."""
+    import numpy as np
+
+    from ..io import read
+    from ..reconstruct.output import read_exr
+    from .metrics import HDRVDPNotFound, default_normalise, find_hdrvdp, match_frames, score_video
+    d = Path(recon_dir)
+    tsf = d / "timestamps.txt"
+    if not tsf.is_file():
+        raise FileNotFoundError(f"{d}: expected timestamps.txt written by 'hybridhdr reconstruct', not found")
+    t, names = _read_timestamps(tsf)
+    method = None
+    if (d / "run.json").is_file():
+        try:
+            method = json.loads((d / "run.json").read_text()).get("method")
+        except (ValueError, OSError):
+            method = None
+    mode = normalise or default_normalise(method or "")
+    rec = read(reference)
+    if rec.hdr is None or len(rec.hdr) == 0:
+        raise ValueError(f"{reference}: the reference recording has no HDR references")
+    vi, ri = match_frames(t, rec.hdr.t_us, int(tolerance_us))
+    if len(vi) == 0:
+        raise ValueError(f"no reconstructed frame within {tolerance_us} µs of any of the {len(rec.hdr)} references "
+                         f"(recon {t.min() if len(t) else '-'}..{t.max() if len(t) else '-'} µs, references "
+                         f"{rec.hdr.t_us.min()}..{rec.hdr.t_us.max()} µs)")
+    frames = np.stack([read_exr(d / names[i]) for i in vi])
+    ref = rec.hdr.images if rec.hdr.images.ndim == 3 else rec.hdr.images.mean(axis=3)
+    ref = ref[ri]
+    if frames.shape[1:] != ref.shape[1:]:
+        raise ValueError(f"reconstruction frames are {frames.shape[2]}x{frames.shape[1]} but references are "
+                         f"{ref.shape[2]}x{ref.shape[1]}")
+    hv, q_note = None, None
+    try:
+        find_hdrvdp(hdrvdp_dir)
+        hv = {"hdrvdp_dir": hdrvdp_dir, "engine": engine}
+    except HDRVDPNotFound as e:
+        q_note = str(e)
+    res = score_video(frames, ref, normalise=mode, peak_luminance_cd_m2=peak_luminance_cd_m2, hdrvdp=hv)
+    res.update(method=method, matched=int(len(vi)), references=int(len(rec.hdr)), tolerance_us=int(tolerance_us))
+    if q_note:
+        res["q"] = None
+        res["q_note"] = q_note
+    return res
+
+
+def run_metrics(args) -> int:
+    res = score_reconstruction(args.recon_dir, args.reference, tolerance_us=args.tolerance_us,
+                               normalise=args.normalise, peak_luminance_cd_m2=args.peak_luminance_cd_m2,
+                               hdrvdp_dir=args.hdrvdp_dir, engine=args.engine)
+    if args.json:
+        print(json.dumps(res))
+        return 0
+    print(f"{res['matched']} of {res['references']} references matched within {res['tolerance_us']} µs; "
+          f"normalise={res['normalise']} (gain {res['gain']:.4g}); data range 1 after dividing by the reference max "
+          f"{res['reference_max']:.4g}")
+    for k, label in (("mse", "MSE"), ("psnr_db", "PSNR (dB)"), ("ssim", "SSIM (Gaussian σ=1.5, range 1)"),
+                     ("global_ssim", "global SSIM (EAF, one window)"), ("pu_psnr_db", "PU21-PSNR (dB)"),
+                     ("pu_ssim", "PU21-SSIM"), ("n_nonfinite", "NaN/Inf pixels")):
+        print(f"  {label:<32} {res[k]:.6g}" if isinstance(res[k], float) else f"  {label:<32} {res[k]}")
+    if res.get("q") is None:
+        print(f"  {'HDR-VDP Q':<32} n/a ({res.get('q_note')})")
+    else:
+        print(f"  {'HDR-VDP Q':<32} {res['q']:.4g} (version {res['q_version']}, {res['q_task']}, "
+              f"{res['q_color_encoding']}, {res['q_pixels_per_degree']:.3g} ppd, "
+              f"{res['q_luminance_scale_cd_m2']:g} cd/m²)")
+    return 0
+
+
+def run_bench_cmd(args) -> int:
+    from .bench import load_bench, run_bench, write_results
+    bench = load_bench(args.bench)
+    rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    w = write_results(rows, args.out, bench)
+    print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())
+    print(f"\nwrote {w['csv']}, {w['report_md']}, {w['report_html']}"
+          + "".join(f", {w[k]}" for k in ("speed_accuracy", "stability") if k in w))
+    bad = sum(1 for r in rows if r.get("status") != "ok")
+    if bad:
+        print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)
+    return 0
+
+
+def run_paper_cmd(args) -> int:
+    from .paper import run_paper
+    text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
+                     hdrvdp_dir=args.hdrvdp_dir)
+    print(text)
+    return 0

@@ -1,0 +1,283 @@
+"""Markdown + HTML benchmark report with image strips and charts (written by ``bench.write_results``)."""
+
+from __future__ import annotations
+
+import html
+import math
+import os
+import time
+from collections import OrderedDict
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "write_report", "write_strip", "format_table"]
+
+
+def _f(v) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return float("nan")
+
+
+def _num(v, fmt="{:.4g}") -> str:
+    v = _f(v)
+    return "n/a" if not math.isfinite(v) else fmt.format(v)
+
+
+def summary_table(rows, datasets=None) -> list[dict]:
+    """Mean metrics and speed per (dataset, method_label) over ok runs."""
+    groups: "OrderedDict[tuple, list]" = OrderedDict()
+    for r in rows:
+        if datasets is not None and r.get("dataset") not in datasets:
+            continue
+        groups.setdefault((r.get("dataset"), r.get("method_label")), []).append(r)
+    out = []
+    for (ds, label), rs in groups.items():
+        ok = [r for r in rs if r.get("status") == "ok"]
+
+        def mean(k):
+            vals = [_f(r.get(k)) for r in ok]
+            vals = [v for v in vals if not math.isnan(v)]
+            return float(np.mean(vals)) if vals else float("nan")
+        out.append({"dataset": ds, "method": label, "runs": len(rs), "ok": len(ok), "mse": mean("mse"),
+                    "ssim": mean("ssim"), "log_mse": mean("log_mse"), "log_ssim": mean("log_ssim"),
+                    "pu_ssim": mean("pu_ssim"), "pu_psnr_db": mean("pu_psnr_db"),
+                    "q": mean("q"), "time_per_data_s": mean("time_per_data_s"), "events_per_s": mean("events_per_s"),
+                    "peak_rss_mb": mean("peak_rss_mb"), "nonfinite": int(sum(_f(r.get("n_nonfinite")) or 0
+                                                                            for r in ok))})
+    return out
+
+
+def akf_vs_cf(rows, datasets=None, akf_label: str = "akf", cf_label: str = "cf") -> dict | None:
+    """AKF vs CF on matching datasets: MSE reduction and SSIM improvement in % (paper: 48 %, 11 %)."""
+    def by(label):
+        d = {}
+        for r in rows:
+            if r.get("method_label") == label and r.get("status") == "ok" and (datasets is None or
+                                                                               r.get("dataset") in datasets):
+                d.setdefault(r["dataset"], []).append(r)
+        return d
+    a, c = by(akf_label), by(cf_label)
+    common = sorted(set(a) & set(c))
+    if not common:
+        return None
+    def m(d, k):
+        vals = [_f(r.get(k)) for key in common for r in d[key]]
+        return float(np.mean(vals)) if vals else float("nan")
+    out = {"datasets": common}
+    for k in ("mse", "ssim", "log_mse", "log_ssim", "pu_ssim"):
+        out[f"akf_{k}"], out[f"cf_{k}"] = m(a, k), m(c, k)
+    for k in ("mse", "log_mse"):
+        cm = out[f"cf_{k}"]
+        out[f"{k}_reduction_pct"] = 100.0 * (cm - out[f"akf_{k}"]) / cm if cm > 0 else float("nan")
+    for k in ("ssim", "log_ssim", "pu_ssim"):
+        cs = out[f"cf_{k}"]
+        out[f"{k}_improvement_pct"] = 100.0 * (out[f"akf_{k}"] - cs) / cs if cs > 0 else float("nan")
+    return out
+
+
+def akf_vs_cf_text(c: dict) -> str:
+    """One paragraph: the AKF vs CF comparison, with the paper's figures beside ours."""
+    return (f"On {', '.join(c['datasets'])}: linear MSE AKF {c['akf_mse']:.4g} vs CF {c['cf_mse']:.4g} "
+            f"(**{c['mse_reduction_pct']:.1f}% MSE reduction**; paper: 48%), linear SSIM AKF {c['akf_ssim']:.3f} vs "
+            f"CF {c['cf_ssim']:.3f} (**{c['ssim_improvement_pct']:+.1f}% SSIM**; paper: +11%). In log intensity: "
+            f"MSE {c['akf_log_mse']:.4g} vs {c['cf_log_mse']:.4g} ({c['log_mse_reduction_pct']:.1f}% reduction), "
+            f"SSIM {c['akf_log_ssim']:.3f} vs {c['cf_log_ssim']:.3f} ({c['log_ssim_improvement_pct']:+.1f}%).")
+
+
+def format_table(header, body) -> str:
+    """A Markdown table."""
+    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
+    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in body]
+    return "\n".join(lines)
+
+
+def _html_table(header, body) -> str:
+    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
+    b = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in body)
+    return f"<table><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>"
+
+
+def write_strip(images: dict, path, title: str = "") -> Path:
+    """One row of images: LDR input, each method, reference (tone-mapped with the reference's range)."""
+    from .charts import _plt
+    from ..reconstruct.output import tone_map
+    plt = _plt()
+    ref = images.get("__reference__")
+    ldr = images.get("__ldr__")
+    methods = [k for k in images if not k.startswith("__")]
+    panels = ([("LDR input", ldr, True)] if ldr is not None else []) + [(m, images[m], False) for m in methods] + \
+             ([("reference", ref, False)] if ref is not None else [])
+    _, lim = tone_map(ref[None]) if ref is not None else (None, None)
+    fig, axes = plt.subplots(1, len(panels), figsize=(2.1 * len(panels), 2.1 * 0.8 + 0.5), squeeze=False)
+    for ax, (name, img, raw) in zip(axes[0], panels):
+        if raw:
+            ax.imshow(np.asarray(img), cmap="gray", vmin=0, vmax=255 if np.asarray(img).dtype.kind in "ui" else 1)
+        else:
+            tm, _ = tone_map(np.asarray(img, np.float64)[None], limits=lim)
+            ax.imshow(tm[0], cmap="gray", vmin=0, vmax=255)
+        ax.set_title(name if len(name) < 28 else name[:26] + "…", fontsize=7)
+        ax.axis("off")
+    if title:
+        fig.suptitle(title, fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    tmp = path.with_name(path.stem + ".partial.png")
+    fig.savefig(tmp, dpi=110)
+    plt.close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def _save(fig, path: Path):
+    from .charts import _plt
+    tmp = path.with_name(path.stem + ".partial.png")
+    fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    _plt().close(fig)
+    os.replace(tmp, path)
+    return path
+
+
+def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
+    """Speed–accuracy and stability PNGs; returns (paths, stability failure rows)."""
+    from .charts import plot_speed_accuracy, plot_stability, stability_curves
+    plt = __import__("hybridhdr.evaluate.charts", fromlist=["_plt"])._plt()
+    paths, fails = {}, []
+    sa = charts_cfg.get("speed_accuracy", {})
+    if sa is not False:
+        sa = sa if isinstance(sa, dict) else {}
+        metrics = [m for m in sa.get("metrics", ["mse", "ssim", "q"])]
+        if "q" in metrics and not any(math.isfinite(_f(r.get("q"))) for r in rows):
+            metrics = [m for m in metrics if m != "q"] + ["q"]  # kept: the panel says n/a
+        fig, axes = plt.subplots(1, len(metrics), figsize=(5.6 * len(metrics), 4.4), squeeze=False)
+        for ax, m in zip(axes[0], metrics):
+            plot_speed_accuracy(rows, m, sa.get("datasets"), ax=ax)
+        paths["speed_accuracy"] = _save(fig, out / "speed_accuracy.png")
+    st = charts_cfg.get("stability", [])
+    if isinstance(st, dict):
+        st = [st]
+    if st:
+        n = len(st)
+        ncol = min(3, n)
+        nrow = math.ceil(n / ncol)
+        fig, axes = plt.subplots(nrow, ncol, figsize=(5.4 * ncol, 4.0 * nrow), squeeze=False)
+        for ax in axes.ravel()[n:]:
+            ax.axis("off")
+        for ax, s in zip(axes.ravel(), st):
+            kw = {k: s[k] for k in ("dataset", "axis", "metric", "bound", "better", "stress", "relative_bound")
+                  if k in s}
+            plot_stability(rows, title=s.get("title"), ax=ax, log_x=s.get("log_x"), **kw)
+            for name, c in stability_curves(rows, **kw).items():
+                fails.append({"stress": s.get("title") or s["axis"], "axis": s["axis"], "method": name,
+                              "failed_at": c["failed_at"], "reason": c["reason"] or "none within the sweep",
+                              "nonfinite": int(sum(c["nonfinite"]))})
+        fig.tight_layout()
+        paths["stability"] = _save(fig, out / "stability.png")
+    return paths, fails
+
+
+def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
+    """Write strips, charts, ``report.md`` and ``report.html``; returns name -> Path."""
+    from .charts import numerical_failures
+    out = Path(out)
+    written = {}
+    # strips: first and last variant of each dataset, capped by bench.strips
+    cap = getattr(bench, "strips", 4) if bench is not None else 4
+    by_ds: "OrderedDict[str, list]" = OrderedDict()
+    for r in rows:
+        if "_strip" in r and r["_strip"]:
+            by_ds.setdefault(r["dataset"], []).append(r)
+    strip_paths = []
+    (out / "strips").mkdir(exist_ok=True)
+    for ds, rs in by_ds.items():
+        pick = [rs[0]] + ([rs[-1]] if len(rs) > 1 else [])
+        for r in pick:
+            if len(strip_paths) >= cap:
+                break
+            gv = ", ".join(f"{k[3:]}={r[k]}" for k in r if k.startswith("ds."))
+            p = write_strip(r["_strip"], out / "strips" / f"strip_{r['task']:03d}_{ds}.png",
+                            title=f"{ds}" + (f" ({gv})" if gv else ""))
+            strip_paths.append(p)
+    chart_paths, fails = ({}, [])
+    if charts and rows:
+        chart_paths, fails = write_charts(rows, out, getattr(bench, "charts", {}) or {})
+    written.update(chart_paths)
+    summ = summary_table(rows)
+    header = ["dataset", "method", "MSE", "SSIM", "log MSE", "log SSIM", "PU-SSIM", "Q", "time/s data", "Mev/s", "peak RSS MB", "NaN/Inf",
+              "ok/runs"]
+    body = [[s["dataset"], s["method"], _num(s["mse"]), _num(s["ssim"], "{:.3f}"), _num(s["log_mse"]),
+             _num(s["log_ssim"], "{:.3f}"), _num(s["pu_ssim"], "{:.3f}"),
+             _num(s["q"], "{:.2f}"), _num(s["time_per_data_s"], "{:.3g}"),
+             _num(s["events_per_s"] / 1e6 if math.isfinite(s["events_per_s"]) else float("nan"), "{:.3g}"),
+             _num(s["peak_rss_mb"], "{:.0f}"), s["nonfinite"], f"{s['ok']}/{s['runs']}"] for s in summ]
+    nf = numerical_failures(rows)
+    nf_body = [[n["method"], n["runs"], n["runs_with_nonfinite"], n["nonfinite_pixels"], n["errors"]] for n in nf]
+    cmp_ = akf_vs_cf(rows)
+    load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
+    name = getattr(bench, "name", "bench")
+    md = [f"# Benchmark report: {name}", "",
+          f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} "
+          f"(timings are noisy on a shared machine). {len(rows)} runs.", "",
+          "Scoring (see docs/evaluate.md): reconstruction fitted to the reference per run by least squares "
+          "(`normalise`: scale for frame-based methods, affine for events-only), both divided by the reference "
+          "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
+          f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
+          f"{getattr(bench, 'tolerance_us', 1000)} µs. Q is n/a without an HDR-VDP 3 installation.", "",
+          "## Results", "", format_table(header, body), ""]
+    if cmp_ is not None:
+        md += ["## AKF vs CF", "", akf_vs_cf_text(cmp_), ""]
+    md += ["## Numerical failures (NaN/Inf pixels)", "",
+           format_table(["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"], nf_body), ""]
+    errs = [r for r in rows if r.get("status") != "ok"]
+    if errs:
+        md += ["Errors:", ""] + [f"- {r['dataset']} / {r['method_label']}: {r.get('status')}" for r in errs[:20]] + [""]
+    if fails:
+        md += ["## Stability: failure points", "",
+               format_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
+                            [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
+                              f["reason"], f["nonfinite"]] for f in fails]), ""]
+    for k, title in (("speed_accuracy", "Speed–accuracy"), ("stability", "Stability")):
+        if k in chart_paths:
+            md += [f"## {title}", "", f"![{title}]({chart_paths[k].name})", ""]
+    if strip_paths:
+        md += ["## Image strips (LDR input, each method, reference; log tone-mapped with the reference's range)", ""]
+        md += [f"![{p.stem}](strips/{p.name})" for p in strip_paths] + [""]
+    md_text = "\n".join(md)
+    pmd = out / "report.md"
+    tmp = pmd.with_name("report.md.partial")
+    tmp.write_text(md_text, encoding="utf-8")
+    os.replace(tmp, pmd)
+    written["report_md"] = pmd
+    # HTML
+    parts = [f"<h1>Benchmark report: {html.escape(name)}</h1>", f"<p>{html.escape(md[2])}</p>",
+             f"<p>{html.escape(md[4])}</p>", "<h2>Results</h2>", _html_table(header, body)]
+    if cmp_ is not None:
+        parts += ["<h2>AKF vs CF</h2>", f"<p>{html.escape(md[md.index('## AKF vs CF') + 2])}</p>"]
+    parts += ["<h2>Numerical failures</h2>",
+              _html_table(["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"], nf_body)]
+    if fails:
+        parts += ["<h2>Stability: failure points</h2>",
+                  _html_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
+                              [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
+                                f["reason"], f["nonfinite"]] for f in fails])]
+    for k, title in (("speed_accuracy", "Speed–accuracy"), ("stability", "Stability")):
+        if k in chart_paths:
+            parts += [f"<h2>{title}</h2>", f'<img src="{chart_paths[k].name}" style="max-width:100%">']
+    if strip_paths:
+        parts += ["<h2>Image strips</h2>"] + [f'<img src="strips/{p.name}" style="max-width:100%"><br>'
+                                             for p in strip_paths]
+    doc = ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridhdr bench</title><style>"
+           "body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
+           "td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}</style></head><body>"
+           + "\n".join(parts) + "</body></html>")
+    ph = out / "report.html"
+    tmp = ph.with_name("report.html.partial")
+    tmp.write_text(doc, encoding="utf-8")
+    os.replace(tmp, ph)
+    written["report_html"] = ph
+    written["strips"] = strip_paths
+    written["failures"] = fails
+    written["akf_vs_cf"] = cmp_
+    return written
