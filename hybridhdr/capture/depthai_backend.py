@@ -95,8 +95,8 @@ class DepthaiDevice:
         dai = _depthai()
         infos = dai.Device.getAllAvailableDevices()
         if not infos:
-            raise NoDeviceFound("no depthai device found (no Luxonis OAK camera attached or visible to "
-                                "libusb; check the cable and the udev rule for vendor 03e7)")
+            raise NoDeviceFound("no device found: no Luxonis OAK camera is attached or visible to depthai "
+                                "(check the cable and the udev rule for USB vendor 03e7)")
         if self.device_id is not None:
             self._device = dai.Device(dai.DeviceInfo(self.device_id))
         else:

@@ -421,7 +421,7 @@ class Recorder:
 
     def _run_frames(self):
         src = self.frame_source
-        policy = self._policy_for(src)
+        policy = self._frame_policy
         try:
             for item in src:
                 with self._lock:
@@ -492,6 +492,7 @@ class Recorder:
         if self.path.exists():
             raise FileExistsError(f"{self.path} exists; choose another output name")
         self.stats.policy = self._policy_for(self.event_source)
+        self._frame_policy = None if self.frame_source is None else self._policy_for(self.frame_source)
         self.event_source.open()
         if self.frame_source is not None:
             self.frame_source.open()

@@ -1,0 +1,342 @@
+"""``hybridhdr capture devices | record | brackets | sync | recover | session``."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from pathlib import Path
+
+DESCRIPTION = "record and read hybrid data (devices, brackets, sync, recorder)"
+_FMT = argparse.ArgumentDefaultsHelpFormatter
+
+
+def add_parser(sub) -> None:
+    p = sub.add_parser("capture", help=DESCRIPTION, formatter_class=_FMT,
+                       description="Capture hybrid event/frame data: list cameras, record with a crash-safe "
+                                   "recorder, capture exposure brackets, synchronise clocks, recover and "
+                                   "package dataset sessions. See docs/capture.md.")
+    p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
+    cs = p.add_subparsers(dest="capture_command", metavar="STEP")
+
+    d = cs.add_parser("devices", help="list attached event and frame cameras (USB IDs)", formatter_class=_FMT,
+                      description="List attached cameras by USB vendor/product ID (Prophesee, iniVation, Luxonis, "
+                                  "FLIR, Basler, ...). Exits 1 when none is found.")
+    d.add_argument("--all", action="store_true", help="also list USB devices that are not known cameras")
+    d.add_argument("--json", action="store_true", help="print JSON")
+    d.add_argument("--debug", action="store_true", help="show tracebacks")
+    d.set_defaults(func=run_devices)
+
+    r = cs.add_parser("record", help="record events (+ frames) through the crash-safe recorder",
+                      formatter_class=_FMT,
+                      description="Record an event source and optionally a frame source into a hybridhdr "
+                                  "container. Data go to OUT.journal while recording; after a crash run "
+                                  "'hybridhdr capture recover OUT'.")
+    r.add_argument("--events", required=True,
+                   help="event source: a file to replay (any readable format), 'synthetic:RATE' (events/s), "
+                        "or 'prophesee' / 'device' for a live Prophesee camera")
+    r.add_argument("--frames", default=None,
+                   help="frame source: a file to replay, or 'oak' / 'device' for a Luxonis OAK camera")
+    r.add_argument("--out", type=Path, required=True, help="output container (.h5)")
+    r.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: "
+                   "end of the replayed file, Ctrl-C for live sources)")
+    r.add_argument("--pace", choices=("realtime", "fast"), default="realtime", help="replay pacing")
+    r.add_argument("--speed", type=float, default=1.0, help="replay speed factor (realtime pace)")
+    r.add_argument("--chunk-us", type=int, default=10_000, help="event chunk length (µs)")
+    r.add_argument("--queue-chunks", type=int, default=64, help="recorder queue capacity (chunks/frames)")
+    r.add_argument("--flush-interval-s", type=float, default=1.0, help="journal flush period (s)")
+    r.add_argument("--on-full", choices=("auto", "block", "drop"), default="auto", help="queue-full policy")
+    r.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
+    r.add_argument("--fsync", action="store_true", help="fsync the journal at each flush (power-loss safe)")
+    r.add_argument("--exposure-us", type=int, default=None, help="OAK manual exposure (µs)")
+    r.add_argument("--iso", type=int, default=None, help="OAK manual ISO (100-1600)")
+    r.add_argument("--frame-sync", choices=("off", "input", "output"), default=None, help="OAK FSYNC role")
+    r.add_argument("--trigger-channels", type=int, nargs="*", default=(), help="Prophesee trigger inputs to enable")
+    r.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    r.add_argument("--debug", action="store_true", help="show tracebacks")
+    r.set_defaults(func=run_record)
+
+    b = cs.add_parser("brackets", help="read a bracket folder (RAW/JPEG/PNG) or capture one with an OAK",
+                      formatter_class=_FMT,
+                      description="Summarise a bracket set (RAW files with EXIF exposure, JPEG/PNG with "
+                                  "exposures.txt, or a brackets.json folder), optionally rewriting it as a "
+                                  "brackets.json folder; or capture one from an OAK camera.")
+    b.add_argument("folder", nargs="?", type=Path, help="bracket folder to read")
+    b.add_argument("--device", choices=("oak",), default=None, help="capture from a camera instead")
+    b.add_argument("--exposures-us", type=int, nargs="+", default=None, help="exposures to capture (µs)")
+    b.add_argument("--iso", type=int, default=100, help="ISO for the capture")
+    b.add_argument("--frames-per-step", type=int, default=1, help="frames kept per exposure")
+    b.add_argument("--out", type=Path, default=None, help="write a bracket-set folder (brackets.json + PNG)")
+    b.add_argument("--plot", type=Path, default=None, help="PNG contact sheet of the bracket")
+    b.add_argument("--json", action="store_true", help="print JSON")
+    b.add_argument("--debug", action="store_true", help="show tracebacks")
+    b.set_defaults(func=run_brackets)
+
+    s = cs.add_parser("sync", help="map frame exposures onto the event clock from trigger edges",
+                      formatter_class=_FMT,
+                      description="Pair trigger pulses with frames, fit offset and drift robustly, report "
+                                  "jitter and missing/extra triggers, and write the recording with frame "
+                                  "times on the event clock.")
+    s.add_argument("recording", type=Path)
+    s.add_argument("--trigger-channel", type=int, default=0, help="trigger channel of the frame strobe")
+    s.add_argument("--edge-mode", choices=("both", "rising"), default="both",
+                   help="both: rising = exposure start, falling = end; rising: starts only")
+    s.add_argument("--use", choices=("measured", "fit"), default="measured",
+                   help="frame times from the measured edges or from the fitted clock mapping")
+    s.add_argument("--frame-period-us", type=float, default=None, help="frame period (default: estimated)")
+    s.add_argument("--out", type=Path, default=None, help="write the synchronised recording here")
+    s.add_argument("--report", type=Path, default=None, help="write the report as JSON")
+    s.add_argument("--plot", type=Path, default=None, help="PNG of the fit residuals")
+    s.add_argument("--debug", action="store_true", help="show tracebacks")
+    s.set_defaults(func=run_sync)
+
+    v = cs.add_parser("recover", help="rebuild a recording from the journal of an interrupted capture",
+                      formatter_class=_FMT,
+                      description="Replay REC.h5.journal (left by a crash or kill -9) into REC.h5: everything "
+                                  "up to the last flush, plus later records whose checksums are intact.")
+    v.add_argument("file", type=Path, help="the recording name (REC.h5) or its journal")
+    v.add_argument("--out", type=Path, default=None, help="output container (default: the recording name)")
+    v.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
+    v.add_argument("--keep-journal", action="store_true", help="keep the journal after a successful recovery")
+    v.add_argument("--debug", action="store_true", help="show tracebacks")
+    v.set_defaults(func=run_recover)
+
+    e = cs.add_parser("session", help="write or verify a dataset sequence folder with a manifest",
+                      formatter_class=_FMT,
+                      description="Package a recording, calibration, camera profile and bracket sets into one "
+                                  "sequence folder with manifest.json (sha256 + size of every file); or "
+                                  "verify such a folder with --verify.")
+    e.add_argument("folder", nargs="?", type=Path, help="sequence folder to create")
+    e.add_argument("--recording", type=Path, default=None, help="hybridhdr container to include")
+    e.add_argument("--calibration", type=Path, default=None, help="calibration file")
+    e.add_argument("--profile", type=Path, default=None, help="camera profile file")
+    e.add_argument("--brackets", type=Path, nargs="*", default=(), help="bracket-set folders")
+    e.add_argument("--reference", action="store_true",
+                   help="reference calibration/profile by relative path + checksum instead of copying")
+    e.add_argument("--name", default=None, help="sequence name (default: folder name)")
+    e.add_argument("--notes", default="", help="free text for the manifest")
+    e.add_argument("--verify", type=Path, default=None, metavar="DIR", help="verify an existing session folder")
+    e.add_argument("--debug", action="store_true", help="show tracebacks")
+    e.set_defaults(func=run_session)
+
+
+def _comp(v):
+    return None if v == "none" else v
+
+
+# -- devices ----------------------------------------------------------------------------------
+def run_devices(args) -> int:
+    from .devices import NoDeviceFound, format_devices, list_devices
+    devs = list_devices(include_unknown=args.all)
+    if not devs:
+        raise NoDeviceFound("no device found (looked for Prophesee, iniVation, Luxonis OAK, FLIR, Basler, "
+                            "Allied Vision, IDS and XIMEA USB IDs; see docs/capture.md)")
+    print(json.dumps([d.to_dict() for d in devs]) if args.json else format_devices(devs))
+    return 0
+
+
+# -- record -----------------------------------------------------------------------------------
+def _event_source(args):
+    spec = args.events
+    if spec in ("prophesee", "device"):
+        from .prophesee_backend import PropheseeEventSource
+        return PropheseeEventSource(delta_t_us=args.chunk_us, trigger_channels=args.trigger_channels)
+    if spec.startswith("synthetic:"):
+        from .sources import SyntheticEventSource
+        try:
+            rate = float(spec.split(":", 1)[1])
+        except ValueError:
+            raise ValueError(f"--events synthetic:RATE needs a rate in events/s, got {spec!r}") from None
+        return SyntheticEventSource(rate, chunk_us=args.chunk_us, pace=args.pace, duration_s=args.duration_s)
+    from .sources import ReplayEventSource
+    if not Path(spec).exists():
+        raise FileNotFoundError(f"--events {spec}: no such file (or use 'synthetic:RATE', 'prophesee')")
+    return ReplayEventSource(spec, pace=args.pace, speed=args.speed, chunk_us=args.chunk_us)
+
+
+def _frame_source(args, t_origin_us=None):
+    spec = args.frames
+    if spec is None:
+        return None
+    if spec in ("oak", "device"):
+        from .depthai_backend import DepthaiFrameSource
+        return DepthaiFrameSource(exposure_us=args.exposure_us, iso=args.iso, frame_sync=args.frame_sync)
+    from .sources import ReplayFrameSource
+    if not Path(spec).exists():
+        raise FileNotFoundError(f"--frames {spec}: no such file (or use 'oak')")
+    return ReplayFrameSource(spec, pace=args.pace, speed=args.speed, t_origin_us=t_origin_us)
+
+
+def run_record(args) -> int:
+    from .recorder import Recorder
+    from .sources import ReplayEventSource
+    ev = _event_source(args)
+    fr = None
+    try:
+        ev.open()
+        origin = None
+        if isinstance(ev, ReplayEventSource):
+            tr = ev._reader.time_range_us if hasattr(ev._reader, "time_range_us") else None
+            origin = None if tr is None else tr[0]
+            ev.t_origin_us = origin
+        fr = _frame_source(args, origin)
+        if fr is not None:
+            fr.open()
+        rec = Recorder(args.out, ev, fr, queue_chunks=args.queue_chunks, flush_interval_s=args.flush_interval_s,
+                       on_full=args.on_full, compression=_comp(args.compression), fsync=args.fsync,
+                       progress=not args.no_progress)
+        rec.start()
+        print(f"recording to {args.out} (journal {rec.journal_path.name}); Ctrl-C to stop", file=sys.stderr)
+        try:
+            rec.wait(args.duration_s)
+        except KeyboardInterrupt:
+            print("stopping ...", file=sys.stderr)
+        st = rec.finish()
+    except BaseException:
+        for s in (ev, fr):
+            if s is not None:
+                s.close()
+        raise
+    print(f"wrote {args.out}: {st.events_written:,} events, {st.triggers_written:,} triggers, "
+          f"{st.frames_written:,} frames in {st.duration_s:.1f} s; {st.flushes} flushes")
+    if st.dropped_anything or st.frames_missing_by_sequence:
+        print(f"WARNING: dropped {st.events_dropped:,} events, {st.triggers_dropped:,} triggers, "
+              f"{st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
+              f"by sequence number", file=sys.stderr)
+    return 0
+
+
+# -- brackets ---------------------------------------------------------------------------------
+def _bracket_summary(bs) -> dict:
+    return {"images": len(bs), "encoding": bs.encoding, "shape": list(bs.images[0].shape),
+            "dtype": str(bs.images[0].dtype), "exposures_s": [float(e) for e in bs.exposures_s],
+            "files": list(bs.files), "camera": bs.camera}
+
+
+def _plot_brackets(images, exposures_s, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    k = len(images)
+    cols = min(k, 6)
+    rows = (k + cols - 1) // cols
+    fig, axes = plt.subplots(rows, cols, figsize=(2.2 * cols, 2.0 * rows), squeeze=False)
+    for ax in axes.ravel():
+        ax.axis("off")
+    for i, (im, e) in enumerate(zip(images, exposures_s)):
+        a = np.asarray(im, dtype=np.float64)
+        a = a / max(float(a.max()), 1e-12)
+        axes.ravel()[i].imshow(a, cmap="gray" if a.ndim == 2 else None, vmin=0, vmax=1)
+        axes.ravel()[i].set_title(f"{e * 1e3:.3g} ms", fontsize=8)
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def run_brackets(args) -> int:
+    if args.device == "oak":
+        if not args.exposures_us:
+            raise ValueError("--device oak needs --exposures-us (µs values to capture)")
+        if args.out is None:
+            raise ValueError("--device oak needs --out FOLDER for the bracket set")
+        from .depthai_backend import DepthaiFrameSource
+        src = DepthaiFrameSource()
+        try:
+            items, rep = src.capture_brackets(args.exposures_us, args.iso, args.frames_per_step, args.out)
+        finally:
+            src.close()
+        print(f"wrote {args.out}: {len(items)} frames; reported exposures (µs): {rep['reported_us']}; "
+              f"frames discarded while exposure changes applied: {rep['frames_discarded']}")
+        return 0
+    if args.folder is None:
+        raise ValueError("give a bracket FOLDER to read, or --device oak to capture one")
+    from .brackets import read_bracket_set, write_bracket_set
+    bs = read_bracket_set(args.folder)
+    info = _bracket_summary(bs)
+    if args.json:
+        print(json.dumps(info))
+    else:
+        print(f"{args.folder}: {info['images']} images {info['shape']} {info['dtype']}, encoding {info['encoding']}")
+        for f, e in zip(info["files"], info["exposures_s"]):
+            print(f"  {f:<32} {e:.6g} s")
+    if args.plot is not None:
+        _plot_brackets(bs.images, bs.exposures_s, args.plot)
+    if args.out is not None:
+        import numpy as np
+        if bs.images[0].dtype not in (np.uint8, np.uint16):
+            raise ValueError(f"the images are {bs.images[0].dtype} (linear RAW); a brackets.json folder stores "
+                             f"uint8/uint16 PNG codes, so keep the RAW folder as the bracket set")
+        write_bracket_set(args.out, bs.images, bs.exposures_s, encoding=bs.encoding, camera=bs.camera,
+                          iso=bs.iso, gain=bs.gain, t_us=bs.t_us)
+        print(f"wrote {args.out}")
+    return 0
+
+
+# -- sync -------------------------------------------------------------------------------------
+def _plot_sync(frames_in, frames_out, report, path):
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+    a, b = report.offset_us, 1 + report.drift_ppm * 1e-6
+    fit = a + b * frames_in.t_start_us.astype(np.float64)
+    res = frames_out.t_start_us - fit
+    fig, ax = plt.subplots(figsize=(7, 3))
+    ax.plot(frames_in.t_start_us / 1e6, res, ".", ms=3)
+    ax.set_xlabel("frame clock (s)")
+    ax.set_ylabel("exposure start − fit (µs)")
+    ax.set_title(f"drift {report.drift_ppm:.2f} ppm, jitter RMS {report.rms_us:.2f} µs")
+    fig.tight_layout()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def run_sync(args) -> int:
+    from ..container import read_recording, write_recording
+    from .sync import sync_recording
+    rec = read_recording(args.recording)
+    rec2, rep = sync_recording(rec, channel=args.trigger_channel, edge_mode=args.edge_mode, use=args.use,
+                               frame_period_us=args.frame_period_us)
+    print(rep.summary())
+    d = rep.to_dict()
+    if args.report is not None:
+        args.report.write_text(json.dumps(d, indent=1) + "\n")
+    if args.plot is not None:
+        _plot_sync(rec.frames, rec2.frames, rep, args.plot)
+    if args.out is not None:
+        write_recording(rec2, args.out)
+        print(f"wrote {args.out}")
+    print(json.dumps(d))
+    return 0
+
+
+# -- recover ----------------------------------------------------------------------------------
+def run_recover(args) -> int:
+    from .recorder import journal_path, recover
+    res = recover(args.file, args.out, compression=_comp(args.compression), progress=True)
+    print(f"recovered {res['output']}: {res['events']:,} events, {res['triggers']:,} triggers, "
+          f"{res['frames']:,} frames; {res['flushes']} flushes in the journal, "
+          f"{res['events_after_last_flush']:,} events after the last flush were intact; stopped at: "
+          f"{res['stop_reason']}")
+    if not args.keep_journal:
+        journal_path(args.file).unlink()
+    return 0
+
+
+# -- session ----------------------------------------------------------------------------------
+def run_session(args) -> int:
+    from .session import create_session, verify_session
+    if args.verify is not None:
+        res = verify_session(args.verify)
+        print(f"{args.verify}: {res['checked']} files checked; missing: {res['missing'] or 'none'}; "
+              f"changed: {[c['path'] + ' (' + c['why'] + ')' for c in res['changed']] or 'none'}; "
+              f"unlisted: {res['unlisted'] or 'none'}")
+        print("OK" if res["ok"] else "FAILED")
+        return 0 if res["ok"] else 1
+    if args.folder is None or args.recording is None:
+        raise ValueError("give the sequence FOLDER and --recording REC.h5 (or --verify DIR)")
+    out = create_session(args.folder, args.recording, calibration=args.calibration, camera_profile=args.profile,
+                         brackets=args.brackets, reference=args.reference, name=args.name, notes=args.notes)
+    print(f"wrote session {out}")
+    return 0
