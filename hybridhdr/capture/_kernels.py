@@ -45,3 +45,15 @@ def assign_slots(t, period, tol_frac, slot, status):
             status[k] = 0
             good += 1
     return good
+
+
+@njit(cache=True, nogil=True)
+def pack_columns(t, x, y, p, out_t, out_x, out_y, out_p):
+    """Copy event fields (strided views of an EVENT_DTYPE array) into contiguous columns in one
+    pass, without holding the GIL (the recorder's writer thread runs beside the sources)."""
+    for i in range(t.shape[0]):
+        out_t[i] = t[i]
+        out_x[i] = x[i]
+        out_y[i] = y[i]
+        out_p[i] = p[i]
+    return t.shape[0]

@@ -110,13 +110,16 @@ class JournalWriter:
         self.bytes_written += _HDR.size + len(payload)
 
     def write_events(self, ev: np.ndarray) -> None:
+        from ._kernels import pack_columns
         n = len(ev)
         buf = bytearray(8 + 13 * n)
         struct.pack_into("<Q", buf, 0, n)
+        cols = []
         o = 8
         for name, size in (("t", 8), ("x", 2), ("y", 2), ("p", 1)):
-            np.frombuffer(buf, dtype=ev.dtype[name], count=n, offset=o)[:] = ev[name]
+            cols.append(np.frombuffer(buf, dtype=EVENT_DTYPE[name], count=n, offset=o))
             o += size * n
+        pack_columns(ev["t"], ev["x"], ev["y"], ev["p"], *cols)
         self._record(T_EVENTS, buf)
 
     def write_triggers(self, tr: np.ndarray) -> None:

@@ -198,3 +198,19 @@ def test_sigkill_then_recover_keeps_everything_up_to_last_flush(tmp_path):
     gen = SyntheticEventSource(200_000, sensor_size=(64, 64), chunk_us=5_000, seed=7)
     assert gen.check_events(ev) == len(ev)  # exact, in order: event i is what the child generated
     assert md.provenance["recorder"]["recovered"] is True
+
+
+def test_pack_columns_kernel_matches_py_func():
+    from hybridhdr.capture._kernels import pack_columns
+    ev = SyntheticEventSource(1e6, sensor_size=(5, 7), chunk_us=20, seed=3).base
+    outs = []
+    for f in (pack_columns, pack_columns.py_func):
+        cols = [np.empty(len(ev), ev.dtype[k]) for k in ("t", "x", "y", "p")]
+        assert f(ev["t"], ev["x"], ev["y"], ev["p"], *cols) == len(ev)
+        outs.append(cols)
+    for a, b, k in zip(outs[0], outs[1], ("t", "x", "y", "p")):
+        np.testing.assert_array_equal(a, b)
+        np.testing.assert_array_equal(a, ev[k])
+    empty = ev[:0]
+    assert pack_columns(empty["t"], empty["x"], empty["y"], empty["p"],
+                        *[np.empty(0, ev.dtype[k]) for k in ("t", "x", "y", "p")]) == 0
