@@ -682,7 +682,8 @@ def recover(path, out=None, *, compression="gzip", progress: bool = False) -> di
                                 f"'hybridhdr capture record' leaves next to its output)")
     out = Path(out) if out is not None else jp.with_name(jp.name[: -len(".journal")])
     if out.exists():
-        raise FileExistsError(f"{out} already exists; pass another output name")
+        raise FileExistsError(f"{out} already exists; pass another output name (if that recording was "
+                              f"finished normally, {jp.name} is a left-over of an interrupted clean-up)")
     partial = out.with_name(out.name + ".partial")
     if partial.exists():
         partial.unlink()  # a stale, unreadable container from an interrupted finish
