@@ -52,6 +52,7 @@ __all__ = ["Board", "DISTORTION_MODELS", "CameraCalibration", "StereoCalibration
            "find_corners", "calibrate_camera", "calibrate_stereo", "plane_homography",
            "parallax_error", "stereo_rectify", "frame_to_event_maps", "warp_frame_to_event",
            "undistort_normalized", "calibrate_rig", "load_calibration", "save_calibration",
+           "plot_corners", "plot_per_view_errors", "plot_parallax",
            "CALIBRATION_FORMAT", "CALIBRATION_VERSION"]
 
 CALIBRATION_FORMAT = "hybridhdr-rig-calibration"
@@ -790,3 +791,76 @@ def calibrate_rig(images1, images2, board: Board, *, names=None, model: str = "p
     rig = RigCalibration(cals[0], cals[1], st, board, depth_m, tuple(camera_names),
                          {"hybridhdr_version": __version__, "detectors": [detector1, detector2]})
     return rig, {"corners1": c1, "corners2": c2, "names": names}
+
+
+# ----------------------------------------------------------------------------------------------
+# plots (matplotlib imported inside; each returns (fig, ax) and never calls plt.show())
+
+
+def _plt():
+    try:
+        import matplotlib
+        matplotlib.use("Agg", force=False)
+        import matplotlib.pyplot as plt
+    except ImportError as e:  # pragma: no cover
+        raise ImportError("plots need matplotlib: pip install matplotlib") from e
+    return plt
+
+
+def plot_corners(image, corners, board: Board, title: str = "", ax=None):
+    """The image with its detected corners (first corner circled, row order drawn)."""
+    plt = _plt()
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(5, 4))
+    ax.imshow(np.asarray(image), cmap="gray", interpolation="nearest")
+    if corners is not None:
+        c = np.asarray(corners).reshape(-1, 2)
+        ax.plot(c[:, 0], c[:, 1], "-", color="tab:orange", lw=0.6)
+        ax.plot(c[:, 0], c[:, 1], "+", color="tab:red", ms=5)
+        ax.plot(c[0, 0], c[0, 1], "o", mfc="none", color="tab:cyan", ms=9)
+    else:
+        ax.text(0.5, 0.5, "board not found", transform=ax.transAxes, ha="center", color="red")
+    ax.set_title(title, fontsize=8)
+    ax.set_axis_off()
+    return fig, ax
+
+
+def plot_per_view_errors(rig: RigCalibration, ax=None):
+    """Per-view RMS reprojection errors of both cameras' intrinsics and of the stereo fit."""
+    plt = _plt()
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(8, 3.5))
+    names = sorted(set(rig.camera1.views) | set(rig.camera2.views) | {r[0] for r in rig.camera1.rejected_views}
+                   | {r[0] for r in rig.camera2.rejected_views})
+    x = np.arange(len(names))
+    w = 0.4
+    for off, cam, label in ((-w / 2, rig.camera1, rig.names[0]), (w / 2, rig.camera2, rig.names[1])):
+        err = dict(zip(cam.views, cam.per_view_errors_px))
+        ax.bar(x + off, [err.get(n, np.nan) for n in names], w, label=f"{label} (RMS {cam.rms_px:.3f} px)")
+        for r in cam.rejected_views:
+            if r[0] in names:
+                ax.plot(names.index(r[0]) + off, 0, "x", color="red")
+    ax.set_xticks(x, names, rotation=90, fontsize=7)
+    ax.set_ylabel("RMS reprojection error (px)")
+    ax.set_title(f"per-view errors; stereo RMS {rig.stereo.rms_px:.3f} px; x = pruned view", fontsize=9)
+    ax.legend(fontsize=8)
+    fig.tight_layout()
+    return fig, ax
+
+
+def plot_parallax(rig: RigCalibration, depths_m=None, ax=None):
+    """Residual parallax of the frame→event homography versus scene depth."""
+    plt = _plt()
+    fig, ax = (ax.figure, ax) if ax is not None else plt.subplots(figsize=(5, 3.5))
+    if depths_m is None:
+        depths_m = np.geomspace(0.2, 200.0, 60)
+    tab = rig.parallax_table(depths_m)
+    ax.loglog(tab["depth_m"], np.maximum(tab["max_px"], 1e-3), label="max over the image")
+    ax.loglog(tab["depth_m"], np.maximum(tab["median_px"], 1e-3), label="median")
+    if rig.depth_m is not None:
+        ax.axvline(rig.depth_m, color="gray", ls=":", label=f"homography depth {rig.depth_m:g} m")
+    ax.axhline(0.5, color="red", lw=0.6, ls="--", label="0.5 px")
+    ax.set_xlabel("scene depth (m)")
+    ax.set_ylabel(f"parallax error ({rig.names[1]} px)")
+    ax.set_title(f"baseline {1000 * rig.stereo.baseline_m:.1f} mm", fontsize=9)
+    ax.legend(fontsize=7)
+    fig.tight_layout()
+    return fig, ax
