@@ -28,12 +28,13 @@ import numpy as np
 __all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench", "run_task", "write_results",
            "TIMING_COLUMNS", "METRIC_COLUMNS", "bundled_bench", "BUNDLED"]
 
-TIMING_COLUMNS = ("wall_s", "time_per_data_s", "events_per_s", "peak_rss_mb")
+TIMING_COLUMNS = ("wall_s", "time_per_data_s", "events_per_s", "peak_rss_mb", "dataset_load_s",
+                  "dataset_time_per_data_s")
 METRIC_COLUMNS = ("mse", "psnr_db", "ssim", "global_ssim", "log_mse", "log_ssim", "pu_psnr_db", "pu_ssim", "q")
 BUNDLED = ("demo", "speed_accuracy", "stability", "tiny")
 
-_BENCH_KEYS = {"name", "seed", "tolerance_us", "peak_luminance_cd_m2", "hdrvdp_dir", "strips", "fps",
-               "warmup"}
+_BENCH_KEYS = {"name", "seed", "tolerance_us", "peak_luminance_cd_m2", "hdrvdp_dir", "strips",
+               "warmup", "cache_dir"}
 _METHOD_KEYS = {"name", "method", "params", "augment", "mode", "normalise", "threshold_factor", "grid"}
 
 
@@ -50,9 +51,9 @@ class Bench:
     charts: dict = field(default_factory=dict)
     hdrvdp_dir: str | None = None
     strips: int = 4
-    fps: float | None = None
     warmup: bool = True
     source: str = ""
+    cache_dir: str | None = None
 
 
 @dataclass(frozen=True)
@@ -140,8 +141,8 @@ def parse_bench(d: dict, source: str = "") -> Bench:
     return Bench(name=str(b.get("name", Path(source).stem if source else "bench")), seed=int(b.get("seed", 0)),
                  tolerance_us=tol, peak_luminance_cd_m2=float(b.get("peak_luminance_cd_m2", 4000.0)),
                  datasets=ds, methods=ms, charts=d.get("charts", {}), hdrvdp_dir=b.get("hdrvdp_dir"),
-                 strips=int(b.get("strips", 4)), fps=b.get("fps"), warmup=bool(b.get("warmup", True)),
-                 source=str(source))
+                 strips=int(b.get("strips", 4)), warmup=bool(b.get("warmup", True)),
+                 source=str(source), cache_dir=b.get("cache_dir"))
 
 
 def _load_toml_bytes(data: bytes) -> dict:
@@ -294,14 +295,16 @@ def run_task(task, bench_opts: dict) -> list[dict]:
     rows = []
     t_load = time.perf_counter()
     try:
-        data = load_dataset(spec, seed=seed)
+        data = load_dataset(spec, seed=seed, cache_dir=bench_opts.get("cache_dir"))
         err = None
     except Exception as e:  # reported per run
         data, err = None, f"{type(e).__name__}: {e}"
     t_load = time.perf_counter() - t_load
     strip = {}
     for run in runs:
-        row = {"dataset": ds_name, "kind": spec["kind"], **{f"ds.{k}": v for k, v in ds_gv.items()},
+        variant = ds_name + ("" if not ds_gv else " [" + ", ".join(f"{k}={v}" for k, v in ds_gv.items()) + "]")
+        row = {"dataset": ds_name, "dataset_variant": variant, "kind": spec["kind"],
+               **{f"ds.{k}": v for k, v in ds_gv.items()},
                "method_label": run.label, "method_name": run.name, "method": run.method, **{f"m.{k}": v for k, v in run.grid_values.items()},
                "augment": json.dumps(run.augment, sort_keys=True) if run.augment is not None else "",
                "mode": run.mode, "normalise": run.normalise, "threshold_factor": run.threshold_factor,
@@ -338,6 +341,7 @@ def run_task(task, bench_opts: dict) -> list[dict]:
                              peak_luminance_cd_m2=float(bench_opts["peak_luminance_cd_m2"]), hdrvdp=hv)
             row.update(sc)
             row.update(wall_s=wall, time_per_data_s=wall / max(data.duration_us * 1e-6, 1e-12),
+                       dataset_time_per_data_s=t_load / max(data.duration_us * 1e-6, 1e-12),
                        events_per_s=(v.info.get("n_events_used", len(rec.events)) / wall if wall > 0 else float("nan")),
                        status="ok")
             r_img, ref_img, ldr = _strip_frame(v.frames, vi, ri, ref, rec.frames, hdr.t_us)
@@ -360,7 +364,7 @@ def run_task(task, bench_opts: dict) -> list[dict]:
 
 def _bench_opts(bench: Bench) -> dict:
     return {"seed": bench.seed, "tolerance_us": bench.tolerance_us, "peak_luminance_cd_m2": bench.peak_luminance_cd_m2,
-            "hdrvdp_dir": bench.hdrvdp_dir, "warmup": bench.warmup}
+            "hdrvdp_dir": bench.hdrvdp_dir, "warmup": bench.warmup, "cache_dir": bench.cache_dir}
 
 
 def _pool_context():
@@ -441,13 +445,13 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
 
 
 def _columns(rows):
-    first = ["task", "run", "dataset", "kind"]
+    first = ["task", "run", "dataset", "dataset_variant", "kind"]
     ds = sorted({k for r in rows for k in r if k.startswith("ds.")})
     mid = ["method_label", "method_name", "method"]
     mg = sorted({k for r in rows for k in r if k.startswith("m.")})
     rest = ["augment", "mode", "normalise", "threshold_factor", "status", "n_frames", *METRIC_COLUMNS,
-            "n_nonfinite", "gain", "offset", "reference_max", "peak_luminance_cd_m2", "dataset_seconds", "n_events",
-            *TIMING_COLUMNS, "dataset_load_s"]
+            "n_nonfinite", "gain", "offset", "exponent", "reference_max", "peak_luminance_cd_m2", "dataset_seconds",
+            "n_events", *TIMING_COLUMNS, "dataset_load_s", "dataset_time_per_data_s"]
     extra = sorted({k for r in rows for k in r} - set(first + ds + mid + mg + rest) - {"_strip"})
     return first + ds + mid + mg + rest + extra
 
@@ -488,7 +492,7 @@ def read_results(path) -> list[dict]:
             d = {}
             for k, v in r.items():
                 try:
-                    d[k] = float(v) if v not in ("",) and k not in ("dataset", "kind", "method_label", "method_name", "method",
+                    d[k] = float(v) if v not in ("",) and k not in ("dataset", "dataset_variant", "kind", "method_label", "method_name", "method",
                                                                      "augment", "mode", "normalise", "status") else v
                 except ValueError:
                     d[k] = v

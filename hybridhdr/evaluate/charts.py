@@ -56,19 +56,25 @@ def _ok(r) -> bool:
     return str(r.get("status", "")) == "ok"
 
 
-def speed_accuracy_points(rows, metric: str, datasets=None) -> list[dict]:
-    """Mean (time per second of data, metric) per ``method_label`` over ok runs of ``datasets``."""
+def speed_accuracy_points(rows, metric: str, datasets=None, *, group_by: str = "method_label",
+                          time_column: str = "time_per_data_s") -> list[dict]:
+    """Mean (time per second of data, metric) per group over ok runs of ``datasets``.
+
+    ``group_by="method_label"`` (one point per method setting, time = reconstruction) or
+    ``"dataset_variant"`` with ``time_column="dataset_time_per_data_s"`` (one point per
+    simulator setting, e.g. adaptive vs fixed sampling, time = simulation).
+    """
     groups: "OrderedDict[str, list]" = OrderedDict()
     for r in rows:
         if datasets is not None and r.get("dataset") not in datasets:
             continue
-        groups.setdefault(r["method_label"], []).append(r)
+        groups.setdefault(r.get(group_by), []).append(r)
     pts = []
     for label, rs in groups.items():
         good = [r for r in rs if _ok(r)]
-        xs = [_f(r.get("time_per_data_s")) for r in good]
+        xs = [_f(r.get(time_column)) for r in good]
         ys = [_f(r.get(metric)) for r in good]
-        pts.append({"label": label, "method": rs[0].get("method"), "x": float(np.mean(xs)) if xs else math.nan,
+        pts.append({"label": label, "method": rs[0].get("method") if group_by == "method_label" else rs[0].get("dataset"), "x": float(np.mean(xs)) if xs else math.nan,
                     "y": float(np.mean(ys)) if ys else math.nan, "n": len(good), "n_failed": len(rs) - len(good)})
     return pts
 
@@ -87,14 +93,16 @@ def pareto_front(points, lower_is_better: bool) -> list[int]:
     return front
 
 
-def plot_speed_accuracy(rows, metric: str = "ssim", datasets=None, ax=None, title: str | None = None):
+def plot_speed_accuracy(rows, metric: str = "ssim", datasets=None, ax=None, title: str | None = None, *,
+                        group_by: str = "method_label", time_column: str = "time_per_data_s",
+                        xlabel: str | None = None):
     """Speed–accuracy scatter for one metric with its Pareto front; returns (fig, ax)."""
     plt = _plt()
     if ax is None:
         fig, ax = plt.subplots(figsize=(6.4, 4.4))
     else:
         fig = ax.figure
-    pts = speed_accuracy_points(rows, metric, datasets)
+    pts = speed_accuracy_points(rows, metric, datasets, group_by=group_by, time_column=time_column)
     lower = LOWER_IS_BETTER.get(metric, False)
     methods = sorted({p["method"] for p in pts})
     cmap = plt.get_cmap("tab10")
@@ -116,7 +124,7 @@ def plot_speed_accuracy(rows, metric: str = "ssim", datasets=None, ax=None, titl
         ax.set_xscale("log")
     if metric == "mse" and finite and all(p["y"] > 0 for p in finite):
         ax.set_yscale("log")
-    ax.set_xlabel("wall time per second of data (s/s, lower = faster)")
+    ax.set_xlabel(xlabel or "wall time per second of data (s/s, lower = faster)")
     ax.set_ylabel(_LABELS.get(metric, metric) + (" ↓" if lower else " ↑"))
     ax.set_title(title or f"speed–accuracy: {metric}")
     ax.grid(True, which="both", alpha=0.3)

@@ -159,7 +159,7 @@ def run_bench_cmd(args) -> int:
     w = write_results(rows, args.out, bench)
     print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())
     print(f"\nwrote {w['csv']}, {w['report_md']}, {w['report_html']}"
-          + "".join(f", {w[k]}" for k in ("speed_accuracy", "stability") if k in w))
+          + "".join(f", {w[k]}" for k in ("speed_accuracy", "sampling", "stability") if k in w))
     bad = sum(1 for r in rows if r.get("status") != "ok")
     if bad:
         print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)

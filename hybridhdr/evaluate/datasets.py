@@ -22,12 +22,15 @@ with HDR references.
 ``file``
     ``path`` to any recording :func:`hybridhdr.read` understands, which must hold HDR references;
     ``contrast_threshold`` (log units) states the sensor's threshold for the methods.
-``ahdr`` / ``builtin``
-    The simulator (:mod:`hybridhdr.simulate`, issue 5) when it is installed: ``ahdr`` builds an
-    AHDR-style recording from an image (``image`` path or ``"procedural"``) with
-    :func:`hybridhdr.simulate.ahdr.build_ahdr`; ``builtin`` simulates a built-in Mitsuba scene
-    (``scene`` = one of ``BUILTIN_SCENES``) with :func:`hybridhdr.simulate.pipeline.simulate`.
-    A clear ImportError names what is missing otherwise.
+``sim_procedural`` / ``builtin`` / ``ahdr``
+    The simulator (:mod:`hybridhdr.simulate`, issue 5): the procedural scene through the
+    simulator's sensor, camera and adaptive sampling; a built-in Mitsuba scene; an AHDR-style
+    recording from an image. Keys in :mod:`hybridhdr.evaluate._simdata`. A clear ImportError
+    names what is missing when the simulator is not installed.
+
+Simulated datasets can be slow to build (Mitsuba renders): with ``cache_dir`` (bench key
+``cache_dir``) each is written once as a hybridhdr container named by a hash of its spec and
+seed, and read back afterwards.
 """
 
 from __future__ import annotations
@@ -42,7 +45,7 @@ from ..model import Frames, Recording
 
 __all__ = ["DATASET_KINDS", "Dataset", "load_dataset", "requantise", "add_noise_events", "PROCEDURAL_KEYS"]
 
-DATASET_KINDS = ("procedural", "file", "ahdr", "builtin")
+DATASET_KINDS = ("procedural", "file", "sim_procedural", "ahdr", "builtin")
 
 PROCEDURAL_KEYS = {
     "width": 64, "height": 48, "duration_us": 300_000, "contrast_threshold": 0.2, "frame_rate_hz": 20.0,
@@ -219,8 +222,37 @@ def _simulated(spec: dict, seed: int) -> Dataset:
     return simulated_dataset(spec, seed)
 
 
-def load_dataset(spec: dict, *, seed: int = 0) -> Dataset:
-    """Build the dataset described by ``spec`` (see the module docstring); same seed → same bits."""
+def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
+    import hashlib
+    import json
+    from pathlib import Path
+
+    from ..container import read_recording, write_recording
+    key = json.dumps({"spec": {k: v for k, v in spec.items() if k != "name"}, "seed": seed}, sort_keys=True,
+                     default=str)
+    digest = hashlib.sha1(key.encode()).hexdigest()[:16]
+    d = Path(cache_dir)
+    d.mkdir(parents=True, exist_ok=True)
+    path = d / f"{spec['kind']}_{digest}.h5"
+    meta = path.with_suffix(".json")
+    if path.is_file() and meta.is_file():
+        info = json.loads(meta.read_text())
+        return Dataset(read_recording(path), info["contrast_threshold"], info["duration_us"], info["description"])
+    data = _simulated(spec, seed)
+    write_recording(data.recording, path)  # atomic (.partial + rename)
+    tmp = meta.with_name(meta.name + ".partial")
+    tmp.write_text(json.dumps({"contrast_threshold": data.contrast_threshold, "duration_us": data.duration_us,
+                               "description": data.description}, default=str))
+    tmp.replace(meta)
+    return data
+
+
+def load_dataset(spec: dict, *, seed: int = 0, cache_dir=None) -> Dataset:
+    """Build the dataset described by ``spec`` (see the module docstring); same seed → same bits.
+
+    ``cache_dir`` caches simulated kinds on disk (procedural and file kinds are cheap and never
+    cached).
+    """
     if not isinstance(spec, dict):
         raise TypeError(f"a dataset spec must be a dict, got {type(spec).__name__}")
     kind = spec.get("kind")
@@ -230,4 +262,6 @@ def load_dataset(spec: dict, *, seed: int = 0) -> Dataset:
         return _procedural(spec, seed)
     if kind == "file":
         return _file(spec, seed)
+    if cache_dir is not None:
+        return _cached(spec, seed, cache_dir)
     return _simulated(spec, seed)

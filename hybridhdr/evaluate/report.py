@@ -155,6 +155,17 @@ def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
         for ax, m in zip(axes[0], metrics):
             plot_speed_accuracy(rows, m, sa.get("datasets"), ax=ax)
         paths["speed_accuracy"] = _save(fig, out / "speed_accuracy.png")
+    sm = charts_cfg.get("sampling")
+    if sm:
+        metrics = list(sm.get("metrics", ["mse", "ssim", "log_ssim"]))
+        fig, axes = plt.subplots(1, len(metrics), figsize=(5.6 * len(metrics), 4.4), squeeze=False)
+        for ax, m in zip(axes[0], metrics):
+            plot_speed_accuracy([r for r in rows if r.get("method_name", r.get("method")) == sm.get("method", "akf")],
+                                m, sm.get("datasets"), ax=ax, group_by="dataset_variant",
+                                time_column="dataset_time_per_data_s",
+                                xlabel="simulation wall time per second of data (s/s)",
+                                title=f"simulator sampling vs {sm.get('method', 'akf')} {m}")
+        paths["sampling"] = _save(fig, out / "sampling_speed_accuracy.png")
     st = charts_cfg.get("stability", [])
     if isinstance(st, dict):
         st = [st]
@@ -238,7 +249,8 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
                format_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
                             [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
                               f["reason"], f["nonfinite"]] for f in fails]), ""]
-    for k, title in (("speed_accuracy", "Speed–accuracy"), ("stability", "Stability")):
+    for k, title in (("speed_accuracy", "Speed–accuracy"), ("sampling", "Simulator sampling: speed–accuracy"),
+                     ("stability", "Stability")):
         if k in chart_paths:
             md += [f"## {title}", "", f"![{title}]({chart_paths[k].name})", ""]
     if strip_paths:
@@ -262,7 +274,8 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
                   _html_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
                               [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
                                 f["reason"], f["nonfinite"]] for f in fails])]
-    for k, title in (("speed_accuracy", "Speed–accuracy"), ("stability", "Stability")):
+    for k, title in (("speed_accuracy", "Speed–accuracy"), ("sampling", "Simulator sampling: speed–accuracy"),
+                     ("stability", "Stability")):
         if k in chart_paths:
             parts += [f"<h2>{title}</h2>", f'<img src="{chart_paths[k].name}" style="max-width:100%">']
     if strip_paths:

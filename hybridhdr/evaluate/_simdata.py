@@ -1,0 +1,162 @@
+"""Simulator-backed benchmark datasets (issue 5's :mod:`hybridhdr.simulate`); imported lazily.
+
+Kinds (keys besides ``kind``/``name``):
+
+``sim_procedural``
+    The analytic :class:`hybridhdr.synthetic.ProceduralScene` (bright disc over a textured
+    background) rendered through the simulator pipeline (no Mitsuba: cheap), so the sensor
+    models, the frame camera and the **adaptive time sampling** apply. Scene keys:
+    ``bright_ratio``, ``speed_px_per_s`` (or ``motion.speed_px_per_s``), ``disc_radius_px``.
+``builtin``
+    A built-in Mitsuba scene: ``scene`` (one of ``hybridhdr.simulate.builtin.BUILTIN_SCENES``),
+    ``spp``.
+``ahdr``
+    :func:`hybridhdr.simulate.ahdr.build_ahdr` on ``image`` (a path) with ``motion`` (a table).
+
+Common keys: ``width``, ``height``, ``duration_us``, ``hdr_rate_hz`` (extra ground truth at
+that rate besides the frames' mid-exposures), ``sensor`` (preset name "ideal"/"clean"/"noisy"
+or a table of ``EventSensorParams`` fields), ``camera`` (table of ``FrameCameraParams``; default
+20 Hz, 5 ms, 8-bit gamma), ``sampling`` (table of ``SamplingParams``, e.g. ``mode = "fixed"``,
+``fixed_rate_hz``), ``exposure_scale`` (multiplies the camera's electrons per radiance·s),
+``contrast_threshold`` (sets the sensor's ON and OFF thresholds), and dotted overrides
+``sensor.X``, ``camera.X``, ``sampling.X`` (as the stability sweeps produce).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+
+from ..events import SensorSize
+from .datasets import Dataset
+
+_COMMON = {"width", "height", "duration_us", "hdr_rate_hz", "sensor", "camera", "sampling", "exposure_scale",
+           "contrast_threshold", "seed_offset"}
+_KIND_KEYS = {"sim_procedural": {"bright_ratio", "speed_px_per_s", "disc_radius_px"},
+              "builtin": {"scene", "spp"}, "ahdr": {"image", "motion"}}
+
+
+class ProceduralSource:
+    """:class:`hybridhdr.synthetic.ProceduralScene` as a ``RadianceSource`` (simulate/source.py)."""
+
+    def __init__(self, scene, duration_us: int):
+        self.scene = scene
+        self.sensor_size = scene.sensor_size
+        self.duration_us = int(duration_us)
+        self.renders = 0
+
+    def render(self, t_us: int) -> np.ndarray:
+        self.renders += 1
+        return self.scene.intensity(int(t_us)).astype(np.float32)
+
+    def max_image_speed_px_per_s(self, t0_us: int, t1_us: int) -> float:
+        # the disc moves at speed_px_per_s; the background grating drifts by at most
+        # 0.7 rad/s · 23 px / 2π ≈ 2.6 px/s
+        return float(self.scene.speed_px_per_s) + 2.6
+
+    def describe(self) -> dict:
+        s = self.scene
+        return {"source": "hybridhdr.synthetic.ProceduralScene", "bright_ratio": s.bright_ratio,
+                "speed_px_per_s": s.speed_px_per_s, "disc_radius_px": s.disc_radius_px,
+                "background": s.background}
+
+
+def _split(spec: dict) -> tuple[dict, dict]:
+    """Flat keys and dotted overrides (``sensor.X`` ...) -> (flat, {"sensor": {...}, ...})."""
+    flat, dotted = {}, {"sensor": {}, "camera": {}, "sampling": {}, "motion": {}}
+    for k, v in spec.items():
+        if "." in k:
+            head, tail = k.split(".", 1)
+            if head not in dotted:
+                raise ValueError(f"dataset key {k!r}: the prefix must be sensor., camera., sampling. or motion.")
+            dotted[head][tail] = v
+        else:
+            flat[k] = v
+    return flat, dotted
+
+
+def _params(cls, base, over: dict, what: str):
+    names = {f.name for f in dataclasses.fields(cls)}
+    bad = sorted(set(over) - names)
+    if bad:
+        raise ValueError(f"unknown {what} parameter(s) {bad}; expected some of {sorted(names)}")
+    return dataclasses.replace(base, **over) if over else base
+
+
+def simulated_dataset(spec: dict, seed: int) -> Dataset:
+    from ..simulate.camera import FrameCameraParams
+    from ..simulate.pipeline import simulate
+    from ..simulate.sampling import SamplingParams
+    from ..simulate.sensor import EventSensorParams, sensor_preset
+    kind = spec["kind"]
+    if kind not in _KIND_KEYS:
+        raise ValueError(f"unknown simulated dataset kind {kind!r}")
+    flat, dotted = _split({k: v for k, v in spec.items() if k not in ("kind", "name")})
+    bad = sorted(set(flat) - _COMMON - _KIND_KEYS[kind])
+    if bad:
+        raise ValueError(f"unknown {kind!r} dataset key(s) {bad}; expected some of "
+                         f"{sorted(_COMMON | _KIND_KEYS[kind])} or sensor.X / camera.X / sampling.X")
+    w, h = int(flat.get("width", 64)), int(flat.get("height", 48))
+    dur = int(flat.get("duration_us", 300_000))
+    sens = flat.get("sensor", "clean")
+    sensor = sensor_preset(sens) if isinstance(sens, str) else _params(EventSensorParams, EventSensorParams(),
+                                                                          dict(sens), "sensor")
+    s_over = dict(dotted["sensor"])
+    if "contrast_threshold" in flat:
+        c = float(flat["contrast_threshold"])
+        s_over.setdefault("contrast_threshold_on", c)
+        s_over.setdefault("contrast_threshold_off", c)
+    sensor = _params(EventSensorParams, sensor, s_over, "sensor")
+    k = dotted["camera"].pop("exposure_scale", None)
+    k = float(flat.get("exposure_scale", 1.0 if k is None else k))
+    if not k > 0:
+        raise ValueError(f"exposure_scale must be > 0, got {k}")
+    cam_base = FrameCameraParams(frame_rate_hz=20.0, exposure_us=5_000, crf="gamma")
+    camera = _params(FrameCameraParams, cam_base, {**dict(flat.get("camera", {})), **dotted["camera"]}, "camera")
+    if k != 1.0:
+        camera = dataclasses.replace(camera, electrons_per_radiance_s=camera.electrons_per_radiance_s * k)
+    sampling = _params(SamplingParams, SamplingParams(), {**dict(flat.get("sampling", {})), **dotted["sampling"]},
+                       "sampling")
+    gt = None
+    if flat.get("hdr_rate_hz"):
+        gt = np.unique(np.round(np.arange(0, dur + 1, 1e6 / float(flat["hdr_rate_hz"]))).astype(np.int64))
+    if kind == "sim_procedural":
+        from ..synthetic import ProceduralScene
+        speed = dotted["motion"].get("speed_px_per_s", flat.get("speed_px_per_s", 150.0))
+        scene = ProceduralScene(SensorSize(h, w), bright_ratio=float(flat.get("bright_ratio", 1e3)),
+                                disc_radius_px=float(flat.get("disc_radius_px", 8.0)), speed_px_per_s=float(speed))
+        source = ProceduralSource(scene, dur)
+    elif kind == "builtin":
+        from ..simulate.builtin import builtin_scene
+        from ..simulate.render import MitsubaSource
+        if "scene" not in flat:
+            raise ValueError("a 'builtin' dataset needs 'scene' (a built-in scene name)")
+        sc = builtin_scene(str(flat["scene"]), width=w, height=h, duration_s=dur / 1e6,
+                           spp=flat.get("spp"))
+        source = MitsubaSource(sc)
+    else:
+        try:
+            from ..simulate.ahdr import build_ahdr
+        except ImportError as e:
+            raise ImportError(f"dataset kind 'ahdr' needs hybridhdr.simulate.ahdr (issue 5), not available: {e}") from e
+        if "image" not in flat:
+            raise ValueError("an 'ahdr' dataset needs 'image' (an image path)")
+        rec = build_ahdr(flat["image"], sensor_size=SensorSize(h, w), duration_us=dur,
+                         motion=dict(flat.get("motion", {})) or None, seed=seed)
+        c = flat.get("contrast_threshold")
+        return Dataset(rec, None if c is None else float(c), dur,
+                       {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
+                        "events": int(len(rec.events))})
+    res = simulate(source, sensor=sensor, camera=camera, sampling=sampling, gt_times_us=gt,
+                   seed=int(seed) + int(flat.get("seed_offset", 0)), progress=False)
+    rec = res.recording
+    c_nominal = 0.5 * (sensor.contrast_threshold_on + sensor.contrast_threshold_off)
+    frames = rec.frames
+    desc = {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
+            "events": int(len(rec.events)), "renders": int(res.renders),
+            "simulate_wall_s": float(res.stats.get("wall_s", float("nan")))}
+    if frames is not None and len(frames):
+        top = np.iinfo(frames.images.dtype).max if frames.images.dtype.kind == "u" else 1.0
+        desc["saturated_fraction"] = float(np.mean(frames.images >= top))
+    return Dataset(rec, float(c_nominal), dur, desc)
