@@ -81,6 +81,7 @@ def _params(cls, base, over: dict, what: str):
     bad = sorted(set(over) - names)
     if bad:
         raise ValueError(f"unknown {what} parameter(s) {bad}; expected some of {sorted(names)}")
+    over = {k: tuple(v) if isinstance(v, list) else v for k, v in over.items()}
     return dataclasses.replace(base, **over) if over else base
 
 

@@ -322,7 +322,7 @@ def run_task(task, bench_opts: dict) -> list[dict]:
             if bench_opts.get("warmup", True):
                 _warmup(run)
             params = _method_params(run, data.contrast_threshold)
-            first = int(rec.frames.t_start_us.min()) if rec.frames is not None and len(rec.frames) else None
+            first = int(rec.frames.t_mid_us.min()) if rec.frames is not None and len(rec.frames) else None
             times = hdr.t_us if first is None else hdr.t_us[hdr.t_us >= first]
             if run.method == "highpass":
                 times = times[times > int(rec.events["t"][0])] if len(rec.events) else times
