@@ -1,0 +1,636 @@
+"""HDR references: merge exposure brackets into radiance, write OpenEXR, register to LDR frames.
+
+**Merge** (:func:`merge_brackets`).
+
+* Coded brackets (8/16-bit with a CRF): Debevec & Malik's weighted average **in the log
+  domain** (SIGGRAPH 1997, doi:10.1145/258734.258884, eq. 6)::
+
+      ln E = sum_j w(z_j) (g(z_j) - ln t_j) / sum_j w(z_j)
+
+  with ``w`` the certainty function f_w of the CRF (:func:`~hybridhdr.calibrate.noise_profile.certainty`,
+  0 at clipped codes), or Debevec's hat (``weighting="hat"``).
+* Linear/RAW brackets (no CRF): the maximum-likelihood estimate under Poisson (shot) noise,
+  **in the linear domain**: ``E = sum_j x_j / sum_j t_j`` over the exposures where the pixel is
+  not saturated (calibration.md, "HDR merge": zero weight at saturation).
+* A pixel with no usable exposure takes the shortest exposure if it is clipped white in every
+  image (a lower bound) and the longest if it is black in every image (an upper bound); the
+  count of such pixels is reported.
+
+The radiance is relative (``E`` in units of the CRF's ``g(z_mid) = 0`` per second), float32.
+
+**Registration** (:func:`register`): both images are mapped to a common photometric space --
+the reference's log radiance is histogram-matched to the frame's codes (a monotonic map, as a
+CRF is; no exposure or response needs to be known) -- then keypoints are detected (SURF from
+mahotas, or OpenCV's when a non-free build is present; SIFT with ``features="sift"``),
+matched with Lowe's ratio test (IJCV 2004, doi:10.1023/B:VISI.0000029664.99615.94), a
+homography is fitted with ``cv2.findHomography(..., cv2.USAC_MAGSAC)`` and optionally refined
+by ECC (Evangelidis & Psarakis, PAMI 2008, doi:10.1109/TPAMI.2008.113;
+``cv2.findTransformECC`` with ``MOTION_HOMOGRAPHY``, which is invariant to gain and offset).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from .crf import CRF, check_brackets, hat_weight
+
+__all__ = ["merge_brackets", "write_exr", "read_exr_rgb", "read_rgbe", "corner_error", "register", "Registration", "RegistrationParams",
+           "warp_reference", "to_grey", "photometric_match", "surf_backend", "FEATURES",
+           "register_recording"]
+
+FEATURES = ("surf", "sift")
+
+
+# -- merge -----------------------------------------------------------------------------------
+def merge_brackets(images, exposures_s=None, crf: CRF | None = None, *, weighting: str = "certainty",
+                   encoding: str | None = None, camera: dict | None = None, info: dict | None = None) -> np.ndarray:
+    """Merge brackets into float32 relative radiance of shape (H, W) or (H, W, 3).
+
+    Parameters
+    ----------
+    images : sequence of arrays or a BracketSet (then ``exposures_s=None``)
+    exposures_s : (K,) seconds
+    crf : CRF, optional
+        Required for coded (gamma/unknown) brackets; omitted for "raw"/"linear" BracketSets,
+        which are merged linearly.
+    weighting : {"certainty", "hat"}
+        Weight per code for the log-domain merge.
+    info : dict, optional
+        Filled with ``n_clipped_white``, ``n_clipped_black`` (pixels without a usable exposure).
+    """
+    bs = None
+    if hasattr(images, "images") and hasattr(images, "exposures_s") and exposures_s is None:
+        bs = images
+        encoding = bs.encoding if encoding is None else encoding
+    info = {} if info is None else info
+    if crf is None:
+        if bs is None or bs.encoding not in ("raw", "linear"):
+            raise ValueError("merging coded brackets needs a CRF (hybridhdr calibrate crf); only 'raw'/'linear' "
+                             f"BracketSets merge without one, got encoding {encoding!r}")
+        return _merge_linear(bs.linear_stack(), bs.exposures_s, bs.saturated(), info)
+    stack, ex, n = check_brackets(bs if bs is not None else images, None if bs is not None else exposures_s)
+    if n != crf.max_code + 1:
+        raise ValueError(f"the CRF has {crf.max_code + 1} codes but the brackets use {n}")
+    C = stack.shape[3]
+    if crf.n_channels not in (1, C):
+        raise ValueError(f"the CRF has {crf.n_channels} channels, the brackets {C}")
+    if weighting == "certainty":
+        from .noise_profile import certainty
+        W = certainty(crf)
+    elif weighting == "hat":
+        W = np.tile(hat_weight(n), (crf.n_channels, 1))
+    else:
+        raise ValueError(f"weighting must be 'certainty' or 'hat', got {weighting!r}")
+    ln_t = np.log(ex)
+    out = np.empty(stack.shape[1:], np.float32)
+    i_long, i_short = int(np.argmax(ex)), int(np.argmin(ex))
+    nw = nb = 0
+    for c in range(C):
+        cc = c if crf.n_channels > 1 else 0
+        g, w = crf.log_inverse[cc], W[cc]
+        num = np.zeros(stack.shape[1:3])
+        den = np.zeros(stack.shape[1:3])
+        for k in range(stack.shape[0]):
+            z = stack[k, ..., c]
+            wk = w[z]
+            num += wk * (g[z] - ln_t[k])
+            den += wk
+        lnE = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+        bad = den <= 0
+        if bad.any():
+            white = bad & (stack[i_short, ..., c] >= n // 2)
+            black = bad & ~white
+            zs, zl = stack[i_short, ..., c], stack[i_long, ..., c]
+            lnE[white] = g[zs[white]] - ln_t[i_short]
+            lnE[black] = g[zl[black]] - ln_t[i_long]
+            nw += int(white.sum())
+            nb += int(black.sum())
+        out[..., c] = np.exp(lnE)
+    info.update(domain="log", weighting=weighting, n_clipped_white=nw, n_clipped_black=nb)
+    return out[..., 0] if C == 1 and np.asarray(stack).shape[-1] == 1 and _is_grey(images) else out
+
+
+def _is_grey(images) -> bool:
+    im = images.images[0] if hasattr(images, "images") else np.asarray(images[0])
+    return np.asarray(im).ndim == 2
+
+
+def _merge_linear(lin: np.ndarray, ex: np.ndarray, sat: np.ndarray, info: dict) -> np.ndarray:
+    t = ex.reshape((-1,) + (1,) * (lin.ndim - 1))
+    ok = ~sat
+    num = (lin * ok).sum(axis=0, dtype=np.float64)
+    den = (t * ok).sum(axis=0, dtype=np.float64)
+    E = np.divide(num, den, out=np.zeros_like(num), where=den > 0)
+    none = den <= 0
+    i_short = int(np.argmin(ex))
+    E[none] = lin[i_short][none] / ex[i_short]
+    info.update(domain="linear", weighting="poisson-ml", n_clipped_white=int(none.sum()), n_clipped_black=0)
+    return E.astype(np.float32)
+
+
+# -- EXR -------------------------------------------------------------------------------------
+def write_exr(path, image) -> Path:
+    """Write float32 (H, W) as channel "Y" or (H, W, 3) as "RGB" to OpenEXR (ZIP), atomically."""
+    try:
+        import OpenEXR
+    except ImportError as e:  # pragma: no cover
+        raise ImportError("writing EXR needs the OpenEXR package (pip install OpenEXR)") from e
+    from ..reconstruct.output import _atomic_target, _cleanup, _finish
+    im = np.ascontiguousarray(image, dtype=np.float32)
+    if im.ndim == 2:
+        ch = {"Y": im}
+    elif im.ndim == 3 and im.shape[2] == 3:
+        ch = {"RGB": im}
+    else:
+        raise ValueError(f"EXR image must be (H, W) or (H, W, 3), got {im.shape}")
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    tmp = _atomic_target(path, ".exr")
+    try:
+        OpenEXR.File(header, ch).write(tmp)
+        _finish(tmp, path)
+    except BaseException:
+        _cleanup(tmp)
+        raise
+    return path
+
+
+def read_exr_rgb(path) -> np.ndarray:
+    """Read an EXR written by :func:`write_exr` (RGB or Y) as float32."""
+    import OpenEXR
+    with OpenEXR.File(str(path)) as f:
+        chans = f.channels()
+        if "RGB" in chans:
+            return np.asarray(chans["RGB"].pixels, np.float32)
+        if "Y" in chans:
+            return np.asarray(chans["Y"].pixels, np.float32)
+        if all(k in chans for k in "RGB"):
+            return np.stack([np.asarray(chans[k].pixels, np.float32) for k in "RGB"], axis=-1)
+    raise ValueError(f"{path}: no 'RGB' or 'Y' channel, found {sorted(chans)}")
+
+
+def read_rgbe(path, *, repair_newlines: bool = True) -> np.ndarray:
+    """Read a Radiance RGBE ``.hdr`` file (flat or new-style run-length encoded) as float32 (H, W, 3).
+
+    Format: Ward, "Real Pixels", Graphics Gems II (1991): a text header ended by a blank line, a
+    resolution line (``-Y H +X W``: rows top to bottom), then per scanline either flat RGBE
+    quadruples or, when it starts with bytes 2, 2, the four components run-length encoded
+    separately. Value = mantissa * 2^(E - 136). (OpenCV rejects files whose first header
+    line is not ``#?RADIANCE``, such as Debevec's ``memorial.hdr``.)
+
+    ``repair_newlines``: a file that went through a text-mode copy (every CR and LF byte turned
+    into CR LF, so no lone CR is left -- the state of ``shared/data/brackets/memorial/memorial.hdr``,
+    which OpenCV refuses with "bad scanline data") is decoded by searching, scanline by scanline,
+    for the reading of each CR LF as an original 10, 13 or 13 10 under which every run-length
+    component sums to the width and the next scanline header is valid (a depth-first search with
+    memoised dead ends). Bytes 10 and 13 inside literal runs cannot be told apart after the
+    damage; such values take 10, a mantissa error of at most 3/256 on a few pixels.
+    """
+    from ..errors import FormatError
+    data = Path(path).read_bytes()
+    cands = [(i, len(sep)) for sep in (b"\n\n", b"\n\r\n") if (i := data.find(sep)) >= 0]
+    if not cands:
+        raise FormatError(path, "not a Radiance RGBE file (no blank line ending the header)")
+    pos, seplen = min(cands)
+    if b"FORMAT=32-bit_rle_rgbe" not in data[:pos]:
+        raise FormatError(path, "not a Radiance RGBE file (no FORMAT=32-bit_rle_rgbe header)")
+    end = data.find(b"\n", pos + seplen)
+    res = data[pos + seplen:end].split()
+    if len(res) != 4 or res[0] != b"-Y" or res[2] != b"+X":
+        raise FormatError(path, f"only the standard '-Y H +X W' orientation is supported, got {res!r}")
+    h, w = int(res[1]), int(res[3])
+    p = end + 1
+    try:
+        out = _rgbe_strict(data, p, h, w)
+    except ValueError as err:
+        if not repair_newlines or data.count(b"\r") != data.count(b"\r\n") or not data.count(b"\r\n"):
+            raise FormatError(path, f"{err}") from None
+        out = _rgbe_repair(data, p, h, w)
+        if out is None:
+            raise FormatError(path, f"{err}; the newline repair found no consistent decoding either") from None
+    e = out[..., 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0)
+    return (out[..., :3].astype(np.float64) * scale[..., None]).astype(np.float32)
+
+
+def _rgbe_strict(data: bytes, p: int, h: int, w: int) -> np.ndarray:
+    buf = np.frombuffer(data, np.uint8)
+    out = np.empty((h, w, 4), np.uint8)
+    for y in range(h):
+        if p + 4 > buf.size:
+            raise ValueError(f"file ends in scanline {y}")
+        if 8 <= w < 32768 and buf[p] == 2 and buf[p + 1] == 2 and (int(buf[p + 2]) << 8 | int(buf[p + 3])) == w:
+            p += 4
+            for c in range(4):
+                x = 0
+                while x < w:
+                    if p >= buf.size:
+                        raise ValueError(f"file ends in scanline {y}")
+                    n = int(buf[p])
+                    if n > 128:
+                        n -= 128
+                        if x + n > w:
+                            raise ValueError(f"bad scanline data: run of {n} overruns scanline {y} at byte {p}")
+                        out[y, x:x + n, c] = buf[p + 1]
+                        p += 2
+                    else:
+                        if n == 0 or x + n > w:
+                            raise ValueError(f"bad scanline data: literal of {n} overruns scanline {y} at byte {p}")
+                        out[y, x:x + n, c] = buf[p + 1:p + 1 + n]
+                        p += 1 + n
+                    x += n
+        else:
+            if p + 4 * w > buf.size:
+                raise ValueError(f"file ends in scanline {y}")
+            out[y] = buf[p:p + 4 * w].reshape(w, 4)
+            p += 4 * w
+    return out
+
+
+def _rgbe_repair(d: bytes, p: int, h: int, w: int):
+    """Decode run-length RGBE damaged by CR/LF -> CR LF conversion (see :func:`read_rgbe`)."""
+    import sys
+    L = len(d)
+
+    def opts1(q):
+        # (end, value) readings of one clean byte at damaged offset q
+        if q >= L:
+            return ()
+        c = d[q]
+        if c == 13:
+            return ((q + 2, 10), (q + 2, 13), (q + 1, 13))  # 10, 13, or the 13 of an original 13 10
+        if c == 10:
+            return ((q + 1, 10),) if q > 0 and d[q - 1] == 13 else ()
+        return ((q + 1, c),)
+
+    arr = np.frombuffer(d, np.uint8)
+    ncr = np.concatenate([[0], np.cumsum(arr == 13)])  # ncr[i] = number of CR bytes in d[:i]
+
+    def take(q, n):
+        # {end: clean bytes} for reading n clean bytes from damaged offset q. A CR LF pair fully
+        # inside [q, e) reads as 1 byte (10) or 2 (13 10); a CR just before e is a 13 whose LF
+        # starts the next read. So e is reachable iff 0 <= (e - q - n) <= pairs inside.
+        if q + n <= L and d.find(b"\r", q, q + n) < 0 and d.find(b"\n", q, q + n) < 0:
+            return {q + n: d[q:q + n]}
+        if q < L and d[q] == 10 and not (q > 0 and d[q - 1] == 13):
+            return {}
+        res = {}
+        c0 = int(ncr[q])
+        for e in range(min(q + 2 * n, L), q + n - 1, -1):
+            singles = e - q - n
+            if singles <= int(ncr[max(e - 1, q)]) - c0:
+                res[e] = _Lazy(q, e, singles)
+        return res
+
+    class _Lazy:
+        # the clean bytes of d[q:e] with the first `singles` CR LF pairs read as one byte
+        __slots__ = ("q", "e", "singles")
+
+        def __init__(self, q, e, singles):
+            self.q, self.e, self.singles = q, e, singles
+
+        def get(self):
+            seg = arr[self.q:self.e]
+            if self.singles:
+                seg = np.delete(seg, np.flatnonzero(seg[:-1] == 13)[:self.singles])
+            return seg
+
+        def __getitem__(self, i):
+            return int(self.get()[i])
+
+    def headers(q):
+        return [e for e, hb in take(q, 4).items() if hb[0] == 2 and hb[1] == 2 and (hb[2] << 8 | hb[3]) == w]
+
+    out = np.zeros((h, w, 4), np.uint8)
+    fail: set = set()
+
+    def comp(q, y, c, x, last):
+        key = (q, c, x)
+        if key in fail:
+            return None
+        if x == w:
+            if c == 3:
+                r = (q if L - q < 8 else None) if last else (q if headers(q) else None)
+            else:
+                r = comp(q, y, c + 1, 0, last)
+            if r is None:
+                fail.add(key)
+            return r
+        for q1, n in opts1(q):
+            if n > 128:
+                n -= 128
+                if x + n > w:
+                    continue
+                for q2, val in opts1(q1):
+                    r = comp(q2, y, c, x + n, last)
+                    if r is not None:
+                        out[y, x:x + n, c] = val
+                        return r
+            else:
+                if n == 0 or x + n > w:
+                    continue
+                for q2, vals in take(q1, n).items():
+                    r = comp(q2, y, c, x + n, last)
+                    if r is not None:
+                        out[y, x:x + n, c] = np.frombuffer(vals, np.uint8) if isinstance(vals, bytes) else vals.get()
+                        return r
+        fail.add(key)
+        return None
+
+    old = sys.getrecursionlimit()
+    sys.setrecursionlimit(max(old, 4 * w + 4 * 1024))
+    try:
+        for y in range(h):
+            fail.clear()
+            nxt = None
+            for ph in headers(p):
+                nxt = comp(ph, y, 0, 0, y == h - 1)
+                if nxt is not None:
+                    break
+            if nxt is None:
+                return None
+            p = nxt
+    finally:
+        sys.setrecursionlimit(old)
+    return out
+
+
+# -- registration ----------------------------------------------------------------------------
+def to_grey(img) -> np.ndarray:
+    """Rec. 709 luminance of (H, W, 3), float64; (H, W) passes through as float64."""
+    a = np.asarray(img, dtype=np.float64)
+    if a.ndim == 3:
+        return a @ np.array([0.2126, 0.7152, 0.0722])
+    return a
+
+
+def photometric_match(reference: np.ndarray, frame: np.ndarray, valid=None) -> np.ndarray:
+    """The reference's log radiance mapped monotonically onto the frame's value distribution.
+
+    Quantile (histogram) matching: the k-th percentile of ``log reference`` goes to the k-th
+    percentile of ``frame``. A camera response is monotonic, so for a small misalignment this
+    reproduces the frame's rendition of the reference, clipping included. Returns float64
+    (H, W) in the frame's units.
+    """
+    r = np.log(np.maximum(to_grey(reference), 1e-12))
+    f = to_grey(frame)
+    rv = r if valid is None else r[valid]
+    q = np.linspace(0, 100, 1025)
+    rq = np.percentile(rv[np.isfinite(rv)], q)
+    fq = np.percentile(f, q)
+    rq, idx = np.unique(rq, return_index=True)
+    return np.interp(r, rq, fq[idx])
+
+
+def _u8(img: np.ndarray) -> np.ndarray:
+    a = np.asarray(img, np.float64)
+    lo, hi = np.percentile(a, [0.1, 99.9])
+    if hi <= lo:
+        hi = lo + 1.0
+    return np.clip(np.round(255.0 * (a - lo) / (hi - lo)), 0, 255).astype(np.uint8)
+
+
+def surf_backend() -> str:
+    """"opencv" when ``cv2.xfeatures2d.SURF_create`` works (non-free build), else "mahotas"."""
+    try:
+        import cv2
+        cv2.xfeatures2d.SURF_create(400)
+        return "opencv"
+    except Exception:
+        pass
+    try:
+        import mahotas.features.surf  # noqa: F401
+        return "mahotas"
+    except ImportError:
+        return "none"
+
+
+@dataclass(frozen=True, kw_only=True)
+class RegistrationParams:
+    """Keypoint registration and ECC refinement settings.
+
+    features : "surf" (Bay et al., CVIU 2008, doi:10.1016/j.cviu.2007.09.014) or "sift".
+    ratio : Lowe's ratio test threshold (0.75 in calibration.md's comparison; Lowe used 0.8).
+    ransac_px : MAGSAC/RANSAC reprojection threshold in pixels (3 in calibration.md).
+    ecc : refine with ECC; ecc_iterations / ecc_eps its stopping criteria; ecc_blur_px the
+        Gaussian pre-filter size (odd, 0 = none).
+    surf_threshold, max_points : mahotas SURF detector threshold and point budget.
+    """
+
+    features: str = "surf"
+    ratio: float = 0.75
+    ransac_px: float = 3.0
+    ecc: bool = True
+    ecc_iterations: int = 100
+    ecc_eps: float = 1e-6
+    ecc_blur_px: int = 5
+    surf_threshold: float = 0.05
+    max_points: int = 4000
+    min_inliers: int = 12
+
+    def __post_init__(self):
+        if self.features not in FEATURES:
+            raise ValueError(f"features must be one of {FEATURES}, got {self.features!r}")
+        if not 0 < self.ratio < 1:
+            raise ValueError(f"ratio must be in (0, 1), got {self.ratio}")
+        if not self.ransac_px > 0:
+            raise ValueError(f"ransac_px must be > 0, got {self.ransac_px}")
+        if self.ecc_blur_px < 0 or (self.ecc_blur_px and self.ecc_blur_px % 2 == 0):
+            raise ValueError(f"ecc_blur_px must be 0 or odd, got {self.ecc_blur_px}")
+
+
+@dataclass(frozen=True)
+class Registration:
+    """Result of :func:`register`: ``homography`` maps reference pixel (x, y, 1) to frame pixels."""
+
+    homography: np.ndarray
+    n_keypoints: tuple
+    n_matches: int
+    n_inliers: int
+    reprojection_px: float
+    ecc_correlation: float | None
+    time_s: float
+    backend: str
+    info: dict = field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return {"homography": self.homography.tolist(), "n_keypoints": list(self.n_keypoints),
+                "n_matches": self.n_matches, "n_inliers": self.n_inliers,
+                "reprojection_px": self.reprojection_px, "ecc_correlation": self.ecc_correlation,
+                "time_s": self.time_s, "backend": self.backend, **self.info}
+
+
+def _detect(img_u8: np.ndarray, p: RegistrationParams, backend: str):
+    """Keypoints (N, 2) as (x, y) and float32 descriptors (N, D)."""
+    import cv2
+    if p.features == "sift":
+        det = cv2.SIFT_create(nfeatures=p.max_points)
+        kps, des = det.detectAndCompute(img_u8, None)
+        pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        return pts, (des if des is not None else np.zeros((0, 128), np.float32)).astype(np.float32), None
+    if backend == "opencv":  # pragma: no cover - needs a non-free OpenCV build
+        det = cv2.xfeatures2d.SURF_create(400)
+        kps, des = det.detectAndCompute(img_u8, None)
+        pts = np.array([k.pt for k in kps], np.float32).reshape(-1, 2)
+        return pts, des.astype(np.float32), None
+    if backend != "mahotas":
+        raise ImportError("SURF needs mahotas (pip install mahotas) or a non-free OpenCV build; use features='sift'")
+    from mahotas.features import surf
+    r = surf.surf(img_u8.astype(np.float64), threshold=p.surf_threshold, max_points=p.max_points,
+                  descriptor_only=False)
+    # columns: y, x, scale, score, laplacian, angle, descriptor[64]
+    pts = np.ascontiguousarray(r[:, [1, 0]], np.float32)
+    return pts, np.ascontiguousarray(r[:, 6:], np.float32), r[:, 4]
+
+
+def _match(d1, d2, ratio, lap1=None, lap2=None):
+    import cv2
+    if len(d1) < 2 or len(d2) < 2:
+        return np.zeros((0, 2), np.int64)
+    bf = cv2.BFMatcher(cv2.NORM_L2)
+    knn = bf.knnMatch(d1, d2, k=2)
+    pairs = []
+    for m in knn:
+        if len(m) == 2 and m[0].distance < ratio * m[1].distance:
+            if lap1 is not None and lap1[m[0].queryIdx] != lap2[m[0].trainIdx]:
+                continue
+            pairs.append((m[0].queryIdx, m[0].trainIdx))
+    return np.array(pairs, np.int64).reshape(-1, 2)
+
+
+def register(reference: np.ndarray, frame: np.ndarray, params: RegistrationParams | None = None, *,
+             valid=None) -> Registration:
+    """Homography from the HDR ``reference`` (radiance, any scale) to an LDR ``frame`` (codes).
+
+    Raises ValueError when fewer than ``min_inliers`` matches survive (e.g. unrelated images).
+    """
+    import cv2
+    p = params or RegistrationParams()
+    t0 = time.perf_counter()
+    ref = np.asarray(reference)
+    frm = np.asarray(frame)
+    if ref.shape[:2] != frm.shape[:2] and min(ref.shape[:2] + frm.shape[:2]) < 16:
+        raise ValueError(f"images too small to register: reference {ref.shape}, frame {frm.shape}")
+    fgrey = to_grey(frm)
+    rmatch = photometric_match(ref, fgrey, valid)
+    a, b = _u8(rmatch), _u8(fgrey)
+    lo, hi = np.percentile(fgrey, [0.1, 99.9])
+    a = np.clip(np.round(255.0 * (rmatch - lo) / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+    backend = "sift" if p.features == "sift" else surf_backend()
+    pa, da, la = _detect(a, p, backend)
+    pb, db, lb = _detect(b, p, backend)
+    pairs = _match(da, db, p.ratio, la, lb)
+    if len(pairs) < max(4, p.min_inliers):
+        raise ValueError(f"registration failed: {len(pairs)} keypoint matches after the ratio test "
+                         f"(need >= {max(4, p.min_inliers)}); keypoints {len(pa)} / {len(pb)}")
+    src, dst = pa[pairs[:, 0]], pb[pairs[:, 1]]
+    method = getattr(cv2, "USAC_MAGSAC", cv2.RANSAC)
+    H, inl = cv2.findHomography(src, dst, method, p.ransac_px, maxIters=10000, confidence=0.9999)
+    if H is None or inl is None or int(inl.sum()) < p.min_inliers:
+        raise ValueError(f"registration failed: {0 if inl is None else int(inl.sum())} homography inliers of "
+                         f"{len(pairs)} matches (need >= {p.min_inliers})")
+    inl = inl.ravel().astype(bool)
+    # least-squares polish on the inliers (MAGSAC's model is fitted on a minimal/weighted set)
+    H2, _ = cv2.findHomography(src[inl], dst[inl], 0)
+    if H2 is not None:
+        H = H2
+    H = H / H[2, 2]
+    proj = cv2.perspectiveTransform(src[inl].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
+    rep = float(np.sqrt(np.mean(np.sum((proj - dst[inl]) ** 2, axis=1))))
+    corr = None
+    info = {}
+    if p.ecc:
+        H, corr, ok = _ecc(rmatch, fgrey, H, p)
+        info["ecc_converged"] = ok
+    return Registration(H, (len(pa), len(pb)), int(len(pairs)), int(inl.sum()), rep, corr,
+                        time.perf_counter() - t0, backend, info)
+
+
+def _ecc(ref_matched: np.ndarray, frame: np.ndarray, H: np.ndarray, p: RegistrationParams):
+    """Refine ``H`` (reference -> frame) by ECC between the photometrically matched images."""
+    import cv2
+    tmpl = frame.astype(np.float32)
+    inp = ref_matched.astype(np.float32)
+    # ECC: template(x) ~ input(W x) with W mapping template (frame) to input (reference) coords
+    W = np.linalg.inv(H).astype(np.float32)
+    W /= W[2, 2]
+    crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, p.ecc_iterations, p.ecc_eps)
+    hi = float(np.percentile(tmpl, 99.5))
+    mask = ((tmpl > np.percentile(tmpl, 0.5)) & (tmpl < hi)).astype(np.uint8)
+    try:
+        corr, W2 = cv2.findTransformECC(tmpl, inp, W, cv2.MOTION_HOMOGRAPHY, crit, mask, p.ecc_blur_px)
+    except cv2.error:
+        return H, None, False
+    H2 = np.linalg.inv(W2.astype(np.float64))
+    return H2 / H2[2, 2], float(corr), True
+
+
+def warp_reference(reference: np.ndarray, H: np.ndarray, shape: tuple) -> np.ndarray:
+    """Warp a float32 reference into a frame grid of ``shape`` (H, W); pixels that fall outside
+    the reference are NaN (no data)."""
+    import cv2
+    ref = np.asarray(reference, np.float32)
+    h, w = int(shape[0]), int(shape[1])
+    out = cv2.warpPerspective(ref, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=np.nan)
+    cover = cv2.warpPerspective(np.ones(ref.shape[:2], np.float32), H, (w, h), flags=cv2.INTER_LINEAR,
+                                borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    out[cover < 0.999] = np.nan
+    return out
+
+
+def corner_error(H_est: np.ndarray, H_true: np.ndarray, shape: tuple) -> float:
+    """Mean distance in px between the image corners mapped by two homographies."""
+    import cv2
+    h, w = shape[:2]
+    c = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float64).reshape(-1, 1, 2)
+    a = cv2.perspectiveTransform(c, np.asarray(H_est, np.float64))
+    b = cv2.perspectiveTransform(c, np.asarray(H_true, np.float64))
+    return float(np.mean(np.linalg.norm((a - b).reshape(-1, 2), axis=1)))
+
+
+def register_recording(reference: np.ndarray, recording_path, out_path, params: RegistrationParams | None = None,
+                       *, progress: bool = True, frame_indices=None) -> tuple[Path, list[dict]]:
+    """Register ``reference`` to every frame of a recording and write a NEW recording with the
+    warped references (``HDRReferences`` at the frames' mid-exposure times).
+
+    The input file is never modified; the output is written atomically (``.partial`` then rename).
+    The references keep RGB when the frames are RGB, else are converted to luminance. Pixels
+    outside the reference are NaN.
+    """
+    import dataclasses
+
+    from tqdm import tqdm
+
+    from ..container import read_recording, write_recording
+    from ..model import HDRReferences
+    src, dst = Path(recording_path), Path(out_path)
+    if src.resolve() == dst.resolve():
+        raise ValueError(f"--out-recording must differ from the input recording {src}; it is never modified in place")
+    rec = read_recording(src)
+    if rec.frames is None or len(rec.frames) == 0:
+        raise ValueError(f"{src}: the recording has no frames to register the reference to")
+    fr = rec.frames
+    idx = range(len(fr)) if frame_indices is None else list(frame_indices)
+    ref = np.asarray(reference, np.float32)
+    if fr.images.ndim == 3 and ref.ndim == 3:
+        ref_store = to_grey(ref).astype(np.float32)
+    else:
+        ref_store = ref
+    imgs, ts, reports = [], [], []
+    for k in tqdm(idx, desc="register", unit="frame", disable=not progress):
+        r = register(ref, fr.images[k], params)
+        imgs.append(warp_reference(ref_store, r.homography, fr.shape))
+        ts.append(int(fr.t_mid_us[k]))
+        reports.append({"frame": int(k), "t_us": int(fr.t_mid_us[k]), **r.to_dict()})
+    hdr = HDRReferences(np.stack(imgs), np.asarray(ts, np.int64))
+    out = dataclasses.replace(rec, hdr=hdr)
+    write_recording(out, dst)
+    return dst, reports
