@@ -44,7 +44,7 @@ def register(steps) -> None:
                    help="corner detector for frame images")
     b.add_argument("--detector-events", default="sb", choices=["sb", "sb+subpix", "classic"],
                    help="corner detector for event images (and for --right)")
-    b.add_argument("--max-sharpness-px", type=float, default=3.0,
+    b.add_argument("--max-sharpness-px", type=float, default=4.0,
                    help="drop SB views whose estimated edge width exceeds this (px); 0 disables")
     b.add_argument("--prune-factor", type=float, default=2.0,
                    help="drop views whose RMS error exceeds this times the median and re-calibrate; 0 disables")

@@ -176,6 +176,11 @@ def blink_events(cov_list, period_us=100_000, periods=3, seed=0, c=0.4, noise_ra
     trig = []
     t = t0_us
     pix.step(log_image(cov_list[0], False), t)
+    # warm-up: the monitor has been blinking before the recording starts, so the pixels' reference
+    # levels are in their steady on/off cycle (these events are not recorded)
+    for _ in range(2):
+        pix.step(log_image(cov_list[0], True), t)
+        pix.step(log_image(cov_list[0], False), t)
     for k, cov in enumerate(cov_list):
         if k > 0 and motion_us > 0:
             prev = cov_list[k - 1]
