@@ -117,6 +117,7 @@ def test_dataset_same_seed_same_bits():
         load_dataset({"kind": "procedural", "noise": 1})
 
 
+@pytest.mark.slow
 def test_local_processes_equal_dask_and_in_process(tmp_path):
     distributed = pytest.importorskip("dask.distributed")
     b = _bench()

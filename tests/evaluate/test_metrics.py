@@ -120,19 +120,39 @@ def test_match_frames():
 def test_normalisation_policy():
     rng = np.random.default_rng(3)
     r = rng.random((2, 12, 12)) * 50 + 1
-    # a gain-only reconstruction is recovered exactly by "scale", an affine one by "affine"
+    # "scale" (log fit) recovers a pure gain exactly; "affine" (log-affine) a gain and a power
     g, o = M.fit_normalisation(r / 2.5, r, "scale")
     assert (g, o) == (pytest.approx(2.5, rel=1e-12), 0.0)
-    g, o = M.fit_normalisation(0.1 * r + 3, r, "affine")
-    assert g == pytest.approx(10, rel=1e-10) and o == pytest.approx(-30, rel=1e-9)
-    t01, r01, info = M.normalise_pair(0.1 * r + 3, r, "affine")
-    assert info["reference_max"] == pytest.approx(r.max())
+    g, e = M.fit_normalisation(0.2 * r ** 0.5, r, "affine")  # r = 25 x^2
+    assert g == pytest.approx(25, rel=1e-10) and e == pytest.approx(2, rel=1e-12)
+    t01, r01, info = M.normalise_pair(0.2 * r ** 0.5, r, "affine")
+    assert info["exponent"] == pytest.approx(2) and info["reference_max"] == pytest.approx(r.max())
     np.testing.assert_allclose(t01, r01, atol=1e-12)
+    # the linear variants: least squares on intensity
+    g, o = M.fit_normalisation(0.1 * r + 3, r, "affine_linear")
+    assert g == pytest.approx(10, rel=1e-10) and o == pytest.approx(-30, rel=1e-9)
+    g, o = M.fit_normalisation(r / 4, r, "scale_linear")
+    assert (g, o) == (pytest.approx(4, rel=1e-12), 0.0)
+    # the log fit ignores non-positive pixels; a linear fit of an HDR pair is led by the brightest
+    x = np.array([[1e-3, 1e-3, 1.0, 1.0]])
+    ref = np.array([[2e-3, 2e-3, 1000.0, 1000.0]])  # dim part x2, bright part x1000 (a saturated frame)
+    assert M.fit_normalisation(x, ref, "scale")[0] == pytest.approx(math.sqrt(2 * 1000), rel=1e-12)
+    assert M.fit_normalisation(x, ref, "scale_linear")[0] == pytest.approx(1000, rel=1e-5)
     t01, _, _ = M.normalise_pair(r * 10, r, "none")
     assert t01.max() == 1.0  # clipped
     with pytest.raises(ValueError, match="normalise"):
         M.fit_normalisation(r, r, "log")
     assert M.default_normalise("highpass") == "affine" and M.default_normalise("akf") == "scale"
+
+
+def test_log_pair_by_hand():
+    ref = np.array([[1.0, 0.01], [0.1, 1e-6]])
+    test = np.array([[1.0, 0.1], [np.nan, 2.0]])
+    t, r = M.log_pair(test, ref, 1e-4)
+    # the reference log range is [log 1e-4, 0] (floored), so v = 1 + log10(I)/4
+    np.testing.assert_allclose(r, [[1.0, 0.5], [0.75, 0.0]], atol=1e-15)
+    assert t[0, 0] == pytest.approx(1.0) and t[0, 1] == pytest.approx(0.75) and np.isnan(t[1, 0])
+    assert t[1, 1] == 1.0  # clipped
 
 
 def test_score_video_perfect_and_nan():

@@ -1,0 +1,73 @@
+"""Speed–accuracy and stability charts: Pareto front, failure points, numerical-failure counts."""
+
+import math
+
+import pytest
+
+from hybridhdr.evaluate import charts as C
+
+
+def _row(label, method, t, mse, ssim, ds="d", status="ok", nonfinite=0, **kw):
+    return {"dataset": ds, "method_label": label, "method_name": label.split(" [")[0], "method": method,
+            "time_per_data_s": t, "mse": mse, "ssim": ssim, "status": status, "n_nonfinite": nonfinite, **kw}
+
+
+def test_pareto_front_by_hand():
+    pts = [{"x": 1.0, "y": 0.5}, {"x": 2.0, "y": 0.4}, {"x": 3.0, "y": 0.1}, {"x": 0.5, "y": 0.9},
+           {"x": 4.0, "y": 0.2}, {"x": math.nan, "y": 0.0}]
+    # lower is better: 0.5->0.9, 1->0.5, 2->0.4, 3->0.1 each improve; 4->0.2 does not
+    assert C.pareto_front(pts, True) == [3, 0, 1, 2]
+    # higher is better: 0.5->0.9 only
+    assert C.pareto_front(pts, False) == [3]
+
+
+def test_speed_accuracy_points_average_and_failures():
+    rows = [_row("akf", "akf", 1.0, 0.1, 0.8), _row("akf", "akf", 3.0, 0.3, 0.6, ds="e"),
+            _row("cf", "cf", 0.5, 0.2, 0.7), _row("cf", "cf", 0.5, 0.2, 0.7, status="error: x")]
+    pts = C.speed_accuracy_points(rows, "mse")
+    assert pts[0] == {"label": "akf", "method": "akf", "x": 2.0, "y": pytest.approx(0.2), "n": 2, "n_failed": 0}
+    assert pts[1]["n_failed"] == 1 and pts[1]["x"] == 0.5
+    assert C.speed_accuracy_points(rows, "mse", datasets=["e"])[0]["x"] == 3.0
+
+
+def test_stability_failure_point_rules():
+    rows = []
+    for x, ssim, nf, st in ((0, 0.9, 0, "ok"), (1, 0.85, 0, "ok"), (2, 0.6, 0, "ok"), (3, 0.3, 0, "ok")):
+        rows.append(_row("akf", "akf", 1, 0.1, ssim, nonfinite=nf, status=st, **{"ds.noise": x}))
+    for x, ssim, nf, st in ((0, 0.9, 0, "ok"), (1, 0.9, 5, "ok"), (2, math.nan, 0, "ok"), (3, 0.1, 0, "error: boom")):
+        rows.append(_row("bad", "cf", 1, 0.1, ssim, nonfinite=nf, status=st, **{"ds.noise": x}))
+    cur = C.stability_curves(rows, dataset="d", axis="noise", metric="ssim", bound=0.7)
+    assert cur["akf"]["failed_at"] == 2 and "0.6 < bound 0.7" in cur["akf"]["reason"]
+    assert cur["bad"]["failed_at"] == 1 and "5 NaN/Inf" in cur["bad"]["reason"]
+    rel = C.stability_curves(rows, dataset="d", axis="noise", metric="ssim", relative_bound=0.5)
+    assert rel["akf"]["failed_at"] == 3 and rel["akf"]["bound"] == pytest.approx(0.45)
+    # decreasing stress: the sweep is read from the largest value down
+    dec = C.stability_curves(rows, dataset="d", axis="noise", metric="ssim", bound=0.7, stress="decreasing")
+    assert dec["akf"]["failed_at"] == 3
+    assert dec["bad"]["failed_at"] == 3 and "error" in dec["bad"]["reason"]
+    none = C.stability_curves(rows, dataset="d", axis="noise", metric="ssim", bound=0.0)
+    assert none["akf"]["failed_at"] is None
+
+
+def test_numerical_failures_counts():
+    rows = [_row("a", "akf", 1, 0.1, 0.9), _row("a", "akf", 1, 0.1, 0.9, nonfinite=7),
+            _row("c", "cf", 1, 0.1, 0.9, status="error: x")]
+    nf = {n["method"]: n for n in C.numerical_failures(rows)}
+    assert nf["akf"] == {"method": "akf", "runs": 2, "runs_with_nonfinite": 1, "nonfinite_pixels": 7, "errors": 0}
+    assert nf["cf"]["errors"] == 1
+
+
+def test_plots_return_fig_ax(tmp_path):
+    rows = [_row("akf", "akf", 1.0, 0.1, 0.8, **{"ds.noise": 0}), _row("cf", "cf", 0.5, 0.2, 0.7, **{"ds.noise": 0}),
+            _row("akf", "akf", 1.0, 0.3, 0.5, **{"ds.noise": 10}), _row("cf", "cf", 0.5, 0.2, 0.7, **{"ds.noise": 10})]
+    fig, ax = C.plot_speed_accuracy(rows, "mse")
+    assert ax.get_xlabel().startswith("wall time per second")
+    assert any(t.get_text() == "Pareto front" for t in ax.get_legend().get_texts())
+    fig.savefig(tmp_path / "sa.png")
+    fig2, ax2 = C.plot_stability(rows, dataset="d", axis="noise", metric="ssim", bound=0.6)
+    # one red failure cross for akf (0.5 < 0.6 at noise 10)
+    crosses = [ln for ln in ax2.get_lines() if ln.get_marker() == "x" and len(ln.get_xdata()) == 1]
+    assert len(crosses) == 1 and list(crosses[0].get_xdata()) == [10]
+    import matplotlib.pyplot as plt
+    plt.close(fig)
+    plt.close(fig2)

@@ -1,0 +1,125 @@
+"""``hybridhdr evaluate metrics / bench`` end to end, the paper table, simulator-backed datasets."""
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from hybridhdr.cli import main
+from hybridhdr.container import write_recording
+from hybridhdr.evaluate import metrics as M
+from hybridhdr.evaluate.paper import paper_table
+from hybridhdr.synthetic import procedural_recording
+
+
+@pytest.fixture(scope="module")
+def rec_path(tmp_path_factory):
+    d = tmp_path_factory.mktemp("rec")
+    rec, _ = procedural_recording((24, 32), 200_000, seed=1, hdr_rate_hz=50.0)
+    p = d / "rec.h5"
+    write_recording(rec, p)
+    return p, rec
+
+
+def test_metrics_command_matches_library(rec_path, tmp_path, capsys):
+    path, rec = rec_path
+    out = tmp_path / "recon"
+    assert main(["reconstruct", str(path), "--method", "cf", "--out", str(out), "--fps", "200",
+                 "--contrast-threshold", "0.2"]) == 0
+    capsys.readouterr()
+    assert main(["evaluate", "metrics", str(out), "--reference", str(path), "--tolerance-us", "0", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    # library path on the same data: 200 fps outputs every 5000 µs from the first frame time, the
+    # 50 Hz references every 20000 µs -> exact matches only (tolerance 0)
+    from hybridhdr.reconstruct.output import read_exr
+    lines = [ln.split() for ln in (out / "timestamps.txt").read_text().splitlines() if not ln.startswith("#")]
+    t = np.array([int(a) for a, _ in lines])
+    vi, ri = M.match_frames(t, rec.hdr.t_us, 0)
+    assert res["matched"] == len(vi) > 3
+    frames = np.stack([read_exr(out / lines[i][1]) for i in vi])
+    want = M.score_video(frames, rec.hdr.images[ri], normalise="scale")
+    for k in ("mse", "ssim", "log_ssim", "pu_ssim", "gain"):
+        assert res[k] == pytest.approx(want[k], rel=1e-12)
+    assert res["method"] == "cf" and res["normalise"] == "scale" and res["q"] is None and "HDR-VDP" in res["q_note"]
+    # human-readable output
+    assert main(["evaluate", "metrics", str(out), "--reference", str(path)]) == 0
+    text = capsys.readouterr().out
+    assert "SSIM (Gaussian σ=1.5, range 1)" in text and "HDR-VDP Q" in text and "n/a" in text
+
+
+def test_metrics_command_errors(rec_path, tmp_path, capsys):
+    path, _ = rec_path
+    assert main(["evaluate", "metrics", str(tmp_path), "--reference", str(path)]) == 1
+    assert "timestamps.txt" in capsys.readouterr().err
+    (tmp_path / "timestamps.txt").write_text("# t_us filename\n99999999 frame_000000.exr\n")
+    assert main(["evaluate", "metrics", str(tmp_path), "--reference", str(path)]) == 1
+    assert "no reconstructed frame within 1000 µs" in capsys.readouterr().err
+    (tmp_path / "timestamps.txt").write_text("abc frame.exr\n")
+    assert main(["evaluate", "metrics", str(tmp_path), "--reference", str(path)]) == 1
+    assert "must be an integer" in capsys.readouterr().err
+
+
+def test_bench_command(tmp_path, capsys):
+    toml = tmp_path / "b.toml"
+    toml.write_text("""
+[bench]
+name = "cli"
+seed = 1
+warmup = false
+[[datasets]]
+name = "p"
+kind = "procedural"
+width = 24
+height = 16
+duration_us = 120000
+[[methods]]
+method = "akf"
+augment = false
+[[methods]]
+method = "frames"
+""")
+    assert main(["evaluate", "bench", str(toml), "--out", str(tmp_path / "o"), "--workers", "0",
+                 "--no-progress"]) == 0
+    out = capsys.readouterr().out
+    assert "| p | akf |" in out and "results.csv" in out
+    assert (tmp_path / "o" / "speed_accuracy.png").is_file() and (tmp_path / "o" / "report.html").is_file()
+    assert main(["evaluate", "bench", str(tmp_path / "missing.toml"), "--out", str(tmp_path)]) == 1
+    assert "bundled" in capsys.readouterr().err
+
+
+def test_paper_table_shape_and_reductions():
+    rows = []
+    for ds in ("HDR:a", "HDR:b", "AHDR:c"):
+        rows.append({"dataset": ds, "method_label": "akf", "status": "ok", "mse": 0.01, "ssim": 0.9, "q": math.nan,
+                     "log_mse": 0.02, "log_ssim": 0.8})
+        rows.append({"dataset": ds, "method_label": "cf", "status": "ok", "mse": 0.02, "ssim": 0.75, "q": math.nan,
+                     "log_mse": 0.04, "log_ssim": 0.4})
+    text, nums = paper_table(rows)
+    lines = text.splitlines()
+    assert lines[0] == "| method | HDR MSE | HDR SSIM | HDR Q | AHDR MSE | AHDR SSIM | AHDR Q |"
+    assert lines[2] == "| akf | 1.000e-02 | 0.900 | n/a | 1.000e-02 | 0.900 | n/a |"
+    assert "paper: AKF" in lines[4]
+    assert nums["mse_reduction_pct"] == pytest.approx(50.0) and nums["ssim_improvement_pct"] == pytest.approx(20.0)
+    assert "MSE reduction 50.0% (paper: 48%)" in text
+
+
+def test_simulated_dataset_and_cache(tmp_path):
+    pytest.importorskip("hybridhdr.simulate.pipeline")
+    from hybridhdr.evaluate.datasets import load_dataset
+    spec = {"kind": "sim_procedural", "width": 24, "height": 16, "duration_us": 100_000, "hdr_rate_hz": 50.0,
+            "sampling": {"mode": "fixed", "fixed_rate_hz": 500.0}, "sensor.shot_noise_rate_hz": 2.0,
+            "camera": {"code_clip": [100, 160]}}
+    a = load_dataset(spec, seed=2, cache_dir=tmp_path)
+    b = load_dataset(spec, seed=2, cache_dir=tmp_path)  # read back from the cache
+    assert len(list(tmp_path.glob("sim_procedural_*.h5"))) == 1
+    np.testing.assert_array_equal(a.recording.events, b.recording.events)
+    np.testing.assert_array_equal(a.recording.hdr.images, b.recording.hdr.images)
+    assert a.contrast_threshold == pytest.approx(0.2) and len(a.recording.events) > 0
+    assert set(range(0, 100_001, 20_000)) <= set(a.recording.hdr.t_us.tolist())
+    im = a.recording.frames.images
+    assert im.min() >= 100 and im.max() <= 160  # the AHDR clipped camera
+    with pytest.raises(ValueError, match="prefix"):
+        load_dataset({**spec, "lens.f": 1}, seed=2)
+    with pytest.raises(ValueError, match="unknown sensor parameter"):
+        load_dataset({**spec, "sensor.bogus": 1}, seed=2)
