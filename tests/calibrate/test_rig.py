@@ -85,7 +85,7 @@ def sim_rig():
     for i, (rv, tv) in enumerate(poses):
         cf = S.render_board(S.K_FRAME, S.D_FRAME, S.SIZE_FRAME, rv, tv, ss=3)
         re, te = S.frame_to_event_pose(rv, tv)
-        ce = S.render_board(S.K_EVENT, S.D_EVENT, S.SIZE_EVENT, re, te, ss=4)
+        ce = S.render_board(S.K_EVENT, S.D_EVENT, S.SIZE_EVENT, re, te, ss=3)
         frames.append(S.frame_image(cf, rng))
         ev, tr, _ = S.blink_events([ce], periods=2, seed=i, triggers=True)
         events_imgs.append(blink_image(ev, S.SIZE_EVENT, tr))
@@ -191,6 +191,12 @@ def test_calibration_file_round_trip(sim_rig, tmp_path):
     write_recording(rec, tmp_path / "r.h5")
     got = load_calibration(read_recording(tmp_path / "r.h5").metadata.calibration)
     np.testing.assert_allclose(got.stereo.T_m, rig.stereo.T_m)
+    # ... and by the simulator's scene loader (camera intrinsics from a calibration JSON)
+    scene = pytest.importorskip("hybridhdr.simulate.scene")
+    if hasattr(scene, "load_calibration"):
+        fx, fy, cx, cy, w, h = scene.load_calibration(p)
+        assert (fx, fy, cx, cy, w, h) == (rig.camera2.K[0, 0], rig.camera2.K[1, 1], rig.camera2.K[0, 2],
+                                          rig.camera2.K[1, 2], 320, 240)
     bad = dict(d, format="something-else")
     with pytest.raises(ValueError, match="not a rig calibration"):
         load_calibration(bad)
