@@ -41,7 +41,7 @@ import numpy as np
 from .crf import CRF, check_brackets, hat_weight
 
 __all__ = ["merge_brackets", "write_exr", "read_exr_rgb", "read_rgbe", "corner_error", "register", "Registration", "RegistrationParams",
-           "warp_reference", "to_grey", "photometric_match", "surf_backend", "FEATURES",
+           "warp_reference", "refine_ecc", "to_grey", "photometric_match", "surf_backend", "FEATURES",
            "register_recording"]
 
 FEATURES = ("surf", "sift")
@@ -389,9 +389,8 @@ def photometric_match(reference: np.ndarray, frame: np.ndarray, valid=None) -> n
     return np.interp(r, rq, fq[idx])
 
 
-def _u8(img: np.ndarray) -> np.ndarray:
+def _u8(img: np.ndarray, lo: float, hi: float) -> np.ndarray:
     a = np.asarray(img, np.float64)
-    lo, hi = np.percentile(a, [0.1, 99.9])
     if hi <= lo:
         hi = lo + 1.0
     return np.clip(np.round(255.0 * (a - lo) / (hi - lo)), 0, 255).astype(np.uint8)
@@ -420,7 +419,7 @@ class RegistrationParams:
     ratio : Lowe's ratio test threshold (0.75 in calibration.md's comparison; Lowe used 0.8).
     ransac_px : MAGSAC/RANSAC reprojection threshold in pixels (3 in calibration.md).
     ecc : refine with ECC; ecc_iterations / ecc_eps its stopping criteria; ecc_blur_px the
-        Gaussian pre-filter size (odd, 0 = none).
+        Gaussian pre-filter size in px (odd, 1 = none).
     surf_threshold, max_points : mahotas SURF detector threshold and point budget.
     """
 
@@ -430,7 +429,7 @@ class RegistrationParams:
     ecc: bool = True
     ecc_iterations: int = 100
     ecc_eps: float = 1e-6
-    ecc_blur_px: int = 5
+    ecc_blur_px: int = 3
     surf_threshold: float = 0.05
     max_points: int = 4000
     min_inliers: int = 12
@@ -442,8 +441,8 @@ class RegistrationParams:
             raise ValueError(f"ratio must be in (0, 1), got {self.ratio}")
         if not self.ransac_px > 0:
             raise ValueError(f"ransac_px must be > 0, got {self.ransac_px}")
-        if self.ecc_blur_px < 0 or (self.ecc_blur_px and self.ecc_blur_px % 2 == 0):
-            raise ValueError(f"ecc_blur_px must be 0 or odd, got {self.ecc_blur_px}")
+        if self.ecc_blur_px < 1 or self.ecc_blur_px % 2 == 0:
+            raise ValueError(f"ecc_blur_px must be odd and >= 1 (1 = no blur), got {self.ecc_blur_px}")
 
 
 @dataclass(frozen=True)
@@ -520,9 +519,8 @@ def register(reference: np.ndarray, frame: np.ndarray, params: RegistrationParam
         raise ValueError(f"images too small to register: reference {ref.shape}, frame {frm.shape}")
     fgrey = to_grey(frm)
     rmatch = photometric_match(ref, fgrey, valid)
-    a, b = _u8(rmatch), _u8(fgrey)
-    lo, hi = np.percentile(fgrey, [0.1, 99.9])
-    a = np.clip(np.round(255.0 * (rmatch - lo) / max(hi - lo, 1e-9)), 0, 255).astype(np.uint8)
+    lo, hi = (float(v) for v in np.percentile(fgrey, [0.1, 99.9]))
+    a, b = _u8(rmatch, lo, hi), _u8(fgrey, lo, hi)  # one 8-bit scale for both
     backend = "sift" if p.features == "sift" else surf_backend()
     pa, da, la = _detect(a, p, backend)
     pb, db, lb = _detect(b, p, backend)
@@ -547,10 +545,22 @@ def register(reference: np.ndarray, frame: np.ndarray, params: RegistrationParam
     corr = None
     info = {}
     if p.ecc:
+        t1 = time.perf_counter()
         H, corr, ok = _ecc(rmatch, fgrey, H, p)
         info["ecc_converged"] = ok
+        info["ecc_time_s"] = time.perf_counter() - t1
     return Registration(H, (len(pa), len(pb)), int(len(pairs)), int(inl.sum()), rep, corr,
                         time.perf_counter() - t0, backend, info)
+
+
+def refine_ecc(reference: np.ndarray, frame: np.ndarray, H: np.ndarray, params: RegistrationParams | None = None,
+               *, valid=None) -> tuple[np.ndarray, float | None]:
+    """ECC refinement of a reference -> frame homography ``H``; returns ``(H, correlation)``
+    (``correlation`` None when ECC did not converge; then ``H`` is returned unchanged)."""
+    p = params or RegistrationParams()
+    fgrey = to_grey(frame)
+    H2, corr, _ = _ecc(photometric_match(reference, fgrey, valid), fgrey, np.asarray(H, np.float64), p)
+    return H2, corr
 
 
 def _ecc(ref_matched: np.ndarray, frame: np.ndarray, H: np.ndarray, p: RegistrationParams):
@@ -578,8 +588,7 @@ def warp_reference(reference: np.ndarray, H: np.ndarray, shape: tuple) -> np.nda
     import cv2
     ref = np.asarray(reference, np.float32)
     h, w = int(shape[0]), int(shape[1])
-    out = cv2.warpPerspective(ref, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
-                              borderValue=np.nan)
+    out = cv2.warpPerspective(ref, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
     cover = cv2.warpPerspective(np.ones(ref.shape[:2], np.float32), H, (w, h), flags=cv2.INTER_LINEAR,
                                 borderMode=cv2.BORDER_CONSTANT, borderValue=0)
     out[cover < 0.999] = np.nan

@@ -1,0 +1,158 @@
+"""HDR merge, EXR, RGBE, SURF/SIFT registration with ECC, warped references in a recording."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybridhdr.calibrate._photometric_synth import hdr_scene, random_homography, render_frame
+from hybridhdr.calibrate.crf import CRF, gamma_crf
+from hybridhdr.calibrate.hdr_reference import (RegistrationParams, corner_error, merge_brackets, read_exr_rgb,
+                                               read_rgbe, refine_ecc, register, register_recording,
+                                               surf_backend, warp_reference, write_exr)
+from hybridhdr.capture.brackets import BracketSet
+
+
+def test_merge_linear_raw_poisson_ml():
+    rng = np.random.default_rng(0)
+    E = rng.uniform(0.01, 50.0, (20, 30)).astype(np.float32)
+    ex = np.array([0.001, 0.01, 0.1])
+    white = 1023
+    imgs = [np.clip(np.round(E * t * 1000.0), 0, white).astype(np.uint16) for t in ex]
+    bs = BracketSet(imgs, ex, "raw", {"bit_depth": 10, "black_level": 0, "white_level": white})
+    info = {}
+    M = merge_brackets(bs, None, None, info=info)
+    # Poisson ML = sum of counts / sum of times: where the unsaturated counts add up to >= 100 DN
+    # the rounding error (<= 0.5 DN per image, 3 images) is <= 1.5 %
+    sat = np.stack(imgs) >= 0.98 * white
+    counts = (np.stack(imgs) * ~sat).sum(axis=0)
+    ok = counts >= 100
+    assert ok.sum() > 300
+    np.testing.assert_allclose(M[ok] * white / 1000.0, E[ok], rtol=0.015)
+    assert info["domain"] == "linear"
+    with pytest.raises(ValueError, match="needs a CRF"):
+        merge_brackets(BracketSet(imgs, ex, "gamma"), None, None)
+
+
+def test_merge_log_domain_exact_for_noise_free_gamma():
+    ex = np.array([0.25, 1.0, 4.0])
+    logE = np.linspace(-4, 1, 200)[None, :].repeat(3, 0)
+    imgs = [np.clip(np.round(255 * np.clip(np.exp(logE) * t, 0, 1) ** (1 / 2.2)), 0, 255).astype(np.uint8) for t in ex]
+    info = {}
+    M = merge_brackets(imgs, ex, CRF(gamma_crf()), info=info)
+    d = np.log(M) - logE
+    d -= np.median(d)
+    # quantisation of the best exposure: <= 2.2 * 0.5 / z; codes >= ~60 give <= 0.02
+    assert np.median(np.abs(d)) < 0.01
+    assert M.shape == (3, 200) and M.dtype == np.float32 and info["domain"] == "log"
+    with pytest.raises(ValueError, match="weighting"):
+        merge_brackets(imgs, ex, CRF(gamma_crf()), weighting="box")
+
+
+def test_exr_roundtrip(tmp_path):
+    rng = np.random.default_rng(0)
+    rgb = rng.uniform(0, 1e4, (6, 7, 3)).astype(np.float32)
+    np.testing.assert_array_equal(read_exr_rgb(write_exr(tmp_path / "a.exr", rgb)), rgb)
+    np.testing.assert_array_equal(read_exr_rgb(write_exr(tmp_path / "b.exr", rgb[..., 0])), rgb[..., 0])
+    assert not list(tmp_path.glob("*partial*"))
+
+
+def _rgbe_bytes(img_u8: np.ndarray) -> bytes:
+    """Flat (uncompressed) RGBE file of raw RGBE quadruples (H, W, 4)."""
+    h, w = img_u8.shape[:2]
+    return b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n" + f"-Y {h} +X {w}\n".encode() + img_u8.tobytes()
+
+
+def test_rgbe_flat_and_rle(tmp_path):
+    q = np.zeros((2, 3, 4), np.uint8)
+    q[..., 0], q[..., 3] = 128, 129  # 128 * 2^(129-136) = 1.0
+    (tmp_path / "f.hdr").write_bytes(_rgbe_bytes(q))
+    np.testing.assert_array_equal(read_rgbe(tmp_path / "f.hdr")[..., 0], 1.0)
+    # new-style RLE, width 8: each component one run of 8 (byte 136 = run of 8)
+    w = 8
+    line = bytes([2, 2, 0, w]) + bytes([136, 200, 136, 100, 136, 50, 136, 130])
+    data = b"#?RADIANCE\nFORMAT=32-bit_rle_rgbe\n\n-Y 1 +X 8\n" + line
+    (tmp_path / "r.hdr").write_bytes(data)
+    v = read_rgbe(tmp_path / "r.hdr")
+    np.testing.assert_allclose(v[0, 0], np.array([200, 100, 50]) * 2.0 ** (130 - 136))
+    # newline damage (LF -> CR LF, as in the shared memorial.hdr) is repaired
+    bad = data.replace(b"\n", b"\r\n")
+    (tmp_path / "d.hdr").write_bytes(bad)
+    np.testing.assert_array_equal(read_rgbe(tmp_path / "d.hdr"), v)
+    from hybridhdr.errors import FormatError
+    (tmp_path / "x.hdr").write_bytes(b"not an hdr")
+    with pytest.raises(FormatError, match="Radiance"):
+        read_rgbe(tmp_path / "x.hdr")
+
+
+H_, W_ = 480, 640  # SURF (mahotas) finds ~270 points at 320x240 (0.45 px); ~1900 at 640x480
+
+
+@pytest.fixture(scope="module")
+def reg_cases():
+    rng = np.random.default_rng(1)
+    E = hdr_scene(H_, W_, seed=0)
+    cases = []
+    for _ in range(3):
+        H = random_homography(H_, W_, rng)
+        t = 0.3 * 2.0 ** rng.uniform(-2, 2)  # exposure changes by up to 4x either way
+        cases.append((H, render_frame(E, H, t, rng)))
+    return E, cases
+
+
+@pytest.mark.slow
+def test_surf_then_ecc_corner_error(reg_cases):
+    assert surf_backend() in ("mahotas", "opencv")
+    E, cases = reg_cases
+    e_surf, e_ecc = [], []
+    p = RegistrationParams(features="surf", ecc=False)
+    for H, frame in cases:
+        r = register(E, frame, p)
+        e_surf.append(corner_error(r.homography, H, (H_, W_)))
+        H2, corr = refine_ecc(E, frame, r.homography, p)
+        assert corr is not None and corr > 0.99
+        e_ecc.append(corner_error(H2, H, (H_, W_)))
+    print("SURF corner error px", np.round(e_surf, 3), "after ECC", np.round(e_ecc, 3))
+    # issue 6: mean corner error <= 0.2 px with SURF (measured ~0.14) and <= 0.1 px after ECC (~0.04)
+    assert np.mean(e_surf) <= 0.2
+    assert np.mean(e_ecc) <= 0.1
+
+
+def test_sift_corner_error_and_failure(reg_cases):
+    E, cases = reg_cases
+    H, frame = cases[0]
+    r = register(E, frame, RegistrationParams(features="sift", ecc=False))
+    # SIFT is the accurate one (calibration.md: 0.024 px); measured ~0.02 px here
+    assert corner_error(r.homography, H, (H_, W_)) <= 0.1
+    assert r.n_inliers > 500 and r.reprojection_px < 1.0
+    flat = np.full((H_, W_), 128, np.uint8)
+    with pytest.raises(ValueError, match="registration failed"):
+        register(E, flat, RegistrationParams(features="sift", ecc=False))
+    with pytest.raises(ValueError, match="features must be one of"):
+        RegistrationParams(features="orb")
+
+
+def test_warp_reference_marks_outside_nan():
+    ref = np.ones((10, 12), np.float32)
+    H = np.array([[1, 0, 3.0], [0, 1, 0], [0, 0, 1]])
+    out = warp_reference(ref, H, (10, 12))
+    assert np.isnan(out[:, :3]).all() and np.isfinite(out[:, 4:]).all()
+
+
+def test_register_recording_writes_new_file(tmp_path):
+    from hybridhdr.container import read_recording, write_recording
+    from hybridhdr.synthetic import procedural_recording
+    rec, scene = procedural_recording((120, 160), 200_000, frame_rate_hz=10.0, seed=0)
+    src = write_recording(rec, tmp_path / "rec.h5")
+    before = src.read_bytes()
+    ref = scene.intensity(int(rec.frames.t_mid_us[0])).astype(np.float32)
+    out, reports = register_recording(ref, src, tmp_path / "rec2.h5",
+                                      RegistrationParams(features="sift", ecc=False, min_inliers=8),
+                                      progress=False)
+    assert src.read_bytes() == before  # never modified in place
+    r2 = read_recording(out)
+    assert len(r2.hdr) == len(rec.frames)
+    np.testing.assert_array_equal(r2.hdr.t_us, rec.frames.t_mid_us)
+    assert reports[0]["n_inliers"] >= 8
+    with pytest.raises(ValueError, match="never modified in place"):
+        register_recording(ref, src, src)
