@@ -9,7 +9,12 @@ live camera — so a writer that cannot keep up shows up as counted drops, never
 After the recording is finished (journal replayed into an uncompressed container) every event is
 read back and compared, event by event, with what the generator produced (chunk ``k`` is a fixed
 chunk shifted by ``k`` × 10 ms, so a lost, duplicated or reordered chunk is caught): ``lost`` is
-generated − read back, and ``sequence_ok`` says the read-back stream is exactly the generated one.
+generated − read back, ``sequence_ok`` says every chunk in the file is complete and exact, and
+``all_loss_counted`` that the missing chunks are exactly the ones the recorder counted as dropped.
+
+On a shared machine the figures depend on the CPU the process gets: ``cpu_cores_used_while_recording``
+reports it, and ``cpu_ms_per_mev`` (source + recorder CPU time per million events, from the
+max-rate phase) gives the rate one free core would sustain.
 
 Memory: resident set size sampled every 50 ms from ``/proc/self/status`` (VmRSS) during the
 recording, plus the peak (VmHWM) over the whole run. A second phase measures the recorder's
@@ -85,6 +90,7 @@ def soak(folder: Path, rate: float, duration_s: float, chunk_us: int, queue_chun
     rec = Recorder(out, src, queue_chunks=queue_chunks, flush_interval_s=flush_s, compression=None)
     load0 = _loadavg()
     t0 = time.perf_counter()
+    cpu0 = time.process_time()
     rec.start()
     with tqdm(total=round(duration_s), unit="s", desc="soak recording", file=sys.stderr) as bar:
         done = 0
@@ -99,6 +105,7 @@ def soak(folder: Path, rate: float, duration_s: float, chunk_us: int, queue_chun
                 break
     rec.stop()
     rec_wall = time.perf_counter() - t0
+    cpu_rec = time.process_time() - cpu0
     rss_rec_mb = rss.stop()
     load1 = _loadavg()
     journal_mb = rec.stats.journal_bytes / 1e6
@@ -129,6 +136,7 @@ def soak(folder: Path, rate: float, duration_s: float, chunk_us: int, queue_chun
         "all_loss_counted": chunks_missing == stats.event_chunks_dropped
         and src.events_emitted - n == stats.events_dropped,
         "achieved_source_rate_mev_s": src.events_emitted / rec_wall / 1e6, "record_wall_s": rec_wall,
+        "cpu_cores_used_while_recording": cpu_rec / rec_wall,
         "flushes": stats.flushes, "max_queue_depth": stats.max_queue_depth,
         "peak_rss_recording_mb": rss_rec_mb, "journal_mb": journal_mb,
         "journal_mb_per_s": journal_mb / rec_wall, "finish_s": stats.finish_s,
@@ -144,13 +152,19 @@ def max_rate(folder: Path, duration_s: float, chunk_us: int, queue_chunks: int):
 
     src = SyntheticEventSource(20e6, chunk_us=chunk_us, pace="fast", seed=1)
     rec = Recorder(folder / "max.h5", src, queue_chunks=queue_chunks, flush_interval_s=1.0, compression=None)
+    cpu0 = time.process_time()
     rec.start()
     rec.wait(duration_s)
     rec.stop()
+    cpu = time.process_time() - cpu0
     st = rec.stats
     rec._jw.close()
+    ms_per_mev = 1e3 * cpu / (st.events_written / 1e6)
     return {"max_recording_rate_mev_s": st.events_written / st.duration_s / 1e6,
-            "max_rate_events": st.events_written, "max_rate_wall_s": st.duration_s}
+            "max_rate_events": st.events_written, "max_rate_wall_s": st.duration_s,
+            "max_rate_cpu_cores_used": cpu / st.duration_s,
+            # CPU cost of source + recorder per million events; 1000 / this = Mev/s on one free core
+            "cpu_ms_per_mev": ms_per_mev, "rate_on_one_free_core_mev_s": 1e3 / ms_per_mev}
 
 
 def main(argv=None) -> int:

@@ -141,6 +141,9 @@ def _event_source(args):
     if spec in ("prophesee", "device"):
         from .prophesee_backend import PropheseeEventSource
         return PropheseeEventSource(delta_t_us=args.chunk_us, trigger_channels=args.trigger_channels)
+    if spec == "oak":
+        raise ValueError("a Luxonis OAK is a frame camera: use --frames oak (events come from a file, "
+                         "'synthetic:RATE' or 'prophesee')")
     if spec.startswith("synthetic:"):
         from .sources import SyntheticEventSource
         try:

@@ -512,6 +512,10 @@ class Recorder:
                   "policy": self.stats.policy, "flush_interval_s": self.flush_interval_s}
         self._jw = JournalWriter(self.journal_path, header, compression=self.journal_compression,
                                  fsync=self.fsync)
+        # load/compile the packing kernel now, not in the first second of a live recording
+        from ._kernels import pack_columns
+        e = np.zeros(0, EVENT_DTYPE)
+        pack_columns(e["t"], e["x"], e["y"], e["p"], *(np.zeros(0, EVENT_DTYPE[k]) for k in "txyp"))
         self._t0 = time.perf_counter()
         self._writer = threading.Thread(target=self._run_writer, args=(self._jw,), name="recorder-writer",
                                         daemon=True)
