@@ -25,8 +25,10 @@ with ``z_mid = (max_code + 1) // 2``.
   (opencv/opencv#18180) and an interpreter abort on single-channel input; calibration.md).
   Unseen codes are interpolated in the log domain and counted in ``CRF.info``.
 
-Both results are made non-decreasing (a response is monotonic); the number of codes that had to
-be raised is reported in ``info["monotonic_fixes"]``.
+The end codes 0 and max_code are clipped (weight 0), so their ``g`` is not determined by the
+data: it is extrapolated linearly from the two neighbouring codes. Both results are then made
+non-decreasing (a response is monotonic); the number of codes that had to be raised is reported
+in ``info["monotonic_fixes"]``.
 """
 
 from __future__ import annotations
@@ -322,6 +324,12 @@ def _select_samples(ch: np.ndarray, n_samples: int, rng, valid: np.ndarray | Non
 
 
 def _monotone(g: np.ndarray) -> tuple[np.ndarray, int]:
+    """End codes (0 and max: clipped, zero weight, so not determined by data) are extrapolated
+    linearly from their two neighbours; then ``g`` is made non-decreasing."""
+    g = g.copy()
+    if g.size >= 4:
+        g[0] = g[1] - (g[2] - g[1])
+        g[-1] = g[-2] + (g[-2] - g[-3])
     m = np.maximum.accumulate(g)
     return m, int(np.count_nonzero(m > g + 1e-12))
 

@@ -63,7 +63,6 @@ def certainty(crf: CRF, *, domain: str = "log", smooth_codes: float | None = Non
     -------
     ndarray of shape (n_codes,) or (C, n_codes), float64
     """
-    from scipy.ndimage import gaussian_filter1d
     if domain not in DOMAINS:
         raise ValueError(f"domain must be one of {DOMAINS}, got {domain!r}")
     n = crf.max_code + 1
@@ -77,11 +76,10 @@ def certainty(crf: CRF, *, domain: str = "log", smooth_codes: float | None = Non
         if domain == "linear":
             inv = np.exp(g - g[-1])
             if s > 0:
-                inv = np.maximum.accumulate(gaussian_filter1d(inv, s, mode="nearest"))
+                inv = np.maximum.accumulate(_smooth_linear_ends(inv, s))
             fw = weighting_from_inverse_crf(inv, np.ones(n))
         else:
-            gs = gaussian_filter1d(g, s, mode="nearest") if s > 0 else g
-            slope = np.gradient(gs)
+            slope = np.gradient(_smooth_linear_ends(g, s) if s > 0 else g)
             fw = np.where(slope > 0, 1.0 / np.where(slope > 0, slope, 1.0), 0.0)
         fw = fw.copy()
         fw[0] = fw[-1] = 0.0
@@ -96,6 +94,17 @@ def certainty(crf: CRF, *, domain: str = "log", smooth_codes: float | None = Non
         out.append(np.clip(fw / top, 0.0, 1.0))
     out = np.array(out)
     return out[0] if channel is not None else out
+
+
+def _smooth_linear_ends(v: np.ndarray, sigma: float) -> np.ndarray:
+    """Gaussian smoothing of a curve padded by linear extrapolation of its end slopes, so the
+    ends are not flattened (a flat end would give a spurious certainty peak)."""
+    from scipy.ndimage import gaussian_filter1d
+    k = int(np.ceil(4 * sigma)) + 1
+    m = min(4, v.size - 1)
+    lo = v[0] - (v[m] - v[0]) / m * np.arange(k, 0, -1)
+    hi = v[-1] + (v[-1] - v[-1 - m]) / m * np.arange(1, k + 1)
+    return gaussian_filter1d(np.concatenate([lo, v, hi]), sigma, mode="nearest")[k:k + v.size]
 
 
 def _immerkaer_sigma(img: np.ndarray, sel: np.ndarray) -> float:
