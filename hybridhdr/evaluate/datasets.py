@@ -20,8 +20,11 @@ with HDR references.
       ``exposure_us``; ``width``, ``height``, ``duration_us``, ``contrast_threshold``,
       ``hdr_rate_hz``.
 ``file``
-    ``path`` to any recording :func:`hybridhdr.read` understands, which must hold HDR references;
-    ``contrast_threshold`` (log units) states the sensor's threshold for the methods.
+    ``path`` to any recording :func:`hybridhdr.read` understands, which must hold HDR references,
+    or ``holdout_frames`` (frame indices): real data without ground truth, where those frames are
+    removed from the input and, linearised by the camera ``profile`` (built-in by default), become
+    the references (a frame-prediction test); ``contrast_threshold`` (log units) states the
+    sensor's threshold for the methods.
 ``sim_procedural`` / ``builtin`` / ``ahdr``
     The simulator (:mod:`hybridhdr.simulate`, issue 5): the procedural scene through the
     simulator's sensor, camera and adaptive sampling; a built-in Mitsuba scene; an AHDR-style
@@ -196,19 +199,41 @@ def _procedural(spec: dict, seed: int) -> Dataset:
 
 def _file(spec: dict, seed: int) -> Dataset:
     from ..io import read
-    _check_keys(spec, {"path", "format", "contrast_threshold"}, "file")
+    from ..model import HDRReferences
+    from ..reconstruct.profile import load_profile, profile_for_frames
+    _check_keys(spec, {"path", "format", "contrast_threshold", "holdout_frames", "profile"}, "file")
     if "path" not in spec:
         raise ValueError("a 'file' dataset needs 'path'")
     rec = read(spec["path"], spec.get("format"))
+    hold = spec.get("holdout_frames")
+    if hold is not None:
+        # real data without HDR ground truth: frames left out of the input become the references,
+        # linearised by the camera profile (eq. 3's CRF⁻¹; the built-in profile by default)
+        fr = rec.frames
+        if fr is None or len(fr) == 0:
+            raise ValueError(f"{spec['path']}: holdout_frames needs frames, but the recording has none")
+        idx = np.unique(np.asarray(hold, dtype=np.int64))
+        if idx.size == 0 or idx.min() < 0 or idx.max() >= len(fr):
+            raise ValueError(f"holdout_frames must be indices in [0, {len(fr) - 1}], got {list(hold)}")
+        keep = np.setdiff1d(np.arange(len(fr)), idx)
+        if keep.size == 0:
+            raise ValueError("holdout_frames leaves no input frame")
+        prof = profile_for_frames(load_profile(spec.get("profile")), fr)
+        ref = prof.intensity(np.asarray(fr.images[idx])).astype(np.float32)
+        sub = fr.select(keep)
+        rec = Recording(rec.events, rec.sensor_size, sub, rec.triggers, HDRReferences(ref, fr.t_mid_us[idx]),
+                        rec.metadata)
     if rec.hdr is None or len(rec.hdr) == 0:
-        raise ValueError(f"{spec['path']}: a benchmark dataset needs HDR references, but the recording has none")
+        raise ValueError(f"{spec['path']}: a benchmark dataset needs HDR references (or holdout_frames), "
+                         f"but the recording has none")
     t = [int(rec.hdr.t_us.min()), int(rec.hdr.t_us.max())]
     if len(rec.events):
         t += [int(rec.events["t"][0]), int(rec.events["t"][-1])]
     dur = max(t) - min(t)
     c = spec.get("contrast_threshold")
     return Dataset(rec, None if c is None else float(c), max(dur, 1),
-                   {"kind": "file", "path": str(spec["path"]), "events": int(len(rec.events))})
+                   {"kind": "file", "path": str(spec["path"]), "events": int(len(rec.events)),
+                    "holdout_frames": None if hold is None else [int(i) for i in np.atleast_1d(hold)]})
 
 
 def _simulated(spec: dict, seed: int) -> Dataset:
