@@ -274,3 +274,48 @@ def test_cli_rig_from_recording(sim_rig, tmp_path):
     assert main(["calibrate", "rig", "--board", "9x6", "--square-mm", "30", "--out", str(out)]) == 1
     assert main(["calibrate", "rig", "--events", str(path), "--frames", str(tmp_path), "--board", "9x6",
                  "--square-mm", "30", "--out", str(out), "--no-progress"]) == 1
+
+
+def test_cli_left_right(shared_data, tmp_path):
+    from hybridhdr.cli import main
+    left, right = _stereo_paths(shared_data)
+    out = tmp_path / "lr"
+    code = main(["calibrate", "rig", "--left", str(left[0].parent / "left*.jpg"), "--right",
+                 *[str(p) for p in right], "--board", "9x6", "--square-mm", "25", "--detector-frames", "classic",
+                 "--detector-events", "classic", "--prune-factor", "0", "--depth-m", "2", "--out", str(out),
+                 "--no-progress"])
+    assert code == 0
+    cal = load_calibration(out / "calibration.json")
+    assert cal.names == ("left", "right") and cal.depth_m == 2.0
+    assert 0.36 <= cal.camera1.rms_px <= 0.46  # as test_opencv_stereo_sample (no pruning)
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["board_found"] == {"left": 13, "right": 13}
+    # unequal counts are an error
+    assert main(["calibrate", "rig", "--left", str(left[0]), "--right", str(right[0]), str(right[1]),
+                 "--board", "9x6", "--square-mm", "25", "--out", str(out)]) == 1
+
+
+@pytest.mark.slow
+def test_cli_frames_folder(sim_rig, tmp_path):
+    from hybridhdr.cli import main
+    from hybridhdr.container import write_recording
+    from hybridhdr.events import concatenate_events
+    from hybridhdr.model import Recording
+
+    evs = []
+    fdir = tmp_path / "frames"
+    fdir.mkdir()
+    for i, (ev, _) in enumerate(sim_rig["streams"]):
+        e = ev.copy()
+        e["t"] += i * 1_000_000
+        evs.append(e)
+        cv2.imwrite(str(fdir / f"f{i:02d}.png"), sim_rig["frames"][i])
+    # no triggers: the period comes from the event rate
+    path = write_recording(Recording(concatenate_events(evs), S.SIZE_EVENT), tmp_path / "blink.h5")
+    out = tmp_path / "out"
+    assert main(["calibrate", "rig", "--events", str(path), "--frames", str(fdir), "--board", "9x6",
+                 "--square-mm", "30", "--model", "fixed_k3", "--out", str(out), "--no-progress"]) == 0
+    rep = json.loads((out / "report.json").read_text())
+    assert rep["event_images"]["period"]["source"] == "event_rate"
+    assert abs(rep["event_images"]["period"]["period_us"] - 100_000) < 100
+    assert rep["event_images"]["n_poses"] == 5
