@@ -190,10 +190,16 @@ def _kernels():
     return _kernels
 
 
-def _columns(events):
-    validate_events(events)
-    return (np.ascontiguousarray(events["t"]), np.ascontiguousarray(events["x"]),
-            np.ascontiguousarray(events["y"]), np.ascontiguousarray(events["p"]))
+class _Columns(tuple):
+    """Validated contiguous ``(t, x, y, p)`` copies, made once per call chain (see conventions)."""
+
+
+def _columns(events, sensor_size=None):
+    if isinstance(events, _Columns):
+        return events
+    validate_events(events, sensor_size)
+    return _Columns((np.ascontiguousarray(events["t"]), np.ascontiguousarray(events["x"]),
+                     np.ascontiguousarray(events["y"]), np.ascontiguousarray(events["p"])))
 
 
 # ----------------------------------------------------------------------------------------------
@@ -281,6 +287,8 @@ def blink_period_from_events(events, params: BlinkParams = BlinkParams()) -> Bli
     if t.size < 2:
         raise ValueError(f"need events to find the blink period, got {t.size}")
     k = _kernels()
+    # (the biased autocorrelation of a periodic signal decays as 1 - lag/n; a multiple m*T counts
+    # in the refinement below when its peak keeps at least half of that expected height)
     t0 = int(t[0])
     bin_us = int(params.rate_bin_us)
     n_bins = int((int(t[-1]) - t0) // bin_us + 1)
@@ -354,8 +362,7 @@ def _run_kernel(events, sensor_size, t0_us, t1_us, params, use=None, image=None)
     ss = SensorSize.from_any(sensor_size)
     if ss is None:
         raise ValueError("sensor_size (height, width) of the event camera is required")
-    t, x, y, p = _columns(events)
-    validate_events(events, ss)
+    t, x, y, p = _columns(events, ss)
     t0_us = np.ascontiguousarray(t0_us, np.int64)
     t1_us = np.ascontiguousarray(t1_us, np.int64)
     if t0_us.shape != t1_us.shape or t0_us.ndim != 1:
@@ -448,8 +455,9 @@ def blink_windows(events, triggers=None, params: BlinkParams = BlinkParams()):
     """Blink windows ``(t0_us, t1_us, BlinkPeriod)`` from triggers when given (non-empty), else the event rate."""
     if triggers is not None and len(triggers):
         return windows_from_triggers(triggers, params.trigger_channel)
-    period = blink_period_from_events(events, params)
-    t = events["t"]
+    cols = _columns(events)
+    period = blink_period_from_events(cols, params)
+    t = cols[0]
     w0, w1 = windows_from_period(period, int(t[0]), int(t[-1]))
     return w0, w1, period
 
@@ -477,11 +485,11 @@ def event_images(events, sensor_size, triggers=None, params: BlinkParams = Blink
     """
     if not isinstance(params, BlinkParams):
         raise TypeError(f"params must be BlinkParams, got {type(params).__name__}")
-    validate_events(events, sensor_size)
-    if events.size == 0:
+    cols = _columns(events, sensor_size)
+    if cols[0].size == 0:
         raise ValueError("no events: a blinking-board recording is expected")
-    w0, w1, period = blink_windows(events, triggers, params)
-    stats = window_statistics(events, sensor_size, w0, w1, params)
+    w0, w1, period = blink_windows(cols, triggers, params)
+    stats = window_statistics(cols, sensor_size, w0, w1, params)
     runs = segment_poses(stats, params)
     poses = []
     it = runs
@@ -489,7 +497,7 @@ def event_images(events, sensor_size, triggers=None, params: BlinkParams = Blink
         from tqdm import tqdm
         it = tqdm(runs, desc="event images", unit="pose")
     for a, b in it:
-        img = accumulate_image(events, sensor_size, w0[a:b], w1[a:b], params)
+        img = accumulate_image(cols, sensor_size, w0[a:b], w1[a:b], params)
         poses.append(PoseImage(int(w0[a]), int(w1[b - 1]), img, (int(a), int(b))))
     return BlinkResult(poses, period, stats, params)
 
@@ -499,16 +507,16 @@ def blink_image(events, sensor_size, triggers=None, params: BlinkParams = BlinkP
 
     Raises ``ValueError`` when every window is rejected (saying how many were and why).
     """
-    validate_events(events, sensor_size)
-    if events.size == 0:
+    cols = _columns(events, sensor_size)
+    if cols[0].size == 0:
         raise ValueError("no events: a blinking-board recording is expected")
-    w0, w1, _ = blink_windows(events, triggers, params)
-    st = window_statistics(events, sensor_size, w0, w1, params)
+    w0, w1, _ = blink_windows(cols, triggers, params)
+    st = window_statistics(cols, sensor_size, w0, w1, params)
     if not st.accepted.any():
         raise ValueError(f"all {len(st)} blink windows were rejected (max both pixels "
                          f"{int(st.n_both.max(initial=0))}, need {params.min_both_pixels}; min single-polarity "
                          f"ratio {float(st.single_ratio.min(initial=np.inf)):.2f}, allowed "
                          f"{params.max_single_ratio})")
-    return accumulate_image(events, sensor_size, w0[st.accepted], w1[st.accepted], params)
+    return accumulate_image(cols, sensor_size, w0[st.accepted], w1[st.accepted], params)
 
 
