@@ -437,12 +437,12 @@ def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak
     if hdrvdp is not None:
         kw = dict(hdrvdp)
         kw.setdefault("luminance_scale_cd_m2", peak_luminance_cd_m2)
-        qs, res = [], None
-        for x, y in zip(t01, r01):
-            res = hdrvdp_q(x, y, **kw)
-            qs.append(res.q)
-        out["q"] = float(np.mean(qs))
-        out.update({f"q_{k}": v for k, v in asdict(res).items() if k != "q"})
+        if n_bad:
+            out["q"] = float("nan")
+        else:
+            res = hdrvdp_q(t01, r01, **kw)
+            out["q"] = res.q
+            out.update({f"q_{k}": v for k, v in asdict(res).items() if k not in ("q", "q_frames")})
     return out
 
 
@@ -471,7 +471,7 @@ _default_ppd = pixels_per_degree
 
 @dataclass(frozen=True)
 class HDRVDPResult:
-    """One HDR-VDP Q with the settings it depends on (never compare Q across versions)."""
+    """HDR-VDP Q (mean over frames) with the settings it depends on (never compare Q across versions)."""
 
     q: float
     version: str
@@ -480,6 +480,7 @@ class HDRVDPResult:
     pixels_per_degree: float
     luminance_scale_cd_m2: float
     engine: str
+    q_frames: tuple = ()
 
 
 def find_hdrvdp(hdrvdp_dir=None) -> Path:
@@ -518,10 +519,10 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
 
     Parameters
     ----------
-    test, reference : ndarray of shape (H, W)
+    test, reference : ndarray of shape (H, W) or (K, H, W)
         Linear intensity in [0, 1] (after :func:`normalise_pair`); multiplied by
         ``luminance_scale_cd_m2`` to give absolute luminance (cd/m²) for ``color_encoding =
-        "luminance"``.
+        "luminance"``. A stack is scored frame by frame in one Octave/MATLAB session.
     hdrvdp_dir : path, optional
         Folder holding ``hdrvdp3.m``; default ``$HYBRIDHDR_HDRVDP_DIR``.
     engine : {"auto", "octave", "matlab"}
@@ -534,8 +535,9 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
     Returns
     -------
     HDRVDPResult
-        Q (3.x: 10 = indistinguishable) with the version reported by ``hdrvdp_version`` when the
-        installation has it (else "unknown"), task, encoding, ppd, luminance scale and engine.
+        Q (3.x: 10 = indistinguishable; the mean over frames, each in ``q_frames``) with the
+        version reported by ``hdrvdp_version`` when the installation has it (else "unknown"),
+        task, encoding, ppd, luminance scale and engine.
 
     Raises
     ------
@@ -544,8 +546,10 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
     """
     from scipy.io import savemat
     a, b = _pair(test, reference, "hdrvdp_q")
-    if a.ndim != 2:
-        raise ValueError(f"hdrvdp_q expects (H, W) luminance images, got {a.shape}")
+    if a.ndim == 2:
+        a, b = a[None], b[None]
+    if a.ndim != 3:
+        raise ValueError(f"hdrvdp_q expects (H, W) or (K, H, W) luminance images, got {a.shape}")
     if not luminance_scale_cd_m2 > 0:
         raise ValueError(f"luminance_scale_cd_m2 must be > 0, got {luminance_scale_cd_m2}")
     d = find_hdrvdp(hdrvdp_dir)
@@ -556,24 +560,29 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
             raise ValueError(f"{name} must be a plain word, got {s!r}")
     with tempfile.TemporaryDirectory(prefix="hybridhdr_hdrvdp_") as tmp:
         mat = Path(tmp) / "images.mat"
-        savemat(mat, {"test": a * luminance_scale_cd_m2, "ref": b * luminance_scale_cd_m2})
+        # frames along the last axis: MATLAB reads (H, W, K)
+        savemat(mat, {"test": np.moveaxis(a, 0, -1) * luminance_scale_cd_m2,
+                      "ref": np.moveaxis(b, 0, -1) * luminance_scale_cd_m2})
         q = lambda s: "'" + str(s).replace("'", "''") + "'"  # noqa: E731  MATLAB string literal
         script = (f"addpath(genpath({q(d)})); S = load({q(mat)}); "
-                  f"res = hdrvdp3({q(task)}, S.test, S.ref, {q(color_encoding)}, {ppd!r}); "
+                  "for k = 1:size(S.test, 3), "
+                  f"res = hdrvdp3({q(task)}, S.test(:, :, k), S.ref(:, :, k), {q(color_encoding)}, {ppd!r}); "
+                  "fprintf('HYBRIDHDR_Q=%.17g\\n', res.Q); end; "
                   "v = 'unknown'; if exist('hdrvdp_version') == 2, v = hdrvdp_version(); end; "
-                  "fprintf('HYBRIDHDR_Q=%.17g\\nHYBRIDHDR_VERSION=%s\\n', res.Q, v);")
+                  "fprintf('HYBRIDHDR_VERSION=%s\\n', v);")
         cmd = ([exe, "--no-gui", "--quiet", "--no-window-system", "--eval", script] if eng == "octave"
                else [exe, "-batch", script])
         try:
             pr = subprocess.run(cmd, capture_output=True, text=True, timeout=timeout_s)
         except subprocess.TimeoutExpired as e:
             raise RuntimeError(f"HDR-VDP via {eng} did not finish within {timeout_s} s") from e
-    mq, mv = _Q_RE.search(pr.stdout), _V_RE.search(pr.stdout)
-    if pr.returncode != 0 or mq is None:
+    qs, mv = [float(x) for x in _Q_RE.findall(pr.stdout)], _V_RE.search(pr.stdout)
+    if pr.returncode != 0 or len(qs) != a.shape[0]:
         tail = (pr.stderr or pr.stdout).strip().splitlines()[-5:]
-        raise RuntimeError(f"HDR-VDP via {eng} failed (exit {pr.returncode}): " + " | ".join(tail))
-    return HDRVDPResult(float(mq.group(1)), mv.group(1).strip() if mv else "unknown", task, color_encoding, ppd,
-                        float(luminance_scale_cd_m2), eng)
+        raise RuntimeError(f"HDR-VDP via {eng} failed (exit {pr.returncode}, {len(qs)} of {a.shape[0]} Q values): "
+                           + " | ".join(tail))
+    return HDRVDPResult(float(np.mean(qs)), mv.group(1).strip() if mv else "unknown", task, color_encoding, ppd,
+                        float(luminance_scale_cd_m2), eng, tuple(qs))
 
 
 def result_json(res: HDRVDPResult) -> str:

@@ -67,3 +67,32 @@ def test_score_video_with_hdrvdp():
     s = M.score_video(ref * 0.5, ref, hdrvdp={"hdrvdp_dir": STANDIN, "engine": "octave"})
     assert s["q"] == pytest.approx(10 + 0.001 * M.pixels_per_degree(), abs=1e-9)
     assert s["q_version"] == "3.0.6-standin" and s["q_luminance_scale_cd_m2"] == 4000.0
+
+
+@needs_octave
+def test_bridge_scores_a_stack_in_one_session():
+    rng = np.random.default_rng(5)
+    ref = rng.random((3, 6, 7)) + 0.05
+    test = ref * np.array([1.0, 1.5, 3.0])[:, None, None]
+    res = M.hdrvdp_q(test, ref, hdrvdp_dir=STANDIN, engine="octave", luminance_scale_cd_m2=100.0,
+                     pixels_per_degree=30.0)
+    # frame k: 10 - log10(factor)² + 0.03 (no pixel falls below the 1e-3 floor: ref >= 5 cd/m²)
+    want = [10 - np.log10(f) ** 2 + 0.03 for f in (1.0, 1.5, 3.0)]
+    np.testing.assert_allclose(res.q_frames, want, atol=1e-12)
+    assert res.q == pytest.approx(np.mean(want), abs=1e-12)
+
+
+@needs_octave
+def test_bench_rows_carry_q_and_its_settings(tmp_path):
+    from hybridhdr.evaluate import bench as B
+    b = B.parse_bench({"bench": {"warmup": False, "hdrvdp_dir": str(STANDIN), "strips": 0},
+                       "datasets": [{"kind": "procedural", "name": "p", "width": 24, "height": 16,
+                                     "duration_us": 120_000}],
+                       "methods": [{"method": "frames"}]})
+    rows = B.run_bench(b, workers=0, progress=False)
+    r = rows[0]
+    assert r["status"] == "ok" and 9 < r["q"] < 10.1
+    assert r["q_version"] == "3.0.6-standin" and r["q_task"] == "side-by-side"
+    w = B.write_results(rows, tmp_path, b)
+    line = [ln for ln in w["report_md"].read_text().splitlines() if ln.startswith("| p | frames |")][0]
+    assert f"| {r['q']:.2f} |" in line  # the Q column of the results table
