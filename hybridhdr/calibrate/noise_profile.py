@@ -11,7 +11,7 @@ the form the AKF filters in, since its state is log intensity)::
     f_w(z) = (d z / d ln X) / max = (1 / g'(z)) / max,   g(z) = ln CRF^-1(z)
 
 (from the log inverse response of :mod:`hybridhdr.calibrate.crf`; ``g'`` by central
-differences of ``g`` smoothed with a Gaussian of ``smooth_codes`` codes). The linear-irradiance
+differences of ``g`` smoothed with a Gaussian of ``smooth_codes`` codes, default 2 for 8 bits). The linear-irradiance
 form of eq. 4, ``dz/dX = 1 / (X g'(z))``, differs by a factor ``X``; it is available as
 ``domain="linear"`` (:func:`hybridhdr.reconstruct.profile.weighting_from_inverse_crf`). ``f_w`` is
 forced to 0 at the end codes (0 and max_code: clipped) and at codes that never occurred in the
@@ -55,7 +55,7 @@ def certainty(crf: CRF, *, domain: str = "log", smooth_codes: float | None = Non
     domain : {"log", "linear"}
         Slope with respect to log exposure (default) or linear exposure (eq. 4 literally).
     smooth_codes : float, optional
-        Gaussian smoothing of ``g`` before differencing, in codes (default ``n_codes / 256``).
+        Gaussian smoothing of ``g`` before differencing, in codes (default ``n_codes / 128``).
     channel : int, optional
         Channel of a colour CRF; None returns shape (C, n_codes) for all channels.
 
@@ -66,7 +66,7 @@ def certainty(crf: CRF, *, domain: str = "log", smooth_codes: float | None = Non
     if domain not in DOMAINS:
         raise ValueError(f"domain must be one of {DOMAINS}, got {domain!r}")
     n = crf.max_code + 1
-    s = float(n / 256.0 if smooth_codes is None else smooth_codes)
+    s = float(n / 128.0 if smooth_codes is None else smooth_codes)
     if not s >= 0:
         raise ValueError(f"smooth_codes must be >= 0, got {smooth_codes}")
     out = []

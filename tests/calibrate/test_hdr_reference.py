@@ -156,3 +156,46 @@ def test_register_recording_writes_new_file(tmp_path):
     assert reports[0]["n_inliers"] >= 8
     with pytest.raises(ValueError, match="never modified in place"):
         register_recording(ref, src, src)
+
+
+def test_cli_crf_and_hdr_reference(tmp_path):
+    """``hybridhdr calibrate crf`` then ``hdr-reference --register`` on synthetic data."""
+    import json
+
+    from hybridhdr.cli import main
+    from hybridhdr.container import read_recording, write_recording
+    from hybridhdr.capture.brackets import write_bracket_set
+    from hybridhdr.events import SensorSize, make_events
+    from hybridhdr.model import Frames, Recording
+    rng = np.random.default_rng(4)
+    h, w = 240, 320
+    E = hdr_scene(h, w, seed=2)
+    ex = [0.05, 0.2, 0.8, 3.2]
+    ident = np.eye(3)
+    brackets = write_bracket_set(tmp_path / "br", [render_frame(E, ident, t, rng) for t in ex], ex,
+                                 encoding="gamma", camera={"name": "synthetic"})
+    assert main(["calibrate", "crf", str(brackets), "--out", str(tmp_path / "cal")]) == 0
+    rep = json.loads((tmp_path / "cal" / "report.json").read_text())
+    assert rep["noise"]["estimator"].startswith("spatial") and rep["sigma2_im"] > 0
+    assert (tmp_path / "cal" / "crf_profile.png").exists()
+    Hs = [random_homography(h, w, rng) for _ in range(2)]
+    frames = Frames(np.stack([render_frame(E, H, 0.4, rng) for H in Hs]), [0, 50_000], [10_000, 60_000],
+                    encoding="gamma")
+    ev = make_events([1, 2], [0, 1], [0, 1], [1, -1])
+    rec = write_recording(Recording(ev, SensorSize(h, w), frames), tmp_path / "rec.h5")
+    rc = main(["calibrate", "hdr-reference", str(brackets), "--crf", str(tmp_path / "cal" / "crf.json"),
+               "--out", str(tmp_path / "ref.exr"), "--register", str(rec), "--out-recording",
+               str(tmp_path / "rec2.h5"), "--features", "sift", "--no-ecc", "--no-progress"])
+    assert rc == 0
+    rep = json.loads((tmp_path / "ref.json").read_text())
+    assert len(rep["registration"]) == 2 and (tmp_path / "ref.png").exists()
+    for fr, H in zip(rep["registration"], Hs):
+        assert fr["n_inliers"] > 100
+        assert corner_error(np.asarray(fr["homography"]), H, (h, w)) < 0.2
+    r2 = read_recording(tmp_path / "rec2.h5")
+    assert r2.hdr.images.shape == (2, h, w)
+    ref = read_exr_rgb(tmp_path / "ref.exr")
+    assert ref.shape == (h, w) and np.isfinite(ref).all()
+    # bad invocation: a clear one-line error, exit status 1
+    assert main(["calibrate", "hdr-reference", str(brackets), "--out", str(tmp_path / "x.exr"),
+                 "--register", str(rec)]) != 0

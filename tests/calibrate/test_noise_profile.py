@@ -13,8 +13,8 @@ from hybridhdr.reconstruct.profile import CameraProfile
 def test_certainty_log_domain_of_gamma():
     fw = certainty(CRF(gamma_crf()), channel=0)
     # g = 2.2 ln(z/255): 1/g'(z) = z/2.2, normalised by its maximum at code 254 -> f_w = z/254
-    z = np.arange(10, 250)
-    np.testing.assert_allclose(fw[z], z / 254.0, atol=2e-3)
+    z = np.arange(20, 250)  # (smoothing of 2 codes bends ln z below ~20)
+    np.testing.assert_allclose(fw[z], z / 254.0, rtol=0.01)  # smoothing shifts the max by ~0.4 %
     assert fw[0] == 0 and fw[255] == 0 and fw.max() == 1.0
     lin = certainty(CRF(gamma_crf()), channel=0, domain="linear")
     # eq. 4 literally: dz/dX ∝ X^(1/2.2 - 1) ∝ z^(1 - 2.2): decreasing in z

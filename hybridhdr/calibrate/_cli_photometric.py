@@ -1,0 +1,247 @@
+"""``hybridhdr calibrate crf`` and ``hybridhdr calibrate hdr-reference`` (see docs/calibrate.md).
+
+Heavy imports happen inside the command functions.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+
+def register(steps) -> None:
+    """Add the ``crf`` and ``hdr-reference`` steps to ``hybridhdr calibrate``."""
+    p = steps.add_parser(
+        "crf", help="camera response (Debevec/Robertson) and the AKF noise profile from exposure brackets",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Estimate the camera response function from a bracket set (docs/brackets.md), then the "
+                    "certainty/weighting function f_w, the noise level sigma^2_im and the covariance lookup "
+                    "R(code) = sigma^2_im / f_w (AKF eqs. 4-6). Writes OUT/crf.json, OUT/camera_profile.json "
+                    "(read by 'hybridhdr reconstruct --profile'), OUT/report.json and OUT/crf_profile.png.")
+    p.add_argument("brackets", type=Path, metavar="BRACKETS_DIR",
+                   help="bracket set folder: brackets.json, or images + exposures.txt, or EXIF exposures")
+    p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--method", default="debevec", choices=["debevec", "robertson"], help="CRF estimator")
+    p.add_argument("--smoothness", type=float, default=10.0,
+                   help="Debevec smoothness lambda (scaled by sqrt(samples*images/codes))")
+    p.add_argument("--samples", type=int, default=400, help="Debevec: pixels sampled per channel")
+    p.add_argument("--seed", type=int, default=0, help="seed of the pixel sampling")
+    p.add_argument("--sigma2-im", type=float, default=None,
+                   help="frame noise variance in intensity^2 (I in [0,1], top code = 1); default: estimated "
+                        "(temporal from equal exposures, else spatial Immerkaer)")
+    p.add_argument("--floor", type=float, default=0.09, help="floor of f_w (eq. 6 saturation; AKF code 0.09)")
+    p.add_argument("--domain", default="log", choices=["log", "linear"],
+                   help="certainty as the CRF slope w.r.t. log exposure (default) or linear exposure (eq. 4)")
+    p.add_argument("--ignore-colour", default=None, metavar="R,G,B",
+                   help="exclude pixels of this exact colour in any image (e.g. 0,0,255 for Debevec's scans)")
+    p.add_argument("--name", default="", help="camera name stored in the profile")
+    p.set_defaults(func=run_crf)
+
+    q = steps.add_parser(
+        "hdr-reference", help="merge brackets into an HDR reference (EXR); register it to a recording's frames",
+        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        description="Merge a bracket set into float32 relative radiance weighted by the certainty function "
+                    "(log domain with a CRF; Poisson ML in the linear domain for RAW/linear brackets) and write "
+                    "OpenEXR. With --register, register the reference to every frame of a recording (SURF or "
+                    "SIFT keypoints, ratio test, MAGSAC homography, optional ECC) and write a NEW recording with "
+                    "the warped references. Writes OUT.json (report) and OUT.png (reference, frame, overlay).")
+    q.add_argument("brackets", type=Path, metavar="BRACKETS_DIR", help="bracket set folder")
+    q.add_argument("--crf", type=Path, default=None,
+                   help="crf.json from 'calibrate crf' (default: estimated here with Debevec for coded images)")
+    q.add_argument("--out", type=Path, required=True, help="output EXR file (RGB or Y, float32)")
+    q.add_argument("--weighting", default="certainty", choices=["certainty", "hat"], help="merge weight per code")
+    q.add_argument("--ignore-colour", default=None, metavar="R,G,B", help="pixels of this colour are not sampled")
+    q.add_argument("--register", type=Path, default=None, metavar="REC", help="recording whose frames to register to")
+    q.add_argument("--out-recording", type=Path, default=None, metavar="REC2",
+                   help="new recording (hybridhdr HDF5) with the warped references; required with --register")
+    q.add_argument("--features", default="surf", choices=["surf", "sift"],
+                   help="keypoints: SURF (mahotas, or OpenCV non-free when present) or SIFT")
+    q.add_argument("--ecc", action=argparse.BooleanOptionalAction, default=True, help="ECC refinement")
+    q.add_argument("--ratio", type=float, default=0.75, help="Lowe ratio-test threshold")
+    q.add_argument("--ransac-px", type=float, default=3.0, help="MAGSAC/RANSAC inlier threshold in pixels")
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    q.set_defaults(func=run_hdr_reference)
+
+
+def _write_json(path: Path, obj) -> None:
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".partial", dir=path.parent)
+    try:
+        with os.fdopen(fd, "w", encoding="utf-8") as f:
+            json.dump(obj, f, indent=1, default=_default)
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def _default(o):
+    import numpy as np
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    return str(o)
+
+
+def _colour(text):
+    if text is None:
+        return None
+    try:
+        vals = tuple(int(v) for v in text.split(","))
+    except ValueError:
+        vals = ()
+    if len(vals) != 3:
+        raise ValueError(f"--ignore-colour must be R,G,B integers, got {text!r}")
+    return vals
+
+
+def _mask(bs, colour):
+    if colour is None:
+        return None
+    from ..capture.brackets import colour_mask
+    if bs.n_channels != 3:
+        raise ValueError("--ignore-colour needs RGB brackets")
+    return ~colour_mask(bs.images, colour)
+
+
+def run_crf(args) -> int:
+    import numpy as np
+
+    from .._version import __version__
+    from ..capture.brackets import read_bracket_set
+    from .crf import DebevecParams, RobertsonParams, estimate_crf
+    from .noise_profile import estimate_sigma2_im, noise_profile, plot_profile
+
+    t0 = time.perf_counter()
+    bs = read_bracket_set(args.brackets)
+    if bs.encoding in ("raw", "linear"):
+        print(f"note: {args.brackets} is '{bs.encoding}' (linear); the CRF estimate checks that linearity",
+              file=sys.stderr)
+    mask = _mask(bs, _colour(args.ignore_colour))
+    params = (DebevecParams(n_samples=args.samples, smoothness=args.smoothness, seed=args.seed)
+              if args.method == "debevec" else RobertsonParams(seed=args.seed))
+    print(f"{args.method}: {len(bs)} images {bs.shape}, exposures {bs.exposures_s.min():g}..{bs.exposures_s.max():g} s",
+          file=sys.stderr)
+    crf = estimate_crf(bs, None, args.method, params, mask=mask)
+    if args.sigma2_im is None:
+        s2, noise = estimate_sigma2_im(bs.images, bs.exposures_s, crf)
+    else:
+        s2, noise = float(args.sigma2_im), {"estimator": "given (--sigma2-im)"}
+    src = f"hybridhdr calibrate crf {args.method}, {len(bs)} exposures from {args.brackets.name}"
+    prof = noise_profile(crf, sigma2_im=s2, floor=args.floor, domain=args.domain, name=args.name, source=src,
+                         extra={"noise": noise})
+    out = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    crf.save(out / "crf.json")
+    prof.save(out / "camera_profile.json")
+    plot_profile(crf, prof, out / "crf_profile.png")
+    z = np.arange(crf.max_code + 1)
+    report = {"hybridhdr_version": __version__, "command": sys.argv, "brackets": str(args.brackets),
+              "n_images": len(bs), "shape": list(bs.shape), "encoding": bs.encoding,
+              "exposures_s": bs.exposures_s.tolist(), "method": args.method, "crf_info": crf.info,
+              "sigma2_im": s2, "frame_precision_scale": prof.frame_precision_scale, "noise": noise,
+              "floor": args.floor, "certainty_domain": args.domain,
+              "weighting_at": {int(c): float(prof.weighting[c]) for c in z[:: max(1, len(z) // 8)]},
+              "time_s": time.perf_counter() - t0,
+              "written": ["crf.json", "camera_profile.json", "crf_profile.png", "report.json"]}
+    _write_json(out / "report.json", report)
+    print(f"crf ({args.method}): sigma2_im {s2:.3g} (precision {prof.frame_precision_scale:.3g}) -> {out}")
+    return 0
+
+
+def run_hdr_reference(args) -> int:
+    import numpy as np
+
+    from .._version import __version__
+    from ..capture.brackets import read_bracket_set
+    from .crf import CRF, debevec
+    from .hdr_reference import RegistrationParams, merge_brackets, register_recording, write_exr
+
+    t0 = time.perf_counter()
+    if args.register is not None and args.out_recording is None:
+        raise ValueError("--register needs --out-recording (the input recording is never modified)")
+    if args.out_recording is not None and args.register is None:
+        raise ValueError("--out-recording needs --register REC")
+    bs = read_bracket_set(args.brackets)
+    mask = _mask(bs, _colour(args.ignore_colour))
+    crf = None
+    crf_src = None
+    if args.crf is not None:
+        crf = CRF.load(args.crf)
+        crf_src = str(args.crf)
+    elif bs.encoding not in ("raw", "linear"):
+        crf = debevec(bs, None, mask=mask)
+        crf_src = "estimated here (Debevec)"
+    info: dict = {}
+    E = merge_brackets(bs, None, crf, weighting=args.weighting, info=info)
+    write_exr(args.out, E)
+    report = {"hybridhdr_version": __version__, "command": sys.argv, "brackets": str(args.brackets),
+              "reference": str(args.out), "shape": list(E.shape), "crf": crf_src, "merge": info,
+              "radiance_range": [float(np.nanmin(E)), float(np.nanmax(E))]}
+    frame = H = None
+    if args.register is not None:
+        p = RegistrationParams(features=args.features, ecc=args.ecc, ratio=args.ratio, ransac_px=args.ransac_px)
+        out_rec, frames = register_recording(E, args.register, args.out_recording, p, progress=not args.no_progress)
+        report.update(recording=str(args.register), out_recording=str(out_rec), registration=frames,
+                      features=args.features, ecc=args.ecc,
+                      mean_time_s=float(np.mean([f["time_s"] for f in frames])),
+                      mean_reprojection_px=float(np.mean([f["reprojection_px"] for f in frames])))
+        from ..container import RecordingFile
+        with RecordingFile(args.register) as r:
+            fr = r.read_frames()
+        frame = fr.images[frames[0]["frame"]]
+        H = np.asarray(frames[0]["homography"])
+    report["time_s"] = time.perf_counter() - t0
+    _write_json(args.out.with_suffix(".json"), report)
+    _plot_reference(E, frame, H, args.out.with_suffix(".png"))
+    msg = f"hdr-reference: {E.shape} -> {args.out}"
+    if args.register is not None:
+        msg += (f"; {len(report['registration'])} frames registered (mean {report['mean_time_s']:.2f} s/frame) "
+                f"-> {args.out_recording}")
+    print(msg)
+    return 0
+
+
+def _plot_reference(E, frame, H, path: Path) -> None:
+    """Tone-mapped reference; with a registration also the frame and a red/cyan overlay."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    import numpy as np
+
+    from ..reconstruct.output import _atomic_target, _cleanup, _finish, tone_map
+    from .hdr_reference import to_grey, warp_reference
+
+    ref_t, lim = tone_map(to_grey(E)[None])
+    panels = [("HDR reference (log tone map)", ref_t[0])]
+    if frame is not None:
+        f = to_grey(frame)
+        warped = warp_reference(to_grey(E).astype(np.float32), H, f.shape)
+        wt, _ = tone_map(np.nan_to_num(warped, nan=1e-6)[None], limits=lim)
+        fn = np.clip(f / max(f.max(), 1e-9), 0, 1)
+        over = np.stack([wt[0] / 255.0, fn, fn], axis=-1)
+        panels += [("frame", f), ("overlay: red = warped reference, cyan = frame", over)]
+    fig, ax = plt.subplots(1, len(panels), figsize=(4.5 * len(panels), 4))
+    ax = np.atleast_1d(ax)
+    for a, (title, img) in zip(ax, panels):
+        a.imshow(img, cmap=None if img.ndim == 3 else "gray")
+        a.set_title(title, fontsize=9)
+        a.axis("off")
+    fig.tight_layout()
+    tmp = _atomic_target(path, ".png")
+    try:
+        fig.savefig(tmp, dpi=100, format="png")
+        _finish(tmp, path)
+    except BaseException:
+        _cleanup(tmp)
+        raise
+    finally:
+        plt.close(fig)
