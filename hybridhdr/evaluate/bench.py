@@ -405,8 +405,10 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
             own = isinstance(scheduler, str)
             client = Client(scheduler) if own else (scheduler if hasattr(scheduler, "submit") else Client(scheduler))
             try:
-                futs = [client.submit(run_task, t, opts, key=f"hybridhdr-bench-{bench.name}-{i}-{os.getpid()}",
-                                      pure=False) for i, t in enumerate(tasks)]
+                import uuid
+                tag = uuid.uuid4().hex[:12]  # fresh keys: a reused Client must not return old results
+                futs = [client.submit(run_task, t, opts, key=f"hybridhdr-bench-{bench.name}-{tag}-{i}", pure=False)
+                        for i, t in enumerate(tasks)]
                 index = {f.key: i for i, f in enumerate(futs)}
                 for f in as_completed(futs):
                     results[index[f.key]] = f.result()

@@ -111,8 +111,13 @@ def write_strip(images: dict, path, title: str = "") -> Path:
     panels = ([("LDR input", ldr, True)] if ldr is not None else []) + [(m, images[m], False) for m in methods] + \
              ([("reference", ref, False)] if ref is not None else [])
     _, lim = tone_map(ref[None]) if ref is not None else (None, None)
-    fig, axes = plt.subplots(1, len(panels), figsize=(2.1 * len(panels), 2.1 * 0.8 + 0.5), squeeze=False)
-    for ax, (name, img, raw) in zip(axes[0], panels):
+    ncol = min(len(panels), 7)
+    nrow = -(-len(panels) // ncol)
+    hw = (np.asarray(panels[0][1]).shape[0] / max(np.asarray(panels[0][1]).shape[1], 1)) if panels else 0.75
+    fig, axes = plt.subplots(nrow, ncol, figsize=(2.1 * ncol, nrow * (2.1 * hw + 0.35) + 0.3), squeeze=False)
+    for ax in axes.ravel()[len(panels):]:
+        ax.axis("off")
+    for ax, (name, img, raw) in zip(axes.ravel(), panels):
         if raw:
             ax.imshow(np.asarray(img), cmap="gray", vmin=0, vmax=255 if np.asarray(img).dtype.kind in "ui" else 1)
         else:
