@@ -11,7 +11,8 @@ Kinds (keys besides ``kind``/``name``):
     A built-in Mitsuba scene: ``scene`` (one of ``hybridhdr.simulate.builtin.BUILTIN_SCENES``),
     ``spp``.
 ``ahdr``
-    :func:`hybridhdr.simulate.ahdr.build_ahdr` on ``image`` (a path) with ``motion`` (a table).
+    :func:`hybridhdr.simulate.ahdr.build_ahdr` on ``image`` (a path, or ``"procedural:RATIO"``:
+    a still of the procedural scene at twice the sensor size) with ``motion`` (a table).
 
 Common keys: ``width``, ``height``, ``duration_us``, ``hdr_rate_hz`` (extra ground truth at
 that rate besides the frames' mid-exposures), ``sensor`` (preset name "ideal"/"clean"/"noisy"
@@ -85,6 +86,21 @@ def _params(cls, base, over: dict, what: str):
     return dataclasses.replace(base, **over) if over else base
 
 
+def _provenance_threshold(prov) -> float | None:
+    """The sensor's nominal threshold from a recording's provenance (any nesting), if stated."""
+    if isinstance(prov, dict):
+        on, off = prov.get("contrast_threshold_on"), prov.get("contrast_threshold_off")
+        if isinstance(on, (int, float)) and isinstance(off, (int, float)):
+            return 0.5 * (float(on) + float(off))
+        if isinstance(prov.get("contrast_threshold"), (int, float)):
+            return float(prov["contrast_threshold"])
+        for v in prov.values():
+            c = _provenance_threshold(v)
+            if c is not None:
+                return c
+    return None
+
+
 def simulated_dataset(spec: dict, seed: int) -> Dataset:
     from ..simulate.camera import FrameCameraParams
     from ..simulate.pipeline import simulate
@@ -142,10 +158,19 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
         except ImportError as e:
             raise ImportError(f"dataset kind 'ahdr' needs hybridhdr.simulate.ahdr (issue 5), not available: {e}") from e
         if "image" not in flat:
-            raise ValueError("an 'ahdr' dataset needs 'image' (an image path)")
-        rec = build_ahdr(flat["image"], sensor_size=SensorSize(h, w), duration_us=dur,
+            raise ValueError("an 'ahdr' dataset needs 'image' (an image path or 'procedural:RATIO')")
+        image = flat["image"]
+        if isinstance(image, str) and image.startswith("procedural"):
+            # a still of the procedural scene, twice the sensor size, disc RATIO x the background
+            from ..synthetic import ProceduralScene
+            ratio = float(image.split(":", 1)[1]) if ":" in image else 10.0
+            image = ProceduralScene(SensorSize(2 * h, 2 * w), bright_ratio=ratio,
+                                    disc_radius_px=float(min(h, w)) / 3).intensity(0).astype(np.float32)
+        rec = build_ahdr(image, sensor_size=SensorSize(h, w), duration_us=dur,
                          motion=dict(flat.get("motion", {})) or None, seed=seed)
         c = flat.get("contrast_threshold")
+        if c is None:
+            c = _provenance_threshold(rec.metadata.provenance)
         return Dataset(rec, None if c is None else float(c), dur,
                        {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
                         "events": int(len(rec.events))})

@@ -68,12 +68,9 @@ def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir
     for scene in ("dark_room_window", "night_drive_sign", "fast_object_bright_background"):
         ds.append({"name": f"HDR:{scene}", "kind": "builtin", "scene": scene, **common})
     if _has_ahdr():
-        # images with strong texture from the procedural generator are not files; the AHDR builder
-        # takes an image path, so use the bundled test-free option: its own default motion on
-        # a procedural image written by build_ahdr when given "procedural"
-        for i, img in enumerate(("procedural",) * 2):
-            ds.append({"name": f"AHDR:image{i}", "kind": "ahdr", "image": img, "width": size["width"],
-                       "height": size["height"], "duration_us": size["duration_us"], "contrast_threshold": 0.2})
+        for ratio in (3.0, 10.0):
+            ds.append({"name": f"AHDR:procedural_{ratio:g}x", "kind": "ahdr", "image": f"procedural:{ratio:g}",
+                       "width": size["width"], "height": size["height"], "duration_us": size["duration_us"]})
     else:
         clip = {"camera": {"exposure_us": 10_000, "code_clip": [100, 160]}}
         ds.append({"name": "AHDR:disc_3x", "kind": "sim_procedural", "bright_ratio": 3.0, **common, **clip})
