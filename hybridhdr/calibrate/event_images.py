@@ -69,6 +69,12 @@ class BlinkParams:
     median_radius: int = 1
     #: "count" (ON + OFF events of the *both* pixels; graded edges) or "binary" (windows fired)
     image_mode: str = "count"
+    #: count mode: this percentile of the non-zero counts maps to white (255) and higher counts
+    #: clip, so the per-pixel spread of event counts (threshold mismatch) inside the white squares
+    #: does not texture them while partly covered edge pixels stay graded. With 3-8 events per
+    #: pixel and transition, scaling by the 99th percentile left a texture that defeated the SB
+    #: detector (``benchmarks/calibrate_rig.py``)
+    count_white_percentile: float = 25.0
     #: blink period search range for the event-rate method, µs (5-20 Hz advised; 2-100 Hz accepted)
     min_period_us: int = 10_000
     max_period_us: int = 500_000
@@ -94,6 +100,8 @@ class BlinkParams:
             raise ValueError(f"median_radius must be in 0..10 pixels, got {self.median_radius}")
         if self.image_mode not in ("count", "binary"):
             raise ValueError(f"image_mode must be 'count' or 'binary', got {self.image_mode!r}")
+        if not 0.0 < float(self.count_white_percentile) <= 100.0:
+            raise ValueError(f"count_white_percentile must be in (0, 100], got {self.count_white_percentile}")
         if not 0 < int(self.min_period_us) < int(self.max_period_us):
             raise ValueError(f"need 0 < min_period_us < max_period_us, got {self.min_period_us}, "
                              f"{self.max_period_us}")
@@ -300,6 +308,7 @@ def blink_period_from_events(events, params: BlinkParams = BlinkParams()) -> Bli
     s = np.zeros(n_bins, np.float64)
     tot = np.zeros(n_bins, np.float64)
     k.binned_signed_rate(t, p, np.int64(t0), np.int64(bin_us), n_bins, s, tot)
+    s_raw = s.copy()
     s -= s.mean()
     nfft = 1 << int(math.ceil(math.log2(2 * n_bins)))
     f = np.fft.rfft(s, nfft)
@@ -334,11 +343,12 @@ def blink_period_from_events(events, params: BlinkParams = BlinkParams()) -> Bli
     ms_a, lags_a = np.asarray(ms, float), np.asarray(lags, float)
     period_bins = float(np.dot(ms_a, lags_a) / np.dot(ms_a, ms_a)) if ms else coarse
     period_us = period_bins * bin_us
-    # phase from the folded signed rate
+    # phase from the signed rate folded modulo the period (bin resolution is ample: the cut goes
+    # in a quiet gap of about half a period)
     n_phase = max(8, int(round(period_us / bin_us)))
-    ph = np.mod((t - t0).astype(np.float64), period_us) / period_us
-    idx = np.minimum((ph * n_phase).astype(np.int64), n_phase - 1)
-    fold = np.bincount(idx, weights=p.astype(np.float64), minlength=n_phase)
+    centres = (np.arange(n_bins) + 0.5) * bin_us
+    idx = np.minimum((np.mod(centres, period_us) / period_us * n_phase).astype(np.int64), n_phase - 1)
+    fold = np.bincount(idx, weights=s_raw, minlength=n_phase)
     i_on, i_off = int(np.argmax(fold)), int(np.argmin(fold))
     gap = (i_on - i_off) % n_phase
     start_phase = ((i_off + gap / 2.0) % n_phase) / n_phase * period_us
@@ -435,15 +445,15 @@ def _finish_image(acc: np.ndarray, n_windows: int, params: BlinkParams) -> np.nd
     nz = img[img > 0]
     if nz.size == 0:
         return np.zeros(img.shape, np.uint8)
-    top = float(np.percentile(nz, 99.0)) if params.image_mode == "count" else 1.0
+    top = float(np.percentile(nz, params.count_white_percentile)) if params.image_mode == "count" else 1.0
     return np.clip(np.round(img / top * 255.0), 0, 255).astype(np.uint8)
 
 
 def accumulate_image(events, sensor_size, t0_us, t1_us, params: BlinkParams = BlinkParams()) -> np.ndarray:
     """uint8 event image of the *both* pixels over the given windows (no rejection; see step 5).
 
-    In ``count`` mode the accumulated counts are scaled so that the 99th percentile of the
-    non-zero pixels maps to 255; in ``binary`` mode, 255 means "fired both polarities in every
+    In ``count`` mode the accumulated counts are scaled so that the ``count_white_percentile``
+    percentile of the non-zero pixels maps to 255 (higher counts clip); in ``binary`` mode, 255 means "fired both polarities in every
     window".
     """
     use = np.ones(np.asarray(t0_us).shape[0], np.bool_)
