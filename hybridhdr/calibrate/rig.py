@@ -597,7 +597,7 @@ def stereo_rectify(rig: "RigCalibration", alpha: float = 0.0) -> dict:
     K1[1, 2] = sy * (K1[1, 2] + 0.5) - 0.5
     size = (c2.image_size.width, c2.image_size.height)
     R1, R2, P1, P2, Q, roi1, roi2 = cv2.stereoRectify(K1, c1.dist, c2.K, c2.dist, size, rig.stereo.R,
-                                                      rig.stereo.T_m, alpha=alpha)
+                                                      rig.stereo.T_m.reshape(3, 1), alpha=alpha)
     return {"R1": R1, "R2": R2, "P1": P1, "P2": P2, "Q": Q, "K1_scaled": K1, "roi1": roi1, "roi2": roi2}
 
 

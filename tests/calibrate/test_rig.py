@@ -11,7 +11,7 @@ import pytest
 from hybridhdr.calibrate.event_images import blink_image
 from hybridhdr.calibrate.rig import (Board, CameraCalibration, RigCalibration, calibrate_camera, calibrate_rig,
                                      find_corners, frame_to_event_maps, load_calibration, parallax_error,
-                                     plane_homography, undistort_normalized)
+                                     plane_homography, stereo_rectify, undistort_normalized)
 from hybridhdr.events import SensorSize
 
 from . import _sim as S
@@ -165,6 +165,22 @@ def test_frame_to_event_maps(sim_rig):
     err = np.abs(warped - ce)[inner]
     print(f"warp error: mean {err.mean():.4f}, fraction > 0.5: {(err > 0.5).mean():.5f}")
     assert err.mean() < 0.02 and (err > 0.5).mean() < 0.002
+
+
+def test_stereo_rectify_rows_agree(sim_rig):
+    # rectification at the event resolution: a 3D point lands on the same row in both cameras
+    r = stereo_rectify(sim_rig["rig"])
+    st = sim_rig["rig"].stereo
+    rng = np.random.default_rng(5)
+    X = np.c_[rng.uniform(-0.2, 0.2, 30), rng.uniform(-0.15, 0.15, 30), rng.uniform(0.5, 3, 30)].T
+    p1 = r["P1"][:, :3] @ (r["R1"] @ X)
+    # P2 takes points in the rectified camera-1 frame (OpenCV convention) ...
+    p2 = r["P2"] @ np.vstack([r["R1"] @ X, np.ones(30)])
+    np.testing.assert_allclose(p1[1] / p1[2], p2[1] / p2[2], atol=1e-6)
+    # ... which is camera 2's rectified frame shifted along the baseline: same rows via R2
+    q2 = r["P2"][:, :3] @ (r["R2"] @ (st.R @ X + st.T_m[:, None]))
+    np.testing.assert_allclose(q2[1] / q2[2], p1[1] / p1[2], atol=1e-6)
+    assert r["K1_scaled"][0, 0] == pytest.approx(sim_rig["rig"].camera1.K[0, 0] * 320 / 480)
 
 
 # ---------------------------------------------------------------------------------------------- file format
