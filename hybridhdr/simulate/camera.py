@@ -310,7 +310,8 @@ class FrameCamera:
     sensor_size : SensorSize or (height, width)
     seed : int, SeedSequence or None
     duration_us : int, optional
-        Frames whose exposure would end after it are not planned.
+        Frames whose exposure would end after it are not planned. Without it (or with
+        auto-exposure) only the next frame is planned at any time.
     """
 
     def __init__(self, params: FrameCameraParams, sensor_size, seed=0, duration_us: int | None = None):
@@ -326,7 +327,9 @@ class FrameCamera:
         self._new_intervals: list[tuple[int, int]] = []
         self._last = None
         self.n_frames = 0
-        self._planned_all = not params.auto_exposure
+        # without auto-exposure and with a known duration every exposure is planned now;
+        # otherwise each frame plans the next when it completes (pop_new_intervals)
+        self._planned_all = not params.auto_exposure and duration_us is not None
         if self._planned_all:
             k = 0
             while True:
