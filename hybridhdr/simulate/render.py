@@ -303,7 +303,10 @@ class MitsubaSource:
         self._emitters = []  # (key, Emitter)
         for i, e in enumerate(sc.emitters):
             key = f"em{i}"
-            d[key] = self._emitter_dict(e, 0)
+            # loaded one by one: inside one load_dict call, equal nested dicts (e.g. two
+            # {'type': 'uniform', 'value': 1.0}) become one shared object, so scaling one light's
+            # power through traverse would scale the other's too
+            d[key] = mi.load_dict(self._emitter_dict(e, 0))
             self._emitters.append((key, e))
 
         if sum(e.sampling_weight for e in sc.emitters) == 0:
@@ -316,6 +319,20 @@ class MitsubaSource:
         self._params = mi.traverse(self._mscene)
         self._last: dict = {}
         self.load_time_s = time.perf_counter() - t0
+        # traversable power parameter of each blinking emitter (Mitsuba 3.9 exposes a spot's
+        # intensity as 'texture', and a directional light's irradiance not at all)
+        self._blink_keys = {}
+        for key, e in self._emitters:
+            if e.blink is None:
+                continue
+            cands = {"point": ("intensity.value",), "spot": ("intensity.value", "texture.value"),
+                     "constant": ("radiance.value",), "directional": ("irradiance.value",)}[e.kind]
+            found = [f"{key}.{c}" for c in cands if f"{key}.{c}" in self._params.keys()]
+            if not found:
+                raise SceneError(f"emitter {key[2:]} ({e.kind}): 'blink' is not supported for this emitter type "
+                                 "(Mitsuba does not expose its power for updates); blink a point/spot light or "
+                                 "an emissive object instead")
+            self._blink_keys[key] = found[0]
         self._static_tris: dict = {}
 
     def _camera_matrix(self, t_us: float) -> np.ndarray:
@@ -392,7 +409,7 @@ class MitsubaSource:
             if e.blink is not None:
                 name = {"point": "intensity", "spot": "intensity", "directional": "irradiance",
                         "constant": "radiance"}[e.kind]
-                changed |= self._set(f"{key}.{name}.value", float(getattr(e, name) * s))
+                changed |= self._set(self._blink_keys[key], float(getattr(e, name) * s))
             if e.attached_to_camera:
                 pos, aim, dirn = self._emitter_frame(e, t_us)
                 if e.kind == "point":

@@ -154,3 +154,22 @@ def test_checkerboard_texture_orientation():
     # the board spans pixels 0..39; quadrant centres at 10 and 30
     assert img[10, 10] == pytest.approx(9.0) and img[30, 30] == pytest.approx(9.0)
     assert img[10, 30] == pytest.approx(1.0) and img[30, 10] == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("kind", ["point", "spot", "directional"])
+def test_blinking_light_leaves_the_others_alone(kind):
+    # regression: equal nested dicts in one mi.load_dict call share one spectrum object, so
+    # blinking one light also scaled an equally bright other light
+    from hybridhdr.simulate.scene import Blink
+    cam = CameraSpec(32, 24, 26.0, 26.0, 15.5, 11.5)
+    wall = SceneObject("w", MeshSpec("plane", size=(10.0, 10.0)), trajectory=Trajectory.static((0.0, 0.0, 3.0)))
+    steady = Emitter("directional", direction=(0.0, 0.0, 1.0), irradiance=1.0)
+    blink = Blink(period_us=400, duty=0.5, off_scale=0.0)
+    blinker = {"point": Emitter("point", position=(0.0, 0.0, 0.0), intensity=1.0, blink=blink),
+               "spot": Emitter("spot", position=(0.0, 0.0, 0.0), look_at=(0.0, 0.0, 1.0), intensity=1.0, blink=blink),
+               "directional": Emitter("directional", direction=(0.0, 0.3, 1.0), irradiance=1.0, blink=blink)}[kind]
+    src = MitsubaSource(Scene("t", 1000, cam, (wall,), (blinker, steady), RenderSettings(spp=1)))
+    on, off = src.render(0), src.render(250)
+    # off: only the steady sun, Lambertian rho/pi * E = 0.5/pi everywhere
+    assert np.allclose(off, 0.5 / math.pi, rtol=1e-5)
+    assert on[12, 16] > off[12, 16] * 1.01 and np.all(on >= off)  # the centre is inside a spot's cone
