@@ -181,3 +181,47 @@ def robust_abs_max(a, b, k):
                 j -= 1
             buf[j] = v
     return buf[k - 1]
+
+
+@njit(cache=True, nogil=True)
+def decode_rgbe(data, start, height, width, out):
+    """Decode Radiance RGBE scanlines (new-style run-length or flat) from ``data[start:]`` into
+    ``out`` (height, width, 4) uint8. Returns the byte offset after the pixels, or -1 if the data
+    end early, -2 on a corrupt run."""
+    pos = start
+    n = data.shape[0]
+    for y in range(height):
+        if pos + 4 <= n and data[pos] == 2 and data[pos + 1] == 2 and (data[pos + 2] & 0x80) == 0 \
+                and 8 <= width < 32768 and (int(data[pos + 2]) * 256 + int(data[pos + 3])) == width:
+            pos += 4
+            for c in range(4):
+                x = 0
+                while x < width:
+                    if pos >= n:
+                        return -1
+                    cnt = int(data[pos])
+                    pos += 1
+                    if cnt > 128:
+                        cnt -= 128
+                        if x + cnt > width or pos >= n:
+                            return -2
+                        v = data[pos]
+                        pos += 1
+                        for k in range(cnt):
+                            out[y, x + k, c] = v
+                        x += cnt
+                    else:
+                        if cnt == 0 or x + cnt > width or pos + cnt > n:
+                            return -2
+                        for k in range(cnt):
+                            out[y, x + k, c] = data[pos + k]
+                        pos += cnt
+                        x += cnt
+        else:  # flat (uncompressed) scanline
+            if pos + 4 * width > n:
+                return -1
+            for x in range(width):
+                for c in range(4):
+                    out[y, x, c] = data[pos + 4 * x + c]
+            pos += 4 * width
+    return pos
