@@ -203,16 +203,20 @@ def decode_rgbe(data, start, height, width, out):
                     pos += 1
                     if cnt > 128:
                         cnt -= 128
-                        if x + cnt > width or pos >= n:
+                        if x + cnt > width:
                             return -2
+                        if pos >= n:
+                            return -1
                         v = data[pos]
                         pos += 1
                         for k in range(cnt):
                             out[y, x + k, c] = v
                         x += cnt
                     else:
-                        if cnt == 0 or x + cnt > width or pos + cnt > n:
+                        if cnt == 0 or x + cnt > width:
                             return -2
+                        if pos + cnt > n:
+                            return -1
                         for k in range(cnt):
                             out[y, x + k, c] = data[pos + k]
                         pos += cnt
