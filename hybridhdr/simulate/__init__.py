@@ -1,6 +1,7 @@
 """Simulate: Mitsuba 3 scenes to events, LDR frames and HDR ground truth (see issue 5)."""
 
 # sensor models, time sampling, pipeline and AHDR builder (docs/simulate-sensor.md)
+from .ahdr import ImageMotionSource, ImageSequenceSource, MotionParams, build_ahdr
 from .camera import FrameCamera, FrameCameraParams
 from .pipeline import SimulationResult, simulate, simulate_to_file
 from .sampling import SamplingParams, TimeSampler, event_fidelity
@@ -22,4 +23,5 @@ __all__: list[str] = [
     "FrameCameraParams", "FrameCamera",
     "SamplingParams", "TimeSampler", "event_fidelity",
     "simulate", "simulate_to_file", "SimulationResult",
+    "MotionParams", "ImageMotionSource", "ImageSequenceSource", "build_ahdr",
 ]
