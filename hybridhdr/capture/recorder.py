@@ -47,7 +47,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize
-from ..model import CameraInfo, Frames, Metadata
+from ..model import Frames, Metadata
 
 __all__ = ["Recorder", "RecorderStats", "recover", "journal_path", "JournalWriter", "read_journal",
            "ON_FULL_POLICIES"]
