@@ -81,7 +81,7 @@ def main() -> int:
     res["local_processes_equal_in_process"] = same(r0, r2)
     try:
         from dask.distributed import LocalCluster
-        with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cl:
+        with LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0") as cl:
             t0 = time.perf_counter()
             rd = B.run_bench(bench, scheduler=cl.scheduler_address, progress=False)
             res["tiny_bench_dask_localcluster_s"] = time.perf_counter() - t0

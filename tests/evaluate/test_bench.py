@@ -123,7 +123,7 @@ def test_local_processes_equal_dask_and_in_process(tmp_path):
     b = _bench()
     local = B.run_bench(b, workers=2, progress=False)
     inproc = B.run_bench(b, workers=0, progress=False)
-    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=None) as cl:
+    with distributed.LocalCluster(n_workers=1, threads_per_worker=2, processes=False, dashboard_address=":0") as cl:
         with distributed.Client(cl) as client:
             dask_rows = B.run_bench(b, scheduler=cl.scheduler_address, progress=False)
             assert client.status == "running"
