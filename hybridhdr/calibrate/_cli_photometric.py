@@ -40,6 +40,7 @@ def register(steps) -> None:
     p.add_argument("--ignore-colour", default=None, metavar="R,G,B",
                    help="exclude pixels of this exact colour in any image (e.g. 0,0,255 for Debevec's scans)")
     p.add_argument("--name", default="", help="camera name stored in the profile")
+    p.add_argument("--no-progress", action="store_true", help="no progress bar (Robertson)")
     p.set_defaults(func=run_crf)
 
     q = steps.add_parser(
@@ -130,7 +131,7 @@ def run_crf(args) -> int:
               if args.method == "debevec" else RobertsonParams(seed=args.seed))
     print(f"{args.method}: {len(bs)} images {bs.shape}, exposures {bs.exposures_s.min():g}..{bs.exposures_s.max():g} s",
           file=sys.stderr)
-    crf = estimate_crf(bs, None, args.method, params, mask=mask)
+    crf = estimate_crf(bs, None, args.method, params, mask=mask, progress=not args.no_progress)
     if args.sigma2_im is None:
         s2, noise = estimate_sigma2_im(bs.images, bs.exposures_s, crf)
     else:

@@ -27,8 +27,8 @@ with ``z_mid = (max_code + 1) // 2``.
 
 The end codes 0 and max_code are clipped (weight 0), so their ``g`` is not determined by the
 data: it is extrapolated linearly from the two neighbouring codes. Both results are then made
-non-decreasing (a response is monotonic); the number of codes that had to be raised is reported
-in ``info["monotonic_fixes"]``.
+non-decreasing (a response is monotonic) by a weighted isotonic (pool-adjacent-violators) fit;
+the number of codes it changed is reported in ``info["monotonic_fixes"]``.
 """
 
 from __future__ import annotations
@@ -323,15 +323,36 @@ def _select_samples(ch: np.ndarray, n_samples: int, rng, valid: np.ndarray | Non
     return order[np.minimum(pick, order.size - 1)]
 
 
-def _monotone(g: np.ndarray) -> tuple[np.ndarray, int]:
+def _isotonic(y: np.ndarray, w: np.ndarray) -> np.ndarray:
+    """Weighted least-squares non-decreasing fit (pool adjacent violators)."""
+    vals, wts, lens = [], [], []
+    for yi, wi in zip(y.tolist(), w.tolist()):
+        vals.append(yi)
+        wts.append(wi)
+        lens.append(1)
+        while len(vals) > 1 and vals[-2] > vals[-1]:
+            wsum = wts[-2] + wts[-1]
+            v = (vals[-2] * wts[-2] + vals[-1] * wts[-1]) / wsum
+            n = lens[-2] + lens[-1]
+            del vals[-1], wts[-1], lens[-1]
+            vals[-1], wts[-1], lens[-1] = v, wsum, n
+    return np.repeat(np.array(vals), lens)
+
+
+def _monotone(g: np.ndarray, weights: np.ndarray | None = None) -> tuple[np.ndarray, int]:
     """End codes (0 and max: clipped, zero weight, so not determined by data) are extrapolated
-    linearly from their two neighbours; then ``g`` is made non-decreasing."""
+    from their two neighbours with a non-negative slope; then ``g`` is made non-decreasing by a
+    weighted isotonic fit (weights: how often each code occurred), so that one noisy, rarely seen
+    code cannot flatten the curve (as a running maximum would). Returns (g, codes changed)."""
     g = g.copy()
     if g.size >= 4:
-        g[0] = g[1] - (g[2] - g[1])
-        g[-1] = g[-2] + (g[-2] - g[-3])
-    m = np.maximum.accumulate(g)
-    return m, int(np.count_nonzero(m > g + 1e-12))
+        g[0] = g[1] - max(g[2] - g[1], 0.0)
+        g[-1] = g[-2] + max(g[-2] - g[-3], 0.0)
+    if np.all(np.diff(g) >= 0):
+        return g, 0
+    w = np.ones_like(g) if weights is None else np.asarray(weights, np.float64) + 1e-3
+    m = _isotonic(g, w)
+    return m, int(np.count_nonzero(np.abs(m - g) > 1e-12))
 
 
 # -- Debevec ----------------------------------------------------------------------------------
@@ -429,6 +450,11 @@ def _fill_unseen(logI: np.ndarray, seen: np.ndarray) -> np.ndarray:
     k = min(4, zs.size - 1)
     lo_slope = (gs[k] - gs[0]) / (zs[k] - zs[0])
     hi_slope = (gs[-1] - gs[-1 - k]) / (zs[-1] - zs[-1 - k])
+    # a response rises: a negative end slope (noise on rarely seen codes) is replaced by the
+    # mean slope over the observed codes
+    mean_slope = max((gs[-1] - gs[0]) / max(zs[-1] - zs[0], 1.0), 0.0)
+    lo_slope = lo_slope if lo_slope > 0 else mean_slope
+    hi_slope = hi_slope if hi_slope > 0 else mean_slope
     out[z < zs[0]] = gs[0] + lo_slope * (z[z < zs[0]] - zs[0])
     out[z > zs[-1]] = gs[-1] + hi_slope * (z[z > zs[-1]] - zs[-1])
     return out
@@ -447,6 +473,10 @@ def robertson(images, exposures_s=None, params: RobertsonParams | None = None, *
     w = robertson_weight(n)
     mid = n // 2
     gs, observed, infos = [], [], []
+    bar = None
+    if progress:
+        from tqdm import tqdm
+        bar = tqdm(total=stack.shape[3] * p.max_iter, desc="robertson", unit="iter")
     for c in range(stack.shape[3]):
         Z = stack[..., c].reshape(K, -1)[:, flat].astype(np.int64)  # (K, N)
         hist = np.bincount(Z.ravel(), minlength=n)[:n]
@@ -476,24 +506,33 @@ def robertson(images, exposures_s=None, params: RobertsonParams | None = None, *
             newI = np.exp(logI)
             change = float(np.mean(np.abs(np.log(newI) - np.log(I))))
             I = newI
+            if bar is not None:
+                bar.update(1)
             if change < p.tol:
                 break
-        g, fixes = _monotone(np.log(I))
+        if bar is not None:
+            bar.update(p.max_iter - it)
+        g, fixes = _monotone(np.log(I), hist)
         g -= g[mid]
         gs.append(g)
         observed.append(seen)
         infos.append({"iterations": it, "last_change": change, "unseen_codes": int(np.count_nonzero(~seen)),
                       "unseen_filled": "log-linear interpolation/extrapolation", "monotonic_fixes": fixes,
                       "n_pixels": int(flat.size)})
-    return CRF(np.array(gs), "robertson", np.array(observed),
-               {"params": {"max_iter": p.max_iter, "tol": p.tol, "max_pixels": p.max_pixels, "seed": p.seed},
+    crf = CRF(np.array(gs), "robertson", np.array(observed),
+              {"params": {"max_iter": p.max_iter, "tol": p.tol, "max_pixels": p.max_pixels, "seed": p.seed},
                 "exposures_s": ex.tolist(), "channels": infos})
+    if bar is not None:
+        bar.close()
+    return crf
 
 
-def estimate_crf(images, exposures_s=None, method: str = "debevec", params=None, *, mask=None) -> CRF:
-    """Dispatch to :func:`debevec` or :func:`robertson` (``method``)."""
+def estimate_crf(images, exposures_s=None, method: str = "debevec", params=None, *, mask=None,
+                 progress: bool = False) -> CRF:
+    """Dispatch to :func:`debevec` or :func:`robertson` (``method``); ``progress`` shows a tqdm
+    bar for Robertson's iterations."""
     if method == "debevec":
         return debevec(images, exposures_s, params, mask=mask)
     if method == "robertson":
-        return robertson(images, exposures_s, params, mask=mask)
+        return robertson(images, exposures_s, params, mask=mask, progress=progress)
     raise ValueError(f"method must be one of {METHODS}, got {method!r}")
