@@ -86,6 +86,43 @@ def _params(cls, base, over: dict, what: str):
     return dataclasses.replace(base, **over) if over else base
 
 
+def camera_profile(camera):
+    """A reconstruction :class:`CameraProfile` for a simulated camera whose codes are clipped.
+
+    The inverse CRF is the simulator's own table (:func:`hybridhdr.simulate.camera.crf_inverse_table`,
+    flat beyond the clip); the weighting is eqs. 4-5 of that table
+    (:func:`hybridhdr.reconstruct.profile.weighting_from_inverse_crf`) with the clip codes
+    themselves set to 0 (a clipped code only bounds the intensity). ``None`` when the camera does
+    not clip (the built-in profile of the frames' encoding then applies).
+    """
+    if camera is None or getattr(camera, "code_clip", None) is None:
+        return None
+    from ..reconstruct.profile import CameraProfile, weighting_from_inverse_crf
+    from ..simulate.camera import crf_inverse_table
+    inv = np.asarray(crf_inverse_table(camera), dtype=np.float64)
+    inv = inv / inv[-1]
+    w = weighting_from_inverse_crf(inv)
+    lo, hi = camera.code_clip
+    w[: int(lo) + 1] = 0.0
+    w[int(hi):] = 0.0
+    return CameraProfile(weighting=w, inverse_crf=inv, name=f"simulated {camera.crf} camera, codes clipped to "
+                                                             f"[{lo}, {hi}]", source="hybridhdr.evaluate._simdata")
+
+
+def profile_from_provenance(prov):
+    """:func:`camera_profile` of the camera recorded in a simulated recording's provenance."""
+    cam = prov.get("camera") if isinstance(prov, dict) else None
+    if not isinstance(cam, dict) or cam.get("code_clip") is None:
+        return None
+    from ..simulate.camera import FrameCameraParams
+    names = {f.name for f in dataclasses.fields(FrameCameraParams)}
+    kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items() if k in names}
+    try:
+        return camera_profile(FrameCameraParams(**kw))
+    except (TypeError, ValueError):
+        return None
+
+
 def _provenance_threshold(prov) -> float | None:
     """The sensor's nominal threshold from a recording's provenance (any nesting), if stated."""
     if isinstance(prov, dict):
@@ -166,14 +203,24 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
             ratio = float(image.split(":", 1)[1]) if ":" in image else 10.0
             image = ProceduralScene(SensorSize(2 * h, 2 * w), bright_ratio=ratio,
                                     disc_radius_px=float(min(h, w)) / 3).intensity(0).astype(np.float32)
-        rec = build_ahdr(image, sensor_size=SensorSize(h, w), duration_us=dur,
-                         motion=dict(flat.get("motion", {})) or None, seed=seed)
+        from ..simulate.ahdr import MotionParams
+        mot = flat.get("motion")
+        mot = MotionParams(**{**dict(mot), **dotted["motion"]}) if (mot or dotted["motion"]) else None
+        akw = {}
+        if flat.get("sampling") or dotted["sampling"]:
+            akw["sampling"] = sampling
+        if isinstance(sens, dict) or s_over:
+            akw["sensor"] = sensor
+        if "frame_rate_hz" in dotted["camera"]:
+            akw["frame_rate_hz"] = float(dotted["camera"]["frame_rate_hz"])
+        rec = build_ahdr(image, sensor_size=SensorSize(h, w), duration_us=dur, motion=mot, gt_times_us=gt,
+                         seed=int(seed) + int(flat.get("seed_offset", 0)), **akw)
         c = flat.get("contrast_threshold")
         if c is None:
             c = _provenance_threshold(rec.metadata.provenance)
         return Dataset(rec, None if c is None else float(c), dur,
                        {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
-                        "events": int(len(rec.events))})
+                        "events": int(len(rec.events))}, profile_from_provenance(rec.metadata.provenance))
     res = simulate(source, sensor=sensor, camera=camera, sampling=sampling, gt_times_us=gt,
                    seed=int(seed) + int(flat.get("seed_offset", 0)), progress=False)
     rec = res.recording
@@ -185,4 +232,4 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
     if frames is not None and len(frames):
         top = np.iinfo(frames.images.dtype).max if frames.images.dtype.kind == "u" else 1.0
         desc["saturated_fraction"] = float(np.mean(frames.images >= top))
-    return Dataset(rec, float(c_nominal), dur, desc)
+    return Dataset(rec, float(c_nominal), dur, desc, camera_profile(camera))

@@ -328,7 +328,8 @@ def run_task(task, bench_opts: dict) -> list[dict]:
                 times = times[times > int(rec.events["t"][0])] if len(rec.events) else times
             _peak_rss_reset()
             t0 = time.perf_counter()
-            v = reconstruct(rec, run.method, params, times_us=times, mode=run.mode, augment=run.augment)
+            v = reconstruct(rec, run.method, params, times_us=times, mode=run.mode, augment=run.augment,
+                            profile=data.profile)
             wall = time.perf_counter() - t0
             row["peak_rss_mb"] = _peak_rss_mb()
             vi, ri = match_frames(v.t_us, hdr.t_us, int(bench_opts["tolerance_us"]))

@@ -72,12 +72,16 @@ class Dataset:
         Length of the data in µs (for "time per second of data").
     description : dict
         The resolved spec and generator statistics.
+    profile : CameraProfile or None
+        Camera profile the methods should read the frames with (None: the built-in profile for
+        the frames' encoding); set for simulated cameras with clipped codes (AHDR).
     """
 
     recording: Recording
     contrast_threshold: float | None
     duration_us: int
     description: dict = field(default_factory=dict)
+    profile: object = None
 
 
 def _check_keys(spec: dict, allowed, kind):
@@ -262,7 +266,10 @@ def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
     meta = path.with_suffix(".json")
     if path.is_file() and meta.is_file():
         info = json.loads(meta.read_text())
-        return Dataset(read_recording(path), info["contrast_threshold"], info["duration_us"], info["description"])
+        rec = read_recording(path)
+        from ._simdata import profile_from_provenance
+        return Dataset(rec, info["contrast_threshold"], info["duration_us"], info["description"],
+                       profile_from_provenance(rec.metadata.provenance))
     data = _simulated(spec, seed)
     write_recording(data.recording, path)  # atomic (.partial + rename)
     tmp = meta.with_name(meta.name + ".partial")

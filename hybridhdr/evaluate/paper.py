@@ -11,7 +11,9 @@ We rebuild both sets with the simulator (issue 5):
   ``night_drive_sign``, ``fast_object_bright_background``) through the "clean" event sensor and
   an 8-bit gamma frame camera.
 - **AHDR set**: AHDR-style recordings: when :func:`hybridhdr.simulate.ahdr.build_ahdr` exists,
-  from images with simulated motion; otherwise the procedural scene (low dynamic range, 3:1 and
+  from stills of the procedural scene (3:1 and 10:1) with its default camera motion and frame
+  codes clipped to [100, 160], read with a camera profile built from the simulator's clipped
+  inverse CRF (:func:`hybridhdr.evaluate._simdata.camera_profile`); otherwise the procedural scene (low dynamic range, 3:1 and
   10:1) and ``slow_static`` through a camera whose codes are clipped to [100, 160]
   (``FrameCameraParams.code_clip``, the AKF paper's artificial saturation).
 
@@ -70,7 +72,8 @@ def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir
     if _has_ahdr():
         for ratio in (3.0, 10.0):
             ds.append({"name": f"AHDR:procedural_{ratio:g}x", "kind": "ahdr", "image": f"procedural:{ratio:g}",
-                       "width": size["width"], "height": size["height"], "duration_us": size["duration_us"]})
+                       "width": size["width"], "height": size["height"], "duration_us": size["duration_us"],
+                       "hdr_rate_hz": hdr_rate, "sampling": dict(sampling)})
     else:
         clip = {"camera": {"exposure_us": 10_000, "code_clip": [100, 160]}}
         ds.append({"name": "AHDR:disc_3x", "kind": "sim_procedural", "bright_ratio": 3.0, **common, **clip})

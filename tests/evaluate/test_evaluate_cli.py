@@ -144,3 +144,23 @@ def test_real_data_holdout_frame_prediction(shared_data):
     akf, zoh = rows
     assert akf["n_frames"] == 1 and akf["n_nonfinite"] == 0
     assert akf["mse"] < 0.75 * zoh["mse"]
+
+
+def test_ahdr_dataset_and_clipped_camera_profile():
+    pytest.importorskip("hybridhdr.simulate.ahdr")
+    from hybridhdr.evaluate._simdata import camera_profile
+    from hybridhdr.evaluate.datasets import load_dataset
+    from hybridhdr.simulate.camera import FrameCameraParams, crf_inverse_table
+    cam = FrameCameraParams(crf="gamma", code_clip=(100, 160))
+    prof = camera_profile(cam)
+    inv = crf_inverse_table(cam)
+    np.testing.assert_allclose(prof.inverse_crf, inv / inv[-1], rtol=1e-12)
+    assert np.all(prof.weighting[:101] == 0) and np.all(prof.weighting[160:] == 0)
+    assert prof.weighting[130] > 0
+    assert camera_profile(FrameCameraParams(crf="gamma")) is None
+    d = load_dataset({"kind": "ahdr", "image": "procedural:3", "width": 24, "height": 16, "duration_us": 150_000,
+                      "sampling": {"mode": "fixed", "fixed_rate_hz": 500.0}, "motion": {"pan_x_px": 10.0}}, seed=0)
+    im = d.recording.frames.images
+    assert im.min() >= 100 and im.max() <= 160 and len(d.recording.events) > 0
+    assert d.contrast_threshold == pytest.approx(0.2)  # from the recording's provenance (clean preset)
+    assert d.profile is not None and d.profile.weighting[100] == 0
