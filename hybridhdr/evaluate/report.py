@@ -78,12 +78,19 @@ def akf_vs_cf(rows, datasets=None, akf_label: str = "akf", cf_label: str = "cf")
     return out
 
 
+def _lower(pct: float) -> str:
+    """'12.3% lower' / '4.5% higher' for an MSE reduction in %."""
+    if not math.isfinite(pct):
+        return "n/a"
+    return f"{pct:.1f}% lower" if pct >= 0 else f"{-pct:.1f}% higher"
+
+
 def akf_vs_cf_text(c: dict) -> str:
     """One paragraph: the AKF vs CF comparison, with the paper's figures beside ours."""
     return (f"On {', '.join(c['datasets'])}: linear MSE AKF {c['akf_mse']:.4g} vs CF {c['cf_mse']:.4g} "
-            f"(**{c['mse_reduction_pct']:.1f}% MSE reduction**; paper: 48%), linear SSIM AKF {c['akf_ssim']:.3f} vs "
-            f"CF {c['cf_ssim']:.3f} (**{c['ssim_improvement_pct']:+.1f}% SSIM**; paper: +11%). In log intensity: "
-            f"MSE {c['akf_log_mse']:.4g} vs {c['cf_log_mse']:.4g} ({c['log_mse_reduction_pct']:.1f}% reduction), "
+            f"(**AKF MSE {_lower(c['mse_reduction_pct'])}**; paper: 48% lower), linear SSIM AKF {c['akf_ssim']:.3f} "
+            f"vs CF {c['cf_ssim']:.3f} (**{c['ssim_improvement_pct']:+.1f}% SSIM**; paper: +11%). In log intensity: "
+            f"MSE {c['akf_log_mse']:.4g} vs {c['cf_log_mse']:.4g} ({_lower(c['log_mse_reduction_pct'])}), "
             f"SSIM {c['akf_log_ssim']:.3f} vs {c['cf_log_ssim']:.3f} ({c['log_ssim_improvement_pct']:+.1f}%).")
 
 

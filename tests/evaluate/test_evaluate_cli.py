@@ -101,7 +101,7 @@ def test_paper_table_shape_and_reductions():
     assert lines[2] == "| akf | 1.000e-02 | 0.900 | n/a | 1.000e-02 | 0.900 | n/a |"
     assert "paper: AKF" in lines[4]
     assert nums["mse_reduction_pct"] == pytest.approx(50.0) and nums["ssim_improvement_pct"] == pytest.approx(20.0)
-    assert "MSE reduction 50.0% (paper: 48%)" in text
+    assert "AKF MSE 50.0% lower (paper: 48% lower)" in text
 
 
 def test_simulated_dataset_and_cache(tmp_path):
