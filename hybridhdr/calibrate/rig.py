@@ -536,8 +536,11 @@ def undistort_normalized(points_px, K, dist) -> np.ndarray:
     cv2 = _cv2()
     pts = np.ascontiguousarray(points_px, np.float64).reshape(-1, 1, 2)
     crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-    return cv2.undistortPoints(pts, np.asarray(K, np.float64), np.asarray(dist, np.float64),
-                               None, None, criteria=crit).reshape(-1, 2)
+    K = np.asarray(K, np.float64)
+    dist = np.asarray(dist, np.float64)
+    if hasattr(cv2, "undistortPointsIter"):  # OpenCV 4.x: the criteria overload has this name
+        return cv2.undistortPointsIter(pts, K, dist, None, None, crit).reshape(-1, 2)
+    return cv2.undistortPoints(pts, K, dist, None, None, criteria=crit).reshape(-1, 2)  # OpenCV 5
 
 
 def frame_to_event_maps(rig: "RigCalibration", depth_m: float | None = "calibrated"):

@@ -60,9 +60,8 @@ def render_board(K, dist, size: SensorSize, rvec, tvec, ss: int = 4, board=BOARD
         vv, uu = np.mgrid[0:h, 0:w].astype(np.float64)
         u = np.broadcast_to(uu[..., None, None] + off[None, None, None, :], (h, w, ss, ss)).ravel()
         v = np.broadcast_to(vv[..., None, None] + off[None, None, :, None], (h, w, ss, ss)).ravel()
-        crit = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-        xn = _RAYS[key] = cv2.undistortPoints(np.stack([u, v], 1).reshape(-1, 1, 2), K, dist, None, None,
-                                              criteria=crit).reshape(-1, 2)
+        from hybridhdr.calibrate.rig import undistort_normalized
+        xn = _RAYS[key] = undistort_normalized(np.stack([u, v], 1), K, dist)
     R = cv2.Rodrigues(np.asarray(rvec, float))[0]
     t = np.asarray(tvec, float).ravel()
     # board plane: X_cam = R [X, Y, 0] + t; ray X_cam = lam [xn, yn, 1]
