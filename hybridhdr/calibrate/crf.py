@@ -34,8 +34,6 @@ the number of codes it changed is reported in ``info["monotonic_fixes"]``.
 from __future__ import annotations
 
 import json
-import os
-import tempfile
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -210,19 +208,8 @@ class CRF:
 
     def save(self, path) -> Path:
         """Write JSON atomically (temporary file in the same folder, then rename)."""
-        path = Path(path)
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix="." + path.name + ".", suffix=".partial", dir=path.parent)
-        try:
-            with os.fdopen(fd, "w", encoding="utf-8") as f:
-                json.dump(self.to_dict(), f, indent=1, default=_json_default)
-                f.write("\n")
-            os.replace(tmp, path)
-        except BaseException:
-            if os.path.exists(tmp):
-                os.unlink(tmp)
-            raise
-        return path
+        from .._atomic import write_json_atomic
+        return write_json_atomic(path, self.to_dict(), default=_json_default)
 
     @classmethod
     def load(cls, path) -> "CRF":

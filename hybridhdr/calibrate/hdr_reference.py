@@ -30,8 +30,6 @@ by ECC (Evangelidis & Psarakis, PAMI 2008, doi:10.1109/TPAMI.2008.113;
 
 from __future__ import annotations
 
-import os
-import tempfile
 import time
 from dataclasses import dataclass, field
 from pathlib import Path

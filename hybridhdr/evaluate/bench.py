@@ -16,7 +16,6 @@ import copy
 import csv
 import itertools
 import json
-import math
 import os
 import sys
 import time

@@ -74,6 +74,11 @@ def read_rgbe(path) -> np.ndarray:
     h, w = int(res[1]), int(res[3])
     out = np.zeros((h, w, 4), np.uint8)
     r = K.decode_rgbe(data, nl + 1, h, w, out)
+    if r == -2 and raw.count(b"\r\n") and raw.count(b"\r") == raw.count(b"\r\n"):
+        # damaged by a text-mode copy (every CR/LF became CR LF, like shared/data's memorial.hdr):
+        # the calibrate part's reader searches for the consistent decoding (slower, pure Python)
+        from ..calibrate.hdr_reference import read_rgbe as read_rgbe_repairing
+        return read_rgbe_repairing(path, repair_newlines=True)
     if r < 0:
         raise FormatError(path, f"{'truncated' if r == -1 else 'corrupt run-length'} RGBE pixel data")
     e = out[..., 3].astype(np.int32)

@@ -143,14 +143,18 @@ def _slow_static(T: int) -> Scene:
     return Scene("slow_static", T, cam, objs, ems, RenderSettings(spp=4), info={"camera_speed_m_per_s": 0.01})
 
 
-def _blinking_checkerboard(T: int, *, period_us: int = 100_000, squares=(8, 6), square_size_m: float = 0.04,
+def _blinking_checkerboard(T: int, *, period_us: int = 100_000, squares=(10, 7), square_size_m: float = 0.04,
                            poses: int = 1) -> Scene:
+    # Like a monitor: only the white squares blink (emission 50 <-> 0); the black squares show the
+    # screen's constant reflection of the room light (reflectance 0.3), so they fire no events and
+    # the event image shows the board. 10x7 squares = 9x6 inner corners (odd x even: the board
+    # does not look the same rotated by 180 degrees, so corner order cannot flip between cameras).
     nu, nv = squares
     bw, bh = nu * square_size_m, nv * square_size_m
     board_pos = (0.0, 1.2, 1.0)
     blink = Blink(period_us=int(period_us), duty=0.5, off_scale=0.0)
-    board = _plane("board", (bw, bh), board_pos, (0, 0, -1), 0.0,
-                   emission=Emission(Pattern(checkerboard=(nu, nv), low=0.5, high=50.0), blink=blink))
+    board = _plane("board", (bw, bh), board_pos, (0, 0, -1), 0.3,
+                   emission=Emission(Pattern(checkerboard=(nu, nv), low=0.0, high=50.0), blink=blink))
     bezel = SceneObject("monitor", MeshSpec("box", extents=(bw + 0.06, bh + 0.06, 0.03)), Material(Pattern(0.05)),
                         trajectory=Trajectory.static((board_pos[0], board_pos[1], board_pos[2] + 0.016)))
     objs = (board, bezel, _plane("wall", (4, 3), (0, 1.5, 1.6), (0, 0, -1), 0.5),
@@ -177,7 +181,8 @@ def _blinking_checkerboard(T: int, *, period_us: int = 100_000, squares=(8, 6), 
             "board_to_world": M.tolist(),
             "board_frame": "origin at the board centre; x along the rows (square column index), y down the "
                            "columns, z into the monitor; square (0, 0) at the top-left corner (-w/2, -h/2) is white",
-            "blink_period_us": int(period_us), "blink_duty": 0.5, "white_radiance": 50.0, "black_radiance": 0.5,
+            "blink_period_us": int(period_us), "blink_duty": 0.5, "white_radiance_on": 50.0,
+            "black_emission": 0.0, "screen_reflectance": 0.3,
             "camera_pose_change_times_us": [kf.t_us for kf in kfs[1:-1]]}
     return Scene("blinking_checkerboard", T, _cam(kfs), objs, ems, RenderSettings(spp=4), info=info)
 
@@ -203,7 +208,7 @@ def builtin_scene(name: str, *, width: int = 346, height: int = 260, duration_s:
     spp : int or None
         Samples per pixel (default 4).
     options
-        ``blinking_checkerboard`` accepts ``period_us`` (100000), ``squares`` ((8, 6)),
+        ``blinking_checkerboard`` accepts ``period_us`` (100000), ``squares`` ((10, 7)),
         ``square_size_m`` (0.04) and ``poses`` (1..5 static camera views).
     """
     key = name[len("builtin:"):] if name.startswith("builtin:") else name

@@ -77,7 +77,7 @@ class SamplingParams:
     max_rate_hz: float = 20000.0
     max_log_change_fraction: float = 0.25
     max_motion_px: float = 0.5
-    robust_quantile: float = 0.999
+    robust_quantile: float = 0.99
     bisect: bool = True
     bisect_margin: float = 2.0
 

@@ -54,7 +54,6 @@ then all triggers) both work. Timestamps must be >= 0 and < 2^44 µs (EVT) or fi
 from __future__ import annotations
 
 import datetime
-import os
 import sys
 from pathlib import Path
 from typing import Iterator
