@@ -171,6 +171,8 @@ class AKFEngine(Engine):
         if len(self.bands) == 1:
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
             return
+        if i1 - i0 >= PARALLEL_MIN_WORK:
+            self._rebalance(y[i0:i1])
 
         def band(b, lo, hi):
             # select the band's rows plus the two ghost rows, then filter only those events
@@ -178,6 +180,37 @@ class AKFEngine(Engine):
             m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
             return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self.S, self.te[b], *args)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+
+    def _rebalance(self, y) -> None:
+        """Move the band edges so each band gets about the same number of this batch's events.
+
+        Events cluster (a moving edge, a bright object), so equal row counts leave one worker
+        idle. Each band's private last-event-time array is exact for its own rows and its two
+        ghost rows; when an edge moves, the rows a band newly reads (own or ghost) are copied
+        from the band that owned them, whose values are exact, so the filter stays bit-identical
+        to the serial one. The state ``S`` is shared and pixel-wise, so it needs nothing.
+        """
+        H, W = self.shape
+        nb = len(self.bands)
+        cum = np.cumsum(np.bincount(y, minlength=H))
+        edges = [0]
+        for k in range(1, nb):
+            r = int(np.searchsorted(cum, cum[-1] * k / nb, side="left")) + 1
+            edges.append(min(max(r, edges[-1] + 1), H - (nb - k)))
+        edges.append(H)
+        new = [(edges[k], edges[k + 1]) for k in range(nb)]
+        if new == self.bands:
+            return
+        owner = np.empty(H, np.int64)
+        for b, (lo, hi) in enumerate(self.bands):
+            owner[lo:hi] = b
+        views = [K.te_view(te, H, W) for te in self.te]
+        for b, (lo, hi) in enumerate(new):
+            for r in range(max(lo - 1, 0), min(hi + 1, H)):
+                src = owner[r]
+                if src != b:  # only rows owned by others are written: owners' rows stay intact
+                    views[b][r] = views[src][r]
+        self.bands = new
 
     def output(self, t_us: int, with_state: bool = False):
         W = self.shape[1]
