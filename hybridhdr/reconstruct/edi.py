@@ -104,8 +104,8 @@ class EventArrays:
         for name in ("x", "y", "p"):
             if getattr(self, name).shape != (n,):
                 raise ValueError(f"events: {name} must have shape ({n},) like t, got {getattr(self, name).shape}")
-        if n > 1 and np.any(np.diff(self.t) < 0):
-            i = int(np.flatnonzero(np.diff(self.t) < 0)[0]) + 1
+        if n > 1 and np.any(dec := self.t[1:] < self.t[:-1]):  # no int64 diff copy (20 M events: 0.1 s)
+            i = int(np.argmax(dec)) + 1
             raise ValueError(f"events t must be non-decreasing; index {i} has {int(self.t[i])} after "
                              f"{int(self.t[i - 1])}")
         self.shape = (int(shape[0]), int(shape[1]))

@@ -165,3 +165,12 @@ def test_method_edi_video():
     assert all(abs(c - 0.1) < 0.02 for c in v2.info["edi_thresholds"].values())
     with pytest.raises(ValueError, match="causal"):
         reconstruct(rec8, "edi", mode="causal")
+
+
+def test_event_arrays_reject_decreasing_time_naming_the_index():
+    from hybridhdr.reconstruct.edi import EventArrays
+    t = np.array([5, 7, 7, 6, 9], np.int64)
+    z = np.zeros(5, np.uint16)
+    with pytest.raises(ValueError, match="index 3 has 6 after 7"):
+        EventArrays(t, z, z, np.ones(5, np.int8), (2, 2))
+    EventArrays(np.sort(t), z, z, np.ones(5, np.int8), (2, 2))  # sorted: accepted
