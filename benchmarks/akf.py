@@ -93,12 +93,10 @@ def main(argv=None) -> int:
     res: dict = {"sensor": f"{W}x{H}", "n_events": n, "duration_s": dur / 1e6, "quick": bool(args.quick),
                  "cpu_count": os.cpu_count(), "loadavg_start": _loadavg()}
 
-    def akf_run(n_workers, params=AKFParams()):
-        m = FrameMeasurements(frames, (H, W), prof, intensity_offset=params.intensity_offset,
-                              interpolate_covariance=params.covariance_interpolation == "linear")
-        eng = AKFEngine((H, W), m, params, n_workers=n_workers)
+    def drive_events(eng, m):
+        """Events through ``eng`` between frame switches (the 30 Hz switches, O(pixels) each, are
+        included); returns (wall s, CPU s of this thread: robust to a loaded machine, 1 worker)."""
         eng.start(None)
-        # event kernel between frame switches (the 30 Hz switches, O(pixels) each, are included)
         cuts = np.searchsorted(t, m.times_us[1:], side="left")
         tt = time.perf_counter()
         tc = time.thread_time()
@@ -108,10 +106,15 @@ def main(argv=None) -> int:
             eng.switch()
             i = int(j)
         eng.process(t, x, y, p, i, n)
-        el = time.perf_counter() - tt
-        cpu = time.thread_time() - tc
+        el, cpu = time.perf_counter() - tt, time.thread_time() - tc
         eng.close()
-        akf_run.cpu = cpu  # CPU time of this thread (1 worker only): robust to a loaded machine
+        return el, cpu
+
+    def akf_run(n_workers, params=AKFParams()):
+        m = FrameMeasurements(frames, (H, W), prof, intensity_offset=params.intensity_offset,
+                              interpolate_covariance=params.covariance_interpolation == "linear")
+        eng = AKFEngine((H, W), m, params, n_workers=n_workers)
+        el, akf_run.cpu = drive_events(eng, m)
         return el, eng.S.copy()
 
     akf_run(1)  # compile / load cache
@@ -137,17 +140,7 @@ def main(argv=None) -> int:
     def cf_run():
         m = FrameMeasurements(frames, (H, W), prof, intensity_offset=1.0, bias_correction=False,
                               interpolate_covariance=False)
-        eng = CFEngine((H, W), m, CFParams(), "cf")
-        eng.start(None)
-        cuts = np.searchsorted(t, m.times_us[1:], side="left")
-        tt = time.perf_counter()
-        i = 0
-        for j in cuts:
-            eng.process(t, x, y, p, i, int(j))
-            eng.switch()
-            i = int(j)
-        eng.process(t, x, y, p, i, n)
-        return time.perf_counter() - tt
+        return drive_events(CFEngine((H, W), m, CFParams(), "cf"), m)[0]
 
     cf_run()
     el = min(cf_run() for _ in range(reps))
