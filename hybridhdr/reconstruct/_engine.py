@@ -172,7 +172,7 @@ class AKFEngine(Engine):
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
-            self._rebalance(y[i0:i1])
+            self._rebalance(y[i0:i1:8])  # a 1-in-8 sample of the rows balances as well, 8x cheaper
 
         def band(b, lo, hi):
             # select the band's rows plus the two ghost rows, then filter only those events
@@ -182,7 +182,8 @@ class AKFEngine(Engine):
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
     def _rebalance(self, y) -> None:
-        """Move the band edges so each band gets about the same number of this batch's events.
+        """Move the band edges so each band gets about the same number of this batch's events
+        (``y``: the rows of the batch's events, or of a sample of them).
 
         Events cluster (a moving edge, a bright object), so equal row counts leave one worker
         idle. Each band's private last-event-time array is exact for its own rows and its two

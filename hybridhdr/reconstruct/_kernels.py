@@ -281,6 +281,28 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, offset, out_lin, out_log, out_var, p
     return pix_hi - pix_lo
 
 
+@njit(cache=True, nogil=True)
+def lut_segment(code, code_next, max_code, inten_l, rbar_l, logf_l, rinv_l, log_frame, intensity, rinv, beta):
+    """A frame's measurement from per-code tables, in one pass (see ``FrameMeasurements.segment``).
+
+    Codes are clipped to ``[0, max_code]``. Writes L^F (eq. 8), I (eq. 3), 1/R (eq. 9) and, when
+    ``code_next`` is not empty, β = R̄(code_next)/R̄(code) - 1 of eq. 7 (zeros otherwise).
+    """
+    n = code.shape[0]
+    has_next = code_next.shape[0] > 0
+    for i in range(n):
+        c = min(max(np.int64(code[i]), 0), max_code)
+        log_frame[i] = logf_l[c]
+        intensity[i] = inten_l[c]
+        rinv[i] = rinv_l[c]
+        if has_next:
+            c1 = min(max(np.int64(code_next[i]), 0), max_code)
+            beta[i] = rbar_l[c1] / rbar_l[c] - 1.0
+        else:
+            beta[i] = 0.0
+    return n
+
+
 @njit(cache=True, nogil=True, inline="always")
 def _cf_update(C, pix, tif, pol, c_on, c_off, event_decay):
     """One CF event at pixel ``pix``, time ``tif`` µs: exact decay towards L^F, then the jump."""

@@ -14,7 +14,7 @@ from . import _engine as E
 from .measurement import FrameMeasurements
 from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
 from .augment import AugmentedMeasurements, AugmentParams
-from .edi import EDIEngine, EDIParams, EventArrays
+from .edi import EDIEngine, EDIParams, EventArrays, StreamingEventArrays
 from .profile import load_profile
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
@@ -111,7 +111,8 @@ def make_params(method: str, params=None):
 # -- sources ------------------------------------------------------------------------------------
 
 def _open_source(source):
-    """(sensor_size, frames, chunk iterator factory, closer) for a Recording, reader or path."""
+    """(sensor_size, frames, chunk iterator factory, closer, declared event count or None) for a
+    Recording, reader or path."""
     if isinstance(source, Recording):
         ev = source.events
         ss = source.sensor_size
@@ -119,7 +120,7 @@ def _open_source(source):
         def chunks(n):
             for i in range(0, ev.shape[0], n):
                 yield events_fields(ev[i:i + n])
-        return ss, source.frames, chunks, (lambda: None)
+        return ss, source.frames, chunks, (lambda: None), _declared_event_count(source)
     reader = source
     close = (lambda: None)
     if isinstance(source, (str, os.PathLike)):
@@ -141,7 +142,15 @@ def _open_source(source):
                 ev = c.events if hasattr(c, "events") else c
                 if len(ev):
                     yield events_fields(ev)
-    return ss, frames, chunks, close
+    return ss, frames, chunks, close, _declared_event_count(reader)
+
+
+def _declared_event_count(source) -> int | None:
+    """The number of events a source says it holds (in-memory recording, container), else None."""
+    if isinstance(source, Recording):
+        return int(source.events.shape[0])
+    n = getattr(source, "n_events", None)
+    return int(n) if isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0 else None
 
 
 def _prefetch(iterator, depth: int = 1):
@@ -279,15 +288,18 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
     p = make_params(method, params)
     aug = make_augment_params(augment)
-    ss, frames, chunk_factory, close = _open_source(source)
+    ss, frames, chunk_factory, close, n_declared = _open_source(source)
+    events = None
     try:
         shape = _sensor_shape(ss, frames)
         use_aug = (method == "akf" and mode == "offline" and measurements is None and aug.enabled
                    and frames is not None and len(frames) > 0)
-        events = None
         if use_aug or method == "edi":
             # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
-            events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+            if n_declared is None:
+                events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+            else:  # read in the background: the filter starts on the first chunks
+                events = StreamingEventArrays(chunk_factory(int(chunk_events)), shape, n_declared)
             chunk_factory = events.chunks
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)
@@ -327,6 +339,8 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
         finally:
             engine.close()
     finally:
+        if events is not None:
+            events.close()
         close()
 
 

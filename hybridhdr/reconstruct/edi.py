@@ -140,6 +140,9 @@ class EventArrays:
         for i in range(0, len(self), n):
             yield self.t[i:i + n], self.x[i:i + n], self.y[i:i + n], self.p[i:i + n]
 
+    def close(self) -> None:
+        """Nothing to release (see :class:`StreamingEventArrays`)."""
+
     def counts(self, t0_us: int, t1_us: int) -> tuple[np.ndarray, np.ndarray]:
         """Per-pixel signed count Σσ and number of events in ``[t0_us, t1_us)``, int64 (H*W,)."""
         n = self.shape[0] * self.shape[1]
@@ -150,6 +153,120 @@ class EventArrays:
             AK.event_counts(self.x, self.y, self.p, i0, i1, self.shape[1], s, a)
         return s, a
 
+
+
+class StreamingEventArrays(EventArrays):
+    """:class:`EventArrays` filled from event chunks by a background thread, read as it fills.
+
+    For sources that declare their event count (the container, an in-memory recording), frame
+    augmentation and EDI need not wait for the whole file: :meth:`window` (and so
+    :meth:`counts` and the EDI functions) waits only until the events before its end time are
+    in, and :meth:`chunks` yields slices as they arrive. Reading and decompressing then overlap
+    the filter. Chunks are checked as they arrive (time order, coordinates); an error, or more
+    events than declared, is raised in the reading thread's consumer. Fewer events than declared
+    (a file that ends early) make the arrays shorter. :meth:`close` stops the thread.
+    """
+
+    def __init__(self, chunks, shape, n_total: int):
+        import threading
+        n_total = int(n_total)
+        if n_total < 0:
+            raise ValueError(f"n_total must be >= 0, got {n_total}")
+        self.shape = (int(shape[0]), int(shape[1]))
+        self.t = np.empty(n_total, np.int64)
+        self.x = np.empty(n_total, np.uint16)
+        self.y = np.empty(n_total, np.uint16)
+        self.p = np.empty(n_total, np.int8)
+        self._n = 0
+        self._done = False
+        self._error: BaseException | None = None
+        self._stop = False
+        self._cv = threading.Condition()
+        self._src = chunks
+        self._thread = threading.Thread(target=self._run, name="hybridhdr-events", daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        H, W = self.shape
+        cap = self.t.shape[0]
+        n = 0
+        try:
+            for c in self._src:
+                if self._stop:
+                    return
+                t, x, y, p = c
+                m = len(t)
+                if m == 0:
+                    continue
+                if n + m > cap:
+                    raise ValueError(f"the source declared {cap} events but yields more ({n + m} so far)")
+                if len(x) != m or len(y) != m or len(p) != m:
+                    raise ValueError(f"event chunk columns differ in length: t {m}, x {len(x)}, y {len(y)}, p {len(p)}")
+                self.t[n:n + m] = t
+                self.x[n:n + m] = x
+                self.y[n:n + m] = y
+                self.p[n:n + m] = p
+                tt = self.t[max(n - 1, 0):n + m]
+                if np.any(dec := tt[1:] < tt[:-1]):
+                    i = int(np.argmax(dec)) + 1 + max(n - 1, 0)
+                    raise ValueError(f"events t must be non-decreasing; index {i} has {int(self.t[i])} after "
+                                     f"{int(self.t[i - 1])}")
+                if int(self.x[n:n + m].max()) >= W or int(self.y[n:n + m].max()) >= H:
+                    raise ValueError(f"event coordinates exceed the sensor size {self.shape} (H, W): max x "
+                                     f"{int(self.x[n:n + m].max())}, max y {int(self.y[n:n + m].max())}")
+                n += m
+                with self._cv:
+                    self._n = n
+                    self._cv.notify_all()
+        except BaseException as e:  # noqa: BLE001 - handed to the reading thread
+            self._error = e
+        finally:
+            close = getattr(self._src, "close", None)
+            if close is not None:  # a generator source: release its reader (and its own thread)
+                try:
+                    close()
+                except Exception as e:  # noqa: BLE001
+                    self._error = self._error or e
+            with self._cv:
+                if self._error is None and n < cap:  # the source ended early: shorter arrays
+                    self.t, self.x, self.y, self.p = self.t[:n], self.x[:n], self.y[:n], self.p[:n]
+                self._done = True
+                self._cv.notify_all()
+
+    def _wait(self, pred) -> int:
+        with self._cv:
+            self._cv.wait_for(lambda: self._done or pred(self._n))
+            if self._error is not None:
+                raise self._error
+            return self._n
+
+    def _wait_time(self, t_us: int) -> int:
+        """Wait until every event with ``t < t_us`` is in; return the number loaded."""
+        return self._wait(lambda n: n > 0 and self.t[n - 1] >= t_us)
+
+    def __len__(self) -> int:
+        return self._wait(lambda n: False)
+
+    def window(self, t0_us: int, t1_us: int) -> tuple[int, int]:
+        n = self._wait_time(max(int(t0_us), int(t1_us)))
+        tt = self.t[:n]
+        return (int(np.searchsorted(tt, t0_us, side="left")), int(np.searchsorted(tt, t1_us, side="left")))
+
+    def chunks(self, n: int):
+        i = 0
+        while True:
+            m = self._wait(lambda k: k >= i + n)
+            if m <= i:
+                return
+            j = min(m, i + n)
+            yield self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j]
+            i = j
+
+    def close(self) -> None:
+        """Stop the reading thread (after its current chunk) and wait for it."""
+        self._stop = True
+        if self._thread.is_alive():
+            self._thread.join()
 
 def _check_exposure(t_start_us, t_end_us):
     for name, v in (("t_start_us", t_start_us), ("t_end_us", t_end_us)):

@@ -124,7 +124,7 @@ class FrameMeasurements:
             ip = inten + self.offset
             r_log = rbar / (ip * ip)
             logf = np.log(ip) - (0.5 * r_log if self.bias_correction else 0.0)
-            self._lut = (inten, rbar, logf, 1.0 / r_log)
+            self._lut = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (inten, rbar, logf, 1.0 / r_log))
 
     def __len__(self) -> int:
         return int(self.times_us.shape[0])
@@ -139,15 +139,16 @@ class FrameMeasurements:
         code = self._codes[self._idx[k]]
         last = k + 1 >= len(self)
         if self._lut is not None:
-            c = np.clip(code.ravel(), 0, self.profile.max_code)
+            from ._kernels import lut_segment
             inten_l, rbar_l, logf_l, rinv_l = self._lut
-            if self.interpolate_covariance and not last:
-                c1 = np.clip(self._codes[self._idx[k + 1]].ravel(), 0, self.profile.max_code)
-                beta = rbar_l[c1] / rbar_l[c] - 1.0
-            else:
-                beta = np.zeros(c.shape[0])
+            nxt = (self._codes[self._idx[k + 1]].reshape(-1) if self.interpolate_covariance and not last
+                   else code.reshape(-1)[:0])
+            n = code.size
+            lf, inten, rinv, beta = (np.empty(n) for _ in range(4))
+            lut_segment(code.reshape(-1), nxt, int(self.profile.max_code), inten_l, rbar_l, logf_l, rinv_l,
+                        lf, inten, rinv, beta)
             return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
-                           log_frame=logf_l[c], intensity=inten_l[c], rinv=rinv_l[c], beta=beta, la_step=None)
+                           log_frame=lf, intensity=inten, rinv=rinv, beta=beta, la_step=None)
         inten = self.profile.intensity(code).ravel()
         ip = inten + self.offset
         rbar = self._rbar(k)

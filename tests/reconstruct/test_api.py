@@ -196,3 +196,89 @@ def test_prefetch_order_errors_and_early_stop():
     it.close()
     assert not any(th.name == "hybridhdr-prefetch" for th in threading.enumerate())
     assert len(produced) <= 5 + 2 + 1  # at most depth items (plus one in flight) read ahead
+
+
+def _chunked(rec, n):
+    ev = rec.events
+    for i in range(0, len(ev), n):
+        c = ev[i:i + n]
+        yield c["t"].copy(), c["x"].copy(), c["y"].copy(), c["p"].copy()
+
+
+def test_streaming_event_arrays_equal_in_memory_arrays():
+    """Windows, counts and chunks of the background-filled arrays equal the in-memory ones."""
+    from hybridhdr.reconstruct.edi import EventArrays, StreamingEventArrays
+    rec, _ = ideal_recording()
+    shape = (rec.sensor_size.height, rec.sensor_size.width)
+    ref = EventArrays.from_structured(rec.events, shape)
+    s = StreamingEventArrays(_chunked(rec, 97), shape, len(rec.events))
+    t0, t1 = int(ref.t[0]), int(ref.t[-1])
+    for a, b in ((t0, t0 + 1000), (t0 + 33_333, t0 + 90_001), (t1 - 10, t1 + 5), (t0 - 100, t1 + 100)):
+        assert s.window(a, b) == ref.window(a, b)
+        for u, v in zip(s.counts(a, b), ref.counts(a, b)):
+            np.testing.assert_array_equal(u, v)
+    assert len(s) == len(ref)
+    got = list(s.chunks(1000))
+    assert max(len(c[0]) for c in got) == 1000
+    for i in range(4):
+        np.testing.assert_array_equal(np.concatenate([c[i] for c in got]), getattr(ref, "txyp"[i]))
+    s.close()
+
+
+def test_streaming_event_arrays_errors_and_stop():
+    import threading
+
+    from hybridhdr.reconstruct.edi import StreamingEventArrays
+    rec, _ = ideal_recording()
+    shape = (rec.sensor_size.height, rec.sensor_size.width)
+    n = len(rec.events)
+    chunks = list(_chunked(rec, 500))
+    # time order broken across a chunk boundary: raised to the reader of a later window
+    bad = [chunks[0], (chunks[1][0] - 10**6,) + chunks[1][1:]] + chunks[2:]
+    s = StreamingEventArrays(iter(bad), shape, n)
+    with pytest.raises(ValueError, match="non-decreasing; index 500"):
+        s.window(0, int(rec.events["t"][-1]))
+    # more events than declared
+    s = StreamingEventArrays(iter(chunks), shape, n - 1)
+    with pytest.raises(ValueError, match=f"declared {n - 1} events"):
+        len(s)
+    # coordinates outside the sensor
+    s = StreamingEventArrays(iter(chunks), (shape[0], 3), n)
+    with pytest.raises(ValueError, match="exceed the sensor size"):
+        len(s)
+    # fewer than declared (a file that ends early): the arrays end there
+    s = StreamingEventArrays(iter(chunks[:3]), shape, n)
+    assert len(s) == 1500 and s.t.shape == (1500,) and s.window(0, 10**12) == (0, 1500)
+
+    def endless():
+        c = chunks[0]
+        k = 0
+        while True:  # time-ordered forever
+            yield (c[0] * 0 + k,) + c[1:]
+            k += 1
+    s = StreamingEventArrays(endless(), shape, 10**9)
+    assert s.window(0, 3) == (0, 1500)  # waits only until an event at t >= 3 is in
+    s.close()
+    assert not any(th.name == "hybridhdr-events" and th.is_alive() for th in threading.enumerate())
+
+
+def test_augmented_streaming_equals_read_all_first(tmp_path):
+    """Frame augmentation on a source that declares its event count (read in the background)
+    gives the result of a source that does not (all events read first), bit for bit."""
+    rec, _ = ideal_recording()
+
+    class Undeclared:  # a reader without n_events
+        sensor_size = rec.sensor_size
+
+        def read_frames(self):
+            return rec.frames
+
+        def iter_chunks(self, n):
+            for i in range(0, len(rec.events), n):
+                yield rec.events[i:i + n]
+
+    a = reconstruct(Undeclared(), "akf", fps=300, chunk_events=101)
+    b = reconstruct(rec, "akf", fps=300, chunk_events=101)
+    assert "augmentation" in a.info and "augmentation" in b.info  # both ran the frame augmentation
+    np.testing.assert_array_equal(a.frames, b.frames)
+    np.testing.assert_array_equal(a.t_us, b.t_us)

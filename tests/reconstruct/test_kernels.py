@@ -188,3 +188,23 @@ def test_isolated_noise_window_clipped_at_border(jit):
         assert P[yy, xx] == pytest.approx(s_iso * dt * 1e-6, rel=1e-12, abs=1e-15), (yy, xx)
     np.testing.assert_array_equal(K.te_view(te, h, w)[y.astype(int), x.astype(int)], t)
     assert (te.reshape(h + 2, w + 2)[[0, -1]] == 1_000).all()  # the border is never written
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_lut_segment_equals_numpy_tables(jit):
+    """One-pass segment builder = the per-code tables gathered with numpy (codes clipped)."""
+    rng = np.random.default_rng(12)
+    max_code = 255
+    tabs = [rng.uniform(0.1, 2.0, max_code + 1) for _ in range(4)]  # intensity, rbar, logf, rinv
+    code = rng.integers(-3, 300, 500).astype(np.int32)
+    nxt = rng.integers(0, 256, 500).astype(np.int32)
+    fn = K.lut_segment if jit else _py(K.lut_segment)
+    c = np.clip(code, 0, max_code)
+    for has_next in (True, False):
+        out = [np.full(500, np.nan) for _ in range(4)]
+        fn(code, nxt if has_next else nxt[:0], max_code, *tabs, *out)
+        np.testing.assert_array_equal(out[0], tabs[2][c])
+        np.testing.assert_array_equal(out[1], tabs[0][c])
+        np.testing.assert_array_equal(out[2], tabs[3][c])
+        want_beta = tabs[1][np.clip(nxt, 0, max_code)] / tabs[1][c] - 1.0 if has_next else np.zeros(500)
+        np.testing.assert_array_equal(out[3], want_beta)
