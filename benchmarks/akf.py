@@ -7,6 +7,12 @@ drifting at up to 300 px/s, events time-sorted at about 10 Mev/s, random polarit
 the frame-switch and R⁻¹ LUTs) come every 1/30 s. Goals (issue 3): AKF kernel ≥ 30 Mev/s on
 one core, parallel ≥ 1.7× on 2 cores and bit-identical, end to end (container read + AKF +
 300 Hz frames in memory) ≥ 10 Mev/s, CF kernel ≥ 40 Mev/s.
+
+The 2-core VMs this runs on change speed by tens of percent from minute to minute (the host's
+caches are shared with other tenants), so the serial and 2-worker runs are interleaved and the
+best of each is reported with the medians and every run's speed-up. ``two_thread_ceiling_speedup``
+is what two *independent* serial filters, started together in two threads, gain over one: the
+most any 2-thread version of this kernel could gain on the machine at that moment.
 """
 
 from __future__ import annotations
@@ -80,7 +86,7 @@ def main(argv=None) -> int:
     ap.add_argument("--events", type=int, default=None, help="override the event count")
     args = ap.parse_args(argv)
     n = args.events or (3_000_000 if args.quick else 20_000_000)
-    reps = 2 if args.quick else 3
+    reps = 2 if args.quick else 4
     from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, default_profile, reconstruct
     from hybridhdr.reconstruct._engine import AKFEngine, CFEngine
 
@@ -93,11 +99,13 @@ def main(argv=None) -> int:
     res: dict = {"sensor": f"{W}x{H}", "n_events": n, "duration_s": dur / 1e6, "quick": bool(args.quick),
                  "cpu_count": os.cpu_count(), "loadavg_start": _loadavg()}
 
-    def drive_events(eng, m):
+    def drive_events(eng, m, barrier=None):
         """Events through ``eng`` between frame switches (the 30 Hz switches, O(pixels) each, are
         included); returns (wall s, CPU s of this thread: robust to a loaded machine, 1 worker)."""
         eng.start(None)
         cuts = np.searchsorted(t, m.times_us[1:], side="left")
+        if barrier is not None:
+            barrier.wait()
         tt = time.perf_counter()
         tc = time.thread_time()
         i = 0
@@ -110,32 +118,59 @@ def main(argv=None) -> int:
         eng.close()
         return el, cpu
 
-    def akf_run(n_workers, params=AKFParams()):
+    def akf_run(n_workers, params=AKFParams(), barrier=None):
         m = FrameMeasurements(frames, (H, W), prof, intensity_offset=params.intensity_offset,
                               interpolate_covariance=params.covariance_interpolation == "linear")
         eng = AKFEngine((H, W), m, params, n_workers=n_workers)
-        el, akf_run.cpu = drive_events(eng, m)
+        el, akf_run.cpu = drive_events(eng, m, barrier)
         return el, eng.S.copy()
 
+    def concurrent_pair():
+        """Time for two independent serial AKF runs started together in two threads (the later finish)."""
+        import threading
+        walls = []
+        bar = threading.Barrier(2)
+        ths = [threading.Thread(target=lambda: walls.append(akf_run(1, barrier=bar)[0])) for _ in range(2)]
+        for th in ths:
+            th.start()
+        for th in ths:
+            th.join()
+        return max(walls)
+
     akf_run(1)  # compile / load cache
-    for label, params in (("akf_kernel", AKFParams()), ("akf_kernel_hold", AKFParams(covariance_interpolation="hold"))):
-        el, cpu = float("inf"), float("inf")
-        for _ in range(reps):
-            el = min(el, akf_run(1, params)[0])
-            cpu = min(cpu, akf_run.cpu)
-        res[f"{label}_mev_s"] = round(n / el / 1e6, 2)
-        res[f"{label}_cpu_mev_s"] = round(n / cpu / 1e6, 2)
-        print(f"{label}: {n / el / 1e6:.1f} Mev/s wall, {n / cpu / 1e6:.1f} Mev/s of thread CPU time (1 core)",
-              file=sys.stderr)
-    el1, s1 = akf_run(1)
-    el1 = min(el1, akf_run(1)[0])
-    el2, s2 = akf_run(2)
-    el2 = min(el2, akf_run(2)[0])
-    res["akf_parallel2_mev_s"] = round(n / el2 / 1e6, 2)
-    res["akf_parallel_speedup"] = round(el1 / el2, 2)
+    akf_run(2)
+    # This VM's speed swings by +-30 % from run to run (other tenants share the host's caches),
+    # so serial and parallel runs are interleaved and the best of each is compared (timeit's
+    # rule: the minimum is the run least disturbed); the medians are printed too.
+    serial, serial_cpu, hold, hold_cpu, par, pair = [], [], [], [], [], []
+    s1 = s2 = None
+    for _ in range(reps + 1):
+        el, s1 = akf_run(1)
+        serial.append(el)
+        serial_cpu.append(akf_run.cpu)
+        el, s2 = akf_run(2)
+        par.append(el)
+        el, _ = akf_run(1, AKFParams(covariance_interpolation="hold"))
+        hold.append(el)
+        hold_cpu.append(akf_run.cpu)
+        pair.append(concurrent_pair())
+    for label, el, cpu in (("akf_kernel", serial, serial_cpu), ("akf_kernel_hold", hold, hold_cpu)):
+        res[f"{label}_mev_s"] = round(n / min(el) / 1e6, 2)
+        res[f"{label}_median_mev_s"] = round(n / float(np.median(el)) / 1e6, 2)
+        res[f"{label}_cpu_mev_s"] = round(n / min(cpu) / 1e6, 2)
+        print(f"{label}: best {n / min(el) / 1e6:.1f} Mev/s, median {n / float(np.median(el)) / 1e6:.1f} Mev/s "
+              f"wall; best {n / min(cpu) / 1e6:.1f} Mev/s of thread CPU time (1 core)", file=sys.stderr)
+    res["akf_parallel2_mev_s"] = round(n / min(par) / 1e6, 2)
+    res["akf_parallel_speedup"] = round(min(serial) / min(par), 2)
+    res["akf_parallel_speedup_median"] = round(float(np.median(serial)) / float(np.median(par)), 2)
+    res["akf_parallel_speedup_runs"] = [round(a / b, 2) for a, b in zip(serial, par)]
     res["akf_parallel_bit_identical"] = bool(np.array_equal(s1, s2)) and bool(np.isfinite(s1).all())
-    print(f"akf parallel (2 workers): {n / el2 / 1e6:.1f} Mev/s, speed-up {el1 / el2:.2f}x, "
-          f"bit-identical {res['akf_parallel_bit_identical']}", file=sys.stderr)
+    # the ceiling: two independent serial filters at once, one per thread (no shared work at all)
+    res["two_thread_ceiling_speedup"] = round(2 * min(serial) / min(pair), 2)
+    print(f"akf parallel (2 workers): best {n / min(par) / 1e6:.1f} Mev/s, speed-up {res['akf_parallel_speedup']}x "
+          f"(median {res['akf_parallel_speedup_median']}x; runs {res['akf_parallel_speedup_runs']}), bit-identical "
+          f"{res['akf_parallel_bit_identical']}; two independent serial filters at once: "
+          f"{res['two_thread_ceiling_speedup']}x", file=sys.stderr)
 
     def cf_run():
         m = FrameMeasurements(frames, (H, W), prof, intensity_offset=1.0, bias_correction=False,
@@ -162,7 +197,7 @@ def main(argv=None) -> int:
                         with RecordingFile(path) as f:
                             v = reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21, augment=aug)
                         return len(v)
-                    el, k = best_of(e2e, 2)
+                    el, k = best_of(e2e, 2 if args.quick else 3)
                     res[f"end_to_end{tag}_{nw}w_mev_s"] = round(n / el / 1e6, 2)
                     res[f"end_to_end{tag}_{nw}w_output_frames"] = int(k)
                     print(f"end to end ({'augmented' if aug else 'no augmentation'}, {nw} worker(s)): "
