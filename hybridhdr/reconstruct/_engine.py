@@ -468,6 +468,9 @@ class _Prefetcher:
                 pass
             self._thread.join(0.01)
         self._thread = None
+        close = getattr(self._src, "close", None)
+        if close is not None:  # a generator source: let it release its reader now
+            close()
 
 
 def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,

@@ -134,8 +134,9 @@ def _open_source(source):
     frames = reader.read_frames() if hasattr(reader, "read_frames") else None
 
     if hasattr(reader, "iter_event_columns"):  # the container: columns straight from HDF5
+        # (read ahead in a thread by the consumer: the driver's prefetcher or StreamingEventArrays)
         def chunks(n):
-            return _prefetch(reader.iter_event_columns(n))
+            return reader.iter_event_columns(n)
     else:
         def chunks(n):
             for c in reader.iter_chunks(n):
@@ -151,56 +152,6 @@ def _declared_event_count(source) -> int | None:
         return int(source.events.shape[0])
     n = getattr(source, "n_events", None)
     return int(n) if isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0 else None
-
-
-def _prefetch(iterator, depth: int = 1):
-    """Iterate ``iterator`` in a background thread, ``depth`` items ahead (bounded memory).
-
-    Reading and decompressing the next chunk overlaps the (GIL-free) filter kernels working on
-    the current one. Exceptions from the reader are re-raised in the consumer, in order; if the
-    consumer stops early, the reader thread is told to stop and joined.
-    """
-    import queue
-    import threading
-
-    q: queue.Queue = queue.Queue(maxsize=depth)
-    stop = threading.Event()
-    done = object()
-
-    def put(item) -> bool:
-        while not stop.is_set():
-            try:
-                q.put(item, timeout=0.1)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def work():
-        try:
-            for item in iterator:
-                if not put((None, item)):
-                    return
-            put((None, done))
-        except BaseException as e:  # noqa: BLE001 - handed to the consumer
-            put((e, None))
-
-    th = threading.Thread(target=work, name="hybridhdr-prefetch", daemon=True)
-    th.start()
-    try:
-        while True:
-            err, item = q.get()
-            if err is not None:
-                raise err
-            if item is done:
-                return
-            yield item
-    finally:
-        stop.set()
-        th.join()
-        close = getattr(iterator, "close", None)
-        if close is not None:
-            close()
 
 
 def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:

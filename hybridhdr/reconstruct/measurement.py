@@ -20,6 +20,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from ..model import Frames
+from ._kernels import lut_segment
 from .profile import CameraProfile, profile_for_frames
 
 __all__ = ["Segment", "FrameMeasurements", "frames_to_codes"]
@@ -139,7 +140,6 @@ class FrameMeasurements:
         code = self._codes[self._idx[k]]
         last = k + 1 >= len(self)
         if self._lut is not None:
-            from ._kernels import lut_segment
             inten_l, rbar_l, logf_l, rinv_l = self._lut
             nxt = (self._codes[self._idx[k + 1]].reshape(-1) if self.interpolate_covariance and not last
                    else code.reshape(-1)[:0])
