@@ -97,45 +97,95 @@ class AKFEngine(Engine):
         super().__init__(shape, n_workers)
         self.m = measurements
         self.params = params
-        self.S = K.aligned_state(self.n, K.AKF_FIELDS)
+        self._S = K.aligned_state(self.n, K.AKF_FIELDS)
         self.te = [K.padded_te(shape[0], shape[1], 0) for _ in self.bands]
+        self._pending = None  # a frame switch not yet applied: fn(band, row_lo, row_hi)
+        self._hist = np.zeros(self.shape[0], np.int64)
         self.k = -1
         self.seg_t0 = 0.0
         self.seg_inv_t = 0.0
         self.has_la_step = False
         self.noise_form = K.NOISE_PAPER if params.noise_model == "paper" else K.NOISE_REFERENCE
 
-    def _load(self, k: int) -> None:
-        seg = self.m.segment(k)
+    @property
+    def S(self) -> np.ndarray:
+        """The per-pixel state (n_pixels, 8) with any pending frame switch applied."""
+        self._flush()
+        return self._S
+
+    def _flush(self) -> None:
+        if self._pending is not None:
+            self._map_bands(lambda b, lo, hi: None, self.n)
+
+    def _map_bands(self, fn, min_work: int) -> list:
+        """As :meth:`Engine._map_bands`, each band first applying its rows of a pending switch."""
+        pend = self._pending
+        if pend is None:
+            return super()._map_bands(fn, min_work)
+        self._pending = None
+
+        def both(b, lo, hi):
+            pend(b, lo, hi)
+            return fn(b, lo, hi)
+        return super()._map_bands(both, max(min_work, self.n))
+
+    def _load(self, k: int, t_to: float | None = None) -> None:
+        """Load segment ``k``; first propagate the current one to ``t_to`` µs (a frame switch).
+
+        Both happen in one pass per row band (:func:`_kernels.akf_switch`); when the provider
+        exposes the segment's codes and tables (``segment_codes``), each band also builds its
+        own part of the measurement in that pass (:func:`_kernels.akf_switch_lut`). The pass is
+        deferred into the next parallel call (events, output, or a state read), where each
+        worker first switches its own rows: one hand-off per segment instead of two. The switch
+        is pixel-wise, so it commutes with the band edges moving in between.
+        """
+        self._flush()
         n = self.n
-
-        def col(a, name, required):
-            if a is None:
-                if required:
-                    raise ValueError(f"measurement segment {k} has no {name}; the AKF needs it")
-                return np.empty(0)
-            a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
-            if a.shape[0] != n:
-                raise ValueError(f"measurement segment {k}: {name} has {a.shape[0]} values, expected {n} (H*W)")
-            return a
-
-        lf = col(seg.log_frame, "log_frame", True)
-        rinv = col(seg.rinv, "rinv", True)
-        beta = col(seg.beta, "beta", False)
-        step = col(seg.la_step, "la_step", False)
-        if seg.t1_us is not None:
-            T_us = seg.t1_us - seg.t0_us
-            self.seg_inv_t = 1.0 / T_us
+        W = self.shape[1]
+        times = self.m.times_us
+        t0_us = int(times[k])
+        t1_us = int(times[k + 1]) if k + 1 < len(self.m) else None
+        codes_fn = getattr(self.m, "segment_codes", None)
+        sc = codes_fn(k) if codes_fn is not None else None
+        if sc is None:
+            seg = self.m.segment(k)
+            t0_us, t1_us = seg.t0_us, seg.t1_us
+        if t1_us is not None:
+            T_us = t1_us - t0_us
+            seg_inv_t = 1.0 / T_us
             seg_t_s = T_us * K.US
         else:
-            self.seg_inv_t = 0.0
+            seg_inv_t = 0.0
             seg_t_s = 0.0
-        W = self.shape[1]
-        self._map_bands(lambda b, lo, hi: K.akf_load(self.S, lf, rinv, beta, step, seg_t_s, lo * W, hi * W), n)
-        self.has_la_step = seg.la_step is not None
-        self.seg_t0 = float(seg.t0_us)
+        prop = t_to is not None
+        args = (self._S, prop, self.seg_t0, self.seg_inv_t, float(t_to) if prop else 0.0)
+        if sc is not None:
+            for a, name in ((sc.code, "code"), (sc.code_next, "code_next")):
+                if a.ndim != 1 or a.shape[0] not in ((n,) if name == "code" else (0, n)):
+                    raise ValueError(f"measurement segment {k}: {name} has shape {a.shape}, expected ({n},) (H*W)")
+            self._pending = lambda b, lo, hi: K.akf_switch_lut(*args, sc.code, sc.code_next, sc.max_code, sc.rbar,
+                                                               sc.log_frame, sc.rinv, seg_t_s, lo * W, hi * W)
+            self.has_la_step = False
+        else:
+            def col(a, name, required):
+                if a is None:
+                    if required:
+                        raise ValueError(f"measurement segment {k} has no {name}; the AKF needs it")
+                    return np.empty(0)
+                a = np.ascontiguousarray(a, dtype=np.float64).reshape(-1)
+                if a.shape[0] != n:
+                    raise ValueError(f"measurement segment {k}: {name} has {a.shape[0]} values, expected {n} (H*W)")
+                return a
+
+            lf = col(seg.log_frame, "log_frame", True)
+            rinv = col(seg.rinv, "rinv", True)
+            beta = col(seg.beta, "beta", False)
+            step = col(seg.la_step, "la_step", False)
+            self._pending = lambda b, lo, hi: K.akf_switch(*args, lf, rinv, beta, step, seg_t_s, lo * W, hi * W)
+            self.has_la_step = seg.la_step is not None
+        self.seg_t0 = float(t0_us)
+        self.seg_inv_t = seg_inv_t
         self.k = k
-        self.segment = seg
 
     def start(self, t_start_us=None) -> int:
         times = self.m.times_us
@@ -143,9 +193,10 @@ class AKFEngine(Engine):
         t_init = int(times[k0])
         check_time_range(times, "frame timestamps")
         self._load(k0)
-        self.S[:, K.A_L] = self.S[:, K.A_LA]  # initialise from the frame, never from t = 0
-        self.S[:, K.A_P] = self.params.initial_covariance
-        self.S[:, K.A_TU] = float(t_init)
+        S = self.S  # applies the load
+        S[:, K.A_L] = S[:, K.A_LA]  # initialise from the frame, never from t = 0
+        S[:, K.A_P] = self.params.initial_covariance
+        S[:, K.A_TU] = float(t_init)
         for te in self.te:
             te[:] = t_init
         return t_init
@@ -154,11 +205,7 @@ class AKFEngine(Engine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
-        t_to = float(self.m.times_us[self.k + 1])
-        W = self.shape[1]
-        self._map_bands(lambda b, lo, hi: K.akf_propagate(self.S, self.seg_t0, self.seg_inv_t, t_to,
-                                                            lo * W, hi * W), self.n)
-        self._load(self.k + 1)
+        self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
@@ -172,18 +219,19 @@ class AKFEngine(Engine):
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
-            self._rebalance(y[i0:i1:8])  # a 1-in-8 sample of the rows balances as well, 8x cheaper
+            # a 1-in-8 sample of the rows balances as well, 8x cheaper
+            self._rebalance(K.row_histogram(y, i0, i1, 8, self._hist))
 
         def band(b, lo, hi):
             # select the band's rows plus the two ghost rows, then filter only those events
             idx = self._index_buffer(b, i1 - i0)
             m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
-            return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self.S, self.te[b], *args)
+            return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], *args)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
-    def _rebalance(self, y) -> None:
+    def _rebalance(self, hist) -> None:
         """Move the band edges so each band gets about the same number of this batch's events
-        (``y``: the rows of the batch's events, or of a sample of them).
+        (``hist``: the events per row, of the batch or of a sample of it).
 
         Events cluster (a moving edge, a bright object), so equal row counts leave one worker
         idle. Each band's private last-event-time array is exact for its own rows and its two
@@ -193,7 +241,7 @@ class AKFEngine(Engine):
         """
         H, W = self.shape
         nb = len(self.bands)
-        cum = np.cumsum(np.bincount(y, minlength=H))
+        cum = np.cumsum(hist)
         edges = [0]
         for k in range(1, nb):
             r = int(np.searchsorted(cum, cum[-1] * k / nb, side="left")) + 1
@@ -218,7 +266,7 @@ class AKFEngine(Engine):
         out = np.empty(self.n, np.float32)
         lg = np.empty(self.n if with_state else 0)
         var = np.empty(self.n if with_state else 0)
-        self._map_bands(lambda b, lo, hi: K.akf_output(self.S, self.seg_t0, self.seg_inv_t, float(t_us),
+        self._map_bands(lambda b, lo, hi: K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us),
                                                          self.params.intensity_offset, out, lg, var,
                                                          lo * W, hi * W), self.n)
         if with_state:

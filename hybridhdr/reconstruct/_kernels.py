@@ -54,12 +54,12 @@ def rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
     dt = t1 - tu0
     if beta == 0.0:
         return rinv * (dt * US)
-    w0 = 1.0 + beta * ((tu0 - seg_t0) * seg_inv_t)
-    x = beta * (dt * seg_inv_t) / w0
+    iw0 = 1.0 / (1.0 + beta * ((tu0 - seg_t0) * seg_inv_t))  # one division, two uses
+    x = beta * (dt * seg_inv_t) * iw0
     if abs(x) < 1e-2:
         s = 1.0 - x * (0.5 - x * (1.0 / 3.0 - x * (0.25 - x * (0.2 - x * (1.0 / 6.0 - x * (
             1.0 / 7.0 - x * 0.125))))))
-        return rinv * (dt * US) / w0 * s
+        return rinv * (dt * US) * iw0 * s
     return klog * math.log1p(x)
 
 
@@ -78,6 +78,21 @@ def band_select(y, i0, i1, row_lo, row_hi, out):
         out[m] = np.int32(i - i0)
         m += np.int64((yy >= row_lo) & (yy < row_hi))
     return m
+
+
+@njit(cache=True, nogil=True)
+def row_histogram(y, i0, i1, step, hist):
+    """Count the rows of every ``step``-th event of ``[i0, i1)`` into ``hist`` (zeroed first).
+
+    Rows at or past ``hist``'s length are not counted. Used to balance the row bands.
+    """
+    hist[:] = 0
+    h = np.uint64(hist.shape[0])
+    for i in range(i0, i1, step):
+        yy = np.uint64(y[i])
+        if yy < h:
+            hist[yy] += 1
+    return hist
 
 
 @njit(cache=True, nogil=True, inline="always")
@@ -214,35 +229,36 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
     return n
 
 
-@njit(cache=True, nogil=True)
-def akf_propagate(S, seg_t0, seg_inv_t, t_to, pix_lo, pix_hi):
-    """Propagate pixels ``[pix_lo, pix_hi)`` to ``t_to`` µs (eqs. 17, 20); set ``tu = t_to``.
-
-    Used only where L^A or R changes (a frame switch), never at output times.
-    """
-    for pix in range(pix_lo, pix_hi):
-        integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_to,
-                              seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + S[pix, A_P] * integ)
-        lav = S[pix, A_LA]
-        S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
-        S[pix, A_P] = S[pix, A_P] * d
-        S[pix, A_TU] = t_to
-    return pix_hi - pix_lo
+@njit(cache=True, nogil=True, inline="always")
+def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
+    """Propagate pixel ``pix`` to ``t_to`` µs (eqs. 17, 20) and set ``tu = t_to``."""
+    integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_to,
+                          seg_t0, seg_inv_t)
+    d = 1.0 / (1.0 + S[pix, A_P] * integ)
+    lav = S[pix, A_LA]
+    S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
+    S[pix, A_P] = S[pix, A_P] * d
+    S[pix, A_TU] = t_to
 
 
 @njit(cache=True, nogil=True)
-def akf_load(S, log_frame, rinv, beta, la_step, seg_t_s, pix_lo, pix_hi):
-    """Load a measurement segment into pixels ``[pix_lo, pix_hi)`` of the AKF state (one pass).
+def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_step, seg_t_s,
+               pix_lo, pix_hi):
+    """Frame switch of pixels ``[pix_lo, pix_hi)`` in one pass: propagate, then load the new segment.
 
-    Sets L^A = ``log_frame``, 1/R = ``rinv``, β = ``beta`` and ``klog = rinv T / β`` (β ≠ 0; 0
-    otherwise) of :func:`rinv_integral`, with ``T = seg_t_s`` the segment length in s; pass
-    ``seg_t_s = 0`` for an open-ended segment (β is then stored as 0: R held), and empty
+    When ``propagate``, each pixel is first carried to ``t_to`` µs under the current segment
+    (eqs. 17, 20; ``seg_t0``/``seg_inv_t`` are the current segment's) and ``tu = t_to``; this is
+    done only where L^A or R changes, never at output times. Then the new segment is loaded:
+    L^A = ``log_frame``, 1/R = ``rinv``, β = ``beta`` and ``klog = rinv T / β`` (β ≠ 0; 0
+    otherwise) of :func:`rinv_integral`, with ``T = seg_t_s`` the new segment's length in s.
+    Pass ``seg_t_s = 0`` for an open-ended segment (β is then stored as 0: R held), and empty
     ``beta`` / ``la_step`` arrays for zeros.
     """
     has_beta = beta.shape[0] > 0 and seg_t_s > 0.0
     has_step = la_step.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
+        if propagate:
+            _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
         r = rinv[pix]
         S[pix, A_LA] = log_frame[pix]
         S[pix, A_RINV] = r
@@ -250,6 +266,34 @@ def akf_load(S, log_frame, rinv, beta, la_step, seg_t_s, pix_lo, pix_hi):
         S[pix, A_BETA] = b
         S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else 0.0
         S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
+    return pix_hi - pix_lo
+
+
+@njit(cache=True, nogil=True)
+def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_code, rbar_l, logf_l,
+                   rinv_l, seg_t_s, pix_lo, pix_hi):
+    """:func:`akf_switch` with the new segment built from pixel codes and per-code tables.
+
+    Loads exactly what :func:`lut_segment` followed by :func:`akf_switch` would (L^F of eq. 8,
+    1/R of eq. 9, β of eq. 7 from ``code_next``, or 0 when it is empty or ``seg_t_s = 0``; no
+    L^A step), without the intermediate per-pixel arrays, so a row band builds its own part of
+    the measurement in the same pass as its propagation.
+    """
+    has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
+    for pix in range(pix_lo, pix_hi):
+        if propagate:
+            _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
+        c = min(max(np.int64(code[pix]), 0), max_code)
+        r = rinv_l[c]
+        S[pix, A_LA] = logf_l[c]
+        S[pix, A_RINV] = r
+        b = 0.0
+        if has_beta:
+            c1 = min(max(np.int64(code_next[pix]), 0), max_code)
+            b = rbar_l[c1] / rbar_l[c] - 1.0
+        S[pix, A_BETA] = b
+        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else 0.0
+        S[pix, A_LASTEP] = 0.0
     return pix_hi - pix_lo
 
 

@@ -4,7 +4,11 @@ A *measurement provider* is any object with
 
 * ``times_us`` - int64 array (K,), strictly increasing: the times τ_k at which the measurement
   changes (segment k is ``[τ_k, τ_{k+1})``; the last one is open-ended);
-* ``segment(k)`` - a :class:`Segment` with the per-pixel measurement on segment k.
+* ``segment(k)`` - a :class:`Segment` with the per-pixel measurement on segment k;
+* optionally ``segment_codes(k)`` - the :class:`SegmentCodes` (pixel codes and per-code
+  tables) that ``segment(k)`` is built from, or None. The AKF then builds each row band's part
+  of the measurement in the same pass that propagates and loads it (no intermediate arrays,
+  and the whole frame switch runs in parallel).
 
 :class:`FrameMeasurements` implements the zero-order hold of raw frames (L^A(t) = L^F(τ_k) on
 segment k). The frame-augmentation issue (§4.1 of the paper: EDI deblurring plus event
@@ -23,7 +27,7 @@ from ..model import Frames
 from ._kernels import lut_segment
 from .profile import CameraProfile, profile_for_frames
 
-__all__ = ["Segment", "FrameMeasurements", "frames_to_codes"]
+__all__ = ["Segment", "SegmentCodes", "FrameMeasurements", "frames_to_codes"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -53,6 +57,23 @@ class Segment:
     rinv: np.ndarray | None = None
     beta: np.ndarray | None = None
     la_step: np.ndarray | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class SegmentCodes:
+    """What a look-up-table segment is built from (see :func:`~._kernels.lut_segment`).
+
+    ``code`` / ``code_next`` are the flattened pixel codes of frames k and k+1 (``code_next``
+    empty when β is held at 0); codes are clipped to ``[0, max_code]``. ``rbar``, ``log_frame``
+    and ``rinv`` are the per-code tables of R̄ (eq. 6), L^F (eq. 8) and 1/R (eq. 9).
+    """
+
+    code: np.ndarray
+    code_next: np.ndarray
+    max_code: int
+    rbar: np.ndarray
+    log_frame: np.ndarray
+    rinv: np.ndarray
 
 
 def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
@@ -133,19 +154,28 @@ class FrameMeasurements:
     def _rbar(self, k: int) -> np.ndarray:
         return self.profile.variance(self._codes[self._idx[k]]).ravel() * self.scale_factor
 
-    def segment(self, k: int) -> Segment:
-        """Measurement on ``[τ_k, τ_{k+1})``: L^F (eq. 8), 1/R (eq. 9), β of eq. 7."""
+    def segment_codes(self, k: int) -> SegmentCodes | None:
+        """Codes and per-code tables of segment ``k``; None when the frames are not integer codes."""
         if not 0 <= k < len(self):
             raise IndexError(f"segment {k} out of range 0..{len(self) - 1}")
+        if self._lut is None:
+            return None
+        code = np.ascontiguousarray(self._codes[self._idx[k]]).reshape(-1)
+        last = k + 1 >= len(self)
+        nxt = (np.ascontiguousarray(self._codes[self._idx[k + 1]]).reshape(-1)
+               if self.interpolate_covariance and not last else code[:0])
+        _, rbar_l, logf_l, rinv_l = self._lut
+        return SegmentCodes(code, nxt, int(self.profile.max_code), rbar_l, logf_l, rinv_l)
+
+    def segment(self, k: int) -> Segment:
+        """Measurement on ``[τ_k, τ_{k+1})``: L^F (eq. 8), 1/R (eq. 9), β of eq. 7."""
+        sc = self.segment_codes(k)
         code = self._codes[self._idx[k]]
         last = k + 1 >= len(self)
-        if self._lut is not None:
-            inten_l, rbar_l, logf_l, rinv_l = self._lut
-            nxt = (self._codes[self._idx[k + 1]].reshape(-1) if self.interpolate_covariance and not last
-                   else code.reshape(-1)[:0])
+        if sc is not None:
             n = code.size
             lf, inten, rinv, beta = (np.empty(n) for _ in range(4))
-            lut_segment(code.reshape(-1), nxt, int(self.profile.max_code), inten_l, rbar_l, logf_l, rinv_l,
+            lut_segment(sc.code, sc.code_next, sc.max_code, self._lut[0], sc.rbar, sc.log_frame, sc.rinv,
                         lf, inten, rinv, beta)
             return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
                            log_frame=lf, intensity=inten, rinv=rinv, beta=beta, la_step=None)

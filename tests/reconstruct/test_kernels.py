@@ -58,17 +58,64 @@ def test_akf_events_equals_py_func(noise_form, has_la_step):
     np.testing.assert_array_equal(outs[0][2], outs[1][2])
 
 
-def test_akf_propagate_and_output_equal_py_func():
+def test_akf_output_and_switch_equal_py_func():
     n = 30
+    rng = np.random.default_rng(5)
+    lf, rinv = rng.normal(0, 0.3, n), rng.uniform(1e3, 1e6, n)
+    beta = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(-0.5, 2.0, n))
     res = []
-    for prop, outk in ((K.akf_propagate, K.akf_output), (_py(K.akf_propagate), _py(K.akf_output))):
+    for sw, outk in ((K.akf_switch, K.akf_output), (_py(K.akf_switch), _py(K.akf_output))):
         S = _akf_state(n)
         o = np.empty(n, np.float32); lg = np.empty(n); var = np.empty(n)
         outk(S, 1_000.0, 1.0 / 100_000, 77_777.0, 1.0, o, lg, var, 0, n)
-        prop(S, 1_000.0, 1.0 / 100_000, 50_000.0, 0, n)
+        sw(S, True, 1_000.0, 1.0 / 100_000, 50_000.0, lf, rinv, beta, np.empty(0), 0.03, 0, n)
         res.append((S.copy(), o, lg, var))
     for a, b in zip(*res):
         np.testing.assert_array_equal(a, b)
+
+
+def test_akf_switch_propagates_as_output_predicts():
+    """The switch's propagation (eqs. 17, 20) is the closed form akf_output evaluates, bit for bit;
+    without ``propagate`` L̂, P and tu are untouched."""
+    n = 50
+    lf, rinv = np.full(n, 0.2), np.full(n, 5e3)
+    for fn in (K.akf_switch, _py(K.akf_switch)):
+        S = _akf_state(n)
+        lg = np.empty(n); var = np.empty(n)
+        K.akf_output(S, 1_000.0, 1.0 / 100_000, 61_000.0, 0.0, np.empty(n, np.float32), lg, var, 0, n)
+        before = S.copy()
+        fn(S, False, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), 0.0, 0, n)
+        for f in (K.A_L, K.A_P, K.A_TU):
+            np.testing.assert_array_equal(S[:, f], before[:, f])
+        S = before.copy()
+        fn(S, True, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), 0.0, 0, n)
+        np.testing.assert_array_equal(S[:, K.A_L], lg)
+        np.testing.assert_array_equal(S[:, K.A_P], var)
+        assert (S[:, K.A_TU] == 61_000.0).all()
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_akf_switch_lut_equals_lut_segment_then_switch(jit):
+    """The one-pass LUT switch loads exactly what lut_segment + akf_switch load (codes clipped)."""
+    n = 400
+    rng = np.random.default_rng(13)
+    max_code = 255
+    inten_l, rbar_l, logf_l, rinv_l = (rng.uniform(0.1, 2.0, max_code + 1) for _ in range(4))
+    code = rng.integers(-3, 300, n).astype(np.int16)
+    nxt = rng.integers(0, 256, n).astype(np.int16)
+    fn = K.akf_switch_lut if jit else _py(K.akf_switch_lut)
+    for has_next in (True, False):
+        for seg_t_s in (0.0333, 0.0):
+            for prop in (True, False):
+                nx = nxt if has_next else nxt[:0]
+                lf, it, ri, be = (np.empty(n) for _ in range(4))
+                K.lut_segment(code, nx, max_code, inten_l, rbar_l, logf_l, rinv_l, lf, it, ri, be)
+                want = _akf_state(n)
+                K.akf_switch(want, prop, 1_000.0, 1.0 / 100_000, 40_000.0, lf, ri, be, np.empty(0), seg_t_s, 0, n)
+                got = _akf_state(n)
+                fn(got, prop, 1_000.0, 1.0 / 100_000, 40_000.0, code, nx, max_code, rbar_l, logf_l, rinv_l,
+                   seg_t_s, 0, n)
+                np.testing.assert_array_equal(got, want)
 
 
 def test_cf_kernels_equal_py_func():
@@ -135,7 +182,7 @@ def test_parallel_threads_bit_identical_on_large_chunk():
     np.testing.assert_array_equal(states[0], states[1])
 
 
-def test_akf_load_equals_py_func_and_numpy():
+def test_akf_switch_load_equals_py_func_and_numpy():
     n = 40
     rng = np.random.default_rng(8)
     lf, rinv = rng.normal(0, 0.3, n), rng.uniform(1e3, 1e6, n)
@@ -143,10 +190,10 @@ def test_akf_load_equals_py_func_and_numpy():
     step = rng.uniform(0.05, 0.2, n)
     T_s = 0.0333
     res = []
-    for fn in (K.akf_load, _py(K.akf_load)):
+    for fn in (K.akf_switch, _py(K.akf_switch)):
         for b, st, ts in ((beta, step, T_s), (np.empty(0), np.empty(0), T_s), (beta, step, 0.0)):
             S = _akf_state(n)
-            fn(S, lf, rinv, b, st, ts, 0, n)
+            fn(S, False, 0.0, 0.0, 0.0, lf, rinv, b, st, ts, 0, n)
             res.append(S.copy())
     for a, b in zip(res[:3], res[3:]):
         np.testing.assert_array_equal(a, b)

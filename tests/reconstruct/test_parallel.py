@@ -53,12 +53,28 @@ class _StepMeasurements:
         return dataclasses.replace(s, la_step=np.linspace(0.05, 0.15, s.log_frame.shape[0]))
 
 
-def _run_akf(n_workers, t, x, y, p, fr, params, shape, step=False, batches=(0.3, 0.7)):
+class _SegmentOnly:
+    """A provider with only ``segment`` (no ``segment_codes``): the AKF's generic load path."""
+
+    def __init__(self, inner):
+        self.inner = inner
+        self.times_us = inner.times_us
+
+    def __len__(self):
+        return len(self.inner)
+
+    def segment(self, k):
+        return self.inner.segment(k)
+
+
+def _run_akf(n_workers, t, x, y, p, fr, params, shape, step=False, batches=(0.3, 0.7), generic=False):
     h, w = shape
     m = FrameMeasurements(fr, shape, default_profile(), intensity_offset=params.intensity_offset,
                           interpolate_covariance=params.covariance_interpolation == "linear")
     if step:
         m = _StepMeasurements(m)
+    elif generic:
+        m = _SegmentOnly(m)
     eng = AKFEngine(shape, m, params, n_workers=n_workers)
     eng.start(None)
     outs = []
@@ -97,6 +113,23 @@ def test_akf_parallel_bit_identical_threaded(n_workers, noise_model, cov):
         for u, v in zip(a, b):
             np.testing.assert_array_equal(u, v)
     assert np.isfinite(S1).all()
+
+
+@pytest.mark.parametrize("cov", ["linear", "hold"])
+def test_akf_lut_switch_equals_generic_segment_path(cov):
+    """Frame switches built from codes and tables in the kernel (segment_codes) give the same
+    filter, bit for bit, as loading FrameMeasurements.segment's arrays, serial and parallel."""
+    h, w, n = 19, 14, 60_000
+    t, x, y, p = _stream(n, h, w, seed=21, boundary_rows=(8, 9, 10))
+    fr = _frames(h, w, [0, 50_000, 100_000, 150_000])
+    params = AKFParams(covariance_interpolation=cov, frame_precision_scale=1e3)
+    S_ref, o_ref, _ = _run_akf(1, t, x, y, p, fr, params, (h, w), generic=True)
+    for nw in (1, 2):
+        S, o, _ = _run_akf(nw, t, x, y, p, fr, params, (h, w))
+        np.testing.assert_array_equal(S, S_ref)
+        for a, b in zip(o, o_ref):
+            for u, v in zip(a, b):
+                np.testing.assert_array_equal(u, v)
 
 
 def test_akf_parallel_bit_identical_with_la_step():
@@ -238,3 +271,59 @@ def test_akf_rebalanced_bands_stay_bit_identical(n_workers, monkeypatch):
     for a, b in zip(o1, o2):
         for u, v in zip(a, b):
             np.testing.assert_array_equal(u, v)
+
+
+@pytest.mark.parametrize("jit", [True, False])
+def test_row_histogram_equals_bincount(jit):
+    rng = np.random.default_rng(30)
+    y = rng.integers(0, 50, 10_001).astype(np.uint16)
+    y[::97] = 60  # rows past the histogram are not counted
+    fn = K.row_histogram if jit else _py(K.row_histogram)
+    hist = np.full(50, 7, np.int64)
+    for i0, i1, step in ((0, 10_001, 1), (13, 9_000, 8), (5, 5, 3)):
+        sub = y[i0:i1:step]
+        want = np.bincount(sub[sub < 50], minlength=50)
+        np.testing.assert_array_equal(fn(y, i0, i1, step, hist), want)
+
+
+@pytest.mark.parametrize("n_workers", [1, 2])
+def test_akf_deferred_switch_equals_immediate(n_workers):
+    """A frame switch is applied inside the next parallel call (events or output); reading the
+    state forces it. Back-to-back switches with no event between, an output straight after a
+    switch, and a forced switch after every frame all give the same filter, bit for bit."""
+    h, w, n = 21, 12, 50_000
+    t, x, y, p = _stream(n, h, w, seed=31, span=200_000, boundary_rows=(9, 10, 11))
+    t[(t >= 60_000) & (t < 90_000)] = 59_999  # no event between the frames at 60, 70 and 80 ms
+    t = np.sort(t)
+    fr = _frames(h, w, [0, 60_000, 70_000, 80_000, 150_000])
+    params = AKFParams(frame_precision_scale=1e3)
+    res = []
+    for force in (False, True):
+        m = FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=params.intensity_offset)
+        eng = AKFEngine((h, w), m, params, n_workers=n_workers)
+        eng.start(None)
+        outs = []
+        i = k = 0
+        while eng.next_switch_us() is not None:
+            j = int(np.searchsorted(t, eng.next_switch_us(), side="left"))
+            eng.process(t, x, y, p, i, j)
+            ts = eng.next_switch_us()
+            eng.switch()
+            if force:
+                eng.S  # noqa: B018 - the property applies the pending switch
+                assert eng._pending is None
+            else:
+                assert eng._pending is not None
+            if k % 2:  # an output after every other switch only: back-to-back switches too
+                outs.append(eng.output(ts + 1))
+            k += 1
+            i = j
+        eng.process(t, x, y, p, i, n)
+        res.append((eng.S.copy(), outs))
+        eng.close()
+    np.testing.assert_array_equal(res[0][0], res[1][0])
+    for a, b in zip(res[0][1], res[1][1]):
+        np.testing.assert_array_equal(a, b)
+    # the serial filter agrees too
+    S1, _, _ = _run_akf(1, t, x, y, p, fr, params, (h, w))
+    np.testing.assert_array_equal(res[0][0], S1)
