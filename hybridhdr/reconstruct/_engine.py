@@ -44,6 +44,7 @@ class Engine:
         self.bands = row_bands(self.shape[0], self.n_workers)
         self._pool = ThreadPoolExecutor(len(self.bands) - 1) if len(self.bands) > 1 else None
         self._idx = [np.empty(0, np.int32) for _ in self.bands]
+        self._split: dict[int, np.ndarray] = {}
         self.n_events = 0
 
     def close(self):
@@ -60,8 +61,21 @@ class Engine:
             return [fn(b, lo, hi) for b, (lo, hi) in enumerate(self.bands)]
         futs = [self._pool.submit(fn, b, lo, hi) for b, (lo, hi) in enumerate(self.bands[:-1])]
         b = len(self.bands) - 1
-        last = fn(b, *self.bands[b])
-        return [f.result() for f in futs] + [last]
+        errors = []
+        try:
+            last = fn(b, *self.bands[b])
+        except BaseException as e:  # noqa: BLE001 - re-raised below, once every worker has stopped
+            errors.append(e)
+        out = []
+        for f in futs:  # wait for every worker, even after an error: none may outlive the call
+            try:
+                out.append(f.result())
+            except BaseException as e:  # noqa: BLE001
+                errors.append(e)
+        if errors:
+            # the cause, not the BrokenBarrierError it gave the workers waiting for it
+            raise next((e for e in errors if not isinstance(e, threading.BrokenBarrierError)), errors[0])
+        return out + [last]
 
     def _index_buffer(self, b: int, n: int) -> np.ndarray:
         """Band ``b``'s int32 index buffer for :func:`_kernels.band_select`, at least ``n`` long."""
@@ -71,6 +85,16 @@ class Engine:
         if buf.shape[0] < n:
             buf = np.empty(max(n, 2 * buf.shape[0]), np.int32)
             self._idx[b] = buf
+        return buf
+
+    def _split_buffer(self, w: int, nb: int, n: int) -> np.ndarray:
+        """Worker ``w``'s int32 (nb, >= n) buffer for :func:`_kernels.band_split`."""
+        if n >= 1 << 31:
+            raise ValueError(f"a batch of {n} events is too large for the parallel kernels (< 2**31)")
+        buf = self._split.get(w)
+        if buf is None or buf.shape[0] != nb or buf.shape[1] < n:
+            buf = np.empty((nb, max(n, 2 * (buf.shape[1] if buf is not None else 0))), np.int32)
+            self._split[w] = buf
         return buf
 
     # -- interface ----------------------------------------------------------------------------
@@ -222,12 +246,38 @@ class AKFEngine(Engine):
             # a 1-in-8 sample of the rows balances as well, 8x cheaper
             self._rebalance(K.row_histogram(y, i0, i1, 8, self._hist))
 
-        def band(b, lo, hi):
-            # select the band's rows plus the two ghost rows, then filter only those events
-            idx = self._index_buffer(b, i1 - i0)
-            m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
-            return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], *args)
-        self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+        if i1 - i0 < PARALLEL_MIN_WORK:
+            def band(b, lo, hi):
+                # select the band's rows plus the two ghost rows, then filter only those events
+                idx = self._index_buffer(b, i1 - i0)
+                m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
+                return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], *args)
+            self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+            return
+        # threaded (every band has its own thread): worker w splits part w of the batch for all
+        # bands (own rows plus the two ghost rows), then, once all parts are split, each band
+        # filters its events part by part, in time order
+        nb = len(self.bands)
+        parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
+        los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
+        his = np.array([hi + 1 for _, hi in self.bands], np.int64)
+        bufs = [self._split_buffer(w, nb, int(parts[w + 1] - parts[w])) for w in range(nb)]
+        counts = np.zeros((nb, nb), np.int64)
+        barrier = threading.Barrier(nb)
+
+        def band_threaded(b, lo, hi):
+            try:
+                K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                barrier.wait()
+            except BaseException:
+                barrier.abort()  # release the other workers (they raise BrokenBarrierError)
+                raise
+            n = 0
+            for w in range(nb):
+                n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
+                                          self.te[b], *args)
+            return n
+        self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
 
     def _rebalance(self, hist) -> None:
         """Move the band edges so each band gets about the same number of this batch's events

@@ -81,6 +81,43 @@ def band_select(y, i0, i1, row_lo, row_hi, out):
 
 
 @njit(cache=True, nogil=True)
+def band_split(y, i0, j0, j1, row_lo, row_hi, out, counts):
+    """:func:`band_select` for every band at once, over a part ``[j0, j1)`` of a batch.
+
+    For each band ``b``, the indices (relative to ``i0``, the batch start) of the part's events
+    whose row lies in ``[row_lo[b], row_hi[b])`` are written in order to ``out[b]`` (int32, each
+    row at least ``j1 - j0`` long) and their count to ``counts[b]``. Branch-free like
+    :func:`band_select`. The parallel AKF splits a batch into one part per worker, each worker
+    splits its part for all bands, and each band then reads the parts in order: every event's
+    row is read once in all, not once per band.
+    """
+    nb = row_lo.shape[0]
+    if nb == 2:  # the common case, with the counters in registers
+        lo0, hi0, lo1, hi1 = np.int64(row_lo[0]), np.int64(row_hi[0]), np.int64(row_lo[1]), np.int64(row_hi[1])
+        m0 = 0
+        m1 = 0
+        for i in range(j0, j1):
+            yy = np.int64(y[i])
+            r = np.int32(i - i0)
+            out[0, m0] = r
+            out[1, m1] = r
+            m0 += np.int64((yy >= lo0) & (yy < hi0))
+            m1 += np.int64((yy >= lo1) & (yy < hi1))
+        counts[0] = m0
+        counts[1] = m1
+        return j1 - j0
+    for b in range(nb):
+        counts[b] = 0
+    for i in range(j0, j1):
+        yy = np.int64(y[i])
+        r = np.int32(i - i0)
+        for b in range(nb):
+            out[b, counts[b]] = r
+            counts[b] += np.int64((yy >= row_lo[b]) & (yy < row_hi[b]))
+    return j1 - j0
+
+
+@njit(cache=True, nogil=True)
 def row_histogram(y, i0, i1, step, hist):
     """Count the rows of every ``step``-th event of ``[i0, i1)`` into ``hist`` (zeroed first).
 

@@ -327,3 +327,55 @@ def test_akf_deferred_switch_equals_immediate(n_workers):
     # the serial filter agrees too
     S1, _, _ = _run_akf(1, t, x, y, p, fr, params, (h, w))
     np.testing.assert_array_equal(res[0][0], S1)
+
+
+@pytest.mark.parametrize("jit", [True, False])
+@pytest.mark.parametrize("nb", [2, 3])
+def test_band_split_equals_band_select_per_band(jit, nb):
+    """Splitting a part of a batch for all bands at once = band_select per band on that part."""
+    rng = np.random.default_rng(40 + nb)
+    y = rng.integers(0, 30, 5_000).astype(np.uint16)
+    edges = np.linspace(0, 30, nb + 1).astype(int)
+    los = np.array([e - 1 for e in edges[:-1]], np.int64)
+    his = np.array([e + 1 for e in edges[1:]], np.int64)
+    fn = K.band_split if jit else _py(K.band_split)
+    i0, j0, j1 = 100, 1_300, 4_100
+    out = np.full((nb, j1 - j0), -1, np.int32)
+    counts = np.full(nb, -5, np.int64)
+    assert fn(y, i0, j0, j1, los, his, out, counts) == j1 - j0
+    for b in range(nb):
+        idx = np.empty(j1 - j0, np.int32)
+        m = K.band_select(y, j0, j1, los[b], his[b], idx)
+        assert counts[b] == m
+        np.testing.assert_array_equal(out[b, :m], idx[:m] + (j0 - i0))
+
+
+def test_akf_worker_error_does_not_hang_the_other_workers(monkeypatch):
+    """If one worker fails before the split barrier, the others are released and the error is raised."""
+    import threading
+    h, w, n = 20, 10, 60_000
+    t, x, y, p = _stream(n, h, w, seed=41)
+    fr = _frames(h, w, [0, 300_000])
+    m = FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0)
+    eng = AKFEngine((h, w), m, AKFParams(), n_workers=3)
+    eng.start(None)
+    real = K.band_split
+
+    def failing(y_, i0, j0, *a):
+        if j0 == i0:  # the first part's worker fails
+            raise RuntimeError("simulated worker failure")
+        return real(y_, i0, j0, *a)
+    monkeypatch.setattr(K, "band_split", failing)
+    errors = []
+
+    def run():
+        try:
+            eng.process(t, x, y, p, 0, n)
+        except BaseException as e:  # noqa: BLE001 - the test inspects it
+            errors.append(e)
+    th = threading.Thread(target=run, daemon=True)
+    th.start()
+    th.join(timeout=30)
+    assert not th.is_alive(), "the workers hung at the barrier"
+    assert len(errors) == 1 and isinstance(errors[0], RuntimeError), errors  # the cause, not the barrier's
+    eng.close()
