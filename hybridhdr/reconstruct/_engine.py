@@ -316,9 +316,12 @@ class AKFEngine(Engine):
         out = np.empty(self.n, np.float32)
         lg = np.empty(self.n if with_state else 0)
         var = np.empty(self.n if with_state else 0)
-        self._map_bands(lambda b, lo, hi: K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us),
-                                                         self.params.intensity_offset, out, lg, var,
-                                                         lo * W, hi * W), self.n)
+        off = self.params.intensity_offset
+
+        def band(b, lo, hi):
+            K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us), out, lg, var, lo * W, hi * W)
+            K.log_to_linear(out[lo * W:hi * W], off)  # numpy's ufunc loop releases the GIL
+        self._map_bands(band, self.n)
         if with_state:
             return out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)
         return out.reshape(self.shape)

@@ -67,11 +67,24 @@ def test_akf_output_and_switch_equal_py_func():
     for sw, outk in ((K.akf_switch, K.akf_output), (_py(K.akf_switch), _py(K.akf_output))):
         S = _akf_state(n)
         o = np.empty(n, np.float32); lg = np.empty(n); var = np.empty(n)
-        outk(S, 1_000.0, 1.0 / 100_000, 77_777.0, 1.0, o, lg, var, 0, n)
+        outk(S, 1_000.0, 1.0 / 100_000, 77_777.0, o, lg, var, 0, n)
         sw(S, True, 1_000.0, 1.0 / 100_000, 50_000.0, lf, rinv, beta, np.empty(0), 0.03, 0, n)
         res.append((S.copy(), o, lg, var))
     for a, b in zip(*res):
         np.testing.assert_array_equal(a, b)
+    np.testing.assert_array_equal(res[0][1], res[0][2].astype(np.float32))  # L̂ rounded to float32
+
+
+def test_log_to_linear_single_precision():
+    """exp(L̂) - offset in float32 (vectorised) is within a float32 rounding or two of float64's."""
+    a = np.random.default_rng(6).uniform(-8, 8, 100_000).astype(np.float32)
+    a64 = a.astype(np.float64)
+    got = K.log_to_linear(a.copy(), 0.5)
+    want = np.exp(a64) - 0.5
+    assert got.dtype == np.float32
+    # float32 eps 1.19e-7: exp within 2 eps of exp(L̂) (numpy's bound is a few ulp), then one
+    # rounding of the difference, relative to the difference itself
+    assert np.all(np.abs(got - want) <= 1.2e-7 * (2 * np.exp(a64) + np.abs(want)))
 
 
 def test_akf_switch_propagates_as_output_predicts():
@@ -82,7 +95,7 @@ def test_akf_switch_propagates_as_output_predicts():
     for fn in (K.akf_switch, _py(K.akf_switch)):
         S = _akf_state(n)
         lg = np.empty(n); var = np.empty(n)
-        K.akf_output(S, 1_000.0, 1.0 / 100_000, 61_000.0, 0.0, np.empty(n, np.float32), lg, var, 0, n)
+        K.akf_output(S, 1_000.0, 1.0 / 100_000, 61_000.0, np.empty(n, np.float32), lg, var, 0, n)
         before = S.copy()
         fn(S, False, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), 0.0, 0, n)
         for f in (K.A_L, K.A_P, K.A_TU):
