@@ -117,6 +117,8 @@ class Engine:
 class AKFEngine(Engine):
     """Asynchronous Kalman filter state (eqs. 14-21) over a measurement provider."""
 
+    lookahead = True  # compute a generic provider's next segment in the background
+
     def __init__(self, shape, measurements, params, n_workers: int = 1):
         super().__init__(shape, n_workers)
         self.m = measurements
@@ -124,6 +126,8 @@ class AKFEngine(Engine):
         self._S = K.aligned_state(self.n, K.AKF_FIELDS)
         self.te = [K.padded_te(shape[0], shape[1], 0) for _ in self.bands]
         self._pending = None  # a frame switch not yet applied: fn(band, row_lo, row_hi)
+        self._ahead = None  # (k, Future of segment k) computed in the background
+        self._ahead_pool = None
         self._hist = np.zeros(self.shape[0], np.int64)
         self.k = -1
         self.seg_t0 = 0.0
@@ -172,7 +176,7 @@ class AKFEngine(Engine):
         codes_fn = getattr(self.m, "segment_codes", None)
         sc = codes_fn(k) if codes_fn is not None else None
         if sc is None:
-            seg = self.m.segment(k)
+            seg = self._segment(k)
             t0_us, t1_us = seg.t0_us, seg.t1_us
         if t1_us is not None:
             T_us = t1_us - t0_us
@@ -210,6 +214,34 @@ class AKFEngine(Engine):
         self.seg_t0 = float(t0_us)
         self.seg_inv_t = seg_inv_t
         self.k = k
+
+    def _segment(self, k: int):
+        """``m.segment(k)``; then segment k+1 is computed in a background thread.
+
+        A provider's own work (frame augmentation: deblurring, threshold calibration) then
+        overlaps the filtering of segment k instead of stalling it. Calls stay sequential, in
+        the same order, so the result does not change; only one runs at a time.
+        """
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == k:
+            seg = ahead[1].result()
+        else:
+            if ahead is not None:
+                ahead[1].exception()  # wait for the stale one (providers are not re-entrant)
+            seg = self.m.segment(k)
+        if self.lookahead and k + 1 < len(self.m):
+            if self._ahead_pool is None:
+                self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
+            self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
+        return seg
+
+    def close(self):
+        """Stop the worker threads; wait for a measurement being computed ahead (idempotent)."""
+        if self._ahead_pool is not None:
+            self._ahead_pool.shutdown(wait=True)
+            self._ahead_pool = None
+            self._ahead = None
+        super().close()
 
     def start(self, t_start_us=None) -> int:
         times = self.m.times_us

@@ -280,6 +280,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                 if method == "akf":
                     info["augment"] = aug.to_dict() if use_aug else {"enabled": False}
             yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=t_end_us, progress=progress)
+            engine.close()  # no measurement is still being computed ahead when the stats are read
             if info is not None:
                 info["n_events_used"] = engine.n_events
                 stats = getattr(getattr(engine, "m", None), "stats", None)

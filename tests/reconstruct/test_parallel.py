@@ -379,3 +379,51 @@ def test_akf_worker_error_does_not_hang_the_other_workers(monkeypatch):
     assert not th.is_alive(), "the workers hung at the barrier"
     assert len(errors) == 1 and isinstance(errors[0], RuntimeError), errors  # the cause, not the barrier's
     eng.close()
+
+
+@pytest.mark.parametrize("n_workers", [1, 2])
+def test_akf_measurement_lookahead_is_sequential_and_changes_nothing(n_workers):
+    """A generic provider's next segment is computed in the background, but its calls stay
+    one at a time and in order, and the filter equals the one without look-ahead bit for bit."""
+    import threading
+    import time
+
+    class Recorder(_StepMeasurements):
+        def __init__(self, inner):
+            super().__init__(inner)
+            self.calls, self.threads = [], set()
+            self._busy = threading.Lock()
+
+        def segment(self, k):
+            assert self._busy.acquire(blocking=False), "segment() called concurrently"
+            try:
+                self.calls.append(k)
+                self.threads.add(threading.get_ident())
+                time.sleep(0.002)
+                return super().segment(k)
+            finally:
+                self._busy.release()
+
+    h, w, n = 18, 11, 40_000
+    t, x, y, p = _stream(n, h, w, seed=50, boundary_rows=(8, 9))
+    fr = _frames(h, w, [0, 40_000, 80_000, 120_000, 160_000])
+    res = []
+    for ahead in (True, False):
+        m = Recorder(FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0))
+        eng = AKFEngine((h, w), m, AKFParams(), n_workers=n_workers)
+        eng.lookahead = ahead
+        eng.start(None)
+        i = 0
+        while eng.next_switch_us() is not None:
+            j = int(np.searchsorted(t, eng.next_switch_us(), side="left"))
+            eng.process(t, x, y, p, i, j)
+            eng.switch()
+            i = j
+        eng.process(t, x, y, p, i, n)
+        out = eng.output(int(t[-1]) + 1)
+        eng.close()
+        assert m.calls == list(range(len(fr))), m.calls
+        assert (len(m.threads) > 1) == ahead
+        res.append((eng.S.copy(), out))
+    np.testing.assert_array_equal(res[0][0], res[1][0])
+    np.testing.assert_array_equal(res[0][1], res[1][1])
