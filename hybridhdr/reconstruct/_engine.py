@@ -43,8 +43,7 @@ class Engine:
         self.n_workers = max(1, int(n_workers))
         self.bands = row_bands(self.shape[0], self.n_workers)
         self._pool = ThreadPoolExecutor(len(self.bands) - 1) if len(self.bands) > 1 else None
-        self._idx = [np.empty(0, np.int32) for _ in self.bands]
-        self._split: dict[int, np.ndarray] = {}
+        self._bufs: dict = {}  # reused int32 index buffers, see _index_buffer
         self.n_events = 0
 
     def close(self):
@@ -77,24 +76,18 @@ class Engine:
             raise next((e for e in errors if not isinstance(e, threading.BrokenBarrierError)), errors[0])
         return out + [last]
 
-    def _index_buffer(self, b: int, n: int) -> np.ndarray:
-        """Band ``b``'s int32 index buffer for :func:`_kernels.band_select`, at least ``n`` long."""
-        if n >= 1 << 31:
-            raise ValueError(f"a batch of {n} events is too large for the parallel kernels (< 2**31)")
-        buf = self._idx[b]
-        if buf.shape[0] < n:
-            buf = np.empty(max(n, 2 * buf.shape[0]), np.int32)
-            self._idx[b] = buf
-        return buf
+    def _index_buffer(self, key, n: int, rows: int = 1) -> np.ndarray:
+        """A reused int32 index buffer (``rows``, >= ``n``) for the band-selection kernels.
 
-    def _split_buffer(self, w: int, nb: int, n: int) -> np.ndarray:
-        """Worker ``w``'s int32 (nb, >= n) buffer for :func:`_kernels.band_split`."""
+        ``key`` names the owner: ``("band", b)`` for :func:`_kernels.band_select`,
+        ``("split", w)`` for worker ``w``'s :func:`_kernels.band_split`; threads never share one.
+        """
         if n >= 1 << 31:
             raise ValueError(f"a batch of {n} events is too large for the parallel kernels (< 2**31)")
-        buf = self._split.get(w)
-        if buf is None or buf.shape[0] != nb or buf.shape[1] < n:
-            buf = np.empty((nb, max(n, 2 * (buf.shape[1] if buf is not None else 0))), np.int32)
-            self._split[w] = buf
+        buf = self._bufs.get(key)
+        if buf is None or buf.shape[0] != rows or buf.shape[1] < n:
+            buf = np.empty((rows, max(n, 2 * (buf.shape[1] if buf is not None else 0))), np.int32)
+            self._bufs[key] = buf
         return buf
 
     # -- interface ----------------------------------------------------------------------------
@@ -281,7 +274,7 @@ class AKFEngine(Engine):
         if i1 - i0 < PARALLEL_MIN_WORK:
             def band(b, lo, hi):
                 # select the band's rows plus the two ghost rows, then filter only those events
-                idx = self._index_buffer(b, i1 - i0)
+                idx = self._index_buffer(("band", b), i1 - i0)[0]
                 m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
                 return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], *args)
             self.n_events += int(sum(self._map_bands(band, i1 - i0)))
@@ -293,7 +286,7 @@ class AKFEngine(Engine):
         parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
         los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
         his = np.array([hi + 1 for _, hi in self.bands], np.int64)
-        bufs = [self._split_buffer(w, nb, int(parts[w + 1] - parts[w])) for w in range(nb)]
+        bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
         counts = np.zeros((nb, nb), np.int64)
         barrier = threading.Barrier(nb)
 
@@ -437,7 +430,7 @@ class CFEngine(Engine):
             return
 
         def band(b, lo, hi):
-            idx = self._index_buffer(b, i1 - i0)
+            idx = self._index_buffer(("band", b), i1 - i0)[0]
             m = K.band_select(y, i0, i1, lo, hi, idx)
             return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
