@@ -13,8 +13,11 @@ from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty
 
 __all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS"]
 
-#: How frame pixel values relate to irradiance (after colour's domain-range tables).
-FRAME_ENCODINGS = ("raw", "linear", "gamma", "unknown")
+#: How frame pixel values relate to irradiance (after colour's domain-range tables): "raw" sensor
+#: numbers and "linear" codes are proportional to it; "gamma" is display gamma 2.2
+#: (code = max·I^(1/2.2)); "srgb" is the IEC 61966-2-1 transfer function; "unknown" states
+#: nothing. Closed forms: :mod:`hybridhdr.camera.encoding`.
+FRAME_ENCODINGS = ("raw", "linear", "gamma", "srgb", "unknown")
 
 
 def _as_i64(a, name: str, n: int | None = None) -> np.ndarray:
@@ -43,8 +46,8 @@ class Frames:
         Analogue gain (linear factor) per frame.
     iso : ndarray of shape (K,), float, optional
         ISO per frame.
-    encoding : {"raw", "linear", "gamma", "unknown"}
-        How pixel values relate to irradiance.
+    encoding : {"raw", "linear", "gamma", "srgb", "unknown"}
+        How pixel values relate to irradiance (see :data:`FRAME_ENCODINGS`).
     """
 
     images: np.ndarray
