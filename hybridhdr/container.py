@@ -32,7 +32,7 @@ from .errors import FormatError
 from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
                      validate_events)
 from .io import EventChunk, EventFileReader, EventFileWriter
-from .model import Frames, HDRReferences, Metadata, Recording
+from .model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
 
 __all__ = ["FORMAT_VERSION", "RecordingWriter", "RecordingFile", "write_recording", "read_recording",
            "READERS", "WRITERS", "sniff"]
@@ -496,6 +496,12 @@ class RecordingFile(EventFileReader):
             kw = {name: g[name][:] for name in ("gain", "iso") if name in g}
             enc = g.attrs.get("encoding", "unknown")
             enc = enc.decode() if isinstance(enc, bytes) else str(enc)
+            if enc not in FRAME_ENCODINGS and self.frame_encoding is None:
+                raise FormatError(self.path, f"/frames has encoding {enc!r}, which this version of hybridhdr does "
+                                             f"not know (known: {', '.join(FRAME_ENCODINGS)}); written by a newer "
+                                             f"version? Declare the encoding to read it anyway "
+                                             f"(frame_encoding=..., --frame-encoding)")
+            enc = self._frame_encoding(enc)
             return Frames(_require(g, "images", self.path)[:], _require(g, "t_start_us", self.path)[:],
                           _require(g, "t_end_us", self.path)[:], encoding=enc, **kw)
         except FormatError:

@@ -86,7 +86,13 @@ class EventFileReader:
 
     Subclasses set :attr:`format_name`, fill :attr:`sensor_size` and :attr:`metadata` in
     ``__init__`` (reading only the header), and implement :meth:`_iter_chunks`. Frame-carrying
-    formats override :meth:`read_frames`.
+    formats override :meth:`read_frames` and give their frames the encoding
+    :meth:`_frame_encoding` returns.
+
+    Options common to every reader: ``sensor_size`` (height, width) and ``frame_encoding``, the
+    declared encoding of the frames (``linear``, ``gamma2.2``, ``srgb`` or a ``Frames.encoding``
+    value; see :func:`hybridhdr.camera.encoding.parse_frame_encoding`), which replaces what the
+    format states or the reader assumes.
     """
 
     format_name: str = ""
@@ -98,6 +104,16 @@ class EventFileReader:
         self.options = options
         self.sensor_size: SensorSize | None = SensorSize.from_any(options.get("sensor_size"))
         self.metadata: Metadata = Metadata()
+        enc = options.get("frame_encoding")
+        if enc is not None:
+            from .camera.encoding import parse_frame_encoding
+            enc = parse_frame_encoding(enc)
+        #: The declared frame encoding (a ``Frames.encoding`` value), or None.
+        self.frame_encoding: str | None = enc
+
+    def _frame_encoding(self, default: str) -> str:
+        """The encoding to give the frames read: the declared one, else the reader's ``default``."""
+        return default if self.frame_encoding is None else self.frame_encoding
 
     # -- to implement -------------------------------------------------------------------------
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:

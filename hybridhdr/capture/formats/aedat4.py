@@ -514,7 +514,7 @@ class Aedat4Reader(EventFileReader):
         Frames or None
             ``images`` (K, H, W) grey or (K, H, W, 3) RGB, uint8 or uint16 as stored;
             ``t_start_us``/``t_end_us`` from the recorded exposure (see the module notes), sorted by
-            start. ``encoding`` is ``"raw"``.
+            start. ``encoding`` is the declared ``frame_encoding`` option, else ``"raw"``.
         """
         if self.frame_stream is None:
             return None
@@ -535,7 +535,7 @@ class Aedat4Reader(EventFileReader):
         ts_a, te_a = np.asarray(ts, np.int64), np.asarray(te, np.int64)
         order = np.argsort(ts_a, kind="stable")
         try:
-            return Frames(np.stack(imgs)[order], ts_a[order], te_a[order], encoding="raw")
+            return Frames(np.stack(imgs)[order], ts_a[order], te_a[order], encoding=self._frame_encoding("raw"))
         except ValueError as exc:
             raise FormatError(self.path, f"invalid frames: {exc}") from None
 

@@ -407,7 +407,8 @@ class MonashReader(EventFileReader):
         -------
         Frames or None
             ``images`` (K, H, W) or (K, H, W, 3), dtype as stored; ``t_start_us`` = ``t_end_us`` =
-            ``rint(timestamp * 1e6)``; frames are ordered by timestamp.
+            ``rint(timestamp * 1e6)``; frames are ordered by timestamp. ``encoding`` is the
+            declared ``frame_encoding`` option, else ``"unknown"`` (the layout states none).
         """
         if not self._image_names:
             with _open(self.path) as f:
@@ -441,7 +442,7 @@ class MonashReader(EventFileReader):
                 ts.append(int(np.rint(tv[0] * 1e6)))
         t = np.asarray(ts, np.int64)
         order = np.argsort(t, kind="stable")
-        return Frames(np.stack(imgs)[order], t[order], t[order].copy(), encoding="unknown")
+        return Frames(np.stack(imgs)[order], t[order], t[order].copy(), encoding=self._frame_encoding("unknown"))
 
 
 READERS = {"dsec": DsecReader, "monash": MonashReader}

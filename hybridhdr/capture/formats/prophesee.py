@@ -648,8 +648,9 @@ def decode_evt21(buf, sensor_size=None, *, legacy: bool = False, **options):
 # =============================================================================================
 # Readers
 # =============================================================================================
+# "frame_encoding" is common to every reader (EventFileReader); these formats hold no frames.
 _READER_OPTIONS = {"sensor_size", "block_bytes", "reorder_window_us", "strict", "allow_truncated",
-                   "parallel"}
+                   "parallel", "frame_encoding"}
 
 
 class _PropheseeReader(EventFileReader):

@@ -342,6 +342,10 @@ class EcdReader(EventFileReader):
         ``images.txt`` (exact for DAVIS, whose events and frames share the pixel array); with no
         frames it is inferred as max coordinate + 1 over all events (one extra pass), and
         ``metadata.provenance["sensor_size_source"]`` says which was used.
+    frame_encoding : {"linear", "gamma2.2", "srgb"}, optional
+        The frames' transfer function. ECD states none (8-bit PNGs of the DAVIS APS readout), so
+        by default ``Frames.encoding`` is ``"unknown"``; a declared value is stored instead and
+        ``metadata.provenance["frame_encoding_source"]`` says which.
 
     Notes
     -----
@@ -396,6 +400,10 @@ class EcdReader(EventFileReader):
                                     "t_end_us; exposure unknown"}
         if note:
             prov["sensor_size_note"] = note
+        if self._frame_list:
+            prov["frame_encoding"] = self._frame_encoding("unknown")
+            prov["frame_encoding_source"] = ("declared (frame_encoding option)" if self.frame_encoding else
+                                             "not stated by the ECD format (PNG frames, no transfer function)")
         if self.folder is not None and (self.folder / "groundtruth.txt").is_file():
             prov["groundtruth_file"] = str(self.folder / "groundtruth.txt")
         fc = CameraInfo(self.sensor_size if self._frame_list else None)
@@ -459,7 +467,8 @@ class EcdReader(EventFileReader):
         -------
         Frames or None
             ``images`` (K, H, W) or (K, H, W, 3) with the PNG's dtype (uint8 for ECD); see the class
-            notes for the timestamps. ``encoding`` is ``"unknown"`` (DAVIS APS frames as exported).
+            notes for the timestamps. ``encoding`` is the declared ``frame_encoding``, else
+            ``"unknown"`` (DAVIS APS frames as exported; ECD states no transfer function).
         """
         if self.images_txt is None:
             return None
@@ -490,7 +499,7 @@ class EcdReader(EventFileReader):
                 raise FormatError(expo, f"expected {len(t)} rows of 2 integers, got shape {e.shape}")
             ts, te = e[:, 0].copy(), e[:, 1].copy()
         try:
-            return Frames(np.stack(imgs), ts, te, encoding="unknown")
+            return Frames(np.stack(imgs), ts, te, encoding=self._frame_encoding("unknown"))
         except ValueError as exc:
             raise FormatError(self.images_txt, f"invalid frames: {exc}") from None
 
