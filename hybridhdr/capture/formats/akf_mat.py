@@ -26,6 +26,18 @@ Conversions:
   0.5 µs, exact in a double), so integer exposure intervals round-trip exactly.
 * ``ct`` and ``f_Q`` go to ``metadata.provenance["akf_mat"]``; ``HDR_mat`` is read by
   :meth:`AkfMatReader.read_hdr`.
+
+Frame encoding and ``f_Q``: the files state no transfer function for ``image``, and the authors'
+code (``akf_reconstruction.m``; ``../shared/reference/akf.md`` §2) reads the codes as linear
+intensity, ``I = I^F / 255``, with no inverse CRF: the CRF enters only through ``f_Q``. So the
+frames are ``encoding="unknown"`` unless the ``frame_encoding`` option declares one. ``f_Q`` is
+the inverse of eq. 6's R̄ per code (README; ``f_Q = 7e5 * max(f_w, 0.09)``), and is honoured as a
+camera profile in ``metadata.provenance["camera_profile"]`` (:func:`profile_from_f_q`):
+``frame_precision_scale = max(f_Q)``, ``weighting = f_Q / max(f_Q)``, ``min_weighting =
+min(weighting)``, so ``1 / (scale * max(weighting, min_weighting)) = 1 / f_Q`` per code; its
+``inverse_crf`` follows the frame encoding (linear, as in the authors' code, unless one is
+declared: ``(code/255)**2.2`` for ``gamma2.2``, the IEC 61966-2-1 curve for ``srgb``). The
+writer writes ``f_Q`` back from such a profile.
 """
 
 from __future__ import annotations
@@ -41,7 +53,8 @@ from ...events import EVENT_DTYPE, SensorSize
 from ...io import EventChunk, EventFileReader, EventFileWriter
 from ...model import CameraInfo, Frames, HDRReferences, Metadata
 
-__all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5"]
+__all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5",
+           "profile_from_f_q", "f_q_from_profile"]
 
 _V73 = b"MATLAB 7.3 MAT-file"
 _V5 = b"MATLAB 5.0 MAT-file"
@@ -208,6 +221,66 @@ def read_mat5(path, names=None) -> dict:
     return out
 
 
+def profile_from_f_q(f_q, encoding: str = "unknown", source: str = ""):
+    """The camera profile that reproduces an AKF ``f_Q`` table (1/R̄ per code, eq. 6).
+
+    Parameters
+    ----------
+    f_q : array_like of shape (max_code + 1,)
+        ``f_Q[code]``: the frame precision 1/R̄ of each code (the authors' code indexes it with
+        ``round(I^F) + 1``, MATLAB's 1-based, i.e. 0-based ``f_Q[code]``). Finite, >= 0, with a
+        positive maximum.
+    encoding : str
+        The frames' encoding; it sets the profile's ``inverse_crf``: None (linear, ``code /
+        max_code``, as in the authors' code) for ``"unknown"``, ``"linear"``, ``"raw"``;
+        ``decode(code)`` for ``"gamma"`` (``(code/max)**2.2``) and ``"srgb"``.
+    source : str
+        Where ``f_Q`` came from (stored in the profile).
+
+    Returns
+    -------
+    CameraProfile
+        ``frame_precision_scale = max(f_Q)``, ``weighting = f_Q / max(f_Q)``, ``min_weighting =
+        min(weighting)`` (if that is 0, the smallest positive weighting: a profile cannot hold
+        an infinite R̄, so zero-precision codes get the least precision of the table).
+
+    Raises
+    ------
+    ValueError
+        When ``f_Q`` is not a finite, non-negative table of at least 2 entries with a positive
+        maximum.
+    """
+    from ...camera import CameraProfile
+    from ...camera.encoding import inverse_crf_table, parse_frame_encoding
+    fq = np.asarray(f_q, dtype=np.float64).reshape(-1)
+    if fq.size < 2 or not np.isfinite(fq).all() or (fq < 0).any() or not fq.max() > 0:
+        raise ValueError(f"f_Q must be a finite, non-negative table of at least 2 entries with a positive "
+                         f"maximum; got {fq.size} entries in [{fq.min() if fq.size else None}, "
+                         f"{fq.max() if fq.size else None}]")
+    enc = parse_frame_encoding(encoding)
+    scale = float(fq.max())
+    w = fq / scale
+    pos = w[w > 0]
+    floor = float(min(1.0, pos.min()))
+    return CameraProfile(weighting=w, inverse_crf=inverse_crf_table(enc, fq.size - 1),
+                         frame_precision_scale=scale, min_weighting=floor, name="akf .mat f_Q", source=str(source),
+                         extra={"from": "f_Q", "frame_encoding": enc,
+                                "f_Q_zero_codes": int(np.count_nonzero(fq == 0)),
+                                "note": "R̄ = 1/f_Q per code (AKF README; eq. 6); inverse_crf follows the frame "
+                                        "encoding (None = linear code/max, the authors' reading)"})
+
+
+def f_q_from_profile(profile) -> np.ndarray:
+    """The AKF ``f_Q`` table of a camera profile (dict or CameraProfile): ``1 / R̄`` per code.
+
+    ``f_Q[code] = frame_precision_scale * max(weighting[code], min_weighting)`` (eq. 6), the
+    inverse of :func:`profile_from_f_q`. The profile's inverse CRF has no place in the file.
+    """
+    from ...camera import CameraProfile
+    prof = profile if isinstance(profile, CameraProfile) else CameraProfile.from_dict(profile)
+    return prof.frame_precision_scale * np.maximum(prof.weighting, prof.min_weighting)
+
+
 def _wrap(path, what: str, exc: BaseException) -> FormatError:
     return FormatError(path, f"{what}: {type(exc).__name__}: {exc}")
 
@@ -221,6 +294,10 @@ class AkfMatReader(EventFileReader):
     sensor_size : SensorSize or (height, width), optional
         Overrides ``im_height``/``im_width``. Without either, the frame size is used, else max
         coordinate + 1 (noted in provenance).
+    frame_encoding : {"linear", "gamma2.2", "srgb"}, optional
+        The frames' transfer function (the file states none; default ``Frames.encoding``
+        ``"unknown"``, read linearly as in the authors' code). It also sets the ``inverse_crf`` of
+        the ``f_Q`` camera profile (module notes).
 
     Notes
     -----
@@ -271,12 +348,23 @@ class AkfMatReader(EventFileReader):
         fq = small.get("f_Q")
         if fq is not None:
             akf["f_Q"] = np.asarray(fq, dtype=np.float64).reshape(-1).tolist()
+        enc = self._frame_encoding("unknown")
         prov = {"source_file": str(self.path), "format": "akf_mat", "mat_version": self.version,
                 "n_events": n, "sensor_size_source": src, "akf_mat": akf,
                 "coordinates": "x, y stored 1-based; converted to 0-based",
                 "frame_timestamps": "t_start = rint(time_image - exposure/2), t_end = t_start + rint(exposure)"}
         if note:
             prov["sensor_size_note"] = note
+        if frame_shape is not None:
+            prov["frame_encoding"] = enc
+            prov["frame_encoding_source"] = (
+                "declared (frame_encoding option)" if self.frame_encoding else
+                "not stated by the file; the authors' code reads image/255 as linear intensity (no inverse CRF)")
+        if fq is not None:
+            try:
+                prov["camera_profile"] = profile_from_f_q(fq, enc, source=str(self.path)).to_dict()
+            except ValueError as exc:
+                prov["camera_profile_note"] = f"f_Q not usable as a camera profile: {exc}"
         self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size),
                                  frame_camera=CameraInfo(SensorSize(*frame_shape) if frame_shape else None),
                                  provenance=prov)
@@ -509,13 +597,15 @@ class AkfMatReader(EventFileReader):
         -------
         Frames or None
             ``images`` (K, H, W) uint8 (dtype kept) or (K, H, W, 3) for H x W x 3 x K colour;
-            ``encoding`` ``"unknown"``. None when the file has no ``image``.
+            ``encoding`` the declared ``frame_encoding``, else ``"unknown"`` (module notes).
+            None when the file has no ``image``.
         """
         im = self._read_var("image")
         if im is None:
             return None
         if im.size == 0:
-            return Frames.empty(*self.sensor_size.shape)
+            e = Frames.empty(*self.sensor_size.shape)
+            return Frames(e.images, e.t_start_us, e.t_end_us, encoding=self._frame_encoding("unknown"))
         if im.ndim == 2:
             frames = im[np.newaxis]
         elif im.ndim == 3:
@@ -529,7 +619,8 @@ class AkfMatReader(EventFileReader):
         ts, te = self._times(frames.shape[0])
         order = np.argsort(ts, kind="stable")
         try:
-            return Frames(np.ascontiguousarray(frames[order]), ts[order], te[order], encoding="unknown")
+            return Frames(np.ascontiguousarray(frames[order]), ts[order], te[order],
+                          encoding=self._frame_encoding("unknown"))
         except ValueError as exc:
             raise FormatError(self.path, f"invalid frames: {exc}") from None
 
@@ -584,9 +675,11 @@ class AkfMatWriter(EventFileWriter):
     Events go to a resizable, chunked ``events`` dataset (double, MATLAB N x 4, 1-based x and y,
     p = 1 ON / 0 OFF), appended chunk by chunk, so memory stays bounded. Frames (uint8/uint16/float
     grey, (K, H, W)) go to ``image`` (MATLAB H x W x K) with ``time_image`` (mid-exposure µs) and
-    ``exposure`` (µs); ``im_height``/``im_width`` hold the sensor size. ``ct`` and ``f_Q`` are
-    written from the options ``ct=``/``f_Q=`` or, failing those, from
-    ``metadata.provenance["akf_mat"]``.
+    ``exposure`` (µs); ``im_height``/``im_width`` hold the sensor size. ``ct`` is written from the
+    option ``ct=``, else ``metadata.provenance["akf_mat"]["ct"]``. ``f_Q`` is written from the
+    option ``f_Q=``, else from ``metadata.provenance["camera_profile"]`` (:func:`f_q_from_profile`,
+    the table that reproduces its R̄; its inverse CRF cannot be stored), else from
+    ``metadata.provenance["akf_mat"]["f_Q"]``.
 
     Every variable carries the ``MATLAB_class`` attribute, and the 512-byte user block starts with
     the MATLAB v7.3 header (:func:`matlab_v73_header`), so MATLAB ``load`` and MATLAB-aware HDF5
@@ -668,7 +761,12 @@ class AkfMatWriter(EventFileWriter):
             self._var("im_width", np.float64(ss.width))
         prov = (self.metadata.provenance or {}).get("akf_mat") or {}
         ct = self.options.get("ct", prov.get("ct"))
-        fq = self.options.get("f_Q", prov.get("f_Q"))
+        fq = self.options.get("f_Q")
+        profile = (self.metadata.provenance or {}).get("camera_profile")
+        if fq is None and profile is not None:
+            fq = f_q_from_profile(profile)
+        if fq is None:
+            fq = prov.get("f_Q")
         if ct is not None:
             self._var("ct", np.asarray(ct, dtype=np.float64))
         if fq is not None:
