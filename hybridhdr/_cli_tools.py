@@ -29,6 +29,11 @@ def add_parsers(sub) -> None:
     p.add_argument("--start-us", type=int, default=None, help="keep events with t >= this (µs)")
     p.add_argument("--end-us", type=int, default=None, help="keep events with t < this (µs)")
     p.add_argument("--chunk-events", type=int, default=1 << 20, help="events per streamed chunk")
+    from .camera.encoding import ENCODING_CHOICES
+    p.add_argument("--frame-encoding", choices=ENCODING_CHOICES, default=None,
+                   help="declare the frames' transfer function (linear; gamma2.2: code = max*I^(1/2.2); srgb: "
+                        "IEC 61966-2-1), replacing what the input states or its reader assumes; stored in the "
+                        "output (the container's /frames encoding). Default: as read")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_convert)
@@ -107,14 +112,24 @@ def run_info(args) -> int:
 
 # -- convert ----------------------------------------------------------------------------------
 def convert(input, output, from_format=None, to_format=None, start_us=None, end_us=None,
-            chunk_events: int = 1 << 20, progress: bool = False) -> dict:
-    """Stream ``input`` into ``output``; returns counts and what the output format could not hold."""
+            chunk_events: int = 1 << 20, progress: bool = False, frame_encoding: str | None = None) -> dict:
+    """Stream ``input`` into ``output``; returns counts and what the output format could not hold.
+
+    ``frame_encoding`` (``linear``, ``gamma2.2``, ``srgb``) declares the frames' encoding: the
+    reader is opened with it (so what it derives from the encoding, such as the AKF ``.mat``
+    camera profile, agrees) and the frames written carry it. The result's ``frame_encoding`` is
+    the encoding of the frames written (None without frames).
+    """
+    from .camera.encoding import parse_frame_encoding, with_encoding
     from .events import slice_time
     from .io import open_reader, open_writer, unsupported_parts
     from .model import Recording
     if start_us is not None and end_us is not None and end_us <= start_us:
         raise ValueError(f"--end-us ({end_us}) must be greater than --start-us ({start_us})")
-    with open_reader(input, from_format) as r:
+    opts = {}
+    if frame_encoding is not None:
+        opts["frame_encoding"] = parse_frame_encoding(frame_encoding)
+    with open_reader(input, from_format, **opts) as r:
         if r.sensor_size is None:
             raise ValueError(f"{input}: the sensor size is unknown; pass it to the reader")
         total = getattr(r, "n_events", None)
@@ -141,9 +156,10 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
                         bar.update(len(c.events))
                     if end_us is not None and len(c.events) and c.events["t"][-1] >= end_us:
                         break
-                frames = r.read_frames()
+                frames = with_encoding(r.read_frames(), frame_encoding)
                 if frames is not None and (start_us is not None or end_us is not None):
                     frames = frames.slice_time(start_us, end_us)
+                frame_enc = None if frames is None or not len(frames) else frames.encoding
                 dropped = unsupported_parts(Recording(frames=frames), w.supports)
                 if "frames" in w.supports:
                     w.write_frames(frames)
@@ -159,13 +175,17 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
         finally:
             if bar is not None:
                 bar.close()
-    return {"events": n_out, "triggers": n_trig, "dropped": dropped, "format": fmt_out}
+    return {"events": n_out, "triggers": n_trig, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
 
 
 def run_convert(args) -> int:
     res = convert(args.input, args.output, args.from_format, args.to_format, args.start_us, args.end_us,
-                  args.chunk_events, progress=not args.no_progress)
-    print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers")
+                  args.chunk_events, progress=not args.no_progress, frame_encoding=args.frame_encoding)
+    enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
+    print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
+    if args.frame_encoding is not None and res["frame_encoding"] is None:
+        print(f"note: {args.input} has no frames; --frame-encoding {args.frame_encoding} had nothing to apply to",
+              file=sys.stderr)
     if res["dropped"]:
         print(f"note: the {res['format']} format cannot hold {', '.join(res['dropped'])}; they were not written",
               file=sys.stderr)
