@@ -249,6 +249,11 @@ def run_demo(args) -> int:
         demo_evaluate = None
     if demo_evaluate is not None:
         print("\nevaluation (simulate, reconstruct, score):", flush=True)
+        try:  # the renderer is chosen here, once: its one-line note (if any) is not repeated by the workers
+            from .simulate.render import select_variant
+            select_variant()
+        except ImportError:
+            pass
         print(demo_evaluate(out / "evaluate", seed=args.seed))
     print(f"\noutputs in {out.resolve()}")
     return 1 if bad else 0

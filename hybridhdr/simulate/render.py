@@ -6,11 +6,13 @@ rewrites the vertex positions of moving objects, rescales blinking emitters thro
 ``mi.traverse`` parameters, and renders with a fixed sampler seed, so a static pixel gets the same
 bits in every render (no render-noise events). Output is linear float32 radiance (H, W).
 
-Variants (``../shared/reference/simulator.md``, Mitsuba recipe): ``llvm_ad_mono`` when Dr.Jit's
-LLVM backend works (libLLVM 17-19; LLVM 15/16 abort the process on the first render, so the
-check runs a tiny render in a subprocess), otherwise ``scalar_rgb``, whose RGB output is converted
-to luminance Y = 0.2126 R + 0.7152 G + 0.0722 B (Rec. ITU-R BT.709 primaries, the sRGB/Rec.709
-luminance coefficients). The variant in use is in :meth:`MitsubaSource.describe`.
+Variants (``../shared/reference/simulator.md``, Mitsuba recipe): ``llvm_ad_mono`` when Dr.Jit
+loaded libLLVM >= 17 (15/16 abort the process when compiling real scenes' kernels, 14 is refused)
+and a test render of the operations real scenes use passes in a child process; otherwise
+``scalar_rgb``, whose RGB output is converted to luminance Y = 0.2126 R + 0.7152 G + 0.0722 B
+(Rec. ITU-R BT.709 primaries, the sRGB/Rec.709 luminance coefficients). Both render ``direct``
+scenes with the same every-light estimator, so they agree within Monte-Carlo noise. The variant in
+use is in :meth:`MitsubaSource.describe`.
 """
 
 from __future__ import annotations
@@ -34,26 +36,21 @@ __all__ = ["MitsubaSource", "select_variant", "llvm_available", "LUMINANCE_RGB",
 LUMINANCE_RGB = (0.2126, 0.7152, 0.0722)
 
 _VARIANTS = ("llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb")
-_LLVM_OK: bool | None = None
-_PROBE_CODE = r"""
-import mitsuba as mi
-mi.set_variant('llvm_ad_mono')
-s = mi.load_dict({'type': 'scene', 'integrator': {'type': 'direct'},
-    'sensor': {'type': 'perspective', 'fov': 45, 'film': {'type': 'hdrfilm', 'width': 8, 'height': 6,
-               'pixel_format': 'luminance', 'rfilter': {'type': 'box'}}},
-    'light': {'type': 'point', 'position': [0, 0, 0], 'intensity': {'type': 'uniform', 'value': 1.0}},
-    'sp': {'type': 'sphere', 'center': [0, 0, 5]}})
-import numpy as np
-a = np.array(mi.render(s, spp=1, seed=0))
-print('OK' if a.shape == (6, 8, 1) and np.isfinite(a).all() and a.max() > 0 else 'BAD')
-"""
+
+#: Oldest libLLVM whose code generation the pinned Mitsuba 3.9 / Dr.Jit 1.5 kernels survive: LLVM
+#: 15 and 16 abort the process on real scenes ("LLVM ERROR: Cannot select: ... fminimum"), 14 is
+#: refused by Dr.Jit itself. A newer LLVM still has to pass the child-process probe.
+MIN_LLVM_VERSION = (17, 0, 0)
+_FAST_PATH_HINT = "apt-get install libllvm19 (Debian/Ubuntu) gives the fast llvm_ad_mono variant"
+_PROBE_VERSION = 2  # bump when the probe scene changes (invalidates the on-disk decisions)
+_DECISION: tuple | None = None  # (variant, reason) of the automatic choice in this process
+_IN_PROBE = False  # set in the probe's child process
 
 
 def _find_libllvm() -> str | None:
     """Path of a libLLVM with major version 17-19 in the system library folders (newest first)."""
     cands = []
-    for d in ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
-              "/usr/local/lib", "/opt/homebrew/opt/llvm/lib"):
+    for d in _LIB_DIRS:
         for p in glob.glob(os.path.join(d, "libLLVM*")):
             m = re.search(r"libLLVM(?:-|\.so\.)(\d+)", os.path.basename(p))
             if m and 17 <= int(m.group(1)) <= 19:
@@ -61,41 +58,223 @@ def _find_libllvm() -> str | None:
     return max(cands)[1] if cands else None
 
 
+_LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/lib64", "/usr/lib",
+             "/usr/local/lib", "/opt/homebrew/opt/llvm/lib")
+
+
 def _prepare_llvm_env() -> None:
     # Dr.Jit picks the last libLLVM*.so.* of the system folder unless told; LLVM 15/16 crash
-    # (uncatchable SIGABRT), so point it at 17-19 before mitsuba is first imported.
+    # (uncatchable SIGABRT), so point it at 17-19 before drjit is first imported.
     if "DRJIT_LIBLLVM_PATH" not in os.environ and "drjit" not in sys.modules:
         p = _find_libllvm()
         if p is not None:
             os.environ["DRJIT_LIBLLVM_PATH"] = p
 
 
-def llvm_available(timeout_s: float = 120.0) -> bool:
-    """Whether ``llvm_ad_mono`` renders, checked once per process in a subprocess (a failing
-    LLVM can abort the process that loads it)."""
-    global _LLVM_OK
-    if _LLVM_OK is None:
-        _prepare_llvm_env()
+def _drjit_llvm_version() -> tuple[int, int, int]:
+    """Version of the libLLVM Dr.Jit loaded ((-1, -1, -1) when it found none it could use).
+
+    Importing drjit only loads and initialises libLLVM; nothing is compiled, so this cannot
+    abort (the LLVM 15/16 crash happens when a kernel is compiled)."""
+    _prepare_llvm_env()
+    try:
+        import drjit
+        v = tuple(int(x) for x in drjit.detail.llvm_version())
+    except Exception:  # drjit missing, or a drjit without llvm_version()
+        return (-1, -1, -1)
+    return (v + (0, 0, 0))[:3]
+
+
+def _fmt_version(v) -> str:
+    return ".".join(str(x) for x in v)
+
+
+# The probe: the operations real scenes use, through MitsubaSource itself (the every-light direct
+# integrator and the path integrator, triangle meshes with UVs, bitmap textures, an area light,
+# point/spot/directional/constant emitters, blinking, a moving camera and object, hdrfilm with a
+# box filter), at 16x12 px, in a child process so that an LLVM abort kills only the child.
+_PROBE_CODE = r"""
+import sys
+import numpy as np
+from hybridhdr.simulate import render as R
+R._IN_PROBE = True  # take the variant as given (no nested probe)
+v = R._drjit_llvm_version()
+print('LLVM', *v, flush=True)
+if v < R.MIN_LLVM_VERSION and sys.argv[2:] != ['force']:
+    sys.exit(3)
+from hybridhdr.simulate.scene import (Blink, CameraSpec, Emission, Emitter, Keyframe, Material, MeshSpec, Pattern,
+                                      RenderSettings, Scene, SceneObject, Trajectory)
+cam = CameraSpec(16, 12, 13.0, 13.0, 7.5, 5.5, Trajectory((Keyframe(0, (0.0, 0.0, 0.0)), Keyframe(1000, (0.1, 0.0, 0.0)))))
+blink = Blink(period_us=400, duty=0.5, off_scale=0.1)
+objs = (SceneObject('wall', MeshSpec('plane', size=(6.0, 6.0)), Material(Pattern(checkerboard=(4, 4), low=0.2, high=0.8)),
+                    trajectory=Trajectory.static((0.0, 0.0, 4.0))),
+        SceneObject('ball', MeshSpec('sphere', radius=0.3, subdivisions=2), Material(Pattern(0.5)),
+                    Emission(Pattern(2.0), sampling_weight=0.5, blink=blink),
+                    trajectory=Trajectory((Keyframe(0, (-0.5, 0.0, 2.5)), Keyframe(1000, (0.5, 0.0, 2.5))))),
+        SceneObject('box', MeshSpec('box', extents=(0.4, 0.4, 0.4)), Material(Pattern(0.7)),
+                    trajectory=Trajectory.static((0.6, 0.5, 3.0))))
+ems = (Emitter('point', position=(0.0, 1.0, 1.0), intensity=3.0, blink=blink),
+       Emitter('spot', position=(0.5, 0.0, 0.0), look_at=(0.0, 0.0, 4.0), intensity=5.0),
+       Emitter('directional', direction=(0.3, -0.2, 1.0), irradiance=1.0),
+       Emitter('constant', radiance=0.01, sampling_weight=0.1))
+for integ in ('direct', 'path'):
+    sc = Scene('probe', 1000, cam, objs, ems, RenderSettings(spp=2, integrator=integ))
+    src = R.MitsubaSource(sc, variant=sys.argv[1])
+    for t in (0, 250, 1000):
+        a = src.render(t)
+        if not (a.shape == (12, 16) and np.isfinite(a).all() and a.max() > 0):
+            print('BAD', integ, t, flush=True)
+            sys.exit(4)
+print('OK', flush=True)
+"""
+
+
+def _probe_llvm(timeout_s: float = 180.0, check_version: bool = True) -> tuple[bool, str]:
+    """Run :data:`_PROBE_CODE` with ``llvm_ad_mono`` in a child process: (works, why not).
+    ``check_version=False`` renders even with an LLVM below :data:`MIN_LLVM_VERSION` (tests)."""
+    env = dict(os.environ)
+    env.pop("HYBRIDHDR_MITSUBA_VARIANT", None)
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE_CODE, "llvm_ad_mono"] + ([] if check_version else ["force"]),
+                           capture_output=True, text=True,
+                           timeout=timeout_s, env=env)
+    except subprocess.TimeoutExpired:
+        return False, f"the LLVM test render did not finish in {timeout_s:g} s"
+    except OSError as e:
+        return False, f"the LLVM test render could not start ({e})"
+    if r.returncode == 0 and r.stdout.strip().endswith("OK"):
+        return True, ""
+    err = [ln.strip() for ln in (r.stderr or "").splitlines() if ln.strip()]
+    hint = next((ln for ln in err if "LLVM ERROR" in ln), err[-1] if err else "")
+    how = f"signal {-r.returncode}" if r.returncode < 0 else f"exit code {r.returncode}"
+    return False, f"the LLVM test render failed ({how}{': ' + hint[:160] if hint else ''})"
+
+
+def _decide(llvm_version, probe) -> tuple[str, str]:
+    """The automatic variant and, for ``scalar_rgb``, why: from the LLVM version Dr.Jit loaded
+    and, only if that is new enough, ``probe()`` -> (works, why not)."""
+    v = tuple(llvm_version)
+    if v[0] < 0:
+        return "scalar_rgb", "Dr.Jit found no usable libLLVM"
+    if v < MIN_LLVM_VERSION:
+        return "scalar_rgb", (f"Dr.Jit loaded LLVM {_fmt_version(v)}, and Mitsuba's LLVM variants need "
+                              f"LLVM >= {MIN_LLVM_VERSION[0]}")
+    ok, why = probe()
+    if ok:
+        return "llvm_ad_mono", ""
+    return "scalar_rgb", f"LLVM {_fmt_version(v)}: {why}"
+
+
+def _cache_file() -> str | None:
+    if os.environ.get("HYBRIDHDR_VARIANT_CACHE", "1") in ("0", "", "off", "no"):
+        return None
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return os.path.join(base, "hybridhdr", "mitsuba-variant.json")
+
+
+def _cache_key(llvm_version) -> str:
+    """What the decision depends on: interpreter, drjit/mitsuba versions, the libLLVM Dr.Jit was
+    pointed at and every system libLLVM file (path, size, mtime), the probe's version."""
+    import hashlib
+    import json
+    try:
+        from importlib.metadata import version
+        vers = [version("drjit"), version("mitsuba")]
+    except Exception:
+        vers = ["?", "?"]
+    libs = []
+    for d in _LIB_DIRS:
+        for p in sorted(glob.glob(os.path.join(d, "libLLVM*"))):
+            try:
+                st = os.stat(p)
+                libs.append([p, st.st_size, st.st_mtime_ns])
+            except OSError:
+                pass
+    lib = os.environ.get("DRJIT_LIBLLVM_PATH", "")
+    if lib:
         try:
-            r = subprocess.run([sys.executable, "-c", _PROBE_CODE], capture_output=True, text=True,
-                               timeout=timeout_s, env=dict(os.environ))
-            _LLVM_OK = r.returncode == 0 and r.stdout.strip().endswith("OK")
-        except (OSError, subprocess.TimeoutExpired):
-            _LLVM_OK = False
-    return _LLVM_OK
+            st = os.stat(lib)
+            lib = [lib, st.st_size, st.st_mtime_ns]
+        except OSError:
+            pass
+    raw = json.dumps([_PROBE_VERSION, sys.executable, sys.version, vers, list(llvm_version), lib, libs])
+    return hashlib.sha256(raw.encode()).hexdigest()[:32]
+
+
+def _cache_read(key: str):
+    import json
+    f = _cache_file()
+    try:
+        with open(f, encoding="utf-8") as fh:
+            d = json.load(fh).get(key)
+        if d and d[0] in ("llvm_ad_mono", "scalar_rgb"):
+            return d[0], str(d[1])
+    except (OSError, ValueError, TypeError, AttributeError, IndexError):
+        pass
+    return None
+
+
+def _cache_write(key: str, decision) -> None:
+    import json
+    f = _cache_file()
+    if f is None:
+        return
+    try:
+        os.makedirs(os.path.dirname(f), exist_ok=True)
+        try:
+            with open(f, encoding="utf-8") as fh:
+                d = json.load(fh)
+            d = d if isinstance(d, dict) else {}
+        except (OSError, ValueError):
+            d = {}
+        d = dict(list(d.items())[-15:])  # a few interpreters/venvs at most
+        d[key] = list(decision)
+        tmp = f"{f}.{os.getpid()}.partial"
+        with open(tmp, "w", encoding="utf-8") as fh:
+            json.dump(d, fh)
+        os.replace(tmp, f)
+    except OSError:
+        pass
+
+
+def _auto_variant() -> tuple[str, str]:
+    """The automatic (variant, reason), decided once per process (and remembered on disk, see
+    :func:`_cache_key`); prints one line to stderr when it falls back to ``scalar_rgb``."""
+    global _DECISION
+    if _DECISION is None:
+        ver = _drjit_llvm_version()
+        key = _cache_key(ver) if ver >= MIN_LLVM_VERSION else None
+        dec = _cache_read(key) if key else None
+        if dec is None:
+            dec = _decide(ver, _probe_llvm)
+            if key:
+                _cache_write(key, dec)
+        _DECISION = dec
+        if dec[0] == "scalar_rgb" and not os.environ.get("_HYBRIDHDR_VARIANT_NOTED"):
+            os.environ["_HYBRIDHDR_VARIANT_NOTED"] = "1"  # inherited: child processes stay quiet
+            print(f"hybridhdr: rendering with Mitsuba's slower scalar_rgb variant: {dec[1]}; {_FAST_PATH_HINT}",
+                  file=sys.stderr, flush=True)
+    return _DECISION
+
+
+def llvm_available() -> bool:
+    """Whether ``llvm_ad_mono`` is usable: Dr.Jit loaded LLVM >= :data:`MIN_LLVM_VERSION` and a test
+    render of the operations real scenes use passed in a child process (a failing LLVM aborts the
+    process that compiles the kernel). Decided once per process."""
+    return _auto_variant()[0] == "llvm_ad_mono"
 
 
 def select_variant(variant: str | None = None) -> str:
     """The Mitsuba variant to use: ``variant`` if given, else ``$HYBRIDHDR_MITSUBA_VARIANT``, else
     ``llvm_ad_mono`` when :func:`llvm_available`, else ``scalar_rgb``."""
     v = variant or os.environ.get("HYBRIDHDR_MITSUBA_VARIANT") or None
-    if v is None:
-        v = "llvm_ad_mono" if llvm_available() else "scalar_rgb"
-    if v not in _VARIANTS:
+    if v is not None and v not in _VARIANTS:
         raise ValueError(f"Mitsuba variant: expected one of {', '.join(_VARIANTS)}, found {v!r}")
-    if v.startswith("llvm") and not llvm_available():
-        raise ImportError(f"Mitsuba variant {v!r} needs a working LLVM (libLLVM 17-19) and none was "
-                          "found or it failed a test render; use --variant scalar_rgb")
+    if v is None:
+        return _auto_variant()[0]
+    if v.startswith("llvm") and not _IN_PROBE and not llvm_available():
+        raise ImportError(f"Mitsuba variant {v!r} is not usable here ({_auto_variant()[1]}); use scalar_rgb, "
+                          f"or: {_FAST_PATH_HINT}")
     return v
 
 
@@ -142,12 +321,15 @@ def _register_direct_all(mi) -> None:
     if v in _REGISTERED:
         return
     import drjit as dr
+    scalar = v.startswith("scalar")
 
     class _DirectAll(mi.SamplingIntegrator):
         def __init__(self, props):
             super().__init__(props)
 
         def sample(self, scene, sampler, ray, medium=None, active=True):
+            if scalar:
+                return self._sample_scalar(scene, sampler, ray)
             si = scene.ray_intersect(ray, active)
             valid = si.is_valid()
             result = mi.Spectrum(0.0)
@@ -163,6 +345,26 @@ def _register_direct_all(mi) -> None:
                 f = bsdf.eval(ctx, si, si.to_local(ds.d), vis)
                 result += dr.select(vis, f * w, 0.0)
             return result, valid, []
+
+        def _sample_scalar(self, scene, sampler, ray):
+            # the same estimator one sample at a time (scalar variants pass Python bools, and
+            # si.emitter() is None on surfaces that do not emit)
+            si = scene.ray_intersect(ray)
+            if not si.is_valid():
+                return mi.Spectrum(0.0), False, []
+            result = mi.Spectrum(0.0)
+            e = si.emitter(scene)
+            if e is not None:
+                result += e.eval(si)
+            bsdf = si.bsdf(ray)
+            ctx = mi.BSDFContext()
+            for em in scene.emitters():
+                if em.sampling_weight() <= 0:
+                    continue
+                ds, w = em.sample_direction(si, sampler.next_2d())
+                if ds.pdf > 0 and not scene.ray_test(si.spawn_ray_to(ds.p)):
+                    result += bsdf.eval(ctx, si, si.to_local(ds.d)) * w
+            return result, True, []
 
         def aov_names(self):
             return []
@@ -244,18 +446,24 @@ class MitsubaSource:
 
         d: dict = {"type": "scene"}
         any_env = any(e.kind == "constant" for e in sc.emitters)
-        any_area_lit = any(o.emission is not None and o.emission.sampling_weight > 0 for o in sc.objects)
         integ: dict
         self.integrator_name = sc.render.integrator
-        if sc.render.integrator == "direct" and self.variant.startswith("llvm"):
+        # emitters Mitsuba samples (the dark light below included)
+        n_lights = (sum(e.sampling_weight > 0 for e in sc.emitters) + sum(
+            o.emission is not None and o.emission.sampling_weight > 0 for o in sc.objects)
+            + (sum(e.sampling_weight for e in sc.emitters) == 0))
+        if sc.render.integrator == "direct" and self.variant.startswith("scalar") and n_lights <= 1 and not any_env:
+            # one light: Mitsuba's own direct integrator with one emitter sample and no BSDF
+            # sample is the same estimator as the every-light one below, in C++ (the Python
+            # integrator costs ~15 us a sample in scalar variants)
+            integ = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 0}
+            self.integrator_name = "direct (every light per sample)"
+        elif sc.render.integrator == "direct":
+            # Mitsuba's own direct integrator would pick one light per sample: salt-and-pepper
+            # noise with several lights (see _register_direct_all)
             _register_direct_all(mi)
             integ = {"type": _DIRECT_ALL}
             self.integrator_name = "direct (every light per sample)"
-        elif sc.render.integrator == "direct":
-            # scalar fallback: Mitsuba's own integrator picks one light per sample (noise with
-            # several lights: raise spp). BSDF samples only find area/environment emitters.
-            integ = {"type": "direct", "emitter_samples": 1, "bsdf_samples": 1 if (any_env or any_area_lit) else 0}
-            self.integrator_name = "direct (mitsuba, one light per sample)"
         else:
             integ = {"type": "path", "max_depth": int(sc.render.max_depth)}
         d["integrator"] = integ
@@ -315,7 +523,14 @@ class MitsubaSource:
             d["dark_light"] = {"type": "point", "position": [0.0, 0.0, 0.0],
                                "intensity": {"type": "uniform", "value": 0.0}}
         t0 = time.perf_counter()
-        self._mscene = mi.load_dict(d)
+        quiet = self.variant.startswith("scalar") and d["integrator"]["type"] == _DIRECT_ALL
+        level = mi.log_level()
+        if quiet:  # not Mitsuba's "Python integrators perform terribly in scalar modes" warning
+            mi.set_log_level(mi.LogLevel.Error)
+        try:
+            self._mscene = mi.load_dict(d)
+        finally:
+            mi.set_log_level(level)
         self._params = mi.traverse(self._mscene)
         self._last: dict = {}
         self.load_time_s = time.perf_counter() - t0
@@ -538,7 +753,12 @@ def preview_strip(source, path, n: int = 4, *, decades: float = 5.0) -> "os.Path
     fig.tight_layout(pad=0.3)
     p = Path(path)
     tmp = p.with_name(p.name + ".partial")
-    fig.savefig(tmp, format="png", dpi=80)
-    plt.close(fig)
-    os.replace(tmp, p)
+    try:
+        fig.savefig(tmp, format="png", dpi=80)
+        os.replace(tmp, p)
+    except BaseException:
+        tmp.unlink(missing_ok=True)
+        raise
+    finally:
+        plt.close(fig)
     return p

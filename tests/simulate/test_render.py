@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -10,6 +11,7 @@ import pytest
 pytest.importorskip("mitsuba")
 pytest.importorskip("trimesh")
 
+from hybridhdr.simulate import render as R  # noqa: E402
 from hybridhdr.simulate.render import MitsubaSource, llvm_available, mitsuba_camera_params, select_variant  # noqa: E402
 from hybridhdr.simulate.scene import (CameraSpec, Emission, Emitter, Keyframe, Material, MeshSpec, Pattern,  # noqa: E402
                                       RenderSettings, Scene, SceneObject, Trajectory, look_at_rotation,
@@ -32,9 +34,92 @@ def _ball_scene(cam, ball_traj, duration_us=100_000, radius=0.2, spp=16):
 def test_variant_selection():
     v = select_variant()
     assert v in ("llvm_ad_mono", "scalar_rgb")
-    assert (v == "llvm_ad_mono") == llvm_available()
+    assert v == (os.environ.get("HYBRIDHDR_MITSUBA_VARIANT") or ("llvm_ad_mono" if llvm_available() else "scalar_rgb"))
     with pytest.raises(ValueError, match="variant"):
         select_variant("cuda_ad_rgb")
+
+
+def test_selection_decision_on_fake_llvm_versions():
+    def no_probe():
+        raise AssertionError("an LLVM below the minimum must not even be probed")
+
+    v, why = R._decide((15, 0, 6), no_probe)
+    assert v == "scalar_rgb" and "LLVM 15.0.6" in why and ">= 17" in why
+    v, why = R._decide((16, 0, 0), no_probe)
+    assert v == "scalar_rgb" and "16.0.0" in why
+    v, why = R._decide((-1, -1, -1), no_probe)  # Dr.Jit found none it can use (e.g. only LLVM 14)
+    assert v == "scalar_rgb" and "no usable libLLVM" in why
+    assert R._decide((19, 1, 7), lambda: (True, "")) == ("llvm_ad_mono", "")
+    v, why = R._decide((17, 0, 0), lambda: (False, "the LLVM test render failed (signal 6: LLVM ERROR: x)"))
+    assert v == "scalar_rgb" and "LLVM 17.0.0" in why and "signal 6" in why
+
+
+@pytest.fixture
+def fresh_choice(monkeypatch, tmp_path):
+    """The automatic choice reset (restored afterwards), with its disk cache under tmp_path."""
+    monkeypatch.setattr(R, "_DECISION", None)
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path))
+    monkeypatch.delenv("HYBRIDHDR_MITSUBA_VARIANT", raising=False)
+    monkeypatch.delenv("_HYBRIDHDR_VARIANT_NOTED", raising=False)
+    monkeypatch.delenv("HYBRIDHDR_VARIANT_CACHE", raising=False)
+    return monkeypatch
+
+
+@pytest.mark.parametrize("fake", [(15, 0, 6), (-1, -1, -1)])
+def test_old_llvm_selects_scalar_with_one_line(fresh_choice, capsys, fake):
+    fresh_choice.setattr(R, "_drjit_llvm_version", lambda: fake)
+    fresh_choice.setattr(R, "_probe_llvm", lambda: pytest.fail("probed"))
+    assert select_variant() == "scalar_rgb" and not llvm_available()
+    assert select_variant() == "scalar_rgb"
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "scalar_rgb" in err[0] and "apt-get install libllvm19" in err[0]
+    with pytest.raises(ImportError, match="apt-get install libllvm19"):
+        select_variant("llvm_ad_mono")
+    # forcing a variant: the environment variable and the argument
+    fresh_choice.setenv("HYBRIDHDR_MITSUBA_VARIANT", "scalar_rgb")
+    assert select_variant() == "scalar_rgb"
+    fresh_choice.setenv("HYBRIDHDR_MITSUBA_VARIANT", "llvm_ad_mono")
+    with pytest.raises(ImportError, match="LLVM"):
+        select_variant()
+    fresh_choice.setenv("HYBRIDHDR_MITSUBA_VARIANT", "cuda_ad_rgb")
+    with pytest.raises(ValueError, match="variant"):
+        select_variant()
+
+
+def test_new_llvm_is_probed_once_and_remembered(fresh_choice, capsys, tmp_path):
+    calls = []
+    fresh_choice.setattr(R, "_drjit_llvm_version", lambda: (19, 1, 7))
+    fresh_choice.setattr(R, "_probe_llvm", lambda: calls.append(1) or (True, ""))
+    assert select_variant() == "llvm_ad_mono" and llvm_available() and len(calls) == 1
+    assert select_variant("llvm_ad_mono") == "llvm_ad_mono"
+    fresh_choice.setenv("HYBRIDHDR_MITSUBA_VARIANT", "scalar_rgb")
+    assert select_variant() == "scalar_rgb"  # forced
+    fresh_choice.delenv("HYBRIDHDR_MITSUBA_VARIANT")
+    assert capsys.readouterr().err == ""  # quiet when nothing is missing
+    assert (tmp_path / "hybridhdr" / "mitsuba-variant.json").exists()
+    # a new process (same interpreter and libraries) reads the decision from disk
+    fresh_choice.setattr(R, "_DECISION", None)
+    assert select_variant() == "llvm_ad_mono" and len(calls) == 1
+    # a probe that fails (the child aborted): scalar_rgb, with the reason
+    fresh_choice.setattr(R, "_DECISION", None)
+    fresh_choice.setenv("HYBRIDHDR_VARIANT_CACHE", "0")
+    fresh_choice.setattr(R, "_probe_llvm", lambda: (False, "the LLVM test render failed (signal 6: LLVM ERROR: Cannot "
+                                                           "select: fminimum)"))
+    assert select_variant() == "scalar_rgb"
+    err = capsys.readouterr().err
+    assert "fminimum" in err and "apt-get install libllvm19" in err
+
+
+@pytest.mark.slow
+def test_probe_survives_an_aborting_llvm():
+    # the real child-process probe, past the version gate: with an LLVM that aborts (15/16) only
+    # the child dies and the answer is "no", with the reason; with a working one it says yes
+    ok, why = R._probe_llvm(check_version=False)
+    ver = R._drjit_llvm_version()
+    if ver >= R.MIN_LLVM_VERSION:
+        assert ok == llvm_available(), why
+    else:
+        assert not ok and "failed" in why, why
 
 
 def test_intrinsics_projection_with_off_centre_principal_point():
@@ -173,3 +258,50 @@ def test_blinking_light_leaves_the_others_alone(kind):
     # off: only the steady sun, Lambertian rho/pi * E = 0.5/pi everywhere
     assert np.allclose(off, 0.5 / math.pi, rtol=1e-5)
     assert on[12, 16] > off[12, 16] * 1.01 and np.all(on >= off)  # the centre is inside a spot's cone
+
+
+def _needs_llvm():
+    if os.environ.get("HYBRIDHDR_MITSUBA_VARIANT", "llvm").startswith("scalar") or not llvm_available():
+        pytest.skip("llvm_ad_mono is not usable here (or scalar_rgb is forced): nothing to compare scalar_rgb with")
+
+
+def _agreement_scene(spp, seed, area_light):
+    cam = CameraSpec(48, 36, 40.0, 40.0, 23.5, 17.5)
+    wall = SceneObject("wall", MeshSpec("plane", size=(8.0, 8.0)), Material(Pattern(checkerboard=(4, 4), low=0.2, high=0.8)),
+                       trajectory=Trajectory.static((0.0, 0.0, 4.0)))
+    ball = SceneObject("ball", MeshSpec("sphere", radius=0.4, subdivisions=3), Material(Pattern(0.6)),
+                       Emission(Pattern(3.0), sampling_weight=1.0 if area_light else 0.0),
+                       trajectory=Trajectory.static((-0.5, 0.2, 2.5)))
+    ems = (Emitter("point", position=(0.5, -1.0, 1.0), intensity=4.0),
+           Emitter("spot", position=(-0.5, 0.0, 0.0), look_at=(0.3, 0.0, 4.0), intensity=20.0, cutoff_deg=25),
+           Emitter("directional", direction=(0.2, 0.3, 1.0), irradiance=0.5))
+    return Scene("agree", 1000, cam, (wall, ball), ems, RenderSettings(spp=spp, seed=seed))
+
+
+@pytest.mark.parametrize("area_light", [False, True])
+def test_variants_agree_within_sampling_noise(area_light):
+    # Both variants run the same estimator (one sample of every light per camera sample), with
+    # different random streams. Agreement bound, from the Monte-Carlo noise: over K = 8 render
+    # seeds per variant, the image means m_v (1728 px x 4 spp each) have seed-to-seed spreads s_v,
+    # and |mean_K(m_llvm) - mean_K(m_scalar)| <= 5 sqrt((s_llvm^2 + s_scalar^2) / K) + 1e-5 |mean|
+    # (5 sigma of the difference of two means; 1e-5 for float32 and the Rec. 709 RGB -> Y sum).
+    # Pixels with no edge in them (delta lights only: anti-aliasing is the only noise) agree to 1e-3.
+    _needs_llvm()
+    K = 8
+    m = {}
+    imgs = {}
+    for v in ("llvm_ad_mono", "scalar_rgb"):
+        runs = [MitsubaSource(_agreement_scene(4, s, area_light), variant=v).render(0) for s in range(K)]
+        imgs[v] = np.mean(runs, axis=0)
+        m[v] = np.array([r.mean() for r in runs])
+    d = abs(m["llvm_ad_mono"].mean() - m["scalar_rgb"].mean())
+    bound = 5 * math.sqrt((m["llvm_ad_mono"].var(ddof=1) + m["scalar_rgb"].var(ddof=1)) / K) + 1e-5 * m["scalar_rgb"].mean()
+    assert d <= bound, (d, bound, m)
+    if not area_light:
+        a, b = imgs["llvm_ad_mono"], imgs["scalar_rgb"]
+        flat = np.zeros(a.shape, bool)  # pixels whose 3x3 neighbourhood varies by < 20 %: no edges
+        pad = np.pad(a, 1, mode="edge")
+        win = np.stack([pad[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3)])
+        flat = (win.max(0) - win.min(0)) < 0.2 * a
+        assert flat.mean() > 0.5
+        np.testing.assert_allclose(b[flat], a[flat], rtol=1e-3)
