@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -75,6 +76,28 @@ def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=N
     return sc.with_changes(width=width, height=height, spp=spp, seed=render_seed)
 
 
+@contextlib.contextmanager
+def _signals_exit():
+    """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only),
+    so ``finally``/``except BaseException`` clean-ups run instead of the process just ending."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _exit(signum, frame):
+        raise SystemExit(128 + signum)
+
+    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    old = {sg: signal.signal(sg, _exit) for sg in sigs}
+    try:
+        yield
+    finally:
+        for sg, h in old.items():
+            signal.signal(sg, h)
+
+
 def run(args) -> int:
     from .builtin import BUILTIN_SCENES
     if args.list:
@@ -132,8 +155,13 @@ def run(args) -> int:
     print(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
           f"variant {source.variant}, spp {source.spp}, {sampling.mode} sampling", file=sys.stderr)
     t0 = time.perf_counter()
-    res = simulate_to_file(source, args.out, sensor=args.preset, camera=camera, sampling=sampling,
-                           gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
+    # one render before the output file exists: a renderer that aborts the process (an LLVM that
+    # cannot compile the kernels) leaves nothing behind; SIGTERM/SIGHUP end the run through the
+    # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
+    source.render(0)
+    with _signals_exit():
+        res = simulate_to_file(source, args.out, sensor=args.preset, camera=camera, sampling=sampling,
+                               gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
     wall = time.perf_counter() - t0
     st = res.stats
     summary = {"out": str(args.out), "scene": scene.name, "variant": source.variant, "renders": res.renders,

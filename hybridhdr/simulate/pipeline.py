@@ -247,7 +247,11 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
 
     _check_source(source)
     path = Path(path)
-    w = _Writer(path, sensor_size=source.sensor_size, compression=compression)
+    try:
+        w = _Writer(path, sensor_size=source.sensor_size, compression=compression)
+    except BaseException:  # a writer that fails while creating its file leaves no .partial
+        path.with_name(path.name + ".partial").unlink(missing_ok=True)
+        raise
     try:
         renders, stats, meta = _run(source, w, sensor=sensor, camera=camera, sampling=sampling,
                                     gt_times_us=gt_times_us, seed=seed, progress=progress)

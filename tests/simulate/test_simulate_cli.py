@@ -80,3 +80,63 @@ def test_errors(tmp_path, monkeypatch, capsys, argv, needle):
     monkeypatch.chdir(tmp_path)
     assert main(argv) == 1
     assert needle in capsys.readouterr().err
+
+
+def test_failures_leave_no_partial(tmp_path, monkeypatch):
+    # an exception during the run (here: the third render), and a writer that fails creating its file
+    from hybridhdr.simulate import render as R
+    out = tmp_path / "rec.h5"
+    calls = {"n": 0}
+    real = R.MitsubaSource.render
+
+    def flaky(self, t_us):
+        calls["n"] += 1
+        if calls["n"] == 3:
+            raise RuntimeError("renderer failed")
+        return real(self, t_us)
+
+    monkeypatch.setattr(R.MitsubaSource, "render", flaky)
+    args = ["simulate", "builtin:slow_static", "--width", "32", "--height", "24", "--duration-s", "0.05",
+            "--spp", "1", "--out", str(out), "--no-progress"]
+    with pytest.raises(RuntimeError, match="renderer failed"):
+        main(args)
+    assert calls["n"] == 3 and list(tmp_path.iterdir()) == []
+    monkeypatch.setattr(R.MitsubaSource, "render", real)
+
+    import hybridhdr.container as C
+
+    def bad_open(self):
+        open(self.tmp_path, "wb").close()
+        raise OSError("disk full")
+
+    monkeypatch.setattr(C.RecordingWriter, "_open", bad_open)
+    assert main(args) != 0  # reported as "hybridhdr simulate: error: disk full"
+    assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.slow
+def test_sigterm_leaves_no_partial(tmp_path):
+    # a run ended by SIGTERM removes its REC.h5.partial (SystemExit through the writer's abort)
+    import signal
+    import subprocess
+    import sys
+    import time
+    out = tmp_path / "rec.h5"
+    partial = tmp_path / "rec.h5.partial"
+    with subprocess.Popen([sys.executable, "-m", "hybridhdr", "simulate", "builtin:night_drive_sign", "--width", "32",
+                           "--height", "24", "--duration-s", "30", "--spp", "1", "--fixed-rate-hz", "2000",
+                           "--out", str(out), "--no-progress"], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE,
+                          text=True) as p:
+        try:
+            t_end = time.monotonic() + 120
+            while not partial.exists() and p.poll() is None and time.monotonic() < t_end:
+                time.sleep(0.05)
+            assert partial.exists(), p.communicate(timeout=60)[1]
+            time.sleep(0.3)
+            p.send_signal(signal.SIGTERM)
+            err = p.communicate(timeout=60)[1]
+        finally:
+            if p.poll() is None:
+                p.kill()
+    assert p.returncode == 128 + signal.SIGTERM, err
+    assert not partial.exists() and not out.exists()
