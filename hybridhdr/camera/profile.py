@@ -64,6 +64,12 @@ class CameraProfile:
         Precision scale 1/σ²_im of eq. 6 in 1/intensity²: 7e5 for DAVIS240C, 7e7 for FLIR (§6).
     min_weighting : float
         Floor on ``f_w`` before inversion: the saturation of eq. 6 (reference code: 0.09).
+    clip_low_code, clip_high_code : int or None
+        Clip levels: a code ``<= clip_low_code`` only says the intensity is *at most* that of
+        the code's upper quantisation edge, a code ``>= clip_high_code`` that it is *at least*
+        that of the code's lower edge (saturation as a bound, :meth:`bounds`). Defaults: 0 and
+        ``max_code``. ``clip_high_code`` is the code whose intensity the frame-linear unit is
+        (1.0 = the clip level): a measured ``inverse_crf`` is normalised there.
     name, source : str
         Free text: camera name and where the profile came from.
 
@@ -80,6 +86,8 @@ class CameraProfile:
     name: str = ""
     source: str = ""
     extra: dict = field(default_factory=dict)
+    clip_low_code: int = 0
+    clip_high_code: int | None = None
 
     def __post_init__(self):
         w = _as_lut(self.weighting, "weighting", None)
@@ -105,6 +113,16 @@ class CameraProfile:
             raise ValueError(f"CameraProfile.frame_precision_scale must be > 0, got {self.frame_precision_scale}")
         if not 0 < self.min_weighting <= 1:
             raise ValueError(f"CameraProfile.min_weighting must be in (0, 1], got {self.min_weighting}")
+        hi = self.max_code if self.clip_high_code is None else self.clip_high_code
+        lo = self.clip_low_code
+        for name, v in (("clip_low_code", lo), ("clip_high_code", hi)):
+            if isinstance(v, bool) or not isinstance(v, (int, np.integer)):
+                raise TypeError(f"CameraProfile.{name} must be an int code, got {type(v).__name__} {v!r}")
+        if not 0 <= int(lo) < int(hi) <= self.max_code:
+            raise ValueError(f"CameraProfile clip codes must satisfy 0 <= clip_low_code < clip_high_code <= "
+                             f"max_code = {self.max_code}, got {lo} and {hi}")
+        object.__setattr__(self, "clip_low_code", int(lo))
+        object.__setattr__(self, "clip_high_code", int(hi))
 
     @property
     def max_code(self) -> int:
@@ -125,6 +143,22 @@ class CameraProfile:
             return c / float(self.max_code)
         return np.interp(c, np.arange(self.max_code + 1, dtype=np.float64), self.inverse_crf)
 
+    def censor(self, codes) -> np.ndarray:
+        """Censoring direction per code: +1 for a clipped bright code (the intensity is a lower
+        bound), -1 for a clipped dark code (an upper bound), 0 for a value; float64."""
+        c = self._codes(codes)
+        return np.where(c >= self.clip_high_code, 1.0, np.where(c <= self.clip_low_code, -1.0, 0.0))
+
+    def bounds(self) -> tuple[float, float]:
+        """``(dark, bright)``: the intensity bounds a clipped code carries (frame-linear units).
+
+        A code ``<= clip_low_code`` says ``I <= CRF^-1(clip_low_code + 1/2)`` and a code
+        ``>= clip_high_code`` says ``I >= CRF^-1(clip_high_code - 1/2)``: the edges of the
+        quantisation intervals next to the clip levels.
+        """
+        lo, hi = self.intensity([self.clip_low_code + 0.5, self.clip_high_code - 0.5])
+        return float(lo), float(hi)
+
     def variance(self, codes) -> np.ndarray:
         """Intensity-domain variance ``R̄ = 1/(scale * max(f_w, floor))`` of eq. 6, float64."""
         c = self._codes(codes)
@@ -139,6 +173,7 @@ class CameraProfile:
                 "min_weighting": self.min_weighting,
                 "weighting": [float(v) for v in self.weighting],
                 "inverse_crf": None if self.inverse_crf is None else [float(v) for v in self.inverse_crf],
+                "clip_low_code": self.clip_low_code, "clip_high_code": self.clip_high_code,
                 "extra": dict(self.extra)}
 
     @classmethod
@@ -153,14 +188,15 @@ class CameraProfile:
             if key not in d:
                 raise ValueError(f"camera profile is missing the required key {key!r}")
         known = {"format", "version", "name", "source", "max_code", "frame_precision_scale",
-                 "min_weighting", "weighting", "inverse_crf", "extra"}
+                 "min_weighting", "weighting", "inverse_crf", "extra", "clip_low_code", "clip_high_code"}
         unknown = sorted(set(d) - known)
         if unknown:
             raise ValueError(f"camera profile has unknown keys {unknown}; expected a subset of {sorted(known)}")
         prof = cls(weighting=d["weighting"], inverse_crf=d.get("inverse_crf"),
                    frame_precision_scale=d["frame_precision_scale"],
                    min_weighting=d.get("min_weighting", 0.09), name=str(d.get("name", "")),
-                   source=str(d.get("source", "")), extra=dict(d.get("extra") or {}))
+                   source=str(d.get("source", "")), extra=dict(d.get("extra") or {}),
+                   clip_low_code=d.get("clip_low_code", 0), clip_high_code=d.get("clip_high_code"))
         if "max_code" in d and int(d["max_code"]) != prof.max_code:
             raise ValueError(f"camera profile max_code {d['max_code']} disagrees with the weighting "
                              f"table length {prof.max_code + 1}")

@@ -179,14 +179,17 @@ class AKFEngine(Engine):
             seg_inv_t = 0.0
             seg_t_s = 0.0
         prop = t_to is not None
+        disc = prop and self.params.frame_update == "discrete"  # the first frame initialises instead
+        s_proc = float(self.params.process_noise_per_s)
         args = (self._S, prop, self.seg_t0, self.seg_inv_t, float(t_to) if prop else 0.0)
         if sc is not None:
             for a, name in ((sc.code, "code"), (sc.code_next, "code_next")):
                 if a.ndim != 1 or a.shape[0] not in ((n,) if name == "code" else (0, n)):
                     raise ValueError(f"measurement segment {k}: {name} has shape {a.shape}, expected ({n},) (H*W)")
             self._pending = lambda b, lo, hi: K.akf_switch_lut(*args, sc.code, sc.code_next, sc.max_code, sc.rbar,
-                                                               sc.log_frame, sc.rinv, seg_t_s, lo * W, hi * W)
-            self.has_la_step = False
+                                                               sc.log_frame, sc.rinv, sc.censor, sc.la_step,
+                                                               seg_t_s, disc, s_proc, lo * W, hi * W)
+            self.has_la_step = sc.la_step != 0.0
         else:
             def col(a, name, required):
                 if a is None:
@@ -202,7 +205,10 @@ class AKFEngine(Engine):
             rinv = col(seg.rinv, "rinv", True)
             beta = col(seg.beta, "beta", False)
             step = col(seg.la_step, "la_step", False)
-            self._pending = lambda b, lo, hi: K.akf_switch(*args, lf, rinv, beta, step, seg_t_s, lo * W, hi * W)
+            cens = col(getattr(seg, "censor", None), "censor", False)
+            disc = disc and bool(getattr(seg, "frame_update", True))
+            self._pending = lambda b, lo, hi: K.akf_switch(*args, lf, rinv, beta, step, cens, seg_t_s, disc,
+                                                           s_proc, lo * W, hi * W)
             self.has_la_step = seg.la_step is not None
         self.seg_t0 = float(t0_us)
         self.seg_inv_t = seg_inv_t
@@ -599,6 +605,16 @@ class _Prefetcher:
             close()
 
 
+def clamped_output(engine, t_us: int) -> np.ndarray:
+    """``engine.output(t_us)`` with every value below ``K.MIN_INTENSITY`` (or NaN) raised to it,
+    counted in ``engine.n_clamped`` (of ``engine.n_output_pixels``): no method ever hands out a
+    non-positive or NaN linear intensity, and the count shows when the clamp acted."""
+    img = engine.output(t_us)
+    engine.n_clamped = getattr(engine, "n_clamped", 0) + K.clamp_linear(img)
+    engine.n_output_pixels = getattr(engine, "n_output_pixels", 0) + img.size
+    return img
+
+
 def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
           progress: Callable[[int], None] | None = None, prefetch: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     """Run ``engine`` over event ``chunks`` ((t, x, y, p) contiguous arrays, time-sorted), yielding
@@ -663,7 +679,7 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
             if ts is not None and ts <= bp:
                 engine.switch()
             else:
-                yield to, engine.output(to)
+                yield to, clamped_output(engine, to)
                 clock.pop()
         if j_end > 0:
             t_last = max(t_last, int(t[j_end - 1]))
@@ -682,5 +698,5 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
         if ts is not None and ts <= to:
             engine.switch()
             continue
-        yield to, engine.output(to)
+        yield to, clamped_output(engine, to)
         clock.pop()

@@ -133,6 +133,28 @@ def row_histogram(y, i0, i1, step, hist):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
+    """∫ R⁻¹ ds from the pixel's last update to ``t_to`` µs, or 0 where a censored frame's bound holds.
+
+    A saturated code is a bound, not a value (``docs/reconstruct.md``, "Saturation as a bound"):
+    the segment stores the bound's direction in ``A_KLOG`` with β = 0 (+1: L ≥ L^A, a clipped
+    bright pixel; -1: L ≤ L^A, a clipped dark pixel; 0: an ordinary two-sided measurement). Where
+    the state satisfies the bound the frame carries no information and the pull is off; where it
+    violates it the ordinary update of eqs. 17 and 20 pulls it towards the bound, which it
+    approaches monotonically without crossing, so testing at the start of the interval is exact
+    for the whole interval (a projection onto the constraint; Simon 2010, Allik et al. 2016).
+    """
+    beta = S[pix, A_BETA]
+    tu0 = S[pix, A_TU]
+    if beta == 0.0:
+        kl = S[pix, A_KLOG]
+        if kl * (S[pix, A_L] - S[pix, A_LA]) > 0.0:
+            return 0.0
+        return S[pix, A_RINV] * ((t_to - tu0) * US)
+    return rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, t_to, seg_t0, seg_inv_t)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
     """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs.
@@ -143,11 +165,7 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
     tif = np.float64(ti)
     tu0 = S[pix, A_TU]
     # -- propagate to t_i (eqs. 17, 20): g = P ∫R⁻¹, P ← P/(1+g), L̂ ← L^A + (L̂ - L^A)/(1+g) -------
-    beta = S[pix, A_BETA]
-    if beta == 0.0:  # R held over the segment (and always in causal mode): no log needed
-        integ = S[pix, A_RINV] * ((tif - tu0) * US)
-    else:
-        integ = rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, tif, seg_t0, seg_inv_t)
+    integ = _pull_integral(S, pix, tif, seg_t0, seg_inv_t)  # 0 where a censored bound holds
     pp = S[pix, A_P]
     d = 1.0 / (1.0 + pp * integ)
     lav = S[pix, A_LA]
@@ -269,8 +287,7 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
 @njit(cache=True, nogil=True, inline="always")
 def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
     """Propagate pixel ``pix`` to ``t_to`` µs (eqs. 17, 20) and set ``tu = t_to``."""
-    integ = rinv_integral(S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_TU], t_to,
-                          seg_t0, seg_inv_t)
+    integ = _pull_integral(S, pix, t_to, seg_t0, seg_inv_t)
     d = 1.0 / (1.0 + S[pix, A_P] * integ)
     lav = S[pix, A_LA]
     S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
@@ -278,9 +295,30 @@ def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
     S[pix, A_TU] = t_to
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _frame_update(S, pix, r_log, cz, q):
+    """Discrete Kalman update of pixel ``pix`` with the just-loaded frame (continuous-discrete KF).
+
+    Prediction: P += ``q`` (the process noise σ²_proc accrued since the pixel's last update:
+    changes below the threshold that no event reported). The frame is one measurement of L at
+    τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(L^A - L̂),
+    P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state violates its bound
+    (projection towards it, as in :func:`_pull_integral`).
+    """
+    lh = S[pix, A_L]
+    la = S[pix, A_LA]
+    pp = S[pix, A_P] + q
+    S[pix, A_P] = pp
+    if cz * (lh - la) > 0.0:
+        return
+    g = pp / (pp + r_log)
+    S[pix, A_L] = lh + g * (la - lh)
+    S[pix, A_P] = pp - g * pp
+
+
 @njit(cache=True, nogil=True)
-def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_step, seg_t_s,
-               pix_lo, pix_hi):
+def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_step, censor, seg_t_s,
+               discrete, s_proc, pix_lo, pix_hi):
     """Frame switch of pixels ``[pix_lo, pix_hi)`` in one pass: propagate, then load the new segment.
 
     When ``propagate``, each pixel is first carried to ``t_to`` µs under the current segment
@@ -289,48 +327,70 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
     L^A = ``log_frame``, 1/R = ``rinv``, β = ``beta`` and ``klog = rinv T / β`` (β ≠ 0; 0
     otherwise) of :func:`rinv_integral`, with ``T = seg_t_s`` the new segment's length in s.
     Pass ``seg_t_s = 0`` for an open-ended segment (β is then stored as 0: R held), and empty
-    ``beta`` / ``la_step`` arrays for zeros.
+    ``beta`` / ``la_step`` / ``censor`` arrays for zeros. ``censor`` is +1 where ``log_frame`` is
+    a lower bound (clipped bright), -1 where it is an upper bound (clipped dark), 0 otherwise;
+    a censored pixel holds R (β = 0) and keeps the direction in ``klog`` (:func:`_pull_integral`).
+    With ``discrete``, the loaded frame is also applied as one discrete measurement
+    (:func:`_frame_update`, R = 1/``rinv``, after adding ``s_proc`` (log²/s) times the time since
+    the pixel's last update to P).
     """
     has_beta = beta.shape[0] > 0 and seg_t_s > 0.0
     has_step = la_step.shape[0] > 0
+    has_cens = censor.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
+        q = s_proc * ((t_to - S[pix, A_TU]) * US) if discrete else 0.0
         if propagate:
             _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
         r = rinv[pix]
         S[pix, A_LA] = log_frame[pix]
         S[pix, A_RINV] = r
         b = beta[pix] if has_beta else 0.0
+        cz = censor[pix] if has_cens else 0.0
+        if cz != 0.0:
+            b = 0.0
         S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else 0.0
+        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
         S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
+        if discrete:
+            _frame_update(S, pix, 1.0 / r, cz, q)
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True)
 def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_code, rbar_l, logf_l,
-                   rinv_l, seg_t_s, pix_lo, pix_hi):
+                   rinv_l, cens_l, la_step, seg_t_s, discrete, s_proc, pix_lo, pix_hi):
     """:func:`akf_switch` with the new segment built from pixel codes and per-code tables.
 
     Loads exactly what :func:`lut_segment` followed by :func:`akf_switch` would (L^F of eq. 8,
     1/R of eq. 9, β of eq. 7 from ``code_next``, or 0 when it is empty or ``seg_t_s = 0``; no
     L^A step), without the intermediate per-pixel arrays, so a row band builds its own part of
-    the measurement in the same pass as its propagation.
+    the measurement in the same pass as its propagation. ``cens_l`` is the per-code censoring
+    direction (+1, -1 or 0, see :func:`akf_switch`; empty: none); β is 0 where frame k or k+1
+    is censored (R̄ is not interpolated towards or away from a bound). ``la_step`` is one L^A
+    step per event for every pixel (0: zero-order hold; the nominal threshold: the causal
+    forward interpolation of eq. 10 from the frame itself).
     """
     has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
+    has_cens = cens_l.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
+        q = s_proc * ((t_to - S[pix, A_TU]) * US) if discrete else 0.0
         if propagate:
             _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
         c = min(max(np.int64(code[pix]), 0), max_code)
         r = rinv_l[c]
         S[pix, A_LA] = logf_l[c]
         S[pix, A_RINV] = r
+        cz = cens_l[c] if has_cens else 0.0
         b = 0.0
-        if has_beta:
+        if has_beta and cz == 0.0:
             c1 = min(max(np.int64(code_next[pix]), 0), max_code)
-            b = rbar_l[c1] / rbar_l[c] - 1.0
+            if not (has_cens and cens_l[c1] != 0.0):
+                b = rbar_l[c1] / rbar_l[c] - 1.0
         S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else 0.0
-        S[pix, A_LASTEP] = 0.0
+        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
+        S[pix, A_LASTEP] = la_step
+        if discrete:
+            _frame_update(S, pix, 1.0 / r, cz, q)
     return pix_hi - pix_lo
 
 
@@ -346,11 +406,7 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, p
     want_log = out_log.shape[0] > 0
     want_var = out_var.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        beta = S[pix, A_BETA]
-        if beta == 0.0:
-            integ = S[pix, A_RINV] * ((t_out - S[pix, A_TU]) * US)
-        else:
-            integ = rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], S[pix, A_TU], t_out, seg_t0, seg_inv_t)
+        integ = _pull_integral(S, pix, t_out, seg_t0, seg_inv_t)
         d = 1.0 / (1.0 + S[pix, A_P] * integ)
         lav = S[pix, A_LA]
         lhat = lav + (S[pix, A_L] - lav) * d
@@ -362,8 +418,25 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, p
     return pix_hi - pix_lo
 
 
+#: Floor of every linear output, in frame-linear units (1 = the frame camera's clip level): a
+#: millionth of the clip level, 120 dB below it, under any sensor's noise floor. Estimates
+#: below it (or NaN) are clamped to it and counted (``Video.info["n_clamped"]``), so no method
+#: writes a non-positive or NaN intensity and the clamp never hides a defect.
+MIN_INTENSITY = 1e-6
+
+
+def clamp_linear(a: np.ndarray) -> int:
+    """In place: raise values below :data:`MIN_INTENSITY` (and NaN) to it; return how many."""
+    bad = ~(a >= np.float32(MIN_INTENSITY))
+    n = int(np.count_nonzero(bad))
+    if n:
+        a[bad] = np.float32(MIN_INTENSITY)
+    return n
+
+
 def log_to_linear(a: np.ndarray, offset: float) -> np.ndarray:
-    """In place: float32 log intensity ``a`` -> ``exp(a) - offset``, in single precision.
+    """In place: float32 log intensity ``a`` -> ``exp(a) - offset``, in single precision (the
+    driver then clamps every method's output with :func:`clamp_linear`).
 
     numpy's float32 ``exp`` is vectorised (a relative error of a few 1e-7, the output's own
     precision); L̂ was rounded to float32 first, a relative error below 1e-6 for |L̂| < 8.
@@ -374,24 +447,27 @@ def log_to_linear(a: np.ndarray, offset: float) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True)
-def lut_segment(code, code_next, max_code, inten_l, rbar_l, logf_l, rinv_l, log_frame, intensity, rinv, beta):
+def lut_segment(code, code_next, max_code, inten_l, rbar_l, logf_l, rinv_l, cens_l, log_frame, intensity, rinv,
+                beta):
     """A frame's measurement from per-code tables, in one pass (see ``FrameMeasurements.segment``).
 
     Codes are clipped to ``[0, max_code]``. Writes L^F (eq. 8), I (eq. 3), 1/R (eq. 9) and, when
-    ``code_next`` is not empty, β = R̄(code_next)/R̄(code) - 1 of eq. 7 (zeros otherwise).
+    ``code_next`` is not empty, β = R̄(code_next)/R̄(code) - 1 of eq. 7 (zeros otherwise, and
+    where either code is censored by ``cens_l``; empty ``cens_l``: none is).
     """
     n = code.shape[0]
     has_next = code_next.shape[0] > 0
+    has_cens = cens_l.shape[0] > 0
     for i in range(n):
         c = min(max(np.int64(code[i]), 0), max_code)
         log_frame[i] = logf_l[c]
         intensity[i] = inten_l[c]
         rinv[i] = rinv_l[c]
+        beta[i] = 0.0
         if has_next:
             c1 = min(max(np.int64(code_next[i]), 0), max_code)
-            beta[i] = rbar_l[c1] / rbar_l[c] - 1.0
-        else:
-            beta[i] = 0.0
+            if not (has_cens and (cens_l[c] != 0.0 or cens_l[c1] != 0.0)):
+                beta[i] = rbar_l[c1] / rbar_l[c] - 1.0
     return n
 
 

@@ -164,14 +164,16 @@ def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
 
 def make_augment_params(augment) -> AugmentParams:
     """AugmentParams from None/True (defaults), False (off), a dict, a TOML path or an instance."""
-    if augment is None or augment is True:
-        return AugmentParams()
+    if augment is None:
+        return AugmentParams()  # off: the default measurement carries frames forward with events
+    if augment is True:
+        return AugmentParams(enabled=True)
     if augment is False:
         return AugmentParams.off()
     if isinstance(augment, AugmentParams):
         return augment
     if isinstance(augment, dict):
-        return AugmentParams.from_dict(augment)
+        return AugmentParams.from_dict({"enabled": True, **augment})
     if isinstance(augment, (str, os.PathLike)):
         return AugmentParams.from_toml(augment)
     raise TypeError(f"augment must be AugmentParams, a dict, a TOML path, a bool or None, "
@@ -202,7 +204,9 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
                 frames, shape, prof, intensity_offset=params.intensity_offset,
                 bias_correction=params.bias_correction,
                 interpolate_covariance=(mode == "offline" and params.covariance_interpolation == "linear"),
-                precision_scale=params.frame_precision_scale)
+                precision_scale=params.frame_precision_scale, saturation=params.saturation,
+                min_weighting=params.min_weighting,
+                event_step=0.5 * (params.c_on + params.c_off) if params.event_interpolation else 0.0)
         else:
             off = getattr(params, "intensity_offset", 1.0)
             measurements = FrameMeasurements(frames, shape, prof, intensity_offset=off, bias_correction=False,
@@ -283,6 +287,8 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             engine.close()  # no measurement is still being computed ahead when the stats are read
             if info is not None:
                 info["n_events_used"] = engine.n_events
+                info["n_clamped"] = int(getattr(engine, "n_clamped", 0))
+                info["n_output_pixels"] = int(getattr(engine, "n_output_pixels", 0))
                 stats = getattr(getattr(engine, "m", None), "stats", None)
                 if stats is not None:
                     info["augmentation"] = stats.to_dict()

@@ -34,8 +34,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
     p.add_argument("--cutoff-hz", type=float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
+    a.add_argument("--augmentation", action="store_true",
+                   help="use the augmented frame (EDI deblurring, eq. 12 calibration) as the measurement")
     a.add_argument("--no-augmentation", action="store_true",
-                   help="zero-order-hold frames instead of the augmented frame")
+                   help="plain frames (the default)")
     a.add_argument("--no-deblur", action="store_true", help="skip EDI deblurring of the frames")
     a.add_argument("--no-interpolation", action="store_true",
                    help="hold the (deblurred) frame instead of interpolating with events (eqs. 10, 11, 13)")
@@ -111,6 +113,8 @@ def build_augment(args):
         t = _load_toml(args.config).get("augment")
         if isinstance(t, dict):
             d.update(t)
+    if args.augmentation or args.no_deblur or args.no_interpolation or args.no_calibration:
+        d["enabled"] = True
     if args.no_augmentation:
         d["enabled"] = False
     if args.no_deblur:

@@ -19,6 +19,7 @@ and no kernel change is needed.
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass
 
 import numpy as np
@@ -48,6 +49,12 @@ class Segment:
         Relative change of R̄ over the segment, R̄_{k+1}/R̄_k - 1 (eq. 7); zeros when held.
     la_step : ndarray or None
         Per-event step of L^A in log units (frame augmentation); None for zero-order hold.
+    censor : ndarray or None
+        Per pixel +1 where ``log_frame`` is a lower bound (a clipped bright code), -1 where it is
+        an upper bound (a clipped dark code), 0 for a value; None: no pixel is censored.
+    frame_update : bool
+        The segment starts at a frame time τ_k: a discrete frame update applies there (AKF
+        ``frame_update="discrete"``); False for the sub-segments of frame augmentation.
     """
 
     t0_us: int
@@ -57,6 +64,8 @@ class Segment:
     rinv: np.ndarray | None = None
     beta: np.ndarray | None = None
     la_step: np.ndarray | None = None
+    censor: np.ndarray | None = None
+    frame_update: bool = True
 
 
 @dataclass(frozen=True, eq=False)
@@ -65,7 +74,8 @@ class SegmentCodes:
 
     ``code`` / ``code_next`` are the flattened pixel codes of frames k and k+1 (``code_next``
     empty when β is held at 0); codes are clipped to ``[0, max_code]``. ``rbar``, ``log_frame``
-    and ``rinv`` are the per-code tables of R̄ (eq. 6), L^F (eq. 8) and 1/R (eq. 9).
+    and ``rinv`` are the per-code tables of R̄ (eq. 6), L^F (eq. 8) and 1/R (eq. 9); ``censor``
+    the per-code censoring direction (empty: none).
     """
 
     code: np.ndarray
@@ -74,6 +84,8 @@ class SegmentCodes:
     rbar: np.ndarray
     log_frame: np.ndarray
     rinv: np.ndarray
+    censor: np.ndarray
+    la_step: float = 0.0
 
 
 def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
@@ -110,11 +122,24 @@ class FrameMeasurements:
         R̄ linear in time between frames (eq. 7; needs frame k+1, so offline only).
     precision_scale : float or None
         Override of ``profile.frame_precision_scale``.
+    saturation : {"bound", "value"}
+        "bound": a clipped code (``profile.clip_low_code``/``clip_high_code``) is a censored
+        measurement, the bound of :meth:`CameraProfile.bounds` with the precision of a fully
+        weighted code, acting only on a state that violates it (see ``docs/reconstruct.md``);
+        "value": the paper's reading, the clipped code's intensity with the floored weight.
+    min_weighting : float or None
+        Override of ``profile.min_weighting`` (eq. 6's floor on f_w).
+    event_step : float
+        Per-event step of L^A in log units: 0 holds each frame (the paper's zero-order hold);
+        the nominal contrast threshold carries the frame forward with the events since it
+        (eq. 10's forward interpolation from the frame itself, causal), so that an edge that
+        arrives between two frames is not pulled back to the old frame's value.
     """
 
     def __init__(self, frames: Frames, sensor_shape, profile: CameraProfile, *,
                  intensity_offset: float, bias_correction: bool = True,
-                 interpolate_covariance: bool = True, precision_scale: float | None = None):
+                 interpolate_covariance: bool = True, precision_scale: float | None = None,
+                 saturation: str = "value", min_weighting: float | None = None, event_step: float = 0.0):
         if not isinstance(frames, Frames):
             raise TypeError(f"frames must be a hybridhdr Frames, got {type(frames).__name__}")
         if len(frames) == 0:
@@ -135,24 +160,48 @@ class FrameMeasurements:
         self.offset = float(intensity_offset)
         self.bias_correction = bool(bias_correction)
         self.interpolate_covariance = bool(interpolate_covariance)
+        if saturation not in ("bound", "value"):
+            raise ValueError(f"saturation must be 'bound' or 'value', got {saturation!r}")
+        self.saturation = saturation
+        if not (np.isfinite(event_step) and event_step >= 0):
+            raise ValueError(f"event_step must be a finite number >= 0 (log units), got {event_step!r}")
+        self.event_step = float(event_step)
+        if min_weighting is not None:
+            if not 0 < float(min_weighting) <= 1:
+                raise ValueError(f"min_weighting must be in (0, 1], got {min_weighting}")
+            self.profile = profile = dataclasses.replace(profile, min_weighting=float(min_weighting))
         self.scale_factor = 1.0 if precision_scale is None else profile.frame_precision_scale / float(precision_scale)
         self.shape = tuple(sensor_shape)
         self._lut = None
         if codes.dtype.kind in "ui" and profile.max_code <= 65535:
             # every per-pixel quantity of a frame depends only on its code: tabulate once
             c = np.arange(profile.max_code + 1)
-            inten = profile.intensity(c)
-            rbar = profile.variance(c) * self.scale_factor
-            ip = inten + self.offset
-            r_log = rbar / (ip * ip)
-            logf = np.log(ip) - (0.5 * r_log if self.bias_correction else 0.0)
-            self._lut = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (inten, rbar, logf, 1.0 / r_log))
+            inten, rbar, logf, rinv, cens = self._measure(c)
+            self._lut = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (inten, rbar, logf, rinv, cens))
+
+    def _measure(self, codes):
+        """(I, R̄, L^F, 1/R, censor) of eq. 3, 6, 8, 9 for raw ``codes`` (flattened float64)."""
+        prof = self.profile
+        c = np.asarray(codes).reshape(-1)
+        inten = prof.intensity(c)
+        rbar = prof.variance(c) * self.scale_factor
+        cens = prof.censor(c) if self.saturation == "bound" else np.zeros(c.shape[0])
+        if self.saturation == "bound":
+            # a bound at the quantisation edge next to the clip level, as precise as a fully
+            # weighted code (eq. 6 with f_w = 1), and no eq. 8 correction (it is not a mean)
+            lo, hi = prof.bounds()
+            inten = np.where(cens > 0, hi, np.where(cens < 0, lo, inten))
+            rbar = np.where(cens != 0, self.scale_factor / prof.frame_precision_scale, rbar)
+        ip = inten + self.offset
+        r_log = rbar / (ip * ip)  # eq. 9
+        logf = np.log(ip)
+        if self.bias_correction:
+            logf = logf - np.where(cens != 0, 0.0, 0.5 * r_log)  # eq. 8
+        return inten, rbar, logf, 1.0 / r_log, cens
 
     def __len__(self) -> int:
         return int(self.times_us.shape[0])
 
-    def _rbar(self, k: int) -> np.ndarray:
-        return self.profile.variance(self._codes[self._idx[k]]).ravel() * self.scale_factor
 
     def segment_codes(self, k: int) -> SegmentCodes | None:
         """Codes and per-code tables of segment ``k``; None when the frames are not integer codes."""
@@ -164,8 +213,9 @@ class FrameMeasurements:
         last = k + 1 >= len(self)
         nxt = (np.ascontiguousarray(self._codes[self._idx[k + 1]]).reshape(-1)
                if self.interpolate_covariance and not last else code[:0])
-        _, rbar_l, logf_l, rinv_l = self._lut
-        return SegmentCodes(code, nxt, int(self.profile.max_code), rbar_l, logf_l, rinv_l)
+        _, rbar_l, logf_l, rinv_l, cens_l = self._lut
+        return SegmentCodes(code, nxt, int(self.profile.max_code), rbar_l, logf_l, rinv_l,
+                            cens_l if self.saturation == "bound" else cens_l[:0], self.event_step)
 
     def segment(self, k: int) -> Segment:
         """Measurement on ``[τ_k, τ_{k+1})``: L^F (eq. 8), 1/R (eq. 9), β of eq. 7."""
@@ -176,19 +226,20 @@ class FrameMeasurements:
             n = code.size
             lf, inten, rinv, beta = (np.empty(n) for _ in range(4))
             lut_segment(sc.code, sc.code_next, sc.max_code, self._lut[0], sc.rbar, sc.log_frame, sc.rinv,
-                        lf, inten, rinv, beta)
+                        sc.censor, lf, inten, rinv, beta)
+            cens = None
+            if self.saturation == "bound":
+                cens = self._lut[4][np.clip(sc.code.astype(np.int64), 0, sc.max_code)]
+            step = np.full(n, self.event_step) if self.event_step else None
             return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
-                           log_frame=lf, intensity=inten, rinv=rinv, beta=beta, la_step=None)
-        inten = self.profile.intensity(code).ravel()
-        ip = inten + self.offset
-        rbar = self._rbar(k)
-        r_log = rbar / (ip * ip)  # eq. 9
-        logf = np.log(ip)
-        if self.bias_correction:
-            logf = logf - 0.5 * r_log  # eq. 8
+                           log_frame=lf, intensity=inten, rinv=rinv, beta=beta, la_step=step, censor=cens)
+        inten, rbar, logf, rinv, cens = self._measure(code)
         if self.interpolate_covariance and not last:
-            beta = self._rbar(k + 1) / rbar - 1.0  # eq. 7, R̄ linear in t
+            _, rbar1, _, _, cens1 = self._measure(self._codes[self._idx[k + 1]])
+            beta = np.where((cens != 0) | (cens1 != 0), 0.0, rbar1 / rbar - 1.0)  # eq. 7, R̄ linear in t
         else:
             beta = np.zeros_like(rbar)
         return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
-                       log_frame=logf, intensity=inten, rinv=1.0 / r_log, beta=beta, la_step=None)
+                       log_frame=logf, intensity=inten, rinv=rinv, beta=beta,
+                       la_step=np.full(inten.shape[0], self.event_step) if self.event_step else None,
+                       censor=cens if self.saturation == "bound" else None)

@@ -22,11 +22,17 @@ from pathlib import Path
 __all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
            "DEFAULT_INTENSITY_OFFSET"]
 
-#: I0 of eq. 8, in the units of the profile's scaled irradiance (1 = the brightest code).
-#: The paper gives no value; the reference code uses 1 with I = I^F/255 (so L ∈ [0, ln 2]), and
-#: CF's ROS code uses log(I^F/255 + 1) too. We keep 1: on ecd_slider_depth it predicts the next
-#: APS frame better than 1/255, 0.02 or 0.1 did with c = 0.1 (see tests/reconstruct/test_ecd.py).
-DEFAULT_INTENSITY_OFFSET = 1.0
+#: I0 of eq. 8, in frame-linear units (1 = the frame camera's clip level).
+#: Events measure changes of log I (up to the photoreceptor's dark current, which is small in
+#: these units), so the filter's state log(I + I0) must have a small I0: with the reference
+#: code's I0 = 1 a dark pixel's change is compressed by I/(I + 1), thresholds calibrated through
+#: it come out too small and exp(L̂) - 1 goes negative. 1e-3 (60 dB below the clip level) keeps
+#: the state within a few per cent of log I down to I = 0.03 and stays above the frames'
+#: quantisation noise there; the paper gives no value, the reference code's I0 = 1 is in
+#: :meth:`AKFParams.reference_code` and :meth:`AKFParams.paper`.
+DEFAULT_INTENSITY_OFFSET = 1e-3
+#: I0 of the published code (``ziweiWWANG/AKF``: log(I^F/255 + 1)) and of CF's ROS code.
+PUBLISHED_INTENSITY_OFFSET = 1.0
 
 
 def _load_toml(path) -> dict:
@@ -130,7 +136,11 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     contrast_threshold_on, contrast_threshold_off : float or None
         Separate ON / OFF thresholds (positive, log units); ``None`` means ``contrast_threshold``.
     process_noise_per_s : float
-        σ²_proc in log²/s (§3.1.1; paper §6: 5e-4).
+        σ²_proc in log²/s (§3.1.1; paper §6: 5e-4, kept by :meth:`paper`). Ours is 0.05: the
+        sub-threshold change no event reports grows the uncertainty between frames, so that the
+        discrete frame update trusts a new frame over a state last corrected a frame period ago
+        (edge sweep of ``benchmarks/accuracy.py``: well-exposed log error 0.017 → 0.007,
+        ecd_slider_depth held-out frames unchanged within 0.5 %).
     isolated_noise_per_s : float
         σ²_iso in log²/s (§3.1.1; paper §6: 0.03).
     refractory_noise : float
@@ -151,6 +161,23 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         or held at the frame's value.
     frame_precision_scale : float or None
         Overrides the camera profile's 1/σ²_im (eq. 6; §6: 7e5 DAVIS240C, 7e7 FLIR).
+    saturation : {"bound", "value"}
+        "bound" (ours): a clipped frame code is a censored measurement, "at least the clip
+        level" (or "at most the dark level"), acting only when the state violates it, so a
+        bright object tracked by events is not pulled down to the clip value; "value": the
+        paper's reading, the clipped code as a (floored-weight) measurement of that value.
+    min_weighting : float or None
+        Overrides the camera profile's floor on f_w (eq. 6's saturation; reference code 0.09).
+    frame_update : {"discrete", "continuous"}
+        "discrete" (ours): each frame is also applied at τ_k as one discrete Kalman measurement
+        (gain P/(P + R), R of eq. 9; a continuous-discrete Kalman filter), so the estimate at a
+        frame time holds that frame's information; the continuous pull of eqs. 14-20 then
+        continues. "continuous": the paper's, the frame acts only through the pull after τ_k.
+    event_interpolation : bool
+        Without frame augmentation (causal mode, or ``augment=False``): carry each frame forward
+        with the events since it (L^A steps by the nominal threshold at each event; eq. 10's
+        forward interpolation without deblurring or calibration, causal). False: the paper's
+        zero-order hold, which pulls an edge that arrives between frames back to the old frame.
     """
 
     _toml_table = "akf"
@@ -158,7 +185,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     contrast_threshold: float = 0.1  # c, log units; reference-code comments (akf.md §5)
     contrast_threshold_on: float | None = None
     contrast_threshold_off: float | None = None
-    process_noise_per_s: float = 5e-4  # σ²_proc, paper §6
+    process_noise_per_s: float = 0.05  # σ²_proc; paper §6: 5e-4 (see the docstring)
     isolated_noise_per_s: float = 0.03  # σ²_iso, paper §6
     refractory_noise: float = 0.01  # σ²_ref, paper §6
     refractory_period_us: int = 10_000  # ρ, reference code run_akf.m
@@ -168,6 +195,10 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     bias_correction: bool = True  # eq. 8
     covariance_interpolation: str = "linear"  # eq. 7
     frame_precision_scale: float | None = None  # 1/σ²_im, eq. 6 (None: from the profile)
+    saturation: str = "bound"  # ours; the paper's reading is "value"
+    min_weighting: float | None = None  # eq. 6's floor on f_w (None: from the profile)
+    frame_update: str = "discrete"  # ours; the paper's is "continuous"
+    event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
 
     def __post_init__(self):
         self._check_thresholds()
@@ -183,19 +214,35 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         self._bool("bias_correction")
         self._choice("covariance_interpolation", ("linear", "hold"))
         self._num("frame_precision_scale", lo=0, lo_open=True, allow_none=True)
+        self._choice("saturation", ("bound", "value"))
+        self._num("min_weighting", lo=0, lo_open=True, hi=1, allow_none=True)
+        self._bool("event_interpolation")
+        self._choice("frame_update", ("discrete", "continuous"))
+
+    @classmethod
+    def default(cls, **overrides) -> "AKFParams":
+        """hybridhdr's model (the defaults): the paper's §6 noise settings with a small I0 in
+        frame-linear units and saturated codes as bounds."""
+        return cls(**overrides)
 
     @classmethod
     def paper(cls, **overrides) -> "AKFParams":
-        """The paper's §6 settings (the defaults)."""
-        return cls(**overrides)
+        """The paper's §6 settings, with its reading of the frames: I0 = 1 as in the published
+        code (the paper gives no value) and clipped codes as values."""
+        d = dict(process_noise_per_s=5e-4, intensity_offset=PUBLISHED_INTENSITY_OFFSET, saturation="value",
+                 event_interpolation=False,
+                 frame_update="continuous")
+        d.update(overrides)
+        return cls(**d)
 
     @classmethod
     def reference_code(cls, **overrides) -> "AKFParams":
         """Settings of ``ziweiWWANG/AKF:run_akf.m`` (akf.md §5): σ_p 5e-3, σ_r 0.05 (per s),
-        p_ini 0.09, I0 = 1, no eq. 8 correction, reference-code noise form."""
+        p_ini 0.09, I0 = 1, no eq. 8 correction, reference-code noise form, clipped codes as values."""
         d = dict(process_noise_per_s=5e-3, isolated_noise_per_s=0.03, refractory_noise=0.05,
                  refractory_period_us=10_000, noise_model="reference_code", initial_covariance=0.09,
-                 intensity_offset=1.0, bias_correction=False)
+                 intensity_offset=PUBLISHED_INTENSITY_OFFSET, bias_correction=False, saturation="value",
+                 event_interpolation=False, frame_update="continuous")
         d.update(overrides)
         return cls(**d)
 

@@ -50,7 +50,11 @@ def test_params_toml_and_presets(tmp_path):
         AKFParams.from_dict({"sigma_p": 1})
     r = AKFParams.reference_code()
     assert (r.process_noise_per_s, r.initial_covariance, r.intensity_offset) == (5e-3, 0.09, 1.0)
-    assert AKFParams.paper() == AKFParams()
+    p = AKFParams.paper()
+    assert (p.process_noise_per_s, p.intensity_offset, p.saturation, p.frame_update, p.event_interpolation) == \
+        (5e-4, 1.0, "value", "continuous", False)
+    assert AKFParams.default() == AKFParams()
+    assert (AKFParams().saturation, AKFParams().intensity_offset) == ("bound", 1e-3)
     assert AKFParams(contrast_threshold_on=0.2).c_on == 0.2 and AKFParams(contrast_threshold_on=0.2).c_off == 0.1
 
 

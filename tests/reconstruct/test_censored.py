@@ -1,0 +1,135 @@
+"""Saturation as a bound (censored frame measurements) and positive outputs.
+
+A clipped frame code says "at least the clip level" (or "at most the dark level"); the AKF's
+frame update acts only where the state violates that bound (``_kernels._pull_integral``,
+``_kernels._frame_update``; docs/reconstruct.md, "Saturation as a bound").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from hybridhdr.events import EVENT_DTYPE, SensorSize
+from hybridhdr.model import Frames, Recording
+from hybridhdr.reconstruct import AKFParams, CFParams, reconstruct
+from hybridhdr.reconstruct import _kernels as K
+from hybridhdr.camera import CameraProfile, default_profile
+
+H, W = 3, 4
+PERIOD_US = 50_000  # 20 Hz frames
+EXPO_US = 2_000
+
+
+def _bright_object_recording(n_saturated=20, c=0.1, start=0.5, ratio_to_clip=5.0):
+    """A uniform pixel patch at ``start`` (unclipped, frame 0), raised by ideal ON events to
+    ``ratio_to_clip`` times the clip level (1.0) before frame 1; frames 1.. all clip (code 255)."""
+    n_on = int(round(np.log(ratio_to_clip / start) / c))
+    k = 1 + n_saturated
+    ts = np.arange(k, dtype=np.int64) * PERIOD_US
+    img = np.full((k, H, W), 255, np.uint8)
+    img[0] = int(round(255 * start))
+    frames = Frames(img, ts, ts + EXPO_US, encoding="linear")
+    t_ev = np.linspace(10_000, 30_000, n_on).astype(np.int64)
+    ev = np.zeros(n_on * H * W, EVENT_DTYPE)
+    ev["t"] = np.repeat(t_ev, H * W)
+    yy, xx = np.mgrid[0:H, 0:W]
+    ev["x"] = np.tile(xx.ravel(), n_on)
+    ev["y"] = np.tile(yy.ravel(), n_on)
+    ev["p"] = 1
+    truth = (round(255 * start) / 255) * np.exp(n_on * c)
+    return Recording(ev, SensorSize(H, W), frames), frames.t_start_us + EXPO_US // 2, truth
+
+
+@pytest.mark.parametrize("mode", ["causal", "offline"])
+def test_bright_pixel_stays_above_the_clip_level_across_20_saturated_frames(mode):
+    rec, t_mid, truth = _bright_object_recording()
+    assert 4.9 < truth < 5.1  # 5x the clip level
+    v = reconstruct(rec, "akf", times_us=t_mid[1:], mode=mode)
+    err = np.abs(v.frames / truth - 1.0)
+    assert err.max() < 0.02, f"worst relative error {err.max():.4f} over {len(v)} saturated frames"
+
+
+def test_the_papers_reading_pulls_the_same_pixel_down_to_the_clip_value():
+    """The published model (clipped code = a value) loses the HDR content this test guards."""
+    rec, t_mid, truth = _bright_object_recording()
+    v = reconstruct(rec, "akf", AKFParams.paper(), times_us=t_mid[1:], mode="causal")
+    assert v.frames[-1].max() < 0.5 * truth
+
+
+def test_pixel_saturated_from_the_start_never_sits_below_the_clip_level():
+    k = 12
+    ts = np.arange(k, dtype=np.int64) * PERIOD_US
+    frames = Frames(np.full((k, H, W), 255, np.uint8), ts, ts + EXPO_US, encoding="linear")
+    # OFF events that a real brighter-than-clip object could emit while staying above the clip
+    ev = np.zeros(3, EVENT_DTYPE)
+    ev["t"] = [60_000, 61_000, 62_000]
+    ev["p"] = -1
+    rec = Recording(ev, SensorSize(H, W), frames)
+    v = reconstruct(rec, "akf", times_us=ts[1:] + EXPO_US // 2, mode="causal")
+    lo, hi = default_profile(8).bounds()
+    # the update's gain P/(P + R) < 1 leaves R/(P + R) of a violation (here < 1e-3 relative,
+    # under a quarter of one code step at the clip level, 1/255)
+    assert v.frames.min() >= hi * (1 - 1e-3)
+    # the scenario is not trivial: just after the OFF events, before the next frame, the
+    # state is below the bound (the events are trusted), and the frames then restore it
+    mid = reconstruct(rec, "akf", times_us=[62_001], mode="causal").frames[0, 0, 0]
+    assert mid < 0.9 * hi
+
+
+def test_censor_table_and_bounds_of_a_profile():
+    p = CameraProfile(weighting=np.ones(256), clip_low_code=100, clip_high_code=160)
+    cz = p.censor(np.arange(256))
+    assert np.all(cz[:101] == -1) and np.all(cz[101:160] == 0) and np.all(cz[160:] == 1)
+    lo, hi = p.bounds()
+    assert lo == pytest.approx(100.5 / 255) and hi == pytest.approx(159.5 / 255)
+    d = p.to_dict()
+    q = CameraProfile.from_dict(d)
+    assert (q.clip_low_code, q.clip_high_code) == (100, 160)
+    with pytest.raises(ValueError, match="clip codes"):
+        CameraProfile(weighting=np.ones(256), clip_low_code=200, clip_high_code=100)
+
+
+def _random_recording(rng, h=6, w=8, n_frames=6):
+    ts = np.arange(n_frames, dtype=np.int64) * 40_000
+    img = rng.integers(0, 256, (n_frames, h, w)).astype(np.uint8)
+    img[:, :2] = 255
+    img[:, -1] = 0
+    frames = Frames(img, ts, ts + 5_000, encoding=str(rng.choice(["linear", "gamma"])))
+    n = int(rng.integers(50, 2000))
+    ev = np.zeros(n, EVENT_DTYPE)
+    ev["t"] = np.sort(rng.integers(0, int(ts[-1]) + 20_000, n))
+    ev["x"] = rng.integers(0, w, n)
+    ev["y"] = rng.integers(0, h, n)
+    ev["p"] = rng.choice([-1, 1], n)
+    return Recording(ev, SensorSize(h, w), frames)
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_no_method_writes_a_non_positive_or_nan_intensity(seed):
+    """Fuzzed parameters and adversarial events (long OFF runs, random polarities): every
+    output of every method is finite and >= MIN_INTENSITY, and clamping is counted."""
+    rng = np.random.default_rng(seed)
+    rec = _random_recording(rng)
+    akf = AKFParams(intensity_offset=float(10 ** rng.uniform(-5, 0)),
+                    process_noise_per_s=float(10 ** rng.uniform(-5, 1)),
+                    contrast_threshold=float(rng.uniform(0.05, 0.8)),
+                    saturation=str(rng.choice(["bound", "value"])),
+                    frame_update=str(rng.choice(["discrete", "continuous"])),
+                    min_weighting=float(10 ** rng.uniform(-6, 0)))
+    cf = CFParams(intensity_offset=float(10 ** rng.uniform(-5, 0)), cutoff_hz=float(rng.uniform(0, 20)),
+                  contrast_threshold=float(rng.uniform(0.05, 0.8)))
+    runs = [("akf", akf, "offline"), ("akf", akf, "causal"), ("akf", AKFParams.reference_code(), "causal"),
+            ("cf", cf, "causal"), ("direct", None, "causal"), ("frames_zoh", None, "causal"),
+            ("frames_linear", None, "offline"), ("edi", None, "offline")]
+    for method, params, mode in runs:
+        v = reconstruct(rec, method, params, fps=200.0, mode=mode)
+        assert np.all(np.isfinite(v.frames)), method
+        assert v.frames.min() >= np.float32(K.MIN_INTENSITY), (method, float(v.frames.min()))
+        assert 0 <= v.info["n_clamped"] <= v.info["n_output_pixels"] == v.frames.size
+
+
+def test_clamp_counts_and_raises_nan_and_negative():
+    a = np.array([np.nan, -1.0, 0.0, 5e-7, 1e-6, 0.5], np.float32)
+    assert K.clamp_linear(a) == 4
+    assert np.all(a >= np.float32(K.MIN_INTENSITY)) and a[-1] == np.float32(0.5)
