@@ -154,6 +154,27 @@ def _declared_event_count(source) -> int | None:
     return int(n) if isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0 else None
 
 
+def _source_profile(source):
+    """The camera profile a source declares (``metadata.provenance["camera_profile"]``, e.g. an
+    AKF ``.mat`` file's ``f_Q`` table), or None."""
+    md = getattr(source, "metadata", None)
+    if callable(md):
+        try:
+            md = md()
+        except Exception:  # noqa: BLE001 - a reader without readable metadata declares nothing
+            return None
+    prov = getattr(md, "provenance", None)
+    d = prov.get("camera_profile") if isinstance(prov, dict) else None
+    if not isinstance(d, dict):
+        return None
+    from ..camera import CameraProfile
+    try:
+        return CameraProfile.from_dict(d)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"the recording's camera profile (metadata provenance 'camera_profile') is invalid: "
+                         f"{e}") from None
+
+
 def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
     if ss is not None:
         return ss.shape
@@ -256,6 +277,8 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             else:  # read in the background: the filter starts on the first chunks
                 events = StreamingEventArrays(chunk_factory(int(chunk_events)), shape, n_declared)
             chunk_factory = events.chunks
+        if profile is None:
+            profile = _source_profile(source)
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)
         try:
@@ -325,7 +348,9 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         "offline" may use future frames (eq. 7's interpolation of R towards frame k+1; frame
         augmentation when a provider is given); "causal" uses only the past.
     profile : CameraProfile, path or None
-        Camera profile (eqs. 3-6); None is the built-in 8-bit profile.
+        Camera profile (eqs. 3-6); None takes the one the recording declares
+        (``metadata.provenance["camera_profile"]``, e.g. an AKF ``.mat`` file's ``f_Q``), else the
+        built-in 8-bit profile of the frames' encoding.
     t_start_us, t_end_us : int, optional
         Half-open window of output times; the filter starts from the last frame at or before
         ``t_start_us``.
