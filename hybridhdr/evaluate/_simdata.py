@@ -21,6 +21,10 @@ or a table of ``EventSensorParams`` fields), ``camera`` (table of ``FrameCameraP
 ``fixed_rate_hz``), ``exposure_scale`` (multiplies the camera's electrons per radiance·s),
 ``contrast_threshold`` (sets the sensor's ON and OFF thresholds), and dotted overrides
 ``sensor.X``, ``camera.X``, ``sampling.X`` (as the stability sweeps produce).
+
+The HDR references of every kind are returned in the reconstruction's **frame-linear units**
+(1.0 = the frame camera's clip level at the frame's exposure; :mod:`hybridhdr.evaluate.units`),
+each converted with the exposure of its nearest frame.
 """
 
 from __future__ import annotations
@@ -123,6 +127,28 @@ def profile_from_provenance(prov):
         return None
 
 
+def to_frame_units(rec, camera=None):
+    """``rec`` with its HDR references converted from radiance to frame-linear units
+    (:func:`hybridhdr.evaluate.units.reference_to_frame_units`; the camera from the provenance
+    when not given). Returns ``(recording, info)``; unchanged (info None) without references."""
+    from ..model import HDRReferences, Recording
+    from .units import reference_to_frame_units
+    if rec.hdr is None or len(rec.hdr) == 0 or rec.frames is None or len(rec.frames) == 0:
+        return rec, None
+    cam = camera if camera is not None else rec.metadata.provenance
+    im, info = reference_to_frame_units(rec.hdr.images, rec.hdr.t_us, cam, rec.frames)
+    return Recording(rec.events, rec.sensor_size, rec.frames, rec.triggers, HDRReferences(im, rec.hdr.t_us),
+                     rec.metadata), info
+
+
+def _units_desc(info) -> dict:
+    if info is None:
+        return {}
+    sc = info["scale"]
+    return {"gt_units": "frame_linear", "gt_scale_min": float(min(sc)), "gt_scale_max": float(max(sc)),
+            "gt_exposure_varies": info["exposure_varies"], "gt_v_clip": info["v_clip"]}
+
+
 def _provenance_threshold(prov) -> float | None:
     """The sensor's nominal threshold from a recording's provenance (any nesting), if stated."""
     if isinstance(prov, dict):
@@ -218,17 +244,19 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
         c = flat.get("contrast_threshold")
         if c is None:
             c = _provenance_threshold(rec.metadata.provenance)
+        rec, uinfo = to_frame_units(rec)
         return Dataset(rec, None if c is None else float(c), dur,
                        {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
-                        "events": int(len(rec.events))}, profile_from_provenance(rec.metadata.provenance))
+                        "events": int(len(rec.events)), **_units_desc(uinfo)},
+                       profile_from_provenance(rec.metadata.provenance))
     res = simulate(source, sensor=sensor, camera=camera, sampling=sampling, gt_times_us=gt,
                    seed=int(seed) + int(flat.get("seed_offset", 0)), progress=False)
-    rec = res.recording
+    rec, uinfo = to_frame_units(res.recording, camera)
     c_nominal = 0.5 * (sensor.contrast_threshold_on + sensor.contrast_threshold_off)
     frames = rec.frames
     desc = {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
             "events": int(len(rec.events)), "renders": int(res.renders),
-            "simulate_wall_s": float(res.stats.get("wall_s", float("nan")))}
+            "simulate_wall_s": float(res.stats.get("wall_s", float("nan"))), **_units_desc(uinfo)}
     if frames is not None and len(frames):
         top = np.iinfo(frames.images.dtype).max if frames.images.dtype.kind == "u" else 1.0
         desc["saturated_fraction"] = float(np.mean(frames.images >= top))

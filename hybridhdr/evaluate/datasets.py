@@ -5,7 +5,8 @@ with HDR references.
 
 ``procedural``
     :func:`hybridhdr.synthetic.procedural_recording` (bright disc ``bright_ratio`` × brighter than a
-    textured background, ideal events, 8-bit gamma frames, HDR references) plus the sensor and
+    textured background, ideal events, 8-bit gamma frames, HDR references in frame-linear units:
+    the scene intensity times the frames' gain, 1.0 = code 255) plus the sensor and
     camera stresses of the stability sweeps, applied here:
 
     - ``threshold_mismatch_sigma`` (relative σ of per-pixel thresholds, c_p = c·max(1 + σ·N(0,1), 0.25))
@@ -30,6 +31,11 @@ with HDR references.
     simulator's sensor, camera and adaptive sampling; a built-in Mitsuba scene; an AHDR-style
     recording from an image. Keys in :mod:`hybridhdr.evaluate._simdata`. A clear ImportError
     names what is missing when the simulator is not installed.
+
+HDR references of the simulated kinds are in the reconstruction's frame-linear units (1.0 = the
+frame camera's clip level at the frame's exposure, :mod:`hybridhdr.evaluate.units`); a ``file``
+dataset's references are whatever the file holds (``holdout_frames``: the camera profile's
+frame-linear units).
 
 Simulated datasets can be slow to build (Mitsuba renders): with ``cache_dir`` (bench key
 ``cache_dir``) each is written once as a hybridhdr container named by a hash of its spec and
@@ -197,7 +203,12 @@ def _procedural(spec: dict, seed: int) -> Dataset:
     stats["events"] = int(len(ev))
     stats["saturated_fraction"] = float(np.mean(frames.images == 255))
     stats["black_fraction"] = float(np.mean(frames.images == 0))
-    rec2 = Recording(ev, ss, frames, rec.triggers, rec.hdr, rec.metadata)
+    # references in frame-linear units: the frames encode clip(I·gain, 0, 1) (1.0 = code 255)
+    from ..model import HDRReferences
+    unit = float(rec.metadata.provenance["frame_gain"]) * k
+    hdr = HDRReferences(rec.hdr.images * np.float32(unit), rec.hdr.t_us)
+    stats.update(gt_units="frame_linear", gt_scale=unit)
+    rec2 = Recording(ev, ss, frames, rec.triggers, hdr, rec.metadata)
     return Dataset(rec2, c, int(s["duration_us"]), {"kind": "procedural", "seed": seed, **s, **stats})
 
 
@@ -257,8 +268,9 @@ def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
     from pathlib import Path
 
     from ..container import read_recording, write_recording
-    key = json.dumps({"spec": {k: v for k, v in spec.items() if k != "name"}, "seed": seed}, sort_keys=True,
-                     default=str)
+    # "gt_units": references in frame-linear units (older caches held radiance: a new key)
+    key = json.dumps({"spec": {k: v for k, v in spec.items() if k != "name"}, "seed": seed,
+                      "gt_units": "frame_linear"}, sort_keys=True, default=str)
     digest = hashlib.sha1(key.encode()).hexdigest()[:16]
     d = Path(cache_dir)
     d.mkdir(parents=True, exist_ok=True)

@@ -19,10 +19,15 @@ each stated in the result:
    Fits in log weigh all pixels alike; a linear fit on an HDR scene is decided by its brightest
    pixels (:func:`fit_normalisation`).
 
-   Defaults (:data:`DEFAULT_NORMALISE`): ``"affine"`` for ``highpass`` (events only are
-   relative), ``"scale"`` for every frame-anchored method.
-2. **Range**: both are divided by the reference's maximum over the sequence, so the reference
-   lies in [0, 1]; the reconstruction is clipped to [0, 1] (as EVREAL does,
+   Default (:data:`DEFAULT_NORMALISE`): ``"none"`` for every method, as the paper scores
+   ("on the un-altered reconstruction and raw HDR intensities", Table 1). The evaluation's
+   simulated references are in the reconstruction's **frame-linear units** (1.0 = the frame
+   camera's clip level at the frame's exposure; :func:`hybridhdr.evaluate.units.reference_to_frame_units`),
+   so no fit is needed. The fits stay available by name (``normalise="scale"`` etc.), e.g. for
+   events-only ``highpass``, whose output is relative, or for references in other units.
+2. **Range**: both are divided by the reference's maximum over the sequence (one common
+   constant, so an unaltered reconstruction keeps its units relative to the reference), so
+   the reference lies in [0, 1]; the reconstruction is clipped to [0, 1] (as EVREAL does,
    ``ercanburak/EVREAL:utils/eval_metrics.py``). MSE, PSNR and SSIM then use **data range 1**.
 3. **Absolute luminance** for PU21 and HDR-VDP: the [0, 1] images are multiplied by
    ``peak_luminance_cd_m2`` (default 4000 cd/m², as ``I/max·4000`` in the PU21 usage notes)
@@ -72,19 +77,20 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "global_ssim",
+__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "ssim_map", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
            "normalise_pair", "apply_normalisation", "log_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
            "find_hdrvdp", "HDRVDPNotFound"]
 
 NORMALISE_MODES = ("none", "scale", "affine", "scale_linear", "affine_linear")
-#: Per-method default normalisation (methods not listed: "scale").
-DEFAULT_NORMALISE = {"highpass": "affine", "hpf": "affine"}
+#: Per-method default normalisation (methods not listed: "none", the unaltered reconstruction).
+#: Empty: every method is scored unaltered by default, as in the paper's Table 1.
+DEFAULT_NORMALISE: dict = {}
 
 
 def default_normalise(method: str) -> str:
-    """The default normalisation for a reconstruction method (see the module docstring)."""
-    return DEFAULT_NORMALISE.get(method, "scale")
+    """The default normalisation for a reconstruction method: ``"none"`` (see the module docstring)."""
+    return DEFAULT_NORMALISE.get(method, "none")
 
 
 def _pair(a, b, name="images"):
@@ -114,6 +120,27 @@ def psnr(test, reference, data_range: float = 1.0) -> float:
 
 
 def _ssim2d(x, y, data_range, sigma, truncate, k1, k2):
+    s, r = _ssim_map2d(x, y, data_range, sigma, truncate, k1, k2)
+    return float(s[r:s.shape[0] - r, r:s.shape[1] - r].mean(dtype=np.float64))
+
+
+def ssim_map(test, reference, data_range: float = 1.0, *, sigma: float = 1.5, truncate: float = 3.5,
+             k1: float = 0.01, k2: float = 0.03) -> tuple[np.ndarray, int]:
+    """The per-pixel SSIM map of :func:`ssim` (same settings) and its border width ``r``.
+
+    For (K, H, W) input the maps are stacked. :func:`ssim` is the mean of the map with the border
+    of width ``r`` cropped; a masked SSIM is the mean over the mask's pixels (border cropped).
+    """
+    a, b = _pair(test, reference, "ssim_map")
+    if a.ndim == 2:
+        return _ssim_map2d(a, b, data_range, sigma, truncate, k1, k2)
+    if a.ndim != 3:
+        raise ValueError(f"ssim_map: expected (H, W) or (K, H, W), got {a.shape}")
+    maps = [_ssim_map2d(x, y, data_range, sigma, truncate, k1, k2) for x, y in zip(a, b)]
+    return np.stack([m for m, _ in maps]), maps[0][1] if maps else int(truncate * sigma + 0.5)
+
+
+def _ssim_map2d(x, y, data_range, sigma, truncate, k1, k2):
     from scipy.ndimage import gaussian_filter
     r = int(truncate * sigma + 0.5)
     if min(x.shape) < 2 * r + 1:
@@ -128,7 +155,7 @@ def _ssim2d(x, y, data_range, sigma, truncate, k1, k2):
     vxy = f(x * y) - ux * uy
     c1, c2 = (k1 * data_range) ** 2, (k2 * data_range) ** 2
     s = ((2 * ux * uy + c1) * (2 * vxy + c2)) / ((ux * ux + uy * uy + c1) * (vx + vy + c2))
-    return float(s[r:s.shape[0] - r, r:s.shape[1] - r].mean(dtype=np.float64))
+    return s, r
 
 
 def ssim(test, reference, data_range: float = 1.0, *, sigma: float = 1.5, truncate: float = 3.5,
@@ -345,7 +372,7 @@ def apply_normalisation(test, gain: float, second: float, mode: str) -> np.ndarr
     return gain * x + second
 
 
-def normalise_pair(test, reference, mode: str = "scale"):
+def normalise_pair(test, reference, mode: str = "none"):
     """Apply the policy of the module docstring: fit, divide by the reference max, clip.
 
     Returns ``(test01, ref01, info)`` with both in [0, 1] (NaN kept) and ``info`` holding the
@@ -386,7 +413,7 @@ def log_pair(test01, ref01, floor: float = 1e-4):
     return t, (lr - lo) / span
 
 
-def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak_luminance_cd_m2: float = 4000.0,
+def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_luminance_cd_m2: float = 4000.0,
                 pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4) -> dict:
     """All metrics on matched sequences (K, H, W) of linear intensity.
 
@@ -395,7 +422,9 @@ def score_video(test_frames, reference_frames, *, normalise: str = "scale", peak
     test_frames, reference_frames : ndarray of shape (K, H, W)
         Already matched in time (:func:`match_frames`). NaN/Inf in ``test_frames`` are counted
         in ``n_nonfinite`` and make the metrics NaN (a numerical failure is never hidden).
-    normalise : {"none", "scale", "affine"}
+    normalise : {"none", "scale", "affine", "scale_linear", "affine_linear"}
+        ``"none"`` (default): the unaltered reconstruction; the others fit a gain (and offset or
+        exponent) first (:func:`fit_normalisation`).
     peak_luminance_cd_m2 : float
         Luminance of the reference maximum for PU21 and HDR-VDP (cd/m²).
     hdrvdp : dict, optional

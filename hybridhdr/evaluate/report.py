@@ -11,7 +11,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "write_report", "write_strip", "format_table"]
+__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "scoring_label", "write_report", "write_strip", "format_table"]
 
 
 def _f(v) -> float:
@@ -76,6 +76,18 @@ def akf_vs_cf(rows, datasets=None, akf_label: str = "akf", cf_label: str = "cf")
         cs = out[f"cf_{k}"]
         out[f"{k}_improvement_pct"] = 100.0 * (out[f"akf_{k}"] - cs) / cs if cs > 0 else float("nan")
     return out
+
+
+def scoring_label(rows) -> str:
+    """How the rows were scored: "unaltered reconstructions (normalise=none)" or the fits used."""
+    modes = sorted({str(r.get("normalise")) for r in rows if r.get("normalise")})
+    if not modes or modes == ["none"]:
+        return ("unaltered reconstructions (normalise=none; references in frame-linear units, 1.0 = the frame "
+                "camera's clip level)")
+    if "none" in modes:
+        fits = [m for m in modes if m != "none"]
+        return f"unaltered reconstructions (normalise=none) except runs with a fitted normalisation ({', '.join(fits)})"
+    return f"reconstructions fitted to the reference per run by least squares (normalise={', '.join(modes)})"
 
 
 def _lower(pct: float) -> str:
@@ -243,8 +255,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     md = [f"# Benchmark report: {name}", "",
           f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} "
           f"(timings are noisy on a shared machine). {len(rows)} runs.", "",
-          "Scoring (see docs/evaluate.md): reconstruction fitted to the reference per run by least squares "
-          "(`normalise`: scale for frame-based methods, affine for events-only), both divided by the reference "
+          f"Scoring (see docs/evaluate.md): {scoring_label(rows)}; both divided by the reference "
           "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
           f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
           f"{getattr(bench, 'tolerance_us', 1000)} µs. Q is n/a without an HDR-VDP 3 installation.", "",

@@ -55,7 +55,7 @@ def test_expand_grid_and_dotted_keys():
     assert len(runs) == 4
     assert runs[0].params == {"frame_precision_scale": 1e5} and runs[0].augment is True
     assert runs[3].label == "akf [params.frame_precision_scale=1000000.0, augment=False]"
-    assert runs[0].normalise == "scale"
+    assert runs[0].normalise == "none"  # unaltered by default (the paper's scoring)
 
 
 def test_requantise_kernel_matches_py_func_and_model():

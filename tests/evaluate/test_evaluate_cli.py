@@ -38,10 +38,19 @@ def test_metrics_command_matches_library(rec_path, tmp_path, capsys):
     vi, ri = M.match_frames(t, rec.hdr.t_us, 0)
     assert res["matched"] == len(vi) > 3
     frames = np.stack([read_exr(out / lines[i][1]) for i in vi])
-    want = M.score_video(frames, rec.hdr.images[ri], normalise="scale")
+    want = M.score_video(frames, rec.hdr.images[ri], normalise="none")
     for k in ("mse", "ssim", "log_ssim", "pu_ssim", "gain"):
         assert res[k] == pytest.approx(want[k], rel=1e-12)
-    assert res["method"] == "cf" and res["normalise"] == "scale" and res["q"] is None and "HDR-VDP" in res["q_note"]
+    # unaltered by default (the paper's scoring), for every method
+    assert res["method"] == "cf" and res["normalise"] == "none" and res["gain"] == 1.0
+    assert res["q"] is None and "HDR-VDP" in res["q_note"]
+    # the gain fit by name
+    assert main(["evaluate", "metrics", str(out), "--reference", str(path), "--tolerance-us", "0", "--json",
+                 "--normalise", "scale"]) == 0
+    res_s = json.loads(capsys.readouterr().out)
+    want_s = M.score_video(frames, rec.hdr.images[ri], normalise="scale")
+    assert res_s["normalise"] == "scale" and res_s["mse"] == pytest.approx(want_s["mse"], rel=1e-12)
+    assert res_s["gain"] == pytest.approx(want_s["gain"], rel=1e-12) and res_s["gain"] != 1.0
     # human-readable output
     assert main(["evaluate", "metrics", str(out), "--reference", str(path)]) == 0
     text = capsys.readouterr().out
@@ -97,9 +106,15 @@ def test_paper_table_shape_and_reductions():
                      "log_mse": 0.04, "log_ssim": 0.4})
     text, nums = paper_table(rows)
     lines = text.splitlines()
+    # the table says how it was scored (rows without a normalise column: the default, unaltered)
+    assert lines[0].startswith("Scoring: unaltered reconstructions (normalise=none")
+    lines = lines[2:]
     assert lines[0] == "| method | HDR MSE | HDR SSIM | HDR Q | AHDR MSE | AHDR SSIM | AHDR Q |"
     assert lines[2] == "| akf | 1.000e-02 | 0.900 | n/a | 1.000e-02 | 0.900 | n/a |"
     assert "paper: AKF" in lines[4]
+    fitted = [{**r, "normalise": "scale"} for r in rows]
+    assert paper_table(fitted)[0].splitlines()[0] == ("Scoring: reconstructions fitted to the reference per run "
+                                                       "by least squares (normalise=scale).")
     assert nums["mse_reduction_pct"] == pytest.approx(50.0) and nums["ssim_improvement_pct"] == pytest.approx(20.0)
     assert "AKF MSE 50.0% lower (paper: 48% lower)" in text
 
@@ -128,22 +143,28 @@ def test_simulated_dataset_and_cache(tmp_path):
 def test_real_data_holdout_frame_prediction(shared_data):
     """ecd_slider_depth (real DAVIS240C): frame 2 held out of the input and used as the reference.
 
-    Measured (this data, c = 0.1): AKF (with frame augmentation) MSE 0.0110 vs frames only
+    Measured (this data, c = 0.1) with the gain fit (``normalise = "scale"``, this test's
+    original scoring, kept by name): AKF (with frame augmentation) MSE 0.0110 vs frames only
     (zero-order hold of frame 1) 0.0212; the events must carry the image from frame 1 towards
     frame 2 (requiring 25 % less leaves room for parameter changes in reconstruct, not for an
-    AKF that ignores its events).
+    AKF that ignores its events). Unaltered (the default scoring, the reference is frame 2 in
+    the same profile units) the AKF must still beat the hold.
     """
     from hybridhdr.evaluate import bench as B
     path = shared_data("ecd_slider_depth")
     b = B.parse_bench({"bench": {"warmup": False},
                        "datasets": [{"name": "ecd", "kind": "file", "path": str(path), "contrast_threshold": 0.1,
                                      "holdout_frames": [2]}],
-                       "methods": [{"method": "akf"}, {"method": "frames"}]})
+                       "methods": [{"method": "akf", "normalise": "scale"}, {"method": "frames", "normalise": "scale"},
+                                   {"name": "akf_unaltered", "method": "akf"},
+                                   {"name": "frames_unaltered", "method": "frames"}]})
     rows = B.run_bench(b, workers=0, progress=False)
-    assert [r["status"] for r in rows] == ["ok", "ok"]
-    akf, zoh = rows
+    assert [r["status"] for r in rows] == ["ok"] * 4
+    akf, zoh, akf_u, zoh_u = rows
     assert akf["n_frames"] == 1 and akf["n_nonfinite"] == 0
     assert akf["mse"] < 0.75 * zoh["mse"]
+    assert akf_u["normalise"] == "none" and akf_u["gain"] == 1.0
+    assert akf_u["mse"] < zoh_u["mse"]
 
 
 def test_ahdr_dataset_and_clipped_camera_profile():

@@ -142,7 +142,23 @@ def test_normalisation_policy():
     assert t01.max() == 1.0  # clipped
     with pytest.raises(ValueError, match="normalise"):
         M.fit_normalisation(r, r, "log")
-    assert M.default_normalise("highpass") == "affine" and M.default_normalise("akf") == "scale"
+    # unaltered scoring by default (the paper's Table 1), for every method
+    for m in ("akf", "cf", "highpass", "frames_zoh", "edi", ""):
+        assert M.default_normalise(m) == "none"
+    # the default keeps the reconstruction's units: a recon at half the reference scores as such
+    d = M.score_video(r / 2, r, pu21=False)
+    assert d["normalise"] == "none" and d["gain"] == 1.0
+    assert d["mse"] == pytest.approx(np.mean((r / 2 / r.max() - r / r.max()) ** 2), rel=1e-12)
+    assert M.score_video(r / 2, r, normalise="scale", pu21=False)["mse"] == pytest.approx(0.0, abs=1e-20)
+
+
+def test_ssim_map_matches_ssim_and_masks():
+    rng = np.random.default_rng(5)
+    a, b = rng.random((2, 20, 24)), rng.random((2, 20, 24))
+    m, r = M.ssim_map(a, b)
+    assert m.shape == a.shape and r == 5
+    assert M.ssim(a[0], b[0]) == pytest.approx(m[0, r:-r, r:-r].mean(), rel=1e-12)
+    assert M.ssim(a, b) == pytest.approx(np.mean([x[r:-r, r:-r].mean() for x in m]), rel=1e-12)
 
 
 def test_log_pair_by_hand():
@@ -158,9 +174,13 @@ def test_log_pair_by_hand():
 def test_score_video_perfect_and_nan():
     rng = np.random.default_rng(4)
     r = rng.random((3, 16, 16)) + 0.1
-    s = M.score_video(r * 0.4, r)
+    s = M.score_video(r * 0.4, r, normalise="scale")  # the gain fit, by name
     assert s["mse"] == pytest.approx(0, abs=1e-25) and s["ssim"] == pytest.approx(1, abs=1e-12)
     assert s["n_nonfinite"] == 0 and s["gain"] == pytest.approx(2.5)
+    s = M.score_video(r, r)  # the default scores the reconstruction unaltered
+    assert s["normalise"] == "none" and s["gain"] == 1.0
+    assert s["mse"] == 0 and s["ssim"] == pytest.approx(1, abs=1e-12)
+    assert M.score_video(r * 0.4, r)["mse"] > 1e-3
     bad = r.copy()
     bad[1, 2, 3] = np.nan
     s = M.score_video(bad, r)
