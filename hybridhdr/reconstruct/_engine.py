@@ -180,7 +180,8 @@ class AKFEngine(Engine):
             seg_t_s = 0.0
         prop = t_to is not None
         disc = prop and self.params.frame_update == "discrete"  # the first frame initialises instead
-        s_proc = float(self.params.process_noise_per_s)
+        # process noise accrues at switches too in our model (0: the paper's, at events only)
+        s_proc = float(self.params.process_noise_per_s) if self.params.frame_update == "discrete" else 0.0
         args = (self._S, prop, self.seg_t0, self.seg_inv_t, float(t_to) if prop else 0.0)
         if sc is not None:
             for a, name in ((sc.code, "code"), (sc.code_next, "code_next")):
@@ -207,8 +208,9 @@ class AKFEngine(Engine):
             step = col(seg.la_step, "la_step", False)
             cens = col(getattr(seg, "censor", None), "censor", False)
             disc = disc and bool(getattr(seg, "frame_update", True))
+            uf = col(getattr(seg, "update_log_frame", None), "update_log_frame", False)
             self._pending = lambda b, lo, hi: K.akf_switch(*args, lf, rinv, beta, step, cens, seg_t_s, disc,
-                                                           s_proc, lo * W, hi * W)
+                                                           s_proc, uf, lo * W, hi * W)
             self.has_la_step = seg.la_step is not None
         self.seg_t0 = float(t0_us)
         self.seg_inv_t = seg_inv_t

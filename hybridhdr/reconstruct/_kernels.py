@@ -296,19 +296,18 @@ def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _frame_update(S, pix, r_log, cz, q):
+def _frame_update(S, pix, r_log, cz, lf):
     """Discrete Kalman update of pixel ``pix`` with the just-loaded frame (continuous-discrete KF).
 
-    Prediction: P += ``q`` (the process noise σ²_proc accrued since the pixel's last update:
-    changes below the threshold that no event reported). The frame is one measurement of L at
-    τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(L^A - L̂),
+    The switch has added the process noise σ²_proc accrued since the pixel's last update to P
+    (changes below the threshold that no event reported). The frame ``lf`` (log) is one
+    measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(lf - L̂),
     P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state violates its bound
     (projection towards it, as in :func:`_pull_integral`).
     """
     lh = S[pix, A_L]
-    la = S[pix, A_LA]
-    pp = S[pix, A_P] + q
-    S[pix, A_P] = pp
+    la = lf
+    pp = S[pix, A_P]
     if cz * (lh - la) > 0.0:
         return
     g = pp / (pp + r_log)
@@ -318,7 +317,7 @@ def _frame_update(S, pix, r_log, cz, q):
 
 @njit(cache=True, nogil=True)
 def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_step, censor, seg_t_s,
-               discrete, s_proc, pix_lo, pix_hi):
+               discrete, s_proc, update_frame, pix_lo, pix_hi):
     """Frame switch of pixels ``[pix_lo, pix_hi)`` in one pass: propagate, then load the new segment.
 
     When ``propagate``, each pixel is first carried to ``t_to`` µs under the current segment
@@ -330,17 +329,21 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
     ``beta`` / ``la_step`` / ``censor`` arrays for zeros. ``censor`` is +1 where ``log_frame`` is
     a lower bound (clipped bright), -1 where it is an upper bound (clipped dark), 0 otherwise;
     a censored pixel holds R (β = 0) and keeps the direction in ``klog`` (:func:`_pull_integral`).
-    With ``discrete``, the loaded frame is also applied as one discrete measurement
-    (:func:`_frame_update`, R = 1/``rinv``, after adding ``s_proc`` (log²/s) times the time since
-    the pixel's last update to P).
+    A propagating switch adds ``s_proc`` (log²/s) times the time since the pixel's last update
+    to P (0: the paper's model, process noise at events only). With ``discrete``, the loaded
+    frame is then applied as one discrete measurement (:func:`_frame_update`, R = 1/``rinv``):
+    the log frame ``update_frame`` when not empty (the plain frame under an augmented L^A),
+    else ``log_frame``.
     """
     has_beta = beta.shape[0] > 0 and seg_t_s > 0.0
     has_step = la_step.shape[0] > 0
     has_cens = censor.shape[0] > 0
+    has_uf = update_frame.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        q = s_proc * ((t_to - S[pix, A_TU]) * US) if discrete else 0.0
         if propagate:
+            q = s_proc * ((t_to - S[pix, A_TU]) * US)
             _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
+            S[pix, A_P] += q
         r = rinv[pix]
         S[pix, A_LA] = log_frame[pix]
         S[pix, A_RINV] = r
@@ -352,7 +355,7 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
         S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
         S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
         if discrete:
-            _frame_update(S, pix, 1.0 / r, cz, q)
+            _frame_update(S, pix, 1.0 / r, cz, update_frame[pix] if has_uf else log_frame[pix])
     return pix_hi - pix_lo
 
 
@@ -373,9 +376,10 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
     has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
     has_cens = cens_l.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        q = s_proc * ((t_to - S[pix, A_TU]) * US) if discrete else 0.0
         if propagate:
+            q = s_proc * ((t_to - S[pix, A_TU]) * US)
             _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
+            S[pix, A_P] += q
         c = min(max(np.int64(code[pix]), 0), max_code)
         r = rinv_l[c]
         S[pix, A_LA] = logf_l[c]
@@ -390,7 +394,7 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
         S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
         S[pix, A_LASTEP] = la_step
         if discrete:
-            _frame_update(S, pix, 1.0 / r, cz, q)
+            _frame_update(S, pix, 1.0 / r, cz, logf_l[c])
     return pix_hi - pix_lo
 
 

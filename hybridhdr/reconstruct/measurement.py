@@ -55,6 +55,9 @@ class Segment:
     frame_update : bool
         The segment starts at a frame time τ_k: a discrete frame update applies there (AKF
         ``frame_update="discrete"``); False for the sub-segments of frame augmentation.
+    update_log_frame : ndarray or None
+        The log frame the discrete update uses when it differs from ``log_frame`` (frame
+        augmentation: the plain frame at τ_k, while L^A is the augmented estimate); None: L^A.
     """
 
     t0_us: int
@@ -66,6 +69,7 @@ class Segment:
     la_step: np.ndarray | None = None
     censor: np.ndarray | None = None
     frame_update: bool = True
+    update_log_frame: np.ndarray | None = None
 
 
 @dataclass(frozen=True, eq=False)
