@@ -20,7 +20,9 @@ Scoring (:func:`score_run`), per method and suite:
 
   "Clipped" means a code at or beyond the clip codes (``code <= lo`` or ``code >= hi``: 0 and the
   maximum code, or the AHDR ``code_clip``). The current frame of a reference is the frame whose
-  mid-exposure is nearest to it (the references of the suites are at mid-exposures).
+  mid-exposure is nearest to it (the references of the suites are at mid-exposures). Pixels
+  whose reference is 0 (black in a rendered scene) have no log and are left out of these RMSEs.
+  Every method is scored at the same reference times, those at or after the first event.
 
 Suites: :func:`edge_sweep_suite` (:func:`hybridhdr.synthetic.edge_sweep_recording`),
 :func:`hdr_suite` (built-in Mitsuba scenes), :func:`ahdr_suite` (``build_ahdr``, codes outside
@@ -146,7 +148,7 @@ def log_errors(recon, reference, masks: dict, floor: float = LOG_FLOOR) -> dict:
     """The log-domain errors of the module docstring.
 
     ``masks`` must hold ``well_exposed`` (the fit's pixels) and may hold any other named masks;
-    returns ``log_fit_a``, ``log_fit_b``, ``log_rmse_<name>`` and ``n_<name>`` for each mask
+    pixels with a reference <= 0 are left out; returns ``log_fit_a``, ``log_fit_b``, ``log_rmse_<name>`` and ``n_<name>`` for each mask
     (NaN for an empty mask), plus ``log_rmse_all`` (own fit over all pixels).
     """
     x = np.asarray(recon, dtype=np.float64)
@@ -161,11 +163,17 @@ def log_errors(recon, reference, masks: dict, floor: float = LOG_FLOOR) -> dict:
         m = np.asarray(m, dtype=bool)
         e = res[m]
         out[f"n_{name}"] = int(m.sum())
-        out[f"log_rmse_{name}"] = float(np.sqrt(np.nanmean(e ** 2))) if e.size else float("nan")
+        out[f"log_rmse_{name}"] = _rms(e)
     a2, b2 = fit_log_affine(x, r, np.ones(x.shape, bool), floor)
     e = lr - (a2 * lx + b2)
-    out["log_rmse_all"] = float(np.sqrt(np.nanmean(e ** 2)))
+    out["log_rmse_all"] = _rms(e)
     return out
+
+
+def _rms(e) -> float:
+    """RMS of the finite entries (NaN when none: e.g. references of 0, whose log is undefined)."""
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e ** 2))) if e.size else float("nan")
 
 
 def score_run(recon, reference, masks: dict, *, valid=None, peak_luminance_cd_m2: float = 4000.0) -> dict:
@@ -315,10 +323,14 @@ def run_suite(data: list[SuiteData], methods=METHODS, log=None) -> list[dict]:
         rec = d.recording
         lo, hi = d.clip_codes
         unc = clip_masks(rec.frames.images, lo, hi)
-        times = rec.hdr.t_us
+        # the same reference times for every method: those at or after the first event (an
+        # events-only filter cannot start before it)
+        keep = rec.hdr.t_us >= (int(rec.events["t"][0]) if len(rec.events) else 0)
+        times = rec.hdr.t_us[keep]
         cur = _current_frames(rec.frames, times)
         masks = recoverable_masks(unc, cur)
         ref = rec.hdr.images if rec.hdr.images.ndim == 3 else rec.hdr.images.mean(axis=3)
+        ref = ref[keep]
         for m in methods:
             row = {"dataset": d.name, "method": m.label, "events": int(len(rec.events))}
             try:
