@@ -331,10 +331,22 @@ def profile_for_frames(profile: CameraProfile, frames) -> CameraProfile:
     if not extra.get("builtin"):
         return profile
     enc = getattr(frames, "encoding", "unknown")
-    want = "gamma" if enc == "gamma" else "linear"
+    want = enc if enc in ("gamma", "srgb") else "linear"
     if extra.get("encoding", "linear") == want:
         return profile
     bits = int(extra.get("bit_depth", int(round(math.log2(profile.max_code + 1)))))
+    if want == "srgb":
+        from .encoding import inverse_crf_table
+        n = 1 << bits
+        if n - 1 != profile.max_code:
+            return profile
+        inv = inverse_crf_table("srgb", n - 1)
+        return CameraProfile(weighting=weighting_from_inverse_crf(inv, _trapezoid(n)), inverse_crf=inv,
+                             frame_precision_scale=profile.frame_precision_scale, min_weighting=0.09,
+                             name=f"default-{bits}bit-srgb",
+                             source="hybridhdr built-in: IEC 61966-2-1 sRGB response, trapezoid times the CRF "
+                                    "certainty (eqs. 4-5)",
+                             extra={"builtin": True, "bit_depth": bits, "encoding": "srgb"})
     kw = {"gamma": float(extra.get("gamma", DEFAULT_GAMMA))} if want == "gamma" else {}
     prof = default_profile(bits, profile.frame_precision_scale, encoding=want, **kw)
     if prof.max_code != profile.max_code:

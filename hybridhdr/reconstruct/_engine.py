@@ -253,6 +253,9 @@ class AKFEngine(Engine):
         S = self.S  # applies the load
         S[:, K.A_L] = S[:, K.A_LA]  # initialise from the frame, never from t = 0
         S[:, K.A_P] = self.params.initial_covariance
+        # a pixel clipped in the first frame is known only to lie beyond its bound
+        cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)
+        S[cens, K.A_P] = getattr(self.params, "censored_initial_covariance", self.params.initial_covariance)
         S[:, K.A_TU] = float(t_init)
         for te in self.te:
             te[:] = t_init

@@ -143,6 +143,8 @@ def _pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
     violates it the ordinary update of eqs. 17 and 20 pulls it towards the bound, which it
     approaches monotonically without crossing, so testing at the start of the interval is exact
     for the whole interval (a projection onto the constraint; Simon 2010, Allik et al. 2016).
+    A bound moves L̂ but leaves P alone: it says nothing of how far above (below) it the
+    intensity is, so the callers do not shrink P for a censored pixel.
     """
     beta = S[pix, A_BETA]
     tu0 = S[pix, A_TU]
@@ -170,7 +172,8 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
     d = 1.0 / (1.0 + pp * integ)
     lav = S[pix, A_LA]
     lhat = lav + (S[pix, A_L] - lav) * d
-    pp = pp * d
+    if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:  # a bound moves L̂, not P (projection)
+        pp = pp * d
     # -- event noise (eq. 2, §3.1.1): t* = latest event time in the 3×3 window ------------------
     te0 = te[tp]
     b = tp - wp
@@ -291,7 +294,8 @@ def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
     d = 1.0 / (1.0 + S[pix, A_P] * integ)
     lav = S[pix, A_LA]
     S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
-    S[pix, A_P] = S[pix, A_P] * d
+    if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:  # a bound moves L̂, not P (projection)
+        S[pix, A_P] = S[pix, A_P] * d
     S[pix, A_TU] = t_to
 
 
@@ -312,7 +316,8 @@ def _frame_update(S, pix, r_log, cz, lf):
         return
     g = pp / (pp + r_log)
     S[pix, A_L] = lh + g * (la - lh)
-    S[pix, A_P] = pp - g * pp
+    if cz == 0.0:  # a bound moves L̂, not P (projection)
+        S[pix, A_P] = pp - g * pp
 
 
 @njit(cache=True, nogil=True)
@@ -418,7 +423,8 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, p
         if want_log:
             out_log[pix] = lhat
         if want_var:
-            out_var[pix] = S[pix, A_P] * d
+            cens = S[pix, A_BETA] == 0.0 and S[pix, A_KLOG] != 0.0
+            out_var[pix] = S[pix, A_P] if cens else S[pix, A_P] * d
     return pix_hi - pix_lo
 
 

@@ -16,6 +16,7 @@ from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassPar
 from .augment import AugmentedMeasurements, AugmentParams
 from .edi import EDIEngine, EDIParams, EventArrays, StreamingEventArrays
 from .profile import load_profile
+from .smoother import output_times, two_sided_iter
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
            "make_params", "make_augment_params"]
@@ -32,7 +33,7 @@ METHODS: dict[str, tuple[type, bool, bool, str]] = {
                                    "(Pan et al., CVPR 2019)"),
 }
 METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
-MODES = ("offline", "causal")
+MODES = ("offline", "causal", "forward")
 
 
 @dataclass(frozen=True, eq=False)
@@ -211,7 +212,7 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
         if mode == "causal":
             raise ValueError("method 'edi' needs the events of the whole exposure, so it cannot run in causal mode")
         return EDIEngine(shape, frames, events, prof, params), prof
-    if method == "akf" and measurements is None and augment is not None and augment.enabled and mode == "offline":
+    if method == "akf" and measurements is None and augment is not None and augment.enabled and mode != "causal":
         if frames is None or len(frames) == 0:
             raise ValueError("method 'akf' needs frames, but the recording has none "
                              "(use method='highpass' for events only)")
@@ -224,7 +225,7 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
             measurements = FrameMeasurements(
                 frames, shape, prof, intensity_offset=params.intensity_offset,
                 bias_correction=params.bias_correction,
-                interpolate_covariance=(mode == "offline" and params.covariance_interpolation == "linear"),
+                interpolate_covariance=(mode != "causal" and params.covariance_interpolation == "linear"),
                 precision_scale=params.frame_precision_scale, saturation=params.saturation,
                 min_weighting=params.min_weighting,
                 event_step=0.5 * (params.c_on + params.c_off) if params.event_interpolation else 0.0)
@@ -268,7 +269,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
     events = None
     try:
         shape = _sensor_shape(ss, frames)
-        use_aug = (method == "akf" and mode == "offline" and measurements is None and aug.enabled
+        use_aug = (method == "akf" and mode != "causal" and measurements is None and aug.enabled
                    and frames is not None and len(frames) > 0)
         if use_aug or method == "edi":
             # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
@@ -279,6 +280,27 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             chunk_factory = events.chunks
         if profile is None:
             profile = _source_profile(source)
+        two_sided = (method == "akf" and mode == "offline" and measurements is None
+                     and frames is not None and len(frames) > 0)
+        if two_sided:
+            if events is None:
+                events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+            prof = load_profile(profile)
+            if info is not None:
+                info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict(),
+                            augment=aug.to_dict() if use_aug else {"enabled": False})
+            t_last = max(int(events.t[-1]) if len(events) else int(frames.t_mid_us[-1]), int(frames.t_mid_us[-1]))
+            times = output_times(frames.t_mid_us, t_last, times_us=times_us, fps=fps, t_start_us=t_start_us,
+                                 t_end_us=t_end_us)
+
+            def make_engine(fr, ev):
+                return _build_engine(method, p, shape, fr, "forward", prof, n_workers, None, events=ev,
+                                     augment=aug if use_aug else None)[0]
+            yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
+                                      chunk_events=int(chunk_events), progress=progress, info=info)
+            if info is not None:
+                info["n_events_used"] = 2 * len(events)
+            return
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)
         try:
@@ -344,9 +366,13 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     fps : float, optional
         Output rate in Hz instead of ``times_us``; outputs at ``t0 + round(k 1e6 / fps)`` µs from
         the start up to the last event or frame. Default (neither): the frame times τ_k.
-    mode : {"offline", "causal"}
-        "offline" may use future frames (eq. 7's interpolation of R towards frame k+1; frame
-        augmentation when a provider is given); "causal" uses only the past.
+    mode : {"offline", "causal", "forward"}
+        "offline" (default): for the AKF, the two-sided filter of
+        :mod:`~hybridhdr.reconstruct.smoother` (a forward and a backward pass over the whole
+        recording, fused per pixel by their covariances; events held in memory), for the other
+        methods the same as "forward". "forward": one forward pass that may use the next frame
+        (eq. 7's interpolation of R towards frame k+1, frame augmentation). "causal": only the
+        past.
     profile : CameraProfile, path or None
         Camera profile (eqs. 3-6); None takes the one the recording declares
         (``metadata.provenance["camera_profile"]``, e.g. an AKF ``.mat`` file's ``f_Q``), else the

@@ -21,7 +21,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("recording", type=Path, help="recording (any format the readers accept)")
     p.add_argument("--method", default="akf", choices=_METHOD_CHOICES, help="reconstruction method")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--mode", default="offline", choices=["offline", "causal"],
+    p.add_argument("--mode", default="offline", choices=["offline", "causal", "forward"],
                    help="offline may use future frames; causal uses only the past")
     g = p.add_mutually_exclusive_group()
     g.add_argument("--fps", type=float, default=None, help="output rate in Hz (default: the frame times)")
@@ -43,7 +43,10 @@ def add_parser(subparsers) -> None:
                    help="hold the (deblurred) frame instead of interpolating with events (eqs. 10, 11, 13)")
     a.add_argument("--no-calibration", action="store_true",
                    help="interpolate with the nominal threshold (no per-pixel eq. 12)")
-    p.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: built-in 8-bit)")
+    p.add_argument("--profile", type=Path, default=None,
+                   help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
+    p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
+                   help="declare the frames' encoding (default: as the recording states)")
     p.add_argument("--start-us", type=int, default=None, help="first output time (µs)")
     p.add_argument("--end-us", type=int, default=None, help="outputs before this time (µs)")
     p.add_argument("--workers", type=int, default=1, help="threads for the row-band parallel kernels")
@@ -160,8 +163,12 @@ def run(args) -> int:
             progress = bar.update
         info: dict = {}
         ts, imgs = [], []
+        source = str(args.recording)
+        if getattr(args, "frame_encoding", None) is not None:
+            from ..io import open_reader
+            source = open_reader(args.recording, frame_encoding=args.frame_encoding)
         try:
-            for t, img in reconstruct_iter(str(args.recording), method, params, times_us=times, fps=args.fps,
+            for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
                                            mode=args.mode, profile=args.profile, t_start_us=args.start_us,
                                            t_end_us=args.end_us, n_workers=args.workers,
                                            chunk_events=args.chunk_events, progress=progress, info=info,
@@ -171,6 +178,8 @@ def run(args) -> int:
         finally:
             if bar is not None:
                 bar.close()
+            if not isinstance(source, str):
+                source.close()
         if not imgs:
             raise ValueError("no output frames in the requested time range")
         video = Video(np.stack(imgs), np.asarray(ts, np.int64), method, params.to_dict(), info)
@@ -185,7 +194,10 @@ def run(args) -> int:
                     "method_description": METHODS[method][3], "mode": args.mode, "params": params.to_dict(),
                     "profile": str(args.profile) if args.profile else "built-in 8-bit",
                     "n_frames": len(video), "n_events_used": info.get("n_events_used"), "written": written}
-        for key in ("augment", "augmentation", "edi_thresholds"):
+        n_pix = int(info.get("n_output_pixels") or 0)
+        run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
+                                      "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
+        for key in ("augment", "augmentation", "edi_thresholds", "two_sided"):
             if key in info:
                 run_info[key] = info[key]
         (out / "run.json").write_text(json.dumps(run_info, indent=1, default=str) + "\n")

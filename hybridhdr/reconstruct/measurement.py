@@ -93,10 +93,13 @@ class SegmentCodes:
 
 
 def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
-    """Frame images as codes (K, H, W); colour frames are averaged over channels."""
+    """Frame images as codes (K, H, W); colour frames become luminance codes of the same
+    encoding with the Rec. 709 weights (:func:`hybridhdr.camera.encoding.to_luminance`, applied
+    to linear RGB), rounded to the nearest code for integer frames."""
     im = frames.images
     if im.ndim == 4:
-        im = im.mean(axis=3)
+        from ..camera.encoding import to_luminance
+        im = to_luminance(im, frames.encoding, dtype=im.dtype)
     if tuple(im.shape[1:3]) != tuple(sensor_shape):
         raise ValueError(f"frame size {im.shape[1:3]} (H, W) differs from the event sensor size "
                          f"{tuple(sensor_shape)}; frames and events must be registered")

@@ -168,6 +168,10 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         paper's reading, the clipped code as a (floored-weight) measurement of that value.
     min_weighting : float or None
         Overrides the camera profile's floor on f_w (eq. 6's saturation; reference code 0.09).
+    censored_initial_covariance : float
+        P at initialisation of a pixel the first frame clips, log²: it is known only to lie
+        beyond the bound (1.0: a factor e either way), so a later unclipped frame, the events
+        or the other pass of the two-sided filter outweigh it.
     frame_update : {"discrete", "continuous"}
         "discrete" (ours): each frame is also applied at τ_k as one discrete Kalman measurement
         (gain P/(P + R), R of eq. 9; a continuous-discrete Kalman filter), so the estimate at a
@@ -197,6 +201,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     frame_precision_scale: float | None = None  # 1/σ²_im, eq. 6 (None: from the profile)
     saturation: str = "bound"  # ours; the paper's reading is "value"
     min_weighting: float | None = None  # eq. 6's floor on f_w (None: from the profile)
+    censored_initial_covariance: float = 1.0  # ours, log²
     frame_update: str = "discrete"  # ours; the paper's is "continuous"
     event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
 
@@ -218,6 +223,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         self._num("min_weighting", lo=0, lo_open=True, hi=1, allow_none=True)
         self._bool("event_interpolation")
         self._choice("frame_update", ("discrete", "continuous"))
+        self._num("censored_initial_covariance", lo=0, lo_open=True)
 
     @classmethod
     def default(cls, **overrides) -> "AKFParams":

@@ -171,11 +171,13 @@ class FrameCameraParams:
 
     @property
     def encoding(self) -> str:
-        """``Frames.encoding`` of the output: "linear", "gamma" (γ = 2.2) or "unknown"."""
+        """``Frames.encoding`` of the output: "linear", "gamma" (γ = 2.2), "srgb" or "unknown"."""
         if self.code_clip is None and self.crf == "linear":
             return "linear"
         if self.code_clip is None and self.crf == "gamma" and abs(self.gamma - 2.2) < 1e-12:
             return "gamma"
+        if self.code_clip is None and self.crf == "srgb":
+            return "srgb"
         return "unknown"
 
     @classmethod

@@ -1,0 +1,210 @@
+"""Two-sided offline AKF: a forward and a backward filter fused per pixel (a two-filter smoother).
+
+The AKF of Wang et al. (ICCV 2021) is a forward filter: at time t it knows the frames and
+events before t. Offline the future is known too. The backward filter is the *same* AKF run on
+the time-reversed recording: every time t maps to ``t' = T0 - 1 - t``, event order is reversed
+and polarity negated (a rise of log I forward is a fall backward), each frame keeps its
+exposure length with its mid-exposure time reversed, and the noise models (eq. 2, §3.1.1) and
+the frame model (eqs. 3-9, eq. 7 between frames) apply unchanged in reverse time. At each
+output time t the two estimates (L̂_f, P_f) and (L̂_b, P_b) are independent given the state
+(the forward one uses the data before t, the backward one the data from t on) and are fused by
+inverse-covariance weighting,
+
+    P = 1 / (1/P_f + 1/P_b),    L̂ = P (L̂_f/P_f + L̂_b/P_b),
+
+the two-filter smoother of Fraser & Potter ("The optimum linear smoother as a combination of two
+optimum linear filters", IEEE TAC 14(4), 1969), exact for the AKF's scalar per-pixel state with
+Gaussian noise. Assumptions and their limits (docs/reconstruct.md, "Two-sided offline AKF"):
+
+* Half-open windows: the forward output at t holds the events with timestamps < t; the backward
+  output at t' = T0 - t holds the reversed events with t'_e < t', i.e. the forward events with
+  timestamps >= t. Every event is used by exactly one of the two.
+* A frame whose mid-exposure time equals an output time is used by both passes (at equal
+  times the frame switch precedes the output), so at frame times P is about half what it
+  should be; the mean is unaffected where both passes agree with the frame.
+* A censored (clipped) frame is a bound in both passes; a convex combination of two estimates
+  that satisfy a bound satisfies it.
+* Outputs before the first frame or after the last have only one pass (the other cannot start
+  there): the single filter's estimate is used.
+
+Both passes run the row-band parallel kernels, so the result is bit-identical for any
+``n_workers``. The backward pass runs first and keeps its estimates (float32 L̂ and P, 8 bytes
+per pixel per output, in a temporary memory-mapped file beyond ``MEMORY_LIMIT_BYTES``); the
+forward pass then streams, fusing as it goes.
+"""
+
+from __future__ import annotations
+
+import math
+import tempfile
+from typing import Callable, Iterator
+
+import numpy as np
+
+from ..model import Frames
+from . import _engine as E
+from . import _kernels as K
+from .edi import EventArrays
+
+__all__ = ["reverse_events", "reverse_frames", "fuse", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
+
+#: Backward estimates beyond this size go to a temporary memory-mapped file.
+MEMORY_LIMIT_BYTES = 1 << 30
+
+
+def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
+    """Events in reversed time ``t' = t_mirror_us - 1 - t``, reversed order, negated polarity."""
+    t = (np.int64(t_mirror_us) - 1) - ev.t[::-1]
+    return EventArrays(t, ev.x[::-1], ev.y[::-1], (-ev.p[::-1]).astype(np.int8), ev.shape)
+
+
+def reverse_frames(frames: Frames, t_mirror_us: int) -> Frames:
+    """Frames in reversed time: each mid-exposure time ``τ' = t_mirror_us - 1 - τ`` exactly, the
+    exposure length kept, the order reversed."""
+    T = frames.exposure_us[::-1]
+    mid = (np.int64(t_mirror_us) - 1) - frames.t_mid_us[::-1]
+    start = mid - T // 2
+    sel = lambda a: None if a is None else a[::-1]  # noqa: E731
+    return Frames(np.ascontiguousarray(frames.images[::-1]), start, start + T, sel(frames.gain),
+                  sel(frames.iso), frames.encoding)
+
+
+def fuse(l_f, p_f, l_b, p_b):
+    """Inverse-covariance fusion of two independent estimates: ``(L̂, P)`` (float64).
+
+    >>> fuse(np.array([1.0]), np.array([1.0]), np.array([3.0]), np.array([1.0]))
+    (array([2.]), array([0.5]))
+    """
+    l_f, p_f, l_b, p_b = (np.asarray(a, dtype=np.float64) for a in (l_f, p_f, l_b, p_b))
+    p = p_f * p_b / (p_f + p_b)
+    return (l_f * p_b + l_b * p_f) / (p_f + p_b), p
+
+
+def output_times(frame_times_us, t_last_us: int, *, times_us=None, fps=None, t_start_us=None,
+                 t_end_us=None) -> np.ndarray:
+    """The output times the forward driver would produce, as an explicit array.
+
+    ``times_us`` as given (windowed); ``fps``: ``t0 + round(k 1e6 / fps)`` from the first frame
+    (or ``t_start_us``) up to the last event or frame; neither: the frame times.
+    """
+    ft = np.unique(np.asarray(frame_times_us, dtype=np.int64))
+    t0 = int(ft[0])
+    if times_us is not None:
+        t = np.asarray(E.OutputClock(times_us=times_us).times, dtype=np.int64)
+    elif fps is not None:
+        clk = E.OutputClock(fps=fps)
+        start = t0 if t_start_us is None else max(t0, int(t_start_us))
+        stop = int(t_last_us) + 1 if t_end_us is None else int(t_end_us)
+        n = max(0, math.ceil((stop - start) * clk.fps / 1e6) + 1)
+        t = start + np.round(np.arange(n) * (1e6 / clk.fps)).astype(np.int64)
+        t = np.unique(t[t < stop])
+    else:
+        t = ft
+    if t_start_us is not None:
+        t = t[t >= int(t_start_us)]
+    if t_end_us is not None:
+        t = t[t < int(t_end_us)]
+    return t
+
+
+class _StateEngine:
+    """Wraps an :class:`~._engine.AKFEngine` so that each output also keeps L̂ and P."""
+
+    def __init__(self, engine):
+        self._e = engine
+        self.last = None
+
+    def __getattr__(self, name):
+        return getattr(self._e, name)
+
+    def output(self, t_us: int):
+        lin, lg, var = self._e.output(t_us, with_state=True)
+        self.last = (lg, var)
+        return lin
+
+
+def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
+              progress: Callable[[int], None] | None):
+    """Drive one pass; yield ``(t, L̂, P)`` at ``times`` (those at or after the pass's start)."""
+    eng = _StateEngine(make_engine())
+    try:
+        t_init = int(eng.m.times_us[0])
+        times = times[times >= t_init]
+        if times.size == 0:
+            return
+        clock = E.OutputClock(times_us=times)
+        for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress):
+            lg, var = eng.last
+            yield t, lg, var
+    finally:
+        eng.close()
+
+
+def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.ndarray, *, offset: float,
+                   chunk_events: int = 1 << 20, progress: Callable[[int], None] | None = None,
+                   info: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
+    """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
+
+    ``make_engine(frames, events)`` builds a forward :class:`~._engine.AKFEngine` for a
+    recording; it is called once as given and once on the reversed recording.
+    """
+    shape = events.shape
+    n_pix = shape[0] * shape[1]
+    t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
+    t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
+    mirror = t_lo + t_hi + 1  # reversed times stay in [t_lo, t_hi]
+    rev_ev = reverse_events(events, mirror)
+    rev_fr = reverse_frames(frames, mirror)
+    times = np.asarray(times, dtype=np.int64)
+    rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
+    nbytes = 8 * n_pix * times.size
+    if nbytes > MEMORY_LIMIT_BYTES:
+        tmp = tempfile.TemporaryFile(prefix="hybridhdr-backward-")
+        store = np.memmap(tmp, dtype=np.float32, mode="w+", shape=(times.size, 2, n_pix))
+    else:
+        tmp = None
+        store = np.empty((times.size, 2, n_pix), np.float32)
+    have_b = np.zeros(times.size, bool)
+    index = {int(t): i for i, t in enumerate(times)}
+    n_b = 0
+    for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev), rev_ev, rev_times, chunk_events, progress):
+        i = index[int(mirror - tr)]
+        store[i, 0] = lg.reshape(-1)
+        store[i, 1] = var.reshape(-1)
+        have_b[i] = True
+        n_b += 1
+    n_fused = n_single = n_clamped = n_out = 0
+    try:
+        fwd = _run_pass(lambda: make_engine(frames, events), events, times, chunk_events, progress)
+        nxt = next(fwd, None)
+        for i, t in enumerate(times):
+            t = int(t)
+            if nxt is not None and nxt[0] == t:
+                lf, pf = nxt[1].reshape(-1), nxt[2].reshape(-1)
+                nxt = next(fwd, None)
+            else:
+                lf = pf = None
+            if lf is not None and have_b[i]:
+                lg, _ = fuse(lf, pf, store[i, 0], store[i, 1])
+                n_fused += 1
+            elif lf is not None:
+                lg = lf
+                n_single += 1
+            elif have_b[i]:
+                lg = store[i, 0].astype(np.float64)
+                n_single += 1
+            else:  # neither pass covers t (no frame at all around it): cannot happen with frames
+                continue
+            img = (np.exp(lg) - offset).astype(np.float32).reshape(shape)
+            n_clamped += K.clamp_linear(img)
+            n_out += img.size
+            yield t, img
+    finally:
+        if tmp is not None:
+            del store
+            tmp.close()
+    if info is not None:
+        info["two_sided"] = {"outputs_fused": n_fused, "outputs_one_pass": n_single,
+                             "backward_outputs": n_b, "spilled_to_disk": tmp is not None}
+        info["n_clamped"] = n_clamped
+        info["n_output_pixels"] = n_out
