@@ -281,8 +281,9 @@ def test_augmented_streaming_equals_read_all_first(tmp_path):
             for i in range(0, len(rec.events), n):
                 yield rec.events[i:i + n]
 
-    a = reconstruct(Undeclared(), "akf", fps=300, chunk_events=101)
-    b = reconstruct(rec, "akf", fps=300, chunk_events=101)
+    # augmentation is opt-in (AugmentParams().enabled is False): ask for it
+    a = reconstruct(Undeclared(), "akf", fps=300, chunk_events=101, augment=True)
+    b = reconstruct(rec, "akf", fps=300, chunk_events=101, augment=True)
     assert "augmentation" in a.info and "augmentation" in b.info  # both ran the frame augmentation
     np.testing.assert_array_equal(a.frames, b.frames)
     np.testing.assert_array_equal(a.t_us, b.t_us)

@@ -10,6 +10,7 @@ import pytest
 from hybridhdr import make_events
 from hybridhdr.reconstruct import AKFParams, CFParams, CameraProfile, FrameMeasurements, default_profile, reconstruct
 from hybridhdr.reconstruct._engine import AKFEngine, CFEngine
+from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
 
 from .conftest import constant_frames_recording, ideal_recording, shift_recording
 
@@ -19,7 +20,8 @@ def _akf_engine(rec, params, mode="offline", profile=None):
     m = FrameMeasurements(rec.frames, rec.sensor_size.shape, prof, intensity_offset=params.intensity_offset,
                           bias_correction=params.bias_correction,
                           interpolate_covariance=(mode == "offline" and params.covariance_interpolation == "linear"),
-                          precision_scale=params.frame_precision_scale)
+                          precision_scale=params.frame_precision_scale, saturation=params.saturation,
+                          min_weighting=params.min_weighting)
     return AKFEngine(rec.sensor_size.shape, m, params), m
 
 
@@ -30,10 +32,19 @@ def _run_to(eng, t_us):
     return eng.output(t_us, with_state=True)
 
 
+@pytest.mark.parametrize("preset", ["paper", "default"])
 @pytest.mark.parametrize("mode", ["causal", "offline"])
-def test_riccati_without_events(mode):
-    """No events: P follows eq. 20 and L̂ relaxes to the frame per eq. 17 (R of eq. 7 in offline mode)."""
-    params = AKFParams(initial_covariance=0.05, frame_precision_scale=50.0)
+def test_riccati_without_events(mode, preset):
+    """No events: P follows eq. 20 and L̂ relaxes to the frame per eq. 17 (R of eq. 7 in offline mode).
+
+    "paper": the frame acts only through the continuous pull after τ_k. "default"
+    (``frame_update="discrete"``): at τ1 the new frame is also one discrete Kalman measurement,
+    P ← P + σ²_proc·(τ1 - τ0) (no event updated the pixel since τ0), κ = P/(P + R1),
+    L̂ ← L̂ + κ(L^F1 - L̂), P ← (1 - κ)P; the continuous eqs. 17 and 20 then continue from there.
+    """
+    make = AKFParams.paper if preset == "paper" else AKFParams
+    params = make(initial_covariance=0.05, frame_precision_scale=50.0)
+    assert params.frame_update == ("continuous" if preset == "paper" else "discrete")
     tau0, tau1 = 1_000, 41_000
     rec = constant_frames_recording([100, 250], [tau0, tau1])
     eng, m = _akf_engine(rec, params, mode)
@@ -42,7 +53,7 @@ def test_riccati_without_events(mode):
     P0 = params.initial_covariance
     # segment 0: L̂ = L^A already, P decreases: 1/P = 1/P0 + ∫R⁻¹
     T = (tau1 - tau0) * 1e-6
-    for t in (tau0, 11_000, 27_345, tau1):
+    for t in (tau0, 11_000, 27_345, tau1 - 1):
         _, lg, var = _run_to(eng, t)
         dt = (t - tau0) * 1e-6
         b = s0.beta[0]
@@ -52,18 +63,29 @@ def test_riccati_without_events(mode):
     if mode == "offline":
         assert s0.beta[0] != 0.0  # eq. 7 is exercised
     P1 = 1.0 / (1.0 / P0 + (s0.rinv[0] * T if s0.beta[0] == 0 else s0.rinv[0] * T / s0.beta[0] * math.log1p(s0.beta[0])))
+    L1 = s0.log_frame[0]
+    if preset == "default":  # the discrete frame update at τ1
+        Pq = P1 + params.process_noise_per_s * T
+        kappa = Pq / (Pq + 1.0 / s1.rinv[0])
+        L1 = L1 + kappa * (s1.log_frame[0] - L1)
+        P1 = (1.0 - kappa) * Pq
     # segment 1 (last, R held): eqs. 17 and 20
-    for t in (tau1 + 1, tau1 + 250, tau1 + 10_000, tau1 + 2_000_000):
+    for t in (tau1, tau1 + 1, tau1 + 250, tau1 + 10_000, tau1 + 2_000_000):
         _, lg, var = _run_to(eng, t)
         P = 1.0 / (1.0 / P1 + s1.rinv[0] * (t - tau1) * 1e-6)
         np.testing.assert_allclose(var, P, rtol=1e-12)
-        L = s1.log_frame[0] + (s0.log_frame[0] - s1.log_frame[0]) * P / P1
+        L = s1.log_frame[0] + (L1 - s1.log_frame[0]) * P / P1
         np.testing.assert_allclose(lg, L, rtol=1e-12, atol=1e-12)
 
 
 def test_one_step_equals_1000_substeps():
-    """Propagating through 1000 switch points of identical frames equals one closed-form step."""
-    params = AKFParams(initial_covariance=0.05, frame_precision_scale=50.0)
+    """Propagating through 1000 switch points of identical frames equals one closed-form step.
+
+    A property of the paper's continuous frame pull (eqs. 17, 20), pinned here: with
+    ``frame_update="discrete"`` every switch is also a discrete measurement, so 1000 identical
+    frames carry more information than one (by design, see ``test_riccati_without_events``).
+    """
+    params = AKFParams(initial_covariance=0.05, frame_precision_scale=50.0, frame_update="continuous")
     times = 1_000 + 40 * np.arange(1002)
     codes = [60] + [180] * 1001
     rec = constant_frames_recording(codes, times)
@@ -110,23 +132,28 @@ def test_zero_rinv_is_pure_integration(form):
     assert var[0, 0] == pytest.approx(params.initial_covariance, rel=1e-12)
 
 
+@pytest.mark.parametrize("offset", [None, PUBLISHED_INTENSITY_OFFSET])
 @pytest.mark.parametrize("cutoff_hz", [0.5, 3.0, 0.0])
-def test_cf_step_response(cutoff_hz):
-    """CF: L̂(t) = L^F + (L̂₀ - L^F) exp(-2π f_c t) after a frame step; f_c = 0 integrates."""
-    params = CFParams(cutoff_hz=cutoff_hz)
+def test_cf_step_response(cutoff_hz, offset):
+    """CF: L̂(t) = L^F + (L̂₀ - L^F) exp(-2π f_c t) after a frame step; f_c = 0 integrates.
+
+    L^F = log(I + I0) with the default I0 (1e-3) and with the published code's I0 = 1."""
+    params = CFParams(cutoff_hz=cutoff_hz) if offset is None else CFParams(cutoff_hz=cutoff_hz, intensity_offset=offset)
+    off = params.intensity_offset
+    assert off == (DEFAULT_INTENSITY_OFFSET if offset is None else offset)
     tau1 = 10_000
     rec = constant_frames_recording([40, 220], [0, tau1])
     times = np.array([tau1, tau1 + 1000, tau1 + 100_000, tau1 + 700_000])
     v = reconstruct(rec, "cf", params, times_us=times)
-    lf0, lf1 = math.log(40 / 255 + 1.0), math.log(220 / 255 + 1.0)
+    lf0, lf1 = math.log(40 / 255 + off), math.log(220 / 255 + off)
     alpha = 2 * math.pi * cutoff_hz
     if cutoff_hz == 0.5:
         assert params.alpha_rad_per_s == pytest.approx(math.pi)
     for img, t in zip(v.frames, times):
         L = lf1 + (lf0 - lf1) * math.exp(-alpha * (t - tau1) * 1e-6)
-        np.testing.assert_allclose(img, math.exp(L) - 1.0, rtol=2e-7)
+        np.testing.assert_allclose(img, math.exp(L) - off, rtol=2e-7)
     # and the float64 state itself
-    m = FrameMeasurements(rec.frames, (3, 3), default_profile(), intensity_offset=1.0, bias_correction=False,
+    m = FrameMeasurements(rec.frames, (3, 3), default_profile(), intensity_offset=off, bias_correction=False,
                           interpolate_covariance=False)
     eng = CFEngine((3, 3), m, params, "cf")
     eng.start(None)

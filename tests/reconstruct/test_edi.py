@@ -14,6 +14,8 @@ from hybridhdr.reconstruct import _augment_kernels as AK
 from hybridhdr.reconstruct.edi import (EDIParams, EventArrays, edi_integral, edi_latent, edi_log_latent,
                                        estimate_threshold, golden_section_minimize, sharpness_energy)
 
+from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
+
 from .blur_data import shifted_sequence
 
 
@@ -79,27 +81,34 @@ def test_zero_exposure_and_errors():
 
 # -- blurred image, known motion --------------------------------------------------------------
 
+@pytest.mark.parametrize("I0", [None, PUBLISHED_INTENSITY_OFFSET])
 @pytest.mark.parametrize("seed", [0, 1])
-def test_blurred_image_recovered_exactly(seed):
+def test_blurred_image_recovered_exactly(seed, I0):
     """A quantised image shifted by 1 px per ms, exposed 8 ms: EDI with the true c recovers the
     sharp image at any time in the exposure. The model is exact for this motion (log intensity
     piecewise constant, changing by multiples of c at event times), so the tolerance is rounding:
-    1e-12 relative."""
-    rec, truth = shifted_sequence(seed=seed)
+    1e-12 relative. The events are level crossings of log(I + I0) for EDI's I0 (None: the
+    default, 1e-3; and the published 1)."""
+    off = DEFAULT_INTENSITY_OFFSET if I0 is None else I0
+    kw = {} if I0 is None else {"intensity_offset": I0}
+    rec, truth = shifted_sequence(seed=seed, I0=off)
     ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
     B = rec.frames.images[0]
     for at in (0, 2_500, 4_000, 7_999, 8_000):
-        got = edi_latent(B, ev, 0, 8_000, 0.2, at)
+        got = edi_latent(B, ev, 0, 8_000, 0.2, at, **kw)
         want = truth(at - 1) if at > 0 else truth(0)  # the state at t excludes events at t
-        np.testing.assert_allclose(got + 1.0, want + 1.0, rtol=1e-12)
+        np.testing.assert_allclose(got + off, want + off, rtol=1e-12)
     assert np.abs(B - truth(4_000)).max() > 0.3  # the frame really is blurred
 
 
+@pytest.mark.parametrize("I0", [None, PUBLISHED_INTENSITY_OFFSET])
 @pytest.mark.parametrize("seed", [0, 1, 2])
-def test_threshold_search_within_5_percent(seed):
-    rec, _ = shifted_sequence(seed=seed)
+def test_threshold_search_within_5_percent(seed, I0):
+    """Data exact for EDI's I0 (None: the default)."""
+    rec, _ = shifted_sequence(seed=seed, I0=DEFAULT_INTENSITY_OFFSET if I0 is None else I0)
     ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
-    c, _ = estimate_threshold(rec.frames.images[0], ev, 0, 8_000, bounds=(0.05, 0.5))
+    kw = {} if I0 is None else {"intensity_offset": I0}
+    c, _ = estimate_threshold(rec.frames.images[0], ev, 0, 8_000, bounds=(0.05, 0.5), **kw)
     assert abs(c - 0.2) / 0.2 < 0.05
 
 
@@ -150,18 +159,22 @@ def _as_codes(rec):
     return Recording(rec.events, rec.sensor_size, Frames(codes, fr.t_start_us, fr.t_end_us, encoding="linear"))
 
 
-def test_method_edi_video():
-    rec, truth = shifted_sequence(c=0.1, base=np.log(1.05))
+@pytest.mark.parametrize("I0, base", [(None, np.log(0.25)), (PUBLISHED_INTENSITY_OFFSET, np.log(1.05))])
+def test_method_edi_video(I0, base):
+    """The events are level crossings of log(I + I0) for the method's I0 (None: the default 1e-3,
+    with the scene 0.25..0.41 of the clip level; the published I0 = 1 with 0.05..0.73)."""
+    rec, truth = shifted_sequence(c=0.1, base=base, I0=DEFAULT_INTENSITY_OFFSET if I0 is None else I0)
     rec8 = _as_codes(rec)
     times = np.array([1_500, 4_500, 7_500, 12_500, 21_500, 27_500], np.int64)
-    v = reconstruct(rec8, "edi", {"contrast_threshold": 0.1}, times_us=times)
+    kw = {} if I0 is None else {"intensity_offset": I0}
+    v = reconstruct(rec8, "edi", {"contrast_threshold": 0.1, **kw}, times_us=times)
     assert v.frames.shape == (6, 16, 48) and v.method == "edi"
     assert v.info["edi_thresholds"] == {0: 0.1, 1: 0.1}
     err = np.abs(v.frames - np.stack([truth(t) for t in times]) / 1.0)
     assert err.max() < 0.02  # 8-bit quantisation of B, amplified by at most exp(c|E|)
     z = reconstruct(rec8, "frames", times_us=times[2:])  # zero-order hold starts at τ_0 = 4 ms
     assert np.abs(z.frames - np.stack([truth(t) for t in times[2:]])).mean() > 5 * err[2:].mean()
-    v2 = reconstruct(rec8, "edi", times_us=times[:3])  # threshold search
+    v2 = reconstruct(rec8, "edi", kw, times_us=times[:3])  # threshold search
     assert all(abs(c - 0.1) < 0.02 for c in v2.info["edi_thresholds"].values())
     with pytest.raises(ValueError, match="causal"):
         reconstruct(rec8, "edi", mode="causal")

@@ -27,7 +27,8 @@ def _events(n=300, h=5, w=6, seed=1):
     return t, x, y, p
 
 
-def _akf_state(n, seed=2):
+def _akf_state(n, seed=2, censored=False):
+    """A random AKF state; ``censored``: some β = 0 pixels carry a bound direction (±1) in klog."""
     rng = np.random.default_rng(seed)
     S = K.aligned_state(n, K.AKF_FIELDS)
     S[:, K.A_L] = rng.normal(0, 0.3, n)
@@ -38,7 +39,21 @@ def _akf_state(n, seed=2):
     S[:, K.A_KLOG] = np.where(S[:, K.A_BETA] != 0, S[:, K.A_RINV] * 0.1 / np.where(S[:, K.A_BETA] != 0, S[:, K.A_BETA], 1), 0)
     S[:, K.A_TU] = 1_000.0
     S[:, K.A_LASTEP] = rng.uniform(0.05, 0.2, n)
+    if censored:
+        cz = rng.choice(np.array([-1.0, 0.0, 1.0]), n)
+        S[:, K.A_KLOG] = np.where(S[:, K.A_BETA] == 0, cz, S[:, K.A_KLOG])
     return S
+
+
+def _censor(n, seed):
+    """Per-pixel (or per-code) censoring directions: +1, -1 or 0."""
+    return np.random.default_rng(seed).choice(np.array([-1.0, 0.0, 0.0, 1.0]), n)
+
+
+#: (censor?, discrete, s_proc, la_step): the published semantics first, then hybridhdr's
+#: censored bounds, discrete frame update, process noise at the switch, and per-event L^A steps.
+SWITCH_VARIANTS = [(False, False, 0.0, 0.0), (True, True, 0.05, 0.1), (True, False, 0.0, 0.0),
+                   (False, True, 0.05, 0.0), (False, False, 0.05, 0.1)]
 
 
 @pytest.mark.parametrize("noise_form", [0, 1])
@@ -58,17 +73,22 @@ def test_akf_events_equals_py_func(noise_form, has_la_step):
     np.testing.assert_array_equal(outs[0][2], outs[1][2])
 
 
-def test_akf_output_and_switch_equal_py_func():
+@pytest.mark.parametrize("update_frame", [False, True])
+@pytest.mark.parametrize("cens, discrete, s_proc, la_step", SWITCH_VARIANTS)
+def test_akf_output_and_switch_equal_py_func(cens, discrete, s_proc, la_step, update_frame):
     n = 30
     rng = np.random.default_rng(5)
     lf, rinv = rng.normal(0, 0.3, n), rng.uniform(1e3, 1e6, n)
     beta = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(-0.5, 2.0, n))
+    censor = _censor(n, 9) if cens else np.empty(0)
+    step = np.full(n, la_step) if la_step else np.empty(0)
+    uf = lf + rng.normal(0, 0.05, n) if update_frame else np.empty(0)
     res = []
     for sw, outk in ((K.akf_switch, K.akf_output), (_py(K.akf_switch), _py(K.akf_output))):
-        S = _akf_state(n)
+        S = _akf_state(n, censored=cens)
         o = np.empty(n, np.float32); lg = np.empty(n); var = np.empty(n)
         outk(S, 1_000.0, 1.0 / 100_000, 77_777.0, o, lg, var, 0, n)
-        sw(S, True, 1_000.0, 1.0 / 100_000, 50_000.0, lf, rinv, beta, np.empty(0), 0.03, 0, n)
+        sw(S, True, 1_000.0, 1.0 / 100_000, 50_000.0, lf, rinv, beta, step, censor, 0.03, discrete, s_proc, uf, 0, n)
         res.append((S.copy(), o, lg, var))
     for a, b in zip(*res):
         np.testing.assert_array_equal(a, b)
@@ -87,48 +107,65 @@ def test_log_to_linear_single_precision():
     assert np.all(np.abs(got - want) <= 1.2e-7 * (2 * np.exp(a64) + np.abs(want)))
 
 
-def test_akf_switch_propagates_as_output_predicts():
+@pytest.mark.parametrize("censored", [False, True])
+def test_akf_switch_propagates_as_output_predicts(censored):
     """The switch's propagation (eqs. 17, 20) is the closed form akf_output evaluates, bit for bit;
-    without ``propagate`` L̂, P and tu are untouched."""
+    without ``propagate`` L̂, P and tu are untouched. ``censored``: the current segment holds
+    censored bounds (no pull where the state satisfies them) and the new one loads some too
+    (continuous frame update: the load does not touch L̂ or P)."""
     n = 50
     lf, rinv = np.full(n, 0.2), np.full(n, 5e3)
+    censor = _censor(n, 4) if censored else np.empty(0)
     for fn in (K.akf_switch, _py(K.akf_switch)):
-        S = _akf_state(n)
+        S = _akf_state(n, censored=censored)
         lg = np.empty(n); var = np.empty(n)
         K.akf_output(S, 1_000.0, 1.0 / 100_000, 61_000.0, np.empty(n, np.float32), lg, var, 0, n)
         before = S.copy()
-        fn(S, False, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), 0.0, 0, n)
+        fn(S, False, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), censor, 0.0, False, 0.0,
+           np.empty(0), 0, n)
         for f in (K.A_L, K.A_P, K.A_TU):
             np.testing.assert_array_equal(S[:, f], before[:, f])
         S = before.copy()
-        fn(S, True, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), 0.0, 0, n)
+        fn(S, True, 1_000.0, 1.0 / 100_000, 61_000.0, lf, rinv, np.empty(0), np.empty(0), censor, 0.0, False, 0.0,
+           np.empty(0), 0, n)
         np.testing.assert_array_equal(S[:, K.A_L], lg)
         np.testing.assert_array_equal(S[:, K.A_P], var)
         assert (S[:, K.A_TU] == 61_000.0).all()
 
 
+@pytest.mark.parametrize("cens, discrete, s_proc, la_step", SWITCH_VARIANTS)
 @pytest.mark.parametrize("jit", [True, False])
-def test_akf_switch_lut_equals_lut_segment_then_switch(jit):
-    """The one-pass LUT switch loads exactly what lut_segment + akf_switch load (codes clipped)."""
+def test_akf_switch_lut_equals_lut_segment_then_switch(jit, cens, discrete, s_proc, la_step):
+    """The one-pass LUT switch loads exactly what lut_segment + akf_switch load (codes clipped),
+    also with a per-code censor table (β = 0 where frame k or k+1 is censored, the direction in
+    klog), the discrete frame update with process noise, and a per-event L^A step."""
     n = 400
     rng = np.random.default_rng(13)
     max_code = 255
     inten_l, rbar_l, logf_l, rinv_l = (rng.uniform(0.1, 2.0, max_code + 1) for _ in range(4))
+    cens_l = _censor(max_code + 1, 14) if cens else np.empty(0)
     code = rng.integers(-3, 300, n).astype(np.int16)
     nxt = rng.integers(0, 256, n).astype(np.int16)
+    censor = cens_l[np.clip(code, 0, max_code)] if cens else np.empty(0)
+    step = np.full(n, la_step) if la_step else np.empty(0)
     fn = K.akf_switch_lut if jit else _py(K.akf_switch_lut)
     for has_next in (True, False):
         for seg_t_s in (0.0333, 0.0):
             for prop in (True, False):
                 nx = nxt if has_next else nxt[:0]
                 lf, it, ri, be = (np.empty(n) for _ in range(4))
-                K.lut_segment(code, nx, max_code, inten_l, rbar_l, logf_l, rinv_l, lf, it, ri, be)
-                want = _akf_state(n)
-                K.akf_switch(want, prop, 1_000.0, 1.0 / 100_000, 40_000.0, lf, ri, be, np.empty(0), seg_t_s, 0, n)
-                got = _akf_state(n)
+                K.lut_segment(code, nx, max_code, inten_l, rbar_l, logf_l, rinv_l, cens_l, lf, it, ri, be)
+                want = _akf_state(n, censored=cens)
+                K.akf_switch(want, prop, 1_000.0, 1.0 / 100_000, 40_000.0, lf, ri, be, step, censor, seg_t_s,
+                             discrete, s_proc, np.empty(0), 0, n)
+                got = _akf_state(n, censored=cens)
                 fn(got, prop, 1_000.0, 1.0 / 100_000, 40_000.0, code, nx, max_code, rbar_l, logf_l, rinv_l,
-                   seg_t_s, 0, n)
+                   cens_l, la_step, seg_t_s, discrete, s_proc, 0, n)
                 np.testing.assert_array_equal(got, want)
+                if cens:
+                    cz = censor != 0
+                    assert cz.any() and not got[cz, K.A_BETA].any()
+                    np.testing.assert_array_equal(got[cz, K.A_KLOG], censor[cz])
 
 
 def test_cf_kernels_equal_py_func():
@@ -201,20 +238,69 @@ def test_akf_switch_load_equals_py_func_and_numpy():
     lf, rinv = rng.normal(0, 0.3, n), rng.uniform(1e3, 1e6, n)
     beta = np.where(rng.random(n) < 0.5, 0.0, rng.uniform(-0.5, 2.0, n))
     step = rng.uniform(0.05, 0.2, n)
+    cens = _censor(n, 10)
     T_s = 0.0333
     res = []
+    e = np.empty(0)
     for fn in (K.akf_switch, _py(K.akf_switch)):
-        for b, st, ts in ((beta, step, T_s), (np.empty(0), np.empty(0), T_s), (beta, step, 0.0)):
+        for b, st, cz, ts in ((beta, step, e, T_s), (e, e, e, T_s), (beta, step, e, 0.0), (beta, step, cens, T_s)):
             S = _akf_state(n)
-            fn(S, False, 0.0, 0.0, 0.0, lf, rinv, b, st, ts, 0, n)
+            fn(S, False, 0.0, 0.0, 0.0, lf, rinv, b, st, cz, ts, False, 0.0, e, 0, n)
             res.append(S.copy())
-    for a, b in zip(res[:3], res[3:]):
+    for a, b in zip(res[:4], res[4:]):
         np.testing.assert_array_equal(a, b)
     S = res[0]
     np.testing.assert_array_equal(S[:, K.A_LA], lf)
     np.testing.assert_array_equal(S[:, K.A_KLOG], np.where(beta != 0, rinv * T_s / np.where(beta != 0, beta, 1), 0))
     assert not res[1][:, K.A_BETA].any() and not res[1][:, K.A_LASTEP].any()
     assert not res[2][:, K.A_BETA].any() and not res[2][:, K.A_KLOG].any()
+    # a censored pixel holds R (β = 0) and keeps its bound's direction in klog
+    S = res[3]
+    cz = cens != 0
+    np.testing.assert_array_equal(S[:, K.A_BETA], np.where(cz, 0.0, res[0][:, K.A_BETA]))
+    np.testing.assert_array_equal(S[:, K.A_KLOG], np.where(cz, cens, res[0][:, K.A_KLOG]))
+    np.testing.assert_array_equal(S[:, K.A_LA], lf)
+
+
+@pytest.mark.parametrize("discrete", [True, False])
+@pytest.mark.parametrize("jit", [True, False])
+def test_akf_switch_discrete_update_closed_form(jit, discrete):
+    """After the propagation to τ (akf_output's closed form) a switch adds the process noise,
+    P ← P + σ²_proc(τ - tu); with ``discrete`` it then applies one Kalman update with the new
+    frame (``update_frame`` when given, else L^F): κ = P/(P + 1/rinv), L̂ ← L̂ + κ(L^F - L̂),
+    P ← (1 - κ)P. A censored frame leaves a state that satisfies its bound untouched and moves
+    one that violates it by the same κ but keeps P (a projection: P only gains the process noise)."""
+    n = 60
+    rng = np.random.default_rng(21)
+    lf, rinv = rng.normal(0, 0.3, n), rng.uniform(10, 1e4, n)
+    cens = _censor(n, 22)
+    uf_vals = lf + rng.normal(0, 0.1, n)
+    fn = K.akf_switch if jit else _py(K.akf_switch)
+    t_to, s_proc = 50_000.0, 0.05
+    for censor, uf in ((np.empty(0), np.empty(0)), (cens, np.empty(0)), (cens, uf_vals)):
+        S = _akf_state(n, censored=True)
+        lg = np.empty(n); var = np.empty(n)
+        K.akf_output(S, 1_000.0, 1.0 / 100_000, t_to, np.empty(n, np.float32), lg, var, 0, n)
+        tu = S[:, K.A_TU].copy()
+        fn(S, True, 1_000.0, 1.0 / 100_000, t_to, lf, rinv, np.empty(0), np.empty(0), censor, 0.03, discrete, s_proc,
+           uf, 0, n)
+        Pq = var + s_proc * (t_to - tu) * 1e-6
+        if discrete:
+            z = uf if uf.shape[0] else lf
+            kappa = Pq / (Pq + 1.0 / rinv)
+            L = lg + kappa * (z - lg)
+            P = (1.0 - kappa) * Pq
+            if censor.shape[0]:
+                hold = censor * (lg - z) > 0
+                assert hold.any() and (~hold & (censor != 0)).any()
+                L = np.where(hold, lg, L)
+                P = np.where(censor != 0, Pq, P)
+        else:
+            L, P = lg, Pq
+        np.testing.assert_allclose(S[:, K.A_L], L, rtol=1e-13, atol=1e-15)
+        np.testing.assert_allclose(S[:, K.A_P], P, rtol=1e-13)
+        np.testing.assert_array_equal(S[:, K.A_LA], lf)  # L^A is the segment's, not the update's frame
+        assert (S[:, K.A_TU] == t_to).all()
 
 
 @pytest.mark.parametrize("jit", [True, False])
@@ -250,21 +336,29 @@ def test_isolated_noise_window_clipped_at_border(jit):
     assert (te.reshape(h + 2, w + 2)[[0, -1]] == 1_000).all()  # the border is never written
 
 
+@pytest.mark.parametrize("cens", [False, True])
 @pytest.mark.parametrize("jit", [True, False])
-def test_lut_segment_equals_numpy_tables(jit):
-    """One-pass segment builder = the per-code tables gathered with numpy (codes clipped)."""
+def test_lut_segment_equals_numpy_tables(jit, cens):
+    """One-pass segment builder = the per-code tables gathered with numpy (codes clipped); with a
+    censor table β is 0 where frame k's or k+1's code is censored."""
     rng = np.random.default_rng(12)
     max_code = 255
     tabs = [rng.uniform(0.1, 2.0, max_code + 1) for _ in range(4)]  # intensity, rbar, logf, rinv
+    cens_l = _censor(max_code + 1, 15) if cens else np.empty(0)
     code = rng.integers(-3, 300, 500).astype(np.int32)
     nxt = rng.integers(0, 256, 500).astype(np.int32)
     fn = K.lut_segment if jit else _py(K.lut_segment)
     c = np.clip(code, 0, max_code)
+    c1 = np.clip(nxt, 0, max_code)
     for has_next in (True, False):
         out = [np.full(500, np.nan) for _ in range(4)]
-        fn(code, nxt if has_next else nxt[:0], max_code, *tabs, *out)
+        fn(code, nxt if has_next else nxt[:0], max_code, *tabs, cens_l, *out)
         np.testing.assert_array_equal(out[0], tabs[2][c])
         np.testing.assert_array_equal(out[1], tabs[0][c])
         np.testing.assert_array_equal(out[2], tabs[3][c])
-        want_beta = tabs[1][np.clip(nxt, 0, max_code)] / tabs[1][c] - 1.0 if has_next else np.zeros(500)
+        want_beta = tabs[1][c1] / tabs[1][c] - 1.0 if has_next else np.zeros(500)
+        if cens:
+            cz = (cens_l[c] != 0) | (cens_l[c1] != 0)
+            assert cz.any() and (~cz).any()
+            want_beta = np.where(cz, 0.0, want_beta)
         np.testing.assert_array_equal(out[3], want_beta)
