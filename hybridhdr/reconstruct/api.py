@@ -197,7 +197,10 @@ def make_augment_params(augment) -> AugmentParams:
     if isinstance(augment, dict):
         return AugmentParams.from_dict({"enabled": True, **augment})
     if isinstance(augment, (str, os.PathLike)):
-        return AugmentParams.from_toml(augment)
+        from .params import _load_toml
+        d = _load_toml(augment)
+        d = d["augment"] if isinstance(d.get("augment"), dict) else d
+        return AugmentParams.from_dict({"enabled": True, **{k: v for k, v in d.items() if not isinstance(v, dict)}})
     raise TypeError(f"augment must be AugmentParams, a dict, a TOML path, a bool or None, "
                     f"got {type(augment).__name__}")
 
@@ -293,13 +296,20 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             times = output_times(frames.t_mid_us, t_last, times_us=times_us, fps=fps, t_start_us=t_start_us,
                                  t_end_us=t_end_us)
 
+            engines = []
+
             def make_engine(fr, ev):
-                return _build_engine(method, p, shape, fr, "forward", prof, n_workers, None, events=ev,
-                                     augment=aug if use_aug else None)[0]
+                e = _build_engine(method, p, shape, fr, "forward", prof, n_workers, None, events=ev,
+                                  augment=aug if use_aug else None)[0]
+                engines.append(e)
+                return e
             yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                       chunk_events=int(chunk_events), progress=progress, info=info)
             if info is not None:
-                info["n_events_used"] = 2 * len(events)
+                info["n_events_used"] = len(events)  # each event by each pass
+                stats = [getattr(e.m, "stats", None) for e in engines]
+                if use_aug and len(stats) == 2 and all(s is not None for s in stats):
+                    info["augmentation"] = dict(stats[1].to_dict(), backward=stats[0].to_dict())
             return
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)

@@ -464,5 +464,4 @@ class AugmentedMeasurements:
                        intensity=fseg.intensity, rinv=np.ascontiguousarray(rinv, dtype=np.float64),
                        beta=np.ascontiguousarray(beta, dtype=np.float64),
                        la_step=None if step is None else np.ascontiguousarray(step, dtype=np.float64),
-                       censor=cens, frame_update=(t0 == int(self.tau[k])),
-                       update_log_frame=fseg.log_frame if t0 == int(self.tau[k]) else None)
+                       censor=cens, frame_update=(t0 == int(self.tau[k])))

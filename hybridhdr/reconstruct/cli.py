@@ -115,6 +115,7 @@ def build_augment(args):
         from .params import _load_toml
         t = _load_toml(args.config).get("augment")
         if isinstance(t, dict):
+            d["enabled"] = True  # an [augment] table asks for augmentation unless it says otherwise
             d.update(t)
     if args.augmentation or args.no_deblur or args.no_interpolation or args.no_calibration:
         d["enabled"] = True

@@ -155,7 +155,10 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     intensity_offset : float
         I0 of eq. 8, in scaled-irradiance units (brightest code = 1).
     bias_correction : bool
-        Subtract R/2 from log(I + I0) (eq. 8).
+        Subtract R/2 from log(I + I0) (eq. 8). Off in our model: with a small I0, R = R̄/(I + I0)²
+        of a dark code is far outside the small-variance expansion behind eq. 8 (R ≈ 12 at gamma
+        code 5), and the correction drives static dark pixels 46-99 % below their intensity;
+        :meth:`paper` keeps it.
     covariance_interpolation : {"linear", "hold"}
         R between frames: eq. 7's linear interpolation (exactly integrated; offline mode only)
         or held at the frame's value.
@@ -170,8 +173,8 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         Overrides the camera profile's floor on f_w (eq. 6's saturation; reference code 0.09).
     censored_initial_covariance : float
         P at initialisation of a pixel the first frame clips, log²: it is known only to lie
-        beyond the bound (1.0: a factor e either way), so a later unclipped frame, the events
-        or the other pass of the two-sided filter outweigh it.
+        beyond the bound (1e3: unknown), so a later unclipped frame or the other pass of the
+        two-sided filter decides its value; a bound moves L̂ but never shrinks P.
     frame_update : {"discrete", "continuous"}
         "discrete" (ours): each frame is also applied at τ_k as one discrete Kalman measurement
         (gain P/(P + R), R of eq. 9; a continuous-discrete Kalman filter), so the estimate at a
@@ -196,12 +199,12 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     noise_model: str = "paper"  # eq. 2 / §3.1.1
     initial_covariance: float = 0.01  # paper §6 "initialised to 0.01"
     intensity_offset: float = DEFAULT_INTENSITY_OFFSET  # I0, eq. 8 (no value in the paper)
-    bias_correction: bool = True  # eq. 8
+    bias_correction: bool = False  # eq. 8 (paper: True; see the docstring)
     covariance_interpolation: str = "linear"  # eq. 7
     frame_precision_scale: float | None = None  # 1/σ²_im, eq. 6 (None: from the profile)
     saturation: str = "bound"  # ours; the paper's reading is "value"
     min_weighting: float | None = None  # eq. 6's floor on f_w (None: from the profile)
-    censored_initial_covariance: float = 1.0  # ours, log²
+    censored_initial_covariance: float = 1e3  # ours, log²: unknown beyond the bound
     frame_update: str = "discrete"  # ours; the paper's is "continuous"
     event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
 
@@ -236,6 +239,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         """The paper's §6 settings, with its reading of the frames: I0 = 1 as in the published
         code (the paper gives no value) and clipped codes as values."""
         d = dict(process_noise_per_s=5e-4, intensity_offset=PUBLISHED_INTENSITY_OFFSET, saturation="value",
+                 bias_correction=True,
                  event_interpolation=False,
                  frame_update="continuous")
         d.update(overrides)
@@ -265,7 +269,9 @@ class CFParams(_ParamsMixin, _ThresholdMixin):
     contrast_threshold, contrast_threshold_on, contrast_threshold_off : float
         As in :class:`AKFParams` (log units; 0.1 in the ROS implementation).
     intensity_offset : float
-        Offset in L^F = log(I + I0) (scaled-irradiance units).
+        Offset in L^F = log(I + I0), frame-linear units; default 1, the published CF's
+        log(I^F/255 + 1) (the AKF's own model uses 1e-3, ``AKFParams``). Estimates that fall
+        below 0 are clamped and counted like every method's.
     adaptive_gain : bool
         Per-pixel HDR-adaptive gain: α is multiplied by ``adaptive_gain_scale`` where the frame
         is under- or over-exposed (I outside [``adaptive_low``, ``adaptive_high``]), so that
@@ -283,7 +289,7 @@ class CFParams(_ParamsMixin, _ThresholdMixin):
     contrast_threshold: float = 0.1
     contrast_threshold_on: float | None = None
     contrast_threshold_off: float | None = None
-    intensity_offset: float = DEFAULT_INTENSITY_OFFSET
+    intensity_offset: float = PUBLISHED_INTENSITY_OFFSET  # the published CF / direct integration: log(I + 1)
     adaptive_gain: bool = False
     adaptive_gain_scale: float = 0.1
     adaptive_low: float = 0.05
@@ -360,7 +366,7 @@ class DirectParams(_ParamsMixin, _ThresholdMixin):
     contrast_threshold: float = 0.1
     contrast_threshold_on: float | None = None
     contrast_threshold_off: float | None = None
-    intensity_offset: float = DEFAULT_INTENSITY_OFFSET
+    intensity_offset: float = PUBLISHED_INTENSITY_OFFSET  # the published CF / direct integration: log(I + 1)
 
     def __post_init__(self):
         self._check_thresholds()

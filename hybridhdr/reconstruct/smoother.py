@@ -89,8 +89,11 @@ def output_times(frame_times_us, t_last_us: int, *, times_us=None, fps=None, t_s
     """
     ft = np.unique(np.asarray(frame_times_us, dtype=np.int64))
     t0 = int(ft[0])
+    if times_us is not None and fps is not None:
+        E.OutputClock(times_us=times_us, fps=fps)  # raises: exactly one of the two
     if times_us is not None:
         t = np.asarray(E.OutputClock(times_us=times_us).times, dtype=np.int64)
+        E.OutputClock(times_us=t).set_origin(t0)  # the same check as the forward driver's
     elif fps is not None:
         clk = E.OutputClock(fps=fps)
         start = t0 if t_start_us is None else max(t0, int(t_start_us))
