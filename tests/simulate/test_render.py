@@ -285,23 +285,56 @@ def test_variants_agree_within_sampling_noise(area_light):
     # seeds per variant, the image means m_v (1728 px x 4 spp each) have seed-to-seed spreads s_v,
     # and |mean_K(m_llvm) - mean_K(m_scalar)| <= 5 sqrt((s_llvm^2 + s_scalar^2) / K) + 1e-5 |mean|
     # (5 sigma of the difference of two means; 1e-5 for float32 and the Rec. 709 RGB -> Y sum).
-    # Pixels with no edge in them (delta lights only: anti-aliasing is the only noise) agree to 1e-3.
+    # Per pixel, z = |mean difference| / its standard error from the seed spreads: |z| > 4 in at
+    # most 0.5 % of the pixels (Student t with ~14 degrees of freedom: 0.13 %), and pixels that no
+    # seed changes in either variant (no noise at all) agree to 1e-4.
     _needs_llvm()
     K = 8
     m = {}
     imgs = {}
     for v in ("llvm_ad_mono", "scalar_rgb"):
         runs = [MitsubaSource(_agreement_scene(4, s, area_light), variant=v).render(0) for s in range(K)]
-        imgs[v] = np.mean(runs, axis=0)
+        imgs[v] = (np.mean(runs, axis=0), np.var(runs, axis=0, ddof=1))
         m[v] = np.array([r.mean() for r in runs])
     d = abs(m["llvm_ad_mono"].mean() - m["scalar_rgb"].mean())
     bound = 5 * math.sqrt((m["llvm_ad_mono"].var(ddof=1) + m["scalar_rgb"].var(ddof=1)) / K) + 1e-5 * m["scalar_rgb"].mean()
     assert d <= bound, (d, bound, m)
-    if not area_light:
-        a, b = imgs["llvm_ad_mono"], imgs["scalar_rgb"]
-        flat = np.zeros(a.shape, bool)  # pixels whose 3x3 neighbourhood varies by < 20 %: no edges
-        pad = np.pad(a, 1, mode="edge")
-        win = np.stack([pad[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3)])
-        flat = (win.max(0) - win.min(0)) < 0.2 * a
-        assert flat.mean() > 0.5
-        np.testing.assert_allclose(b[flat], a[flat], rtol=1e-3)
+    (a, va), (b, vb) = imgs["llvm_ad_mono"], imgs["scalar_rgb"]
+    se = np.sqrt((va + vb) / K)
+    noisy = se > 1e-6 * np.maximum(a, b)
+    z = np.abs(a - b)[noisy] / se[noisy]
+    assert np.mean(z > 4) <= 0.005, np.sort(z)[-10:]
+    np.testing.assert_allclose(b[~noisy], a[~noisy], rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.slow
+def test_table1_scores_agree_between_variants(monkeypatch):
+    # The Table-1 score (AKF linear MSE on the quick paper's two multi-light HDR scenes, 0.15 s)
+    # with each variant for render seeds 0, 1, 2. Bound: the two variants' mean scores differ by
+    # at most 5 sqrt((s_llvm^2 + s_scalar^2) / 3) + 1 % of the score, s_v the seed-to-seed spread
+    # (the renderer's Monte-Carlo noise as seen by the score; 1 %: with delta lights the noise is
+    # anti-aliasing only and three seeds can underestimate its spread).
+    _needs_llvm()
+    import hybridhdr.simulate.builtin as B
+    from hybridhdr.evaluate.bench import parse_bench, run_bench
+    real = B.builtin_scene
+    render_seed = {"s": 0}
+    monkeypatch.setattr(B, "builtin_scene", lambda *a, **k: real(*a, **k).with_changes(seed=render_seed["s"]))
+    common = {"width": 48, "height": 36, "duration_us": 150_000, "hdr_rate_hz": 50.0, "sensor": "clean",
+              "sampling": {"mode": "fixed", "fixed_rate_hz": 500.0}, "camera": {"exposure_us": 10_000}}
+    spec = {"bench": {"name": "agree", "seed": 0},
+            "datasets": [{"name": f"HDR:{s}", "kind": "builtin", "scene": s, **common}
+                         for s in ("night_drive_sign", "fast_object_bright_background")],
+            "methods": [{"name": "akf", "method": "akf"}]}
+    score = {}
+    for v in ("llvm_ad_mono", "scalar_rgb"):
+        monkeypatch.setenv("HYBRIDHDR_MITSUBA_VARIANT", v)
+        score[v] = []
+        for s in range(3):
+            render_seed["s"] = s
+            rows = run_bench(parse_bench(spec), workers=0, progress=False)
+            assert all(r["status"] == "ok" for r in rows), rows
+            score[v].append(float(np.mean([float(r["mse"]) for r in rows])))
+    a, b = np.array(score["llvm_ad_mono"]), np.array(score["scalar_rgb"])
+    bound = 5 * math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 3) + 0.01 * a.mean()
+    assert abs(a.mean() - b.mean()) <= bound, (score, bound)
