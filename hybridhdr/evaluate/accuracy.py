@@ -70,7 +70,8 @@ METHODS = (
     MethodSpec("edi", "edi", "offline"),
     MethodSpec("akf", "akf", "offline"),
     MethodSpec("akf_causal", "akf", "causal"),
-    MethodSpec("akf_noaug", "akf", "offline", augment=False),
+    MethodSpec("akf_aug", "akf", "offline", augment=True),  # frame augmentation (opt-in)
+    MethodSpec("akf_forward", "akf", "forward"),  # one forward pass using the next frame
     MethodSpec("akf_paper", "akf", "offline", preset="paper"),
     MethodSpec("akf_refcode", "akf", "offline", preset="reference_code"),
 )
