@@ -39,7 +39,7 @@ PAPER_TABLE1 = {"HDR": {"mse": 1.71e-2, "ssim": 0.89, "q": 4.83}, "AHDR": {"mse"
 
 METHODS = (
     {"name": "akf", "method": "akf"},
-    {"name": "akf (no augmentation)", "method": "akf", "augment": False},
+    {"name": "akf (augmented)", "method": "akf", "augment": True},
     {"name": "cf", "method": "cf"},
     {"name": "hpf", "method": "highpass"},
     {"name": "direct", "method": "direct"},
