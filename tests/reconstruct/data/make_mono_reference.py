@@ -1,0 +1,33 @@
+"""Regenerates mono_reference.npz: every method's output on a small procedural recording (grey and
+colour frames, no CFA), written at commit 80e9a86, before the colour path existed.
+
+Run ``python tests/reconstruct/data/make_mono_reference.py tests/reconstruct/data/mono_reference.npz``
+only when a deliberate change of the monochrome results is made."""
+import numpy as np, hashlib, sys
+from hybridhdr.synthetic import procedural_recording
+from hybridhdr.reconstruct import reconstruct
+from hybridhdr.model import Frames, Recording
+import dataclasses
+
+def recordings():
+    rec, _ = procedural_recording((12, 16), 300_000, seed=3, step_us=500)
+    f = rec.frames
+    rgb = np.stack([f.images, np.roll(f.images, 1, axis=2), f.images // 2], axis=-1)
+    rec_rgb = dataclasses.replace(rec, frames=Frames(rgb, f.t_start_us, f.t_end_us, encoding="gamma"))
+    return rec, rec_rgb
+
+RUNS = [("akf", "offline", {}), ("akf", "causal", {}), ("akf", "forward", {}), ("akf", "offline", {"augment": True}),
+        ("cf", "offline", {}), ("direct", "offline", {}), ("highpass", "offline", {}), ("frames_zoh", "offline", {}),
+        ("frames_linear", "offline", {}), ("edi", "offline", {})]
+
+if __name__ == "__main__":
+    rec, rec_rgb = recordings()
+    out = {}
+    for name, r in (("grey", rec), ("rgb", rec_rgb)):
+        for m, mode, kw in RUNS:
+            v = reconstruct(r, m, mode=mode, fps=100, **kw)
+            key = f"{name}_{m}_{mode}" + ("_aug" if kw else "")
+            out[key] = v.frames
+            out[key + "_t"] = v.t_us
+            print(key, v.frames.shape, hashlib.sha256(v.frames.tobytes()).hexdigest()[:12])
+    np.savez_compressed(sys.argv[1], **out)
