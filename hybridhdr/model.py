@@ -143,16 +143,32 @@ class HDRReferences:
 
 @dataclass(frozen=True)
 class CameraInfo:
-    """One camera's description: sensor size, model, serial number."""
+    """One camera's description: sensor size, model, serial number, colour filter array.
+
+    ``cfa`` is the Bayer pattern of the sensor (``"RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``:
+    the 2×2 tile read from the top-left pixel, :mod:`hybridhdr.camera.cfa`) or None for a
+    monochrome sensor. For the frame camera it describes the sensor: frames stored as (K, H, W)
+    are then its raw mosaic, frames stored as (K, H, W, 3) were demosaicked. Any case is accepted
+    and stored upper case; ``"none"`` means None.
+    """
 
     sensor_size: SensorSize | None = None
     model: str = ""
     serial: str = ""
+    cfa: str | None = None
+
+    def __post_init__(self):
+        if self.cfa is not None:
+            from .camera.cfa import parse_cfa
+            object.__setattr__(self, "cfa", parse_cfa(self.cfa))
 
     def to_dict(self) -> dict:
-        return {"height": None if self.sensor_size is None else self.sensor_size.height,
-                "width": None if self.sensor_size is None else self.sensor_size.width,
-                "model": self.model, "serial": self.serial}
+        d = {"height": None if self.sensor_size is None else self.sensor_size.height,
+             "width": None if self.sensor_size is None else self.sensor_size.width,
+             "model": self.model, "serial": self.serial}
+        if self.cfa is not None:  # monochrome metadata stays as it was
+            d["cfa"] = self.cfa
+        return d
 
     @classmethod
     def from_dict(cls, d: dict | None) -> "CameraInfo":
@@ -160,7 +176,7 @@ class CameraInfo:
         ss = None
         if d.get("height") is not None and d.get("width") is not None:
             ss = SensorSize(int(d["height"]), int(d["width"]))
-        return cls(ss, str(d.get("model", "") or ""), str(d.get("serial", "") or ""))
+        return cls(ss, str(d.get("model", "") or ""), str(d.get("serial", "") or ""), d.get("cfa") or None)
 
 
 @dataclass(frozen=True)
