@@ -45,6 +45,25 @@ class Engine:
         self._pool = ThreadPoolExecutor(len(self.bands) - 1) if len(self.bands) > 1 else None
         self._bufs: dict = {}  # reused int32 index buffers, see _index_buffer
         self.n_events = 0
+        self.con_px = np.empty(0)  # per-pixel ON / OFF thresholds (flattened); empty: the params' scalars
+        self.coff_px = np.empty(0)
+
+    def set_thresholds(self, c_on, c_off) -> None:
+        """Per-pixel ON and OFF thresholds (log units, arrays of the sensor's shape), or None for
+        the parameters' scalars; non-finite or non-positive entries take the scalar."""
+        if c_on is None and c_off is None:
+            self.con_px = np.empty(0)
+            self.coff_px = np.empty(0)
+            return
+        pr = self.params
+        out = []
+        for a, scalar, name in ((c_on, pr.c_on, "c_on"), (c_off, pr.c_off, "c_off")):
+            a = np.asarray(a, dtype=np.float64)
+            if a.shape != self.shape:
+                raise ValueError(f"threshold map {name} has shape {a.shape}, expected the sensor's {self.shape}")
+            a = np.where(np.isfinite(a) & (a > 0), a, scalar)
+            out.append(np.ascontiguousarray(a.reshape(-1)))
+        self.con_px, self.coff_px = out
 
     def close(self):
         if self._pool is not None:
@@ -274,7 +293,7 @@ class AKFEngine(Engine):
         H, W = self.shape
         rho = np.int64(pr.refractory_period_us)
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
-                pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form)
+                pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form, self.con_px, self.coff_px)
         if len(self.bands) == 1:
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
             return
@@ -437,13 +456,14 @@ class CFEngine(Engine):
         W = self.shape[1]
         if len(self.bands) == 1:
             self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
-                                         self.event_decay)
+                                         self.event_decay, self.con_px, self.coff_px)
             return
 
         def band(b, lo, hi):
             idx = self._index_buffer(("band", b), i1 - i0)[0]
             m = K.band_select(y, i0, i1, lo, hi, idx)
-            return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay)
+            return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay,
+                                       self.con_px, self.coff_px)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
     def output(self, t_us: int) -> np.ndarray:

@@ -158,7 +158,7 @@ def _pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
 
 @njit(cache=True, nogil=True, inline="always")
 def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
-               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs.
 
     See :func:`akf_events`. Indices are unsigned (no negative-index wraparound code) and ``te``
@@ -191,15 +191,20 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
         if dte <= rho_us:
             q += s_ref * (dte * US)
     S[pix, A_P] = pp + q
-    # -- event jump (eq. 15) ------------------------------------------------------------------
+    # -- event jump (eq. 15), per pixel and polarity when a threshold map is given ----------------
     if positive:
-        S[pix, A_L] = lhat + c_on
-        if has_la_step:
-            S[pix, A_LA] = lav + S[pix, A_LASTEP]
+        jump = con_px[pix] if has_px else c_on
     else:
-        S[pix, A_L] = lhat - c_off
-        if has_la_step:
-            S[pix, A_LA] = lav - S[pix, A_LASTEP]
+        jump = -(coff_px[pix] if has_px else c_off)
+    S[pix, A_L] = lhat + jump
+    if has_la_step:
+        st = S[pix, A_LASTEP]
+        if st < 0.0:  # L^A follows the event's own jump (frames carried forward by the events)
+            S[pix, A_LA] = lav + jump
+        elif positive:
+            S[pix, A_LA] = lav + st
+        else:
+            S[pix, A_LA] = lav - st
     S[pix, A_TU] = tif
     te[tp] = ti
 
@@ -221,7 +226,7 @@ def te_view(te: np.ndarray, height: int, width: int) -> np.ndarray:
 
 @njit(cache=True, nogil=True)
 def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_step,
-               seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+               seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
     """AKF update at each event (eqs. 15, 17, 20, 21 with the Q of eq. 2 and §3.1.1).
 
     For the event at pixel p and time t_i, in order: propagate L̂ and P from the last update
@@ -234,13 +239,16 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     t_{i-1} ≤ ρ]; ``noise_form`` 1 (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) +
     σ_r (t_i - t_{i-1})·[t_i - t_{i-1} ≤ ρ]. t* is the latest event time in the 3×3 window
     including p (clipped at the border); t_{i-1} starts at the filter's start time. ``te`` is
-    the padded last-event-time array of :func:`padded_te`.
+    the padded last-event-time array of :func:`padded_te`. ``con_px``/``coff_px`` (flattened, or
+    empty for the scalars ``c_on``/``c_off``) are per-pixel ON and OFF thresholds. A negative
+    ``la_step`` makes L^A follow each event's own jump.
 
     Processes the events ``[i0, i1)``; events in the ghost rows ``row_lo - 1`` and ``row_hi``
     only set ``te`` and all other rows outside ``[row_lo, row_hi)`` are skipped (``0, height``
     is the serial filter). Returns the number of events applied to pixels of the band.
     """
     n = 0
+    has_px = con_px.shape[0] > 0
     w = np.uint64(width)
     wp = w + ONE + ONE
     lo = np.uint64(max(row_lo, 0))
@@ -254,14 +262,15 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
                 te[tp] = t[i]
             continue
         _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
-                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
 def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S, te, has_la_step,
-                       seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+                       seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px,
+                       coff_px):
     """:func:`akf_events` over the events ``i0 + idx[:m]`` (from :func:`band_select`).
 
     ``idx`` selects the band's rows ``[row_lo - 1, row_hi + 1)``: the ghost rows ``row_lo - 1``
@@ -269,6 +278,7 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
     disjoint bands with private ``te`` arrays reproduce it bit for bit.
     """
     n = 0
+    has_px = con_px.shape[0] > 0
     w = np.uint64(width)
     wp = w + ONE + ONE
     lo = np.uint64(max(row_lo, 0))
@@ -282,7 +292,7 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
             te[tp] = t[i]
             continue
         _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
-                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form)
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
         n += 1
     return n
 
@@ -482,20 +492,20 @@ def lut_segment(code, code_next, max_code, inten_l, rbar_l, logf_l, rinv_l, cens
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _cf_update(C, pix, tif, pol, c_on, c_off, event_decay):
+def _cf_update(C, pix, tif, pol, c_on, c_off, event_decay, con_px, coff_px, has_px):
     """One CF event at pixel ``pix``, time ``tif`` µs: exact decay towards L^F, then the jump."""
     lfv = C[pix, C_LF]
     b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
     lhat = lfv + (C[pix, C_L] - lfv) * b
     if pol > 0:
-        C[pix, C_L] = lhat + c_on
+        C[pix, C_L] = lhat + (con_px[pix] if has_px else c_on)
     else:
-        C[pix, C_L] = lhat - c_off
+        C[pix, C_L] = lhat - (coff_px[pix] if has_px else c_off)
     C[pix, C_TU] = tif
 
 
 @njit(cache=True, nogil=True)
-def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay):
+def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay, con_px, coff_px):
     """Complementary filter per event (Scheerlinck et al. 2018): dL̂/dt = e - α(L̂ - L^F).
 
     Between events L̂ = L^F + (L̂_u - L^F) exp(-α Δt) (exact for a held L^F); at an event the
@@ -503,26 +513,28 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
     variant; 0 for CF) and L̂ jumps by +c_on or -c_off.
     """
     n = 0
+    has_px = con_px.shape[0] > 0
     for i in range(i0, i1):
         yy = np.int64(y[i])
         if yy < row_lo or yy >= row_hi:
             continue
         tif = np.float64(t[i])
         pix = yy * width + np.int64(x[i])
-        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay)
+        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay, con_px, coff_px, has_px)
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay):
+def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px):
     """:func:`cf_events` over the events ``i0 + idx[:m]`` (one row band, from :func:`band_select`)."""
     n = 0
+    has_px = con_px.shape[0] > 0
     for k in range(m):
         i = i0 + np.int64(idx[k])
         tif = np.float64(t[i])
         pix = np.int64(y[i]) * width + np.int64(x[i])
-        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay)
+        _cf_update(C, pix, tif, p[i], c_on, c_off, event_decay, con_px, coff_px, has_px)
         n += 1
     return n
 

@@ -176,6 +176,25 @@ def _source_profile(source):
                          f"{e}") from None
 
 
+def _threshold_arrays(thresholds):
+    """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
+    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.calibrate.thresholds.load_thresholds`
+    reads), or None."""
+    if thresholds is None:
+        return None
+    if isinstance(thresholds, (str, os.PathLike)):
+        from ..calibrate.thresholds import load_thresholds
+        thresholds = load_thresholds(thresholds)
+    if isinstance(thresholds, dict):
+        return np.asarray(thresholds["c_on"]), np.asarray(thresholds["c_off"])
+    if hasattr(thresholds, "c_on") and hasattr(thresholds, "c_off"):
+        return np.asarray(thresholds.c_on), np.asarray(thresholds.c_off)
+    if isinstance(thresholds, (tuple, list)) and len(thresholds) == 2:
+        return np.asarray(thresholds[0]), np.asarray(thresholds[1])
+    raise TypeError(f"thresholds must be a threshold map (c_on, c_off arrays), a dict, a pair or a path, "
+                    f"got {type(thresholds).__name__}")
+
+
 def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
     if ss is not None:
         return ss.shape
@@ -231,7 +250,7 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
                 interpolate_covariance=(mode != "causal" and params.covariance_interpolation == "linear"),
                 precision_scale=params.frame_precision_scale, saturation=params.saturation,
                 min_weighting=params.min_weighting,
-                event_step=0.5 * (params.c_on + params.c_off) if params.event_interpolation else 0.0)
+                event_step=-1.0 if params.event_interpolation else 0.0)  # -1: L^A follows each jump
         else:
             off = getattr(params, "intensity_offset", 1.0)
             measurements = FrameMeasurements(frames, shape, prof, intensity_offset=off, bias_correction=False,
@@ -249,7 +268,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                      mode: str = "offline", profile=None, t_start_us: int | None = None,
                      t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                      measurements=None, progress: Callable[[int], None] | None = None,
-                     info: dict | None = None, augment=None) -> Iterator[tuple[int, np.ndarray]]:
+                     info: dict | None = None, augment=None, thresholds=None) -> Iterator[tuple[int, np.ndarray]]:
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
@@ -268,6 +287,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
     p = make_params(method, params)
     aug = make_augment_params(augment)
+    thr = _threshold_arrays(thresholds)
     ss, frames, chunk_factory, close, n_declared = _open_source(source)
     events = None
     try:
@@ -298,9 +318,12 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
 
             engines = []
 
-            def make_engine(fr, ev):
-                e = _build_engine(method, p, shape, fr, "forward", prof, n_workers, None, events=ev,
+            def make_engine(fr, ev, backward):
+                pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
+                e = _build_engine(method, pp, shape, fr, "forward", prof, n_workers, None, events=ev,
                                   augment=aug if use_aug else None)[0]
+                if thr is not None:
+                    e.set_thresholds(*((thr[1], thr[0]) if backward else thr))
                 engines.append(e)
                 return e
             yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
@@ -313,6 +336,10 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
             return
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)
+        if thr is not None:
+            if not hasattr(engine, "set_thresholds"):
+                raise ValueError(f"method {method!r} does not take a per-pixel threshold map")
+            engine.set_thresholds(*thr)
         try:
             if times_us is None and fps is None:
                 if METHODS[method][1] or (frames is not None and len(frames)):
@@ -360,7 +387,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
 def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
                 mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
                 n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
-                progress: Callable[[int], None] | None = None, augment=None) -> Video:
+                progress: Callable[[int], None] | None = None, augment=None, thresholds=None) -> Video:
     """Reconstruct linear-intensity video from events and frames.
 
     Parameters
@@ -399,6 +426,11 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         :mod:`hybridhdr.reconstruct.measurement`).
     progress : callable, optional
         Called with the number of events consumed after each batch.
+    thresholds : threshold map, dict, (c_on, c_off) pair, path or None
+        Per-pixel ON and OFF contrast thresholds (log units, arrays of the sensor's shape; e.g.
+        from ``hybridhdr calibrate thresholds``) used by the AKF, CF, direct and high-pass
+        filters instead of the parameters' scalars; entries that are not finite and positive
+        take the scalar.
     augment : AugmentParams, dict, TOML path, bool or None
         Frame augmentation of the AKF in offline mode (paper §4.1, eqs. 10-13:
         :class:`~hybridhdr.reconstruct.augment.AugmentedMeasurements`): None or True for the
@@ -423,7 +455,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     for t, img in reconstruct_iter(source, method, params, times_us=times_us, fps=fps, mode=mode,
                                    profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
                                    n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
-                                   progress=progress, info=info, augment=augment):
+                                   progress=progress, info=info, augment=augment, thresholds=thresholds):
         ts.append(t)
         imgs.append(img)
     method = resolve_method(method)

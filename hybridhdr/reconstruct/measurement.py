@@ -137,10 +137,12 @@ class FrameMeasurements:
     min_weighting : float or None
         Override of ``profile.min_weighting`` (eq. 6's floor on f_w).
     event_step : float
-        Per-event step of L^A in log units: 0 holds each frame (the paper's zero-order hold);
-        the nominal contrast threshold carries the frame forward with the events since it
-        (eq. 10's forward interpolation from the frame itself, causal), so that an edge that
-        arrives between two frames is not pulled back to the old frame's value.
+        Per-event step of L^A in log units: 0 holds each frame (the paper's zero-order hold); a
+        positive value moves L^A by ± that step at each event; -1 makes L^A follow each event's
+        own jump (the filter's ON / OFF threshold, per pixel when a threshold map is set). The
+        last two carry the frame forward with the events since it (eq. 10's forward
+        interpolation from the frame itself, causal), so that an edge that arrives between two
+        frames is not pulled back to the old frame's value.
     """
 
     def __init__(self, frames: Frames, sensor_shape, profile: CameraProfile, *,
@@ -170,8 +172,9 @@ class FrameMeasurements:
         if saturation not in ("bound", "value"):
             raise ValueError(f"saturation must be 'bound' or 'value', got {saturation!r}")
         self.saturation = saturation
-        if not (np.isfinite(event_step) and event_step >= 0):
-            raise ValueError(f"event_step must be a finite number >= 0 (log units), got {event_step!r}")
+        if not (np.isfinite(event_step) and (event_step >= 0 or event_step == -1.0)):
+            raise ValueError(f"event_step must be a finite number >= 0 (log units) or -1 (follow each event's "
+                             f"jump), got {event_step!r}")
         self.event_step = float(event_step)
         if min_weighting is not None:
             if not 0 < float(min_weighting) <= 1:

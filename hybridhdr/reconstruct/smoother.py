@@ -148,8 +148,10 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
                    info: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
 
-    ``make_engine(frames, events)`` builds a forward :class:`~._engine.AKFEngine` for a
-    recording; it is called once as given and once on the reversed recording.
+    ``make_engine(frames, events, backward)`` builds a forward :class:`~._engine.AKFEngine` for a
+    recording; it is called once as given and once on the reversed recording (``backward``
+    True), where an event's polarity is negated, so its ON and OFF thresholds must be swapped:
+    a forward ON event of threshold c_on is a backward OFF event of the same size.
     """
     shape = events.shape
     n_pix = shape[0] * shape[1]
@@ -170,7 +172,8 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     have_b = np.zeros(times.size, bool)
     index = {int(t): i for i, t in enumerate(times)}
     n_b = 0
-    for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev), rev_ev, rev_times, chunk_events, progress):
+    for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
+                                 progress):
         i = index[int(mirror - tr)]
         store[i, 0] = lg.reshape(-1)
         store[i, 1] = var.reshape(-1)
@@ -178,12 +181,14 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
         n_b += 1
     n_fused = n_single = n_clamped = n_out = 0
     try:
-        fwd = _run_pass(lambda: make_engine(frames, events), events, times, chunk_events, progress)
+        fwd = _run_pass(lambda: make_engine(frames, events, False), events, times, chunk_events, progress)
         nxt = next(fwd, None)
         for i, t in enumerate(times):
             t = int(t)
             if nxt is not None and nxt[0] == t:
-                lf, pf = nxt[1].reshape(-1), nxt[2].reshape(-1)
+                # rounded like the stored backward pass: the fusion is then exactly symmetric
+                lf = nxt[1].reshape(-1).astype(np.float32)
+                pf = nxt[2].reshape(-1).astype(np.float32)
                 nxt = next(fwd, None)
             else:
                 lf = pf = None
@@ -191,7 +196,7 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
                 lg, _ = fuse(lf, pf, store[i, 0], store[i, 1])
                 n_fused += 1
             elif lf is not None:
-                lg = lf
+                lg = lf.astype(np.float64)
                 n_single += 1
             elif have_b[i]:
                 lg = store[i, 0].astype(np.float64)

@@ -56,17 +56,23 @@ SWITCH_VARIANTS = [(False, False, 0.0, 0.0), (True, True, 0.05, 0.1), (True, Fal
                    (False, True, 0.05, 0.0), (False, False, 0.05, 0.1)]
 
 
+@pytest.mark.parametrize("per_pixel", [False, True])
 @pytest.mark.parametrize("noise_form", [0, 1])
-@pytest.mark.parametrize("has_la_step", [False, True])
-def test_akf_events_equals_py_func(noise_form, has_la_step):
+@pytest.mark.parametrize("has_la_step", [False, True, "follow"])
+def test_akf_events_equals_py_func(noise_form, has_la_step, per_pixel):
     h, w = 5, 6
     t, x, y, p = _events(h=h, w=w)
+    rng = np.random.default_rng(11)
+    con = rng.uniform(0.08, 0.2, h * w) if per_pixel else np.empty(0)
+    coff = rng.uniform(0.1, 0.3, h * w) if per_pixel else np.empty(0)
     outs = []
     for fn in (K.akf_events, _py(K.akf_events)):
         S = _akf_state(h * w)
+        if has_la_step == "follow":
+            S[:, K.A_LASTEP] = -1.0
         te = K.padded_te(h, w, 1_000)
-        n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, has_la_step, 1_000.0, 1.0 / 100_000, 0.12, 0.08,
-               5e-4, 0.03, 0.01, np.int64(10_000), noise_form)
+        n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, bool(has_la_step), 1_000.0, 1.0 / 100_000, 0.12, 0.08,
+               5e-4, 0.03, 0.01, np.int64(10_000), noise_form, con, coff)
         outs.append((n, S.copy(), te.copy()))
     assert outs[0][0] == outs[1][0] == len(t)
     np.testing.assert_array_equal(outs[0][1], outs[1][1])
@@ -179,7 +185,7 @@ def test_cf_kernels_equal_py_func():
         C[:, K.C_LF] = rng.normal(0, 0.3, h * w)
         C[:, K.C_ALPHA] = rng.uniform(0, 20, h * w)
         C[:, K.C_TU] = 1_000.0
-        ev(t, x, y, p, 0, len(t), 0, h, w, C, 0.1, 0.12, 0.01)
+        ev(t, x, y, p, 0, len(t), 0, h, w, C, 0.1, 0.12, 0.01, np.empty(0), np.empty(0))
         o = np.empty(h * w, np.float32)
         outk(C, 70_000.0, 1.0, o, 0, h * w)
         prop(C, 80_000.0, 0, h * w)
@@ -326,7 +332,7 @@ def test_isolated_noise_window_clipped_at_border(jit):
     te = K.padded_te(h, w, 1_000)
     s_iso = 1e3
     fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, False, 1_000.0, 0.0, 0.1, 0.1, 0.0, s_iso, 0.0,
-       np.int64(0), 0)
+       np.int64(0), 0, np.empty(0), np.empty(0))
     P = S[:, K.A_P].reshape(h, w)
     # t_i − t*, keyed (y, x); the start time 1000 counts as every pixel's last event time
     expect = {(1, 1): 500, (3, 3): 700, (2, 2): 100, (0, 0): 500, (2, 4): 800, (0, 4): 2_000}

@@ -204,7 +204,8 @@ def test_indexed_kernels_equal_py_func_and_scan_kernels():
         S[:, K.A_LASTEP] = 0.07
         return S
 
-    args = (True, 0.0, 1.0 / 100_000, 0.12, 0.08, 5e-4, 0.03, 0.01, np.int64(10_000), 0)
+    con = np.linspace(0.08, 0.2, h * w)
+    args = (True, 0.0, 1.0 / 100_000, 0.12, 0.08, 5e-4, 0.03, 0.01, np.int64(10_000), 0, con, con[::-1].copy())
     lo, hi = 2, 4
     res = []
     S0 = state()
@@ -231,12 +232,12 @@ def test_indexed_kernels_equal_py_func_and_scan_kernels():
         C[:, K.C_LF] = np.linspace(-1, 0.5, h * w)
         C[:, K.C_ALPHA] = 7.0
         if kind == "scan":
-            K.cf_events(t, x, y, p, 0, n, lo, hi, w, C, 0.1, 0.12, 0.0)
+            K.cf_events(t, x, y, p, 0, n, lo, hi, w, C, 0.1, 0.12, 0.0, con, con[::-1].copy())
         else:
             fn = K.cf_events_indexed if kind == "indexed" else _py(K.cf_events_indexed)
             idx = np.empty(n, np.int32)
             m = K.band_select(y, 0, n, lo, hi, idx)
-            fn(t, x, y, p, 0, idx, m, w, C, 0.1, 0.12, 0.0)
+            fn(t, x, y, p, 0, idx, m, w, C, 0.1, 0.12, 0.0, con, con[::-1].copy())
         cres.append(C.copy())
     for c in cres[1:]:
         np.testing.assert_array_equal(c, cres[0])

@@ -88,3 +88,84 @@ def test_output_times_match_the_forward_driver():
     assert np.array_equal(t, fwd.t_us)
     two = reconstruct(rec, "akf", fps=300.0)
     assert np.array_equal(two.t_us, fwd.t_us)
+
+
+@pytest.mark.parametrize("c_on, c_off", [(0.1, 0.1), (0.12, 0.2)])
+def test_reversing_the_recording_reverses_the_output(c_on, c_off):
+    """Two-sided AKF on the reversed recording (thresholds swapped: a forward ON event is a
+    backward OFF event of the same size) at the reversed times gives the same frames, reversed."""
+    rec = _rec(5)
+    ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
+    fr = rec.frames
+    t_lo = min(int(ev.t[0]), int(fr.t_start_us[0]))
+    t_hi = max(int(ev.t[-1]), int(fr.t_end_us[-1]))
+    m = t_lo + t_hi + 1
+    rev = reverse_events(ev, m)
+    rev_ev = np.zeros(len(rev), EVENT_DTYPE)
+    rev_ev["t"], rev_ev["x"], rev_ev["y"], rev_ev["p"] = rev.t, rev.x, rev.y, rev.p
+    r2 = Recording(rev_ev, rec.sensor_size, reverse_frames(fr, m))
+    times = np.arange(int(fr.t_mid_us[0]) + 7, int(fr.t_mid_us[-1]), 4_999, dtype=np.int64)
+    a = reconstruct(rec, "akf", AKFParams(contrast_threshold_on=c_on, contrast_threshold_off=c_off), times_us=times)
+    b = reconstruct(r2, "akf", AKFParams(contrast_threshold_on=c_off, contrast_threshold_off=c_on),
+                    times_us=(m - times)[::-1])
+    np.testing.assert_array_equal(a.frames, b.frames[::-1])
+
+
+def test_fused_estimate_equals_the_closed_form_two_filter_solution():
+    """One pixel, no events, two frames: each pass is a closed-form Kalman filter of its frames;
+    the output equals (L_f/P_f + L_b/P_b)/(1/P_f + 1/P_b) of the passes' own outputs."""
+    h, w = 1, 1
+    ts = np.array([0, 50_000], np.int64)
+    img = np.array([[[60]], [[120]]], np.uint8)
+    fr = Frames(img, ts, ts + 2_000, encoding="linear")
+    r = Recording(np.zeros(0, EVENT_DTYPE), SensorSize(h, w), fr)
+    t = np.array([1_000, 20_000, 40_000, 51_000 - 1], np.int64)
+    p = AKFParams()
+    from hybridhdr.reconstruct import _engine as E
+    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.smoother import _run_pass
+    ev = EventArrays.from_structured(r.events, (h, w))
+    mk = lambda f: _build_engine("akf", p, (h, w), f, "forward", None, 1, None, events=ev)[0]  # noqa: E731
+    fwd = {tt: (lg.item(), var.item()) for tt, lg, var in _run_pass(lambda: mk(fr), ev, t, 1 << 20, None)}
+    m = 0 + 52_000 + 1
+    rf = reverse_frames(fr, m)
+    bwd = {m - tt: (lg.item(), var.item()) for tt, lg, var in
+           _run_pass(lambda: mk(rf), reverse_events(ev, m), (m - t)[::-1], 1 << 20, None)}
+    got = reconstruct(r, "akf", p, times_us=t).frames[:, 0, 0]
+    for i, tt in enumerate(t):
+        (lf, pf), (lb, pb) = fwd[int(tt)], bwd[int(tt)]
+        want = np.exp((lf / pf + lb / pb) / (1 / pf + 1 / pb)) - p.intensity_offset
+        assert got[i] == pytest.approx(want, rel=1e-6)
+        assert min(lf, lb) - 1e-9 <= np.log(got[i] + p.intensity_offset) <= max(lf, lb) + 1e-9
+
+
+def test_per_pixel_threshold_map_equal_to_the_scalars_changes_nothing():
+    rec = _rec(2)
+    shape = rec.sensor_size.shape
+    for mode in ("offline", "causal"):
+        for method in ("akf", "cf", "direct"):
+            a = reconstruct(rec, method, fps=200.0, mode=mode)
+            b = reconstruct(rec, method, fps=200.0, mode=mode,
+                            thresholds=(np.full(shape, 0.1), np.full(shape, 0.1)))
+            np.testing.assert_array_equal(a.frames, b.frames)
+
+
+def test_per_pixel_thresholds_track_an_asymmetric_sensor():
+    """A pixel with c_on = 0.15, c_off = 0.25: 10 ON then 6 OFF ideal events from a known start;
+    with the map the causal AKF ends at start·exp(10·0.15 - 6·0.25) = start; with the scalar
+    0.1 it does not."""
+    h, w = 2, 2
+    ts = np.array([0, 100_000], np.int64)
+    img = np.full((2, h, w), 40, np.uint8)
+    fr = Frames(img, ts, ts + 1_000, encoding="linear")
+    n_on, n_off = 10, 6
+    ev = np.zeros(n_on + n_off, EVENT_DTYPE)
+    ev["t"] = np.linspace(10_000, 20_000, n_on + n_off).astype(np.int64)
+    ev["p"] = [1] * n_on + [-1] * n_off
+    r = Recording(ev, SensorSize(h, w), fr)
+    thr = (np.full((h, w), 0.15), np.full((h, w), 0.25))
+    start = 40 / 255
+    v = reconstruct(r, "akf", times_us=[20_001], mode="causal", thresholds=thr)
+    assert v.frames[0, 0, 0] == pytest.approx(start, rel=0.02)
+    v0 = reconstruct(r, "akf", times_us=[20_001], mode="causal")
+    assert abs(v0.frames[0, 0, 0] / start - 1) > 0.3
