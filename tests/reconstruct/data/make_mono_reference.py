@@ -1,5 +1,5 @@
 """Regenerates mono_reference.npz: every method's output on a small procedural recording (grey and
-colour frames, no CFA), written at commit 80e9a86, before the colour path existed.
+colour frames, no CFA), written at commit a6507ee (threshold maps), before the colour path existed.
 
 Run ``python tests/reconstruct/data/make_mono_reference.py tests/reconstruct/data/mono_reference.npz``
 only when a deliberate change of the monochrome results is made."""
