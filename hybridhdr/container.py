@@ -101,8 +101,10 @@ class RecordingWriter(EventFileWriter):
 
     # -- EventFileWriter hooks ----------------------------------------------------------------
     def _open(self):
-        h5py = _h5py()
-        self._f = h5py.File(self.tmp_path, "w")
+        _h5py()
+        from ._safe_h5 import open_h5_for_writing
+        self._f = self._guard = None
+        self._f, self._guard = open_h5_for_writing(self.tmp_path)
         f = self._f
         f.attrs["hybridhdr_format_version"] = FORMAT_VERSION
         f.attrs["sensor_height"] = self.sensor_size.height
@@ -126,6 +128,7 @@ class RecordingWriter(EventFileWriter):
         self._next_ms = 0
         self._ms_pending: list[np.ndarray] = []
         self._trig_last = None
+        self._guard.check()
 
     def _write_events(self, events):
         self._buf.append(events.copy())
@@ -155,6 +158,7 @@ class RecordingWriter(EventFileWriter):
             self._append_ms(idx)
             self._next_ms = last_m + 1
         self._n_written = n1
+        self._guard.check()
 
     def _append_ms(self, idx):
         ds = self._f["events"]["ms_to_idx"]
@@ -174,6 +178,7 @@ class RecordingWriter(EventFileWriter):
             g[name].resize((n0 + len(triggers),))
             g[name][n0:] = triggers[name]
         self._trig_last = int(triggers["t"][-1])
+        self._guard.check()
 
     def _write_frames(self, frames: Frames):
         f = self._f
@@ -208,6 +213,7 @@ class RecordingWriter(EventFileWriter):
             if name in g:
                 g[name].resize((k1,))
                 g[name][k0:k1] = getattr(frames, name)
+        self._guard.check()
 
     def write_hdr(self, hdr: HDRReferences) -> None:
         """Append HDR references (float32 linear radiance with timestamps)."""
@@ -229,11 +235,13 @@ class RecordingWriter(EventFileWriter):
         g["images"][k0:k1] = im
         g["t_us"].resize((k1,))
         g["t_us"][k0:k1] = hdr.t_us
+        self._guard.check()
 
     def flush(self) -> None:
         """Write buffered events and flush the HDF5 file to disk."""
         self._flush_events()
         self._f.flush()
+        self._guard.check()
 
     def _finish(self):
         self._flush_events()
@@ -245,12 +253,13 @@ class RecordingWriter(EventFileWriter):
             self._f["events"]["ms_to_idx"].attrs["origin_us"] = 0
         self._f.attrs["n_events"] = self._n_written
         self._f.close()
+        self._guard.check()
+        self._guard.close()  # a failing close (e.g. NFS) is recorded too
+        self._guard.check()
 
     def _cleanup(self):
-        try:
-            self._f.close()
-        except Exception:
-            pass
+        from ._safe_h5 import close_and_remove
+        close_and_remove(getattr(self, "_f", None), getattr(self, "_guard", None), self.tmp_path)
 
 
 def _guarded(method):

@@ -218,7 +218,15 @@ class EventFileWriter:
         self._last_t = None
         self._closed = False
         self.n_events = 0
-        self._open()
+        try:
+            self._open()
+        except BaseException:
+            # a writer failing while creating its file (full disk, bad option) leaves nothing behind
+            try:
+                self.abort()
+            except Exception:
+                pass
+            raise
 
     def _open(self) -> None:
         raise NotImplementedError
@@ -277,11 +285,11 @@ class EventFileWriter:
             return
         try:
             self._finish()
+            self._closed = True
+            os.replace(self.tmp_path, self.path)
         except BaseException:
             self.abort()
             raise
-        self._closed = True
-        os.replace(self.tmp_path, self.path)
 
     def abort(self) -> None:
         """Drop the partial output."""

@@ -145,8 +145,10 @@ class JournalWriter:
 
     def close(self) -> None:
         if not self._f.closed:
-            self.flush()
-            self._f.close()
+            try:
+                self.flush()
+            finally:
+                self._f.close()
 
 
 @dataclass
@@ -558,17 +560,30 @@ class Recorder:
             return self.stats
         self.stop()
         self._finished = True
+        if not self._errors:
+            try:
+                self._jw.write_json(T_END, self.stats.to_dict())
+                self._jw.close()
+            except OSError as e:
+                self._errors.append(e)
         if self._errors:
-            self._jw.close()
+            try:
+                self._jw.close()
+            except OSError:
+                pass  # the journal's intact records are what recover reads; a torn tail is skipped
             e = self._errors[0]
-            raise RuntimeError(f"recording failed ({type(e).__name__}: {e}); the journal {self.journal_path} "
-                               f"keeps everything written so far: run 'hybridhdr capture recover "
-                               f"{self.path}'") from e
-        self._jw.write_json(T_END, self.stats.to_dict())
-        self._jw.close()
+            msg = (f"recording failed ({type(e).__name__}: {e}); the journal {self.journal_path} keeps every "
+                   f"record written intact so far: run 'hybridhdr capture recover {self.path}'")
+            if isinstance(e, OSError):  # full disk, I/O error: one clean line from the command line
+                raise OSError(e.errno, msg + " (after freeing space)") from e
+            raise RuntimeError(msg) from e
         t = time.perf_counter()
-        _convert(self.journal_path, self.path, compression=self.compression, progress=self.progress,
-                 final_stats=self.stats)
+        try:
+            _convert(self.journal_path, self.path, compression=self.compression, progress=self.progress,
+                     final_stats=self.stats)
+        except OSError as e:
+            raise OSError(e.errno, f"{e.strerror or e}; the journal {self.journal_path} is kept: free space, "
+                                   f"then run 'hybridhdr capture recover {self.path}'") from e
         self.stats.finish_s = time.perf_counter() - t
         self.journal_path.unlink()
         if self.stats.dropped_anything:

@@ -690,8 +690,9 @@ class AkfMatWriter(EventFileWriter):
     supports = frozenset({"frames"})
 
     def _open(self) -> None:
-        import h5py
-        self._f = h5py.File(self.tmp_path, "w", userblock_size=512, libver="earliest")
+        from ..._safe_h5 import open_h5_for_writing
+        self._f = self._guard = self._ev = self._img = None
+        self._f, self._guard = open_h5_for_writing(self.tmp_path, userblock_size=512, libver="earliest")
         self._ev = self._f.create_dataset("events", shape=(4, 0), maxshape=(4, None), dtype="<f8",
                                           chunks=(4, 1 << 15))
         self._ev.attrs["MATLAB_class"] = np.bytes_(b"double")
@@ -716,6 +717,7 @@ class AkfMatWriter(EventFileWriter):
             raise ValueError("AKF .mat stores t as double: timestamps must be below 2^53 µs")
         self._ev.resize((4, n0 + len(events)))
         self._ev[:, n0:] = blk
+        self._guard.check()
 
     def _write_frames(self, frames: Frames) -> None:
         im = frames.images
@@ -748,6 +750,7 @@ class AkfMatWriter(EventFileWriter):
             ds.resize((1, n0 + k))
             ds[0, n0:] = v
         self._last_frame_t = int(frames.t_start_us[-1])
+        self._guard.check()
 
     def _finish(self) -> None:
         if self._ev.shape[1] == 0:  # MATLAB's own encoding of an empty (0 x 4) array
@@ -771,17 +774,19 @@ class AkfMatWriter(EventFileWriter):
             self._var("ct", np.asarray(ct, dtype=np.float64))
         if fq is not None:
             self._var("f_Q", np.asarray(fq, dtype=np.float64).reshape(-1, 1))
+        # datasets first, then the file, then the descriptor; each step's I/O error is raised once
+        self._ev = self._img = self._ti = self._ex = None
         self._f.close()
-        with open(self.tmp_path, "r+b") as fh:
-            fh.write(matlab_v73_header())
+        self._guard.check()
+        self._guard.seek(0)
+        self._guard.write(matlab_v73_header())
+        self._guard.close()
+        self._guard.check()
 
     def _cleanup(self) -> None:
-        f = getattr(self, "_f", None)
-        if f is not None:
-            try:
-                f.close()
-            except Exception:
-                pass
+        from ..._safe_h5 import close_and_remove
+        self._ev = self._img = self._ti = self._ex = None
+        close_and_remove(getattr(self, "_f", None), getattr(self, "_guard", None), self.tmp_path)
 
 
 READERS = {"akf_mat": AkfMatReader}
