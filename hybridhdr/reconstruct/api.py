@@ -42,9 +42,11 @@ class Video:
 
     Attributes
     ----------
-    frames : ndarray of shape (K, H, W), float32
+    frames : ndarray of shape (K, H, W) or (K, H, W, 3), float32
         Linear intensity in the camera profile's scaled-irradiance units (brightest frame code =
-        1); for ``highpass`` the relative intensity exp(L̂) (1 = unchanged).
+        1); for ``highpass`` the relative intensity exp(L̂) (1 = unchanged). Linear RGB
+        (demosaicked) for a colour event camera (:mod:`~hybridhdr.reconstruct.colour`);
+        :meth:`luminance` gives (K, H, W) in either case.
     t_us : ndarray of shape (K,), int64
         Timestamp of each frame in µs (the state at t includes events with timestamps < t).
     method : str
@@ -62,8 +64,8 @@ class Video:
 
     def __post_init__(self):
         fr = np.asarray(self.frames, dtype=np.float32)
-        if fr.ndim != 3:
-            raise ValueError(f"Video.frames must have shape (K, H, W), got {fr.shape}")
+        if fr.ndim != 3 and not (fr.ndim == 4 and fr.shape[3] == 3):
+            raise ValueError(f"Video.frames must have shape (K, H, W) or (K, H, W, 3), got {fr.shape}")
         t = np.asarray(self.t_us, dtype=np.int64)
         if t.shape != (fr.shape[0],):
             raise ValueError(f"Video.t_us must have shape ({fr.shape[0]},), got {t.shape}")
@@ -76,6 +78,18 @@ class Video:
     @property
     def shape(self) -> tuple[int, int]:
         return tuple(self.frames.shape[1:3])
+
+    @property
+    def is_colour(self) -> bool:
+        """True for linear RGB frames (K, H, W, 3) (a colour event camera, ``info["cfa"]``)."""
+        return self.frames.ndim == 4
+
+    def luminance(self) -> np.ndarray:
+        """(K, H, W) float32: the frames themselves, or Rec. 709 luminance of RGB frames."""
+        if not self.is_colour:
+            return self.frames
+        from .colour import rgb_to_luminance
+        return rgb_to_luminance(self.frames)
 
 
 def resolve_method(method: str) -> str:
@@ -268,13 +282,32 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                      mode: str = "offline", profile=None, t_start_us: int | None = None,
                      t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                      measurements=None, progress: Callable[[int], None] | None = None,
-                     info: dict | None = None, augment=None, thresholds=None) -> Iterator[tuple[int, np.ndarray]]:
+                     info: dict | None = None, augment=None, thresholds=None, cfa=None,
+                     demosaic: str = "bilinear") -> Iterator[tuple[int, np.ndarray]]:
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
     :func:`hybridhdr.open_reader`, a :class:`hybridhdr.container.RecordingFile` or a path, whose
-    events are read chunk by chunk. ``info``, if given, is filled with run statistics.
+    events are read chunk by chunk. ``info``, if given, is filled with run statistics. Images
+    are (H, W), or (H, W, 3) linear RGB for a colour event camera (``cfa``).
     """
+    from .colour import colour_source
+    kw = dict(times_us=times_us, fps=fps, mode=mode, profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
+              n_workers=n_workers, chunk_events=chunk_events, measurements=measurements, progress=progress,
+              info=info, augment=augment, thresholds=thresholds)
+    cs = colour_source(source, cfa, demosaic)
+    if cs is None:  # monochrome: the driver below, unchanged
+        yield from _reconstruct_iter_mono(source, method, params, **kw)
+    else:  # every method on the Bayer mosaic, outputs demosaicked (reconstruct.colour)
+        yield from cs.demosaic_outputs(_reconstruct_iter_mono(cs.source, method, params, **kw), info)
+
+
+def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
+                           mode: str = "offline", profile=None, t_start_us: int | None = None,
+                           t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
+                           measurements=None, progress: Callable[[int], None] | None = None,
+                           info: dict | None = None, augment=None,
+                           thresholds=None) -> Iterator[tuple[int, np.ndarray]]:
     method = resolve_method(method)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -387,7 +420,8 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
 def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
                 mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
                 n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
-                progress: Callable[[int], None] | None = None, augment=None, thresholds=None) -> Video:
+                progress: Callable[[int], None] | None = None, augment=None, thresholds=None, cfa=None,
+                demosaic: str = "bilinear") -> Video:
     """Reconstruct linear-intensity video from events and frames.
 
     Parameters
@@ -439,6 +473,16 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         needs the next frame) and by other methods. Calibration fallbacks are reported in
         ``Video.info["augmentation"]``. With augmentation (and for ``method="edi"``) the events
         are held in memory.
+    cfa : str or None
+        Colour filter array of a colour event camera (``"RGGB"``, ``"BGGR"``, ``"GRBG"``,
+        ``"GBRG"``): every method runs on the Bayer mosaic (RGB frames contribute each pixel's
+        own channel) and the outputs are demosaicked to linear RGB
+        (:mod:`~hybridhdr.reconstruct.colour`). None (default): the recording's
+        ``metadata.event_camera.cfa``; ``"none"``: monochrome regardless. The pattern set here
+        applies to the frames too (grey frames are then its raw mosaic).
+    demosaic : {"bilinear", "edge_aware"}
+        Demosaicking of colour outputs (:func:`hybridhdr.camera.cfa.demosaic`); reported in
+        ``Video.info["cfa"]``.
 
     Returns
     -------
@@ -455,7 +499,8 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     for t, img in reconstruct_iter(source, method, params, times_us=times_us, fps=fps, mode=mode,
                                    profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
                                    n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
-                                   progress=progress, info=info, augment=augment, thresholds=thresholds):
+                                   progress=progress, info=info, augment=augment, thresholds=thresholds,
+                                   cfa=cfa, demosaic=demosaic):
         ts.append(t)
         imgs.append(img)
     method = resolve_method(method)

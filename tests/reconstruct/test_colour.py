@@ -31,3 +31,64 @@ def test_monochrome_outputs_unchanged(mono_recordings, frames_kind, method, mode
     assert v.frames.dtype == np.float32 and v.frames.shape == want.shape
     np.testing.assert_array_equal(v.t_us, want_t)
     assert v.frames.tobytes() == want.tobytes()
+
+
+# -- the colour path ------------------------------------------------------------------------------
+
+import dataclasses  # noqa: E402
+
+from hybridhdr.camera.cfa import CFA_PATTERNS, channel_masks, mosaic  # noqa: E402
+from hybridhdr.container import write_recording  # noqa: E402
+from hybridhdr.model import Frames  # noqa: E402
+
+
+def _grey_as_colour(rec, pattern, frames="rgb"):
+    """The grey recording as a colour camera would record a grey scene: same events, frames
+    RGB with R = G = B (or the raw mosaic, which for grey is the grey frame)."""
+    f = rec.frames
+    if frames == "rgb":
+        f = Frames(np.repeat(f.images[..., None], 3, axis=-1), f.t_start_us, f.t_end_us, encoding=f.encoding)
+    ec = dataclasses.replace(rec.metadata.event_camera, cfa=pattern)
+    fc = dataclasses.replace(rec.metadata.frame_camera, cfa=pattern)
+    return dataclasses.replace(rec, frames=f, metadata=dataclasses.replace(rec.metadata, event_camera=ec,
+                                                                         frame_camera=fc))
+
+
+@pytest.mark.parametrize("method,mode,kw", RUNS, ids=[f"{m}-{mo}{'-aug' if kw else ''}" for m, mo, kw in RUNS])
+def test_grey_scene_through_colour_path(mono_recordings, method, mode, kw):
+    """A grey scene seen by a Bayer camera: at every pixel, its own channel of the colour output
+    is the monochrome output, bit for bit, for every method (the filters run unchanged on the
+    mosaic; demosaicking keeps each pixel's measurement)."""
+    rec = mono_recordings[0]
+    mono = reconstruct(rec, method, mode=mode, fps=100, **kw)
+    pattern = CFA_PATTERNS[len(method) % 4]
+    col = reconstruct(_grey_as_colour(rec, pattern), method, mode=mode, fps=100, **kw)
+    assert col.is_colour and col.frames.shape == mono.frames.shape + (3,) and col.frames.dtype == np.float32
+    np.testing.assert_array_equal(col.t_us, mono.t_us)
+    assert mosaic(col.frames, pattern).tobytes() == mono.frames.tobytes()
+    assert col.info["cfa"]["event"] == pattern and col.info["cfa"]["demosaic"] == "bilinear"
+    assert col.luminance().shape == mono.frames.shape
+
+
+def test_cfa_argument_and_sources(mono_recordings, tmp_path):
+    rec = mono_recordings[0]
+    mono = reconstruct(rec, "akf", fps=100)
+    # cfa= on a recording that declares none; raw-mosaic grey frames
+    a = reconstruct(rec, "akf", fps=100, cfa="gbrg")
+    assert mosaic(a.frames, "GBRG").tobytes() == mono.frames.tobytes()
+    # "none" forces the monochrome path on a colour recording
+    col = _grey_as_colour(rec, "RGGB")
+    assert reconstruct(col, "akf", fps=100, cfa="none").frames.tobytes() == mono.frames.tobytes()
+    # from a container path: the CFA comes from the stored metadata
+    write_recording(col, tmp_path / "c.h5")
+    b = reconstruct(tmp_path / "c.h5", "akf", fps=100, demosaic="edge_aware")
+    assert b.info["cfa"] == {"event": "RGGB", "frames": "RGB frames, each pixel's RGGB channel",
+                             "demosaic": "edge_aware"}
+    assert mosaic(b.frames, "RGGB").tobytes() == mono.frames.tobytes()
+    # grey frames of a colour event camera that declare no frame CFA are refused
+    ec = dataclasses.replace(rec.metadata.event_camera, cfa="RGGB")
+    bad = dataclasses.replace(rec, metadata=dataclasses.replace(rec.metadata, event_camera=ec))
+    with pytest.raises(ValueError, match="declare the frames' CFA"):
+        reconstruct(bad, "akf", fps=100)
+    with pytest.raises(ValueError):
+        reconstruct(rec, "akf", fps=100, cfa="RGBW")
