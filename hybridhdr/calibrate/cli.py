@@ -1,5 +1,6 @@
 """``hybridhdr calibrate``: ``rig`` (stereo event/frame rig), ``crf`` (response and noise profile),
-``hdr-reference`` (merged, registered HDR references).
+``hdr-reference`` (merged, registered HDR references), ``thresholds`` (per-pixel ON/OFF contrast
+thresholds).
 
 Each step lives in its own module with ``register(subparsers)``; a step whose module is not
 present in this version is simply not listed.
@@ -10,14 +11,14 @@ from __future__ import annotations
 import argparse
 import importlib
 
-_STEP_MODULES = ("_cli_rig", "_cli_photometric")
+_STEP_MODULES = ("_cli_rig", "_cli_photometric", "_cli_thresholds")
 
 
 def add_parser(sub) -> None:
     p = sub.add_parser("calibrate", help="stereo rig, camera response and noise profile, HDR references",
-                       description="Calibrate a hybrid event/frame rig: geometry (rig), photometry (crf) "
-                                   "and HDR references (hdr-reference). Each step writes a JSON report "
-                                   "and PNG plots.",
+                       description="Calibrate a hybrid event/frame rig: geometry (rig), photometry (crf), "
+                                   "HDR references (hdr-reference) and contrast thresholds (thresholds). Each step "
+                                   "writes a JSON report and PNG plots.",
                        formatter_class=argparse.ArgumentDefaultsHelpFormatter)
     steps = p.add_subparsers(dest="calibrate_step", metavar="STEP")
     for name in _STEP_MODULES:

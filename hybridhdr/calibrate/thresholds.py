@@ -1,0 +1,466 @@
+"""Per-pixel, per-polarity contrast thresholds estimated from a recording's frames and events.
+
+Model (derivation in ``docs/calibrate.md``, "Contrast thresholds"). Between two consecutive frame
+times τ_k < τ_{k+1} (mid-exposures) an ideal DVS pixel with thresholds c_on, c_off fires
+N_on,k ON and N_off,k OFF events, and its log intensity changes by
+
+    ΔL_k = L(τ_{k+1}) − L(τ_k) = c_on·N_on,k − c_off·N_off,k + (r_{k+1} − r_k),
+
+where r is the pixel's distance from its last reference level (|r| below one threshold), so the
+error of one interval is bounded and telescopes over consecutive intervals. The frames measure
+L(τ_k) as ``L^F_k = log(s_k·I_k + I0)``, with ``I_k = CRF⁻¹(code)`` in frame-linear units from the
+camera profile, ``s_k`` the exposure × gain ratio to the median frame (1 when the exposures are
+equal or unknown) and I0 a small offset (:data:`DEFAULT_INTENSITY_OFFSET`, 1e-3 of the clip
+level; the simulator's ``log_eps`` has the same size). Only intervals whose two frames both see
+the pixel well exposed (codes 20-235 of 8 bits, scaled to other depths) are used, and only
+intervals inside the events' time span (their counts are complete).
+
+Per pixel, least squares with non-negativity,
+
+    (ĉ_on, ĉ_off) = argmin_{a, b >= 0} Σ_k (ΔL_k − a·N_on,k + b·N_off,k)²,
+
+accumulated interval by interval in five sums (memory O(H·W), not O(K·H·W)) and solved in closed
+form (the 2×2 normal equations; when the unconstrained solution has a negative component, the
+best of the two one-variable solutions on the boundary: exact NNLS for two unknowns).
+
+Minimum information: a pixel is **estimable** when at least ``min_intervals`` (2) usable
+intervals hold ON events and at least ``min_intervals`` hold OFF events, its ON and OFF count
+columns are not (nearly) proportional (``1 − ρ² >= min_decorrelation``, ρ the uncentred
+correlation of the two columns; proportional counts leave only c_on·N_on − c_off·N_off
+determined), and both estimates lie in ``c_range`` (a threshold at the NNLS bound 0 is not
+physical). Other pixels are NaN in :class:`ThresholdMap` and counted by reason.
+
+Fallback (global estimate): the same least squares pooled over every usable (pixel, interval)
+pair, i.e. the five sums added over the pixels; :meth:`ThresholdMap.filled` puts it in every NaN
+pixel. Stored as ``fallback_on``/``fallback_off``.
+
+The sidecar file ``thresholds.npz`` (:meth:`ThresholdMap.save`, :func:`load_thresholds`) holds
+``c_on``, ``c_off`` (H, W) float64 (NaN: not estimable), the counts ``n_on``, ``n_off``
+(events in the usable intervals), ``n_intervals`` (usable intervals), the fallback values, the
+``method`` and a JSON ``provenance``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+from pathlib import Path
+
+import numpy as np
+
+__all__ = ["ThresholdMap", "estimate_thresholds", "load_thresholds", "plot_thresholds", "THRESHOLDS_FORMAT",
+           "THRESHOLDS_VERSION", "METHOD"]
+
+THRESHOLDS_FORMAT = "hybridhdr-thresholds"
+THRESHOLDS_VERSION = 1
+#: Name of the estimator stored in the file.
+METHOD = "frame_event_nnls"
+
+
+def _num(v, name) -> float:
+    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
+        raise TypeError(f"ThresholdMap.{name} must be a number, got {type(v).__name__}")
+    v = float(v)
+    if not (math.isfinite(v) and v > 0):
+        raise ValueError(f"ThresholdMap.{name} must be finite and > 0 (log units), got {v}")
+    return v
+
+
+@dataclasses.dataclass(frozen=True, eq=False)
+class ThresholdMap:
+    """Per-pixel ON/OFF contrast thresholds (natural-log units) with a global fallback.
+
+    Attributes
+    ----------
+    c_on, c_off : ndarray (H, W) float64
+        Thresholds; finite and > 0 where estimated, NaN where not estimable (never ±inf).
+    fallback_on, fallback_off : float
+        Global estimates (> 0) for the NaN pixels (:meth:`filled`).
+    n_on, n_off, n_intervals : ndarray (H, W) int64, optional
+        ON and OFF events in the usable intervals and the number of usable intervals per pixel
+        (zeros when not given).
+    method : str
+    provenance : dict
+        JSON-serialisable: recording, profile, I0, settings, summary statistics.
+    """
+
+    c_on: np.ndarray
+    c_off: np.ndarray
+    fallback_on: float
+    fallback_off: float
+    n_on: np.ndarray | None = None
+    n_off: np.ndarray | None = None
+    n_intervals: np.ndarray | None = None
+    method: str = METHOD
+    provenance: dict = dataclasses.field(default_factory=dict)
+
+    def __post_init__(self):
+        arrs = {}
+        for name in ("c_on", "c_off"):
+            a = np.array(getattr(self, name), dtype=np.float64)
+            if a.ndim != 2:
+                raise ValueError(f"ThresholdMap.{name} must be 2-D (H, W), got shape {a.shape}")
+            if np.isinf(a).any():
+                raise ValueError(f"ThresholdMap.{name} has infinite entries; use NaN for 'not estimable'")
+            fin = np.isfinite(a)
+            if np.any(a[fin] <= 0):
+                raise ValueError(f"ThresholdMap.{name} must be > 0 where finite, got min {a[fin].min()}")
+            arrs[name] = a
+        if arrs["c_on"].shape != arrs["c_off"].shape:
+            raise ValueError(f"ThresholdMap.c_on {arrs['c_on'].shape} and c_off {arrs['c_off'].shape} differ in shape")
+        shape = arrs["c_on"].shape
+        for name in ("n_on", "n_off", "n_intervals"):
+            v = getattr(self, name)
+            a = np.zeros(shape, np.int64) if v is None else np.asarray(v)
+            if a.shape != shape:
+                raise ValueError(f"ThresholdMap.{name} must have shape {shape}, got {a.shape}")
+            if a.size and (a.dtype.kind not in "iu" or a.min() < 0):
+                raise ValueError(f"ThresholdMap.{name} must hold non-negative integers")
+            arrs[name] = a.astype(np.int64)
+        for a in arrs.values():
+            a.setflags(write=False)
+        for k, a in arrs.items():
+            object.__setattr__(self, k, a)
+        object.__setattr__(self, "fallback_on", _num(self.fallback_on, "fallback_on"))
+        object.__setattr__(self, "fallback_off", _num(self.fallback_off, "fallback_off"))
+        if not isinstance(self.method, str):
+            raise TypeError(f"ThresholdMap.method must be a str, got {type(self.method).__name__}")
+        if not isinstance(self.provenance, dict):
+            raise TypeError(f"ThresholdMap.provenance must be a dict, got {type(self.provenance).__name__}")
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """``(H, W)``."""
+        return tuple(self.c_on.shape)
+
+    @property
+    def valid(self) -> np.ndarray:
+        """Pixels with both thresholds estimated (bool (H, W))."""
+        return np.isfinite(self.c_on) & np.isfinite(self.c_off)
+
+    def filled(self) -> tuple[np.ndarray, np.ndarray]:
+        """``(c_on, c_off)`` with every NaN replaced by the fallback (finite, > 0 everywhere).
+
+        The rule is per polarity: a pixel whose ON estimate is NaN gets ``fallback_on``, one
+        whose OFF estimate is NaN gets ``fallback_off`` (the estimator sets both or neither).
+        """
+        on = np.where(np.isfinite(self.c_on), self.c_on, self.fallback_on)
+        off = np.where(np.isfinite(self.c_off), self.c_off, self.fallback_off)
+        return on, off
+
+    def summary(self) -> dict:
+        """Medians, quartiles and the estimable fraction (JSON-serialisable)."""
+        v = self.valid
+        out = {"shape": list(self.shape), "n_pixels": int(v.size), "n_estimated": int(v.sum()),
+               "fraction_estimated": float(v.mean()) if v.size else 0.0,
+               "fallback_on": self.fallback_on, "fallback_off": self.fallback_off}
+        for name, a in (("on", self.c_on), ("off", self.c_off)):
+            x = a[v]
+            q = np.percentile(x, [25, 50, 75]) if x.size else [float("nan")] * 3
+            out[f"median_{name}"] = float(q[1])
+            out[f"q25_{name}"], out[f"q75_{name}"] = float(q[0]), float(q[2])
+        return out
+
+    # -- file -------------------------------------------------------------------------------
+    def save(self, path) -> Path:
+        """Write the sidecar ``.npz`` atomically (no pickles: the provenance is a JSON string)."""
+        from .._atomic import atomic_path
+        path = Path(path)
+        with atomic_path(path, suffix=".npz") as tmp:
+            with open(tmp, "wb") as f:
+                np.savez_compressed(f, format=np.array(THRESHOLDS_FORMAT), version=np.array(THRESHOLDS_VERSION),
+                                    c_on=self.c_on, c_off=self.c_off, n_on=self.n_on, n_off=self.n_off,
+                                    n_intervals=self.n_intervals, fallback_on=np.array(self.fallback_on),
+                                    fallback_off=np.array(self.fallback_off), method=np.array(self.method),
+                                    provenance=np.array(json.dumps(self.provenance, default=_json_default)))
+        return path
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o).__name__}")
+
+
+def load_thresholds(path) -> ThresholdMap:
+    """Read a ``thresholds.npz`` written by :meth:`ThresholdMap.save` (or ``calibrate thresholds``).
+
+    Raises ValueError with the reason for a file of another format or version, a missing key or
+    invalid values (shapes, non-positive or infinite thresholds).
+    """
+    path = Path(path)
+    try:
+        z = np.load(path, allow_pickle=False)
+    except (ValueError, OSError) as e:
+        raise ValueError(f"{path}: not a thresholds .npz file ({e})") from None
+    with z:
+        keys = set(z.files)
+        need = {"format", "version", "c_on", "c_off", "fallback_on", "fallback_off"}
+        if not need <= keys:
+            raise ValueError(f"{path}: missing keys {sorted(need - keys)}; expected a file written by "
+                             f"'hybridhdr calibrate thresholds'")
+        fmt = str(z["format"][()])
+        if fmt != THRESHOLDS_FORMAT:
+            raise ValueError(f"{path}: format {fmt!r}, expected {THRESHOLDS_FORMAT!r}")
+        ver = int(z["version"][()])
+        if ver != THRESHOLDS_VERSION:
+            raise ValueError(f"{path}: version {ver}, this hybridhdr reads version {THRESHOLDS_VERSION}")
+        prov = json.loads(str(z["provenance"][()])) if "provenance" in keys else {}
+        try:
+            return ThresholdMap(c_on=z["c_on"], c_off=z["c_off"], fallback_on=float(z["fallback_on"][()]),
+                                fallback_off=float(z["fallback_off"][()]),
+                                n_on=z["n_on"] if "n_on" in keys else None,
+                                n_off=z["n_off"] if "n_off" in keys else None,
+                                n_intervals=z["n_intervals"] if "n_intervals" in keys else None,
+                                method=str(z["method"][()]) if "method" in keys else "unknown", provenance=prov)
+        except (TypeError, ValueError) as e:
+            raise ValueError(f"{path}: {e}") from None
+
+
+# -- estimation ----------------------------------------------------------------------------------
+
+def _nnls2(soo, sff, sof, bo, bf):
+    """Exact 2-variable NNLS of Σ(ΔL − a·N_on + b·N_off)² from its sums (vectorised).
+
+    Sums: soo = ΣN_on², sff = ΣN_off², sof = ΣN_on·N_off, bo = ΣN_on·ΔL, bf = ΣN_off·ΔL.
+    Returns (a, b) >= 0 (0 where a sum is empty).
+    """
+    soo, sff, sof, bo, bf = (np.asarray(v, np.float64) for v in (soo, sff, sof, bo, bf))
+    det = soo * sff - sof * sof
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(det > 0, (sff * bo - sof * bf) / det, -1.0)
+        b = np.where(det > 0, (sof * bo - soo * bf) / det, -1.0)
+        # boundary candidates: b = 0 -> a = bo/soo; a = 0 -> b = -bf/sff
+        a1 = np.where(soo > 0, np.maximum(bo / soo, 0.0), 0.0)
+        b2 = np.where(sff > 0, np.maximum(-bf / sff, 0.0), 0.0)
+    # objective minus the constant ΣΔL²: f(a, b) = soo a² + sff b² − 2 sof a b − 2 bo a + 2 bf b
+    f1 = soo * a1 ** 2 - 2 * bo * a1
+    f2 = sff * b2 ** 2 + 2 * bf * b2
+    inner = (a >= 0) & (b >= 0) & (det > 0)
+    use1 = f1 <= f2
+    a_out = np.where(inner, a, np.where(use1, a1, 0.0))
+    b_out = np.where(inner, b, np.where(use1, 0.0, b2))
+    return a_out, b_out
+
+
+def estimate_thresholds(recording, *, profile=None, intensity_offset: float | None = None, well_exposed=None,
+                        min_intervals: int = 2, min_decorrelation: float = 0.05, c_range=(0.01, 2.0),
+                        require_event_coverage: bool = True, progress=None) -> ThresholdMap:
+    """Estimate per-pixel ON/OFF thresholds from frames and events (module docstring).
+
+    Parameters
+    ----------
+    recording : Recording or path
+        Needs events and at least two frames registered to the event sensor (same size).
+    profile : CameraProfile, path or None
+        Camera profile for ``I = CRF⁻¹(code)``; None: the recording's declared profile
+        (``provenance["camera_profile"]``), else the built-in one for the frames' encoding.
+    intensity_offset : float, optional
+        I0 in frame-linear units; default :data:`hybridhdr.reconstruct.params.DEFAULT_INTENSITY_OFFSET`.
+    well_exposed : (lo, hi), optional
+        Codes counted as well exposed (inclusive); default 20-235 scaled to the bit depth.
+    min_intervals : int
+        Usable intervals with ON events, and with OFF events, a pixel needs.
+    min_decorrelation : float
+        Smallest ``1 − ρ²`` of the ON and OFF count columns (identifiability).
+    c_range : (float, float)
+        Estimates outside it are not accepted (log units).
+    require_event_coverage : bool
+        Use only intervals inside the events' time span (first to last event).
+    """
+    from ..camera import load_profile, profile_for_frames
+    from ..evaluate.realdata import well_exposed_range
+    from ..reconstruct.measurement import frames_to_codes
+    from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
+
+    rec = recording
+    if isinstance(rec, (str, Path)):
+        from ..io import read
+        rec = read(rec)
+    if rec.frames is None or len(rec.frames) < 2:
+        raise ValueError("threshold estimation needs at least two frames; the recording has "
+                         f"{0 if rec.frames is None else len(rec.frames)}")
+    if len(rec.events) == 0:
+        raise ValueError("threshold estimation needs events; the recording has none")
+    i0 = DEFAULT_INTENSITY_OFFSET if intensity_offset is None else float(intensity_offset)
+    if not (math.isfinite(i0) and i0 > 0):
+        raise ValueError(f"intensity_offset must be finite and > 0, got {intensity_offset}")
+    lo_c, hi_c = (float(v) for v in c_range)
+    if not 0 < lo_c < hi_c:
+        raise ValueError(f"c_range must satisfy 0 < lo < hi, got {c_range}")
+    if int(min_intervals) < 1:
+        raise ValueError(f"min_intervals must be >= 1, got {min_intervals}")
+    if profile is None:
+        prov = rec.metadata.provenance if rec.metadata is not None else {}
+        profile = prov.get("camera_profile") if isinstance(prov, dict) else None
+        if not (profile is None or isinstance(profile, (str, Path)) or hasattr(profile, "intensity")):
+            from ..camera import CameraProfile
+            profile = CameraProfile.from_dict(profile) if isinstance(profile, dict) else None
+    fr = rec.frames
+    prof = profile_for_frames(load_profile(profile), fr)
+    h, w = fr.shape
+    ss = rec.sensor_size
+    if ss is not None and tuple(ss.shape) != (h, w):
+        raise ValueError(f"frames are {w}x{h} but the event sensor is {ss.width}x{ss.height}; register them first")
+    codes = frames_to_codes(fr, (h, w))
+    lo, hi = well_exposed_range(prof.max_code) if well_exposed is None else (int(well_exposed[0]),
+                                                                            int(well_exposed[1]))
+    # frame order by τ (mid-exposure); frames sharing a τ keep the last one (as reconstruct)
+    tau = fr.t_mid_us
+    order = np.argsort(tau, kind="stable")
+    keep = np.ones(len(order), bool)
+    keep[:-1] = tau[order][1:] != tau[order][:-1]
+    order = order[keep]
+    tau = tau[order]
+    # exposure x gain relative to the median frame (1 when unknown or equal)
+    expo = fr.exposure_us.astype(np.float64)[order]
+    gain = np.ones(len(order)) if fr.gain is None else np.asarray(fr.gain, np.float64)[order]
+    e = expo * gain
+    if np.all(e > 0) and np.ptp(e) > 0:
+        scale = float(np.median(e)) / e
+        scale_note = "exposure x gain normalised to the median frame"
+    else:
+        scale = np.ones(len(order))
+        scale_note = "none (equal or unknown exposures)"
+    ev = rec.events
+    t = ev["t"]
+    t0_ev, t1_ev = int(t[0]), int(t[-1])
+    pix = ev["y"].astype(np.int64) * w + ev["x"].astype(np.int64)
+    on = ev["p"] > 0
+    n = h * w
+    sums = {k: np.zeros(n, np.float64) for k in ("soo", "sff", "sof", "bo", "bf", "sll")}
+    n_on = np.zeros(n, np.int64)
+    n_off = np.zeros(n, np.int64)
+    k_on = np.zeros(n, np.int64)
+    k_off = np.zeros(n, np.int64)
+    n_int = np.zeros(n, np.int64)
+    used = []
+
+    def logf(j):
+        c = np.asarray(codes[order[j]]).reshape(-1)
+        good = (c >= lo) & (c <= hi)
+        return np.log(prof.intensity(c) * scale[j] + i0), good
+
+    Lk, gk = logf(0)
+    idx = np.searchsorted(t, tau)
+    for j in range(len(tau) - 1):
+        L1, g1 = logf(j + 1)
+        ok_time = (not require_event_coverage) or (tau[j] >= t0_ev and tau[j + 1] <= t1_ev)
+        if ok_time:
+            a, b = idx[j], idx[j + 1]
+            p_ = pix[a:b]
+            o_ = on[a:b]
+            non = np.bincount(p_[o_], minlength=n).astype(np.float64)
+            noff = np.bincount(p_[~o_], minlength=n).astype(np.float64)
+            m = gk & g1
+            dl = np.where(m, L1 - Lk, 0.0)
+            non = np.where(m, non, 0.0)
+            noff = np.where(m, noff, 0.0)
+            sums["soo"] += non * non
+            sums["sff"] += noff * noff
+            sums["sof"] += non * noff
+            sums["bo"] += non * dl
+            sums["bf"] += noff * dl
+            sums["sll"] += dl * dl
+            n_on += non.astype(np.int64)
+            n_off += noff.astype(np.int64)
+            k_on += non > 0
+            k_off += noff > 0
+            n_int += m
+            used.append(j)
+        Lk, gk = L1, g1
+        if progress is not None:
+            progress(j + 1, len(tau) - 1)
+    if not used:
+        raise ValueError(f"no frame interval lies inside the events' span ({t0_ev}..{t1_ev} µs; frames at "
+                         f"{tau[:5].tolist()}... µs); pass require_event_coverage=False to use them anyway")
+    a, b = _nnls2(sums["soo"], sums["sff"], sums["sof"], sums["bo"], sums["bf"])
+    with np.errstate(invalid="ignore", divide="ignore"):
+        rho2 = np.where((sums["soo"] > 0) & (sums["sff"] > 0), sums["sof"] ** 2 / (sums["soo"] * sums["sff"]), 1.0)
+    few = (k_on < min_intervals) | (k_off < min_intervals)
+    degenerate = ~few & (1.0 - rho2 < min_decorrelation)
+    out_of_range = ~few & ~degenerate & ((a < lo_c) | (a > hi_c) | (b < lo_c) | (b > hi_c))
+    valid = ~few & ~degenerate & ~out_of_range
+    c_on = np.where(valid, a, np.nan).reshape(h, w)
+    c_off = np.where(valid, b, np.nan).reshape(h, w)
+    tot = {k: float(v.sum()) for k, v in sums.items()}
+    ga, gb = _nnls2(tot["soo"], tot["sff"], tot["sof"], tot["bo"], tot["bf"])
+    ga, gb = float(ga), float(gb)
+    if not (lo_c <= ga <= hi_c and lo_c <= gb <= hi_c):
+        raise ValueError(f"the pooled estimate (c_on {ga:.4g}, c_off {gb:.4g}) is outside c_range {c_range}: the "
+                         f"recording has too little usable information (well-exposed pixel pairs with events of both "
+                         f"polarities: ON events {int(n_on.sum())}, OFF events {int(n_off.sum())})")
+    # residual RMS per usable pixel-interval, at the per-pixel estimates (global fallback elsewhere)
+    af = np.where(valid, a, ga)
+    bf_ = np.where(valid, b, gb)
+    res2 = (sums["sll"] - 2 * af * sums["bo"] + 2 * bf_ * sums["bf"] + af ** 2 * sums["soo"] + bf_ ** 2 * sums["sff"]
+            - 2 * af * bf_ * sums["sof"])
+    n_pi = int(n_int.sum())
+    prov = {"recording": str(rec.metadata.provenance.get("source_file", "")) if rec.metadata else "",
+            "profile": prof.name, "intensity_offset": i0, "well_exposed_codes": [int(lo), int(hi)],
+            "min_intervals": int(min_intervals), "min_decorrelation": float(min_decorrelation),
+            "c_range": [lo_c, hi_c], "require_event_coverage": bool(require_event_coverage),
+            "exposure_normalisation": scale_note, "n_frames": int(len(tau)), "intervals_used": len(used),
+            "first_interval": [int(tau[used[0]]), int(tau[used[0] + 1])],
+            "last_interval": [int(tau[used[-1]]), int(tau[used[-1] + 1])],
+            "pooled_on": ga, "pooled_off": gb, "fallback": "pooled least squares over all usable pixel-intervals",
+            "n_pixel_intervals": n_pi, "events_in_usable_intervals": int(n_on.sum() + n_off.sum()),
+            "residual_rms_log": float(math.sqrt(max(float(res2.sum()), 0.0) / n_pi)) if n_pi else float("nan"),
+            "not_estimable": {"too_few_intervals": int(few.sum()), "on_off_proportional": int(degenerate.sum()),
+                              "outside_c_range_or_zero": int(out_of_range.sum())},
+            "n_estimated": int(valid.sum()), "n_fallback": int((~valid).sum())}
+    if isinstance(rec.metadata.provenance, dict) and "contrast_threshold" in rec.metadata.provenance:
+        prov["declared_contrast_threshold"] = rec.metadata.provenance["contrast_threshold"]
+    tm = ThresholdMap(c_on=c_on, c_off=c_off, fallback_on=ga, fallback_off=gb, n_on=n_on.reshape(h, w),
+                      n_off=n_off.reshape(h, w), n_intervals=n_int.reshape(h, w), method=METHOD, provenance=prov)
+    prov.update({k: v for k, v in tm.summary().items() if k.startswith(("median", "q25", "q75", "fraction"))})
+    return tm
+
+
+# -- plot -----------------------------------------------------------------------------------------
+
+def plot_thresholds(tm: ThresholdMap, path, title: str | None = None) -> Path:
+    """PNG with the ON and OFF histograms of the estimated pixels (medians and fallbacks marked)."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from .._atomic import atomic_path
+    v = tm.valid
+    on, off = tm.c_on[v], tm.c_off[v]
+    s = tm.summary()
+    fig, ax = plt.subplots(figsize=(7.5, 4.5), dpi=110)
+    if on.size:
+        allv = np.concatenate([on, off])
+        hi = float(np.percentile(allv, 99.5)) * 1.1
+        bins = np.linspace(0.0, max(hi, 1e-3), 60)
+        ax.hist(np.clip(on, None, bins[-1]), bins=bins, alpha=0.55, color="tab:red",
+                label=f"ON  (median {s['median_on']:.3f})")
+        ax.hist(np.clip(off, None, bins[-1]), bins=bins, alpha=0.55, color="tab:blue",
+                label=f"OFF (median {s['median_off']:.3f})")
+        ax.axvline(s["median_on"], color="tab:red", lw=1.5)
+        ax.axvline(s["median_off"], color="tab:blue", lw=1.5)
+    else:
+        ax.text(0.5, 0.5, "no pixel estimable", transform=ax.transAxes, ha="center")
+    ax.axvline(tm.fallback_on, color="tab:red", ls="--", lw=1.2, label=f"ON fallback (pooled) {tm.fallback_on:.3f}")
+    ax.axvline(tm.fallback_off, color="tab:blue", ls="--", lw=1.2,
+               label=f"OFF fallback (pooled) {tm.fallback_off:.3f}")
+    ax.set_xlabel("contrast threshold c (natural-log units, Δ ln I per event)")
+    ax.set_ylabel("pixels")
+    from matplotlib.ticker import MaxNLocator
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))
+    ax.set_title(title or f"per-pixel thresholds: {s['n_estimated']} of {s['n_pixels']} pixels estimated "
+                          f"({100 * s['fraction_estimated']:.1f} %)", fontsize=10)
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path
