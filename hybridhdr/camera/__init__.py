@@ -3,7 +3,8 @@ reconstruct and evaluate consume it): response (CRF and its inverse), encoding, 
 levels, and the AKF's weighting function and frame noise profile (eqs. 3-9 of Wang et al. 2021).
 """
 
-from .profile import (CameraProfile, default_profile, load_profile, profile_for_frames,
+from .profile import (CameraProfile, default_profile, load_profile, profile_for_frames, profile_from_inverse_crf,
                       weighting_from_inverse_crf)
 
-__all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames", "weighting_from_inverse_crf"]
+__all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames", "profile_from_inverse_crf",
+           "weighting_from_inverse_crf"]

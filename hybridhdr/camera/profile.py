@@ -29,7 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames",
+__all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames", "profile_from_inverse_crf",
            "weighting_from_inverse_crf", "PROFILE_FORMAT", "PROFILE_VERSION"]
 
 PROFILE_FORMAT = "hybridhdr-camera-profile"
@@ -316,6 +316,32 @@ def default_profile(bit_depth: int = 8, frame_precision_scale: float = 7e5, *, e
     return CameraProfile(weighting=tr, inverse_crf=None, frame_precision_scale=frame_precision_scale,
                          min_weighting=0.09, name=f"default-{bit_depth}bit",
                          source="hybridhdr built-in trapezoid weighting, linear response", extra=extra)
+
+
+def profile_from_inverse_crf(inverse_crf, *, clip_codes=None, frame_precision_scale: float = 7e5,
+                             name: str = "", source: str = "") -> CameraProfile:
+    """The profile of a camera with a known inverse CRF (a simulated camera, a measured table).
+
+    The table is normalised so that the highest unclipped code ``clip_codes[1]`` (default the
+    top code) maps to 1.0 (frame-linear units) and made non-decreasing; the weighting is eqs.
+    4-5 of it (:func:`weighting_from_inverse_crf`) with the clipped codes at 0 (a clipped code
+    is a bound, :meth:`CameraProfile.censor`); ``clip_codes = (lo, hi)`` become the profile's
+    clip levels.
+    """
+    inv = np.maximum.accumulate(np.asarray(inverse_crf, dtype=np.float64))
+    n = inv.shape[0]
+    lo, hi = (0, n - 1) if clip_codes is None else (int(clip_codes[0]), int(clip_codes[1]))
+    if not 0 <= lo < hi <= n - 1:
+        raise ValueError(f"clip_codes must satisfy 0 <= lo < hi <= {n - 1}, got {clip_codes}")
+    if not inv[hi] > 0:
+        raise ValueError(f"the inverse CRF is 0 at the clip code {hi}; it cannot set the frame-linear unit")
+    inv = np.minimum(inv / inv[hi], 1.0)
+    w = weighting_from_inverse_crf(inv)
+    if clip_codes is not None:
+        w[: lo + 1] = 0.0
+        w[hi:] = 0.0
+    return CameraProfile(weighting=w, inverse_crf=inv, frame_precision_scale=frame_precision_scale,
+                         name=name, source=source, clip_low_code=lo, clip_high_code=hi)
 
 
 def profile_for_frames(profile: CameraProfile, frames) -> CameraProfile:

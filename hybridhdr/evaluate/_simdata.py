@@ -101,16 +101,12 @@ def camera_profile(camera):
     """
     if camera is None or getattr(camera, "code_clip", None) is None:
         return None
-    from ..reconstruct.profile import CameraProfile, weighting_from_inverse_crf
+    from ..camera import profile_from_inverse_crf
     from ..simulate.camera import crf_inverse_table
-    inv = np.asarray(crf_inverse_table(camera), dtype=np.float64)
-    inv = inv / inv[-1]
-    w = weighting_from_inverse_crf(inv)
     lo, hi = camera.code_clip
-    w[: int(lo) + 1] = 0.0
-    w[int(hi):] = 0.0
-    return CameraProfile(weighting=w, inverse_crf=inv, name=f"simulated {camera.crf} camera, codes clipped to "
-                                                             f"[{lo}, {hi}]", source="hybridhdr.evaluate._simdata")
+    return profile_from_inverse_crf(crf_inverse_table(camera), clip_codes=(lo, hi),
+                                    name=f"simulated {camera.crf} camera, codes clipped to [{lo}, {hi}]",
+                                    source="hybridhdr.evaluate._simdata")
 
 
 def profile_from_provenance(prov):

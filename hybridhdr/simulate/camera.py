@@ -476,8 +476,7 @@ class FrameCamera:
     def camera_profile(self, frame_precision_scale: float = 7e5):
         """A :class:`~hybridhdr.reconstruct.profile.CameraProfile` for the simulated frames
         (inverse CRF from :func:`crf_inverse_table`; weighting from eqs. 4-5)."""
-        from ..reconstruct.profile import CameraProfile, weighting_from_inverse_crf
-        inv = crf_inverse_table(self.params)
-        return CameraProfile(weighting=weighting_from_inverse_crf(inv), inverse_crf=inv,
-                             frame_precision_scale=frame_precision_scale,
-                             name=f"simulated-{self.params.crf}", source="hybridhdr.simulate.camera")
+        from ..camera import profile_from_inverse_crf
+        return profile_from_inverse_crf(crf_inverse_table(self.params), clip_codes=self.params.code_clip,
+                                        frame_precision_scale=frame_precision_scale,
+                                        name=f"simulated-{self.params.crf}", source="hybridhdr.simulate.camera")
