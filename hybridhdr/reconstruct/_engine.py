@@ -641,7 +641,8 @@ def clamped_output(engine, t_us: int) -> np.ndarray:
 
 
 def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
-          progress: Callable[[int], None] | None = None, prefetch: bool = True) -> Iterator[tuple[int, np.ndarray]]:
+          progress: Callable[[int], None] | None = None, prefetch: bool = True,
+          clamp: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     """Run ``engine`` over event ``chunks`` ((t, x, y, p) contiguous arrays, time-sorted), yielding
     ``(t_us, image)`` at the clock's output times as soon as all events before them are in.
 
@@ -654,14 +655,15 @@ def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=No
     if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
         chunks = pf = _Prefetcher(chunks)
     try:
-        yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress)
+        yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
+                          clamp=clamp)
     finally:
         if pf is not None:
             pf.close()
 
 
 def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
-           progress: Callable[[int], None] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+           progress: Callable[[int], None] | None = None, clamp: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     t_init = engine.start(t_start_us)
     t_first_out = t_init if t_start_us is None else max(t_init, int(t_start_us))
     clock.set_origin(t_first_out)
@@ -704,7 +706,7 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
             if ts is not None and ts <= bp:
                 engine.switch()
             else:
-                yield to, clamped_output(engine, to)
+                yield to, (clamped_output(engine, to) if clamp else engine.output(to))
                 clock.pop()
         if j_end > 0:
             t_last = max(t_last, int(t[j_end - 1]))
@@ -723,5 +725,5 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
         if ts is not None and ts <= to:
             engine.switch()
             continue
-        yield to, clamped_output(engine, to)
+        yield to, (clamped_output(engine, to) if clamp else engine.output(to))
         clock.pop()

@@ -454,6 +454,42 @@ def clamp_linear(a: np.ndarray) -> int:
     return n
 
 
+@njit(cache=True, nogil=True)
+def akf_output_state32(S, seg_t0, seg_inv_t, t_out, out_l, out_p, pix_lo, pix_hi):
+    """L̂ and P at ``t_out`` µs in closed form (eqs. 17, 20), rounded to float32, without changing
+    the state: the two-sided filter's per-pass estimates (:mod:`..smoother`). P of a censored
+    pixel is its held P, as :func:`akf_output`."""
+    for pix in range(pix_lo, pix_hi):
+        integ = _pull_integral(S, pix, t_out, seg_t0, seg_inv_t)
+        d = 1.0 / (1.0 + S[pix, A_P] * integ)
+        lav = S[pix, A_LA]
+        out_l[pix] = np.float32(lav + (S[pix, A_L] - lav) * d)
+        cens = S[pix, A_BETA] == 0.0 and S[pix, A_KLOG] != 0.0
+        out_p[pix] = np.float32(S[pix, A_P] if cens else S[pix, A_P] * d)
+    return pix_hi - pix_lo
+
+
+@njit(cache=True, nogil=True)
+def fuse_to_linear(l_f, p_f, l_b, p_b, offset, floor, out):
+    """Two-filter fusion per pixel, then ``exp(L̂) - offset`` clamped at ``floor`` (float32 ``out``).
+
+    ``L̂ = (L_f P_b + L_b P_f)/(P_f + P_b)`` in float64 from the float32 pass estimates (exactly
+    symmetric in the two passes); NaN or values below ``floor`` become ``floor``. Returns the
+    number of clamped pixels.
+    """
+    n_cl = 0
+    for i in range(out.shape[0]):
+        pf = np.float64(p_f[i])
+        pb = np.float64(p_b[i])
+        lg = (np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / (pf + pb)
+        v = np.float32(math.exp(lg) - offset)
+        if not v >= floor:
+            v = np.float32(floor)
+            n_cl += 1
+        out[i] = v
+    return n_cl
+
+
 def log_to_linear(a: np.ndarray, offset: float) -> np.ndarray:
     """In place: float32 log intensity ``a`` -> ``exp(a) - offset``, in single precision (the
     driver then clamps every method's output with :func:`clamp_linear`).

@@ -121,9 +121,15 @@ class _StateEngine:
         return getattr(self._e, name)
 
     def output(self, t_us: int):
-        lin, lg, var = self._e.output(t_us, with_state=True)
+        """L̂ and P at ``t_us`` as float32 (no linear image: the fused one is made later)."""
+        e = self._e
+        W = e.shape[1]
+        lg = np.empty(e.n, np.float32)
+        var = np.empty(e.n, np.float32)
+        e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
+                                                              lo * W, hi * W), e.n)
         self.last = (lg, var)
-        return lin
+        return lg
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
@@ -136,7 +142,7 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
         if times.size == 0:
             return
         clock = E.OutputClock(times_us=times)
-        for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress):
+        for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress, clamp=False):
             lg, var = eng.last
             yield t, lg, var
     finally:
@@ -175,8 +181,8 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
                                  progress):
         i = index[int(mirror - tr)]
-        store[i, 0] = lg.reshape(-1)
-        store[i, 1] = var.reshape(-1)
+        store[i, 0] = lg
+        store[i, 1] = var
         have_b[i] = True
         n_b += 1
     n_fused = n_single = n_clamped = n_out = 0
@@ -186,26 +192,22 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
         for i, t in enumerate(times):
             t = int(t)
             if nxt is not None and nxt[0] == t:
-                # rounded like the stored backward pass: the fusion is then exactly symmetric
-                lf = nxt[1].reshape(-1).astype(np.float32)
-                pf = nxt[2].reshape(-1).astype(np.float32)
+                lf, pf = nxt[1], nxt[2]
                 nxt = next(fwd, None)
             else:
                 lf = pf = None
+            img = np.empty(n_pix, np.float32)
             if lf is not None and have_b[i]:
-                lg, _ = fuse(lf, pf, store[i, 0], store[i, 1])
+                n_clamped += K.fuse_to_linear(lf, pf, store[i, 0], store[i, 1], float(offset), K.MIN_INTENSITY, img)
                 n_fused += 1
-            elif lf is not None:
-                lg = lf.astype(np.float64)
-                n_single += 1
-            elif have_b[i]:
-                lg = store[i, 0].astype(np.float64)
+            elif lf is not None or have_b[i]:  # one pass only: fusing it with itself is the identity
+                l1, p1 = (lf, pf) if lf is not None else (store[i, 0], store[i, 1])
+                n_clamped += K.fuse_to_linear(l1, p1, l1, p1, float(offset), K.MIN_INTENSITY, img)
                 n_single += 1
             else:  # neither pass covers t (no frame at all around it): cannot happen with frames
                 continue
-            img = (np.exp(lg) - offset).astype(np.float32).reshape(shape)
-            n_clamped += K.clamp_linear(img)
             n_out += img.size
+            img = img.reshape(shape)
             yield t, img
     finally:
         if tmp is not None:
