@@ -1,21 +1,24 @@
 """The hybridhdr recording container: one HDF5 file per recording.
 
-Layout (format version 1.0; see ``docs/recording-format.md``)::
+Layout (format version 2.0; see ``docs/recording-format.md``)::
 
     /                       attrs: hybridhdr_format_version, sensor_height, sensor_width, metadata_json
     /events/t  int64 µs     chunked, compressed; non-decreasing
     /events/x  uint16       column
     /events/y  uint16       row
     /events/p  int8         +1 / -1
-    /events/ms_to_idx int64 attrs: origin_us; ms_to_idx[m] = first i with t[i] >= origin_us + 1000*m
+    /events/index_ms, /events/index_first  int64 (K,): sparse time index (format 2.0), attr index_stride;
+                            index_first[k] = first i with t[i] >= 1000*index_ms[k]  (format 1.x files have
+                            the dense /events/ms_to_idx instead, still read)
     /frames/images          (K, H, W[, 3]) any dtype, one chunk per frame; attrs: encoding
     /frames/t_start_us, /frames/t_end_us   int64 (K,)
     /frames/gain, /frames/iso              float64 (K,), optional
     /triggers/t int64, /triggers/channel uint16, /triggers/edge int8
     /hdr/images float32 (K, H, W[, 3]), /hdr/t_us int64 (K,)
 
-The writer streams: events are appended in chunks with a bounded buffer, the millisecond index is
-built incrementally, and the file is written as ``NAME.partial`` and renamed on close. The reader is
+The writer streams: events are appended in chunks with a bounded buffer, the sparse time index
+(one entry per ``index_stride`` events at most, so its size follows the events, not the time span)
+is built incrementally, and the file is written as ``NAME.partial`` and renamed on close. The reader is
 lazy: it slices a time window through the millisecond index or iterates in chunks of N events or
 T µs without loading the file.
 """
@@ -28,6 +31,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ._limits import check_finite, check_h5_stored, check_sensor_size
 from .errors import FormatError
 from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
                      validate_events)
@@ -37,7 +41,11 @@ from .model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
 __all__ = ["FORMAT_VERSION", "RecordingWriter", "RecordingFile", "write_recording", "read_recording",
            "READERS", "WRITERS", "sniff"]
 
-FORMAT_VERSION = "1.0"
+FORMAT_VERSION = "2.0"
+#: major versions this reader understands: 1.x (dense millisecond index), 2.x (sparse index)
+READABLE_MAJORS = ("1", "2")
+#: at most one index entry per this many events (each entry at the start of a millisecond)
+INDEX_STRIDE = 4096
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _EVENT_FIELDS = (("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1"))
 _TRIGGER_FIELDS = (("t", "<i8"), ("channel", "<u2"), ("edge", "i1"))
@@ -117,16 +125,17 @@ class RecordingWriter(EventFileWriter):
         g = f.create_group("events")
         for name, dt in _EVENT_FIELDS:
             g.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(_CHUNK_ELEMS,), **self._comp)
-        g.create_dataset("ms_to_idx", shape=(0,), maxshape=(None,), dtype="<i8", chunks=(1 << 14,))
+        for name in ("index_ms", "index_first"):
+            g.create_dataset(name, shape=(0,), maxshape=(None,), dtype="<i8", chunks=(4096,))
+        g["index_ms"].attrs["index_stride"] = INDEX_STRIDE
         gt = f.create_group("triggers")
         for name, dt in _TRIGGER_FIELDS:
             gt.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(4096,))
         self._buf: list[np.ndarray] = []
         self._buf_n = 0
         self._n_written = 0
-        self._origin = None
-        self._next_ms = 0
-        self._ms_pending: list[np.ndarray] = []
+        self._last_bucket = None  # millisecond of the last event written
+        self._last_entry = None  # index_first of the last index entry
         self._trig_last = None
         self._guard.check()
 
@@ -147,24 +156,39 @@ class RecordingWriter(EventFileWriter):
             ds = g[name]
             ds.resize((n1,))
             ds[n0:n1] = ev[name]
-        # millisecond index: entries whose boundary <= last time are final
-        t = ev["t"]
-        if self._origin is None:
-            self._origin = (int(t[0]) // 1000) * 1000
-        last_m = (int(t[-1]) - self._origin) // 1000
-        if last_m >= self._next_ms:
-            bounds = self._origin + 1000 * np.arange(self._next_ms, last_m + 1, dtype=np.int64)
-            idx = n0 + np.searchsorted(t, bounds, side="left")
-            self._append_ms(idx)
-            self._next_ms = last_m + 1
+        # sparse index: candidates are the first events of their millisecond; one is kept when at
+        # least INDEX_STRIDE events have passed since the last entry (always the very first event)
+        bucket = ev["t"] // 1000  # floor division: exact for any int64, negative times included
+        starts = np.flatnonzero(bucket[1:] != bucket[:-1]) + 1
+        if self._last_bucket is None or bucket[0] != self._last_bucket:
+            starts = np.concatenate(([0], starts))
+        keep = []
+        last = self._last_entry
+        j = 0
+        while j < len(starts):
+            if last is None:
+                k = 0
+            else:
+                k = j + int(np.searchsorted(starts[j:], last + INDEX_STRIDE - n0, side="left"))
+                if k >= len(starts):
+                    break
+            keep.append(starts[k])
+            last = n0 + int(starts[k])
+            j = k + 1
+        if keep:
+            keep = np.asarray(keep, dtype=np.int64)
+            self._append_index(bucket[keep], n0 + keep)
+            self._last_entry = last
+        self._last_bucket = int(bucket[-1])
         self._n_written = n1
         self._guard.check()
 
-    def _append_ms(self, idx):
-        ds = self._f["events"]["ms_to_idx"]
-        m0 = ds.shape[0]
-        ds.resize((m0 + len(idx),))
-        ds[m0:] = idx
+    def _append_index(self, ms, first):
+        g = self._f["events"]
+        m0 = g["index_ms"].shape[0]
+        for name, v in (("index_ms", ms), ("index_first", first)):
+            g[name].resize((m0 + len(v),))
+            g[name][m0:] = v
 
     def _write_triggers(self, triggers):
         from .events import validate_triggers
@@ -183,6 +207,7 @@ class RecordingWriter(EventFileWriter):
     def _write_frames(self, frames: Frames):
         f = self._f
         im = frames.images
+        check_finite(im, self.path, "frames")
         if "frames" not in f:
             g = f.create_group("frames")
             g.create_dataset("images", shape=(0,) + im.shape[1:], maxshape=(None,) + im.shape[1:],
@@ -221,6 +246,7 @@ class RecordingWriter(EventFileWriter):
             raise TypeError(f"hdr must be HDRReferences, got {type(hdr).__name__}")
         f = self._f
         im = hdr.images
+        check_finite(im, self.path, "HDR references")
         if "hdr" not in f:
             g = f.create_group("hdr")
             g.create_dataset("images", shape=(0,) + im.shape[1:], maxshape=(None,) + im.shape[1:],
@@ -245,12 +271,6 @@ class RecordingWriter(EventFileWriter):
 
     def _finish(self):
         self._flush_events()
-        if self._origin is not None:
-            # final sentinel entry: the boundary after the last event maps to n_events
-            self._append_ms(np.array([self._n_written], dtype=np.int64))
-            self._f["events"]["ms_to_idx"].attrs["origin_us"] = self._origin
-        else:
-            self._f["events"]["ms_to_idx"].attrs["origin_us"] = 0
         self._f.attrs["n_events"] = self._n_written
         self._f.close()
         self._guard.check()
@@ -287,6 +307,16 @@ def _guarded(method):
         except Exception as e:
             raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
     return wrapper
+
+
+def _check_image_dataset(ds, path, name):
+    """Size limits and stored chunks of an image stack before it is read."""
+    from ._limits import check_frame_bytes, check_frame_shape
+    if ds.ndim not in (3, 4):
+        raise FormatError(path, f"{name} has shape {ds.shape}; expected (K, H, W) or (K, H, W, 3)")
+    check_frame_shape(ds.shape, path, name)
+    check_frame_bytes(float(np.prod(ds.shape, dtype=np.float64)) * ds.dtype.itemsize, path, name)
+    check_h5_stored(ds, path, name)
 
 
 def _require(f, name, path):
@@ -327,15 +357,16 @@ class RecordingFile(EventFileReader):
         if ver is None:
             raise FormatError(path, "HDF5 file is not a hybridhdr container (no 'hybridhdr_format_version' attribute)")
         ver = ver.decode() if isinstance(ver, bytes) else str(ver)
-        if ver.split(".")[0] != FORMAT_VERSION.split(".")[0]:
-            raise FormatError(path, f"container format version {ver} is not supported (expected {FORMAT_VERSION})")
+        if ver.split(".")[0] not in READABLE_MAJORS:
+            raise FormatError(path, f"container format version {ver} is not supported (this reader reads "
+                                    f"1.x and {FORMAT_VERSION}; written by a newer hybridhdr?)")
         self.format_version = ver
         try:
             md = json.loads(f.attrs.get("metadata_json", "{}"))
         except (ValueError, TypeError) as e:
             raise FormatError(path, f"metadata_json attribute is not valid JSON ({e})") from None
         self.metadata = Metadata.from_dict(md)
-        ss = SensorSize(int(f.attrs["sensor_height"]), int(f.attrs["sensor_width"]))
+        ss = SensorSize(*check_sensor_size(f.attrs["sensor_height"], f.attrs["sensor_width"], path))
         if self.sensor_size is None:
             self.sensor_size = ss
         ds = [_require(f, f"events/{n}", path) for n, _ in _EVENT_FIELDS]
@@ -345,15 +376,52 @@ class RecordingFile(EventFileReader):
                 raise FormatError(path, f"events/{name} has shape {d.shape}; expected ({n},) like events/t")
             if d.dtype != np.dtype(dt):
                 raise FormatError(path, f"events/{name} has dtype {d.dtype}; expected {np.dtype(dt)}")
+        for d, (name, _) in zip(ds, _EVENT_FIELDS):
+            check_h5_stored(d, path, f"events/{name}")
         self._ev = dict(zip([n_ for n_, _ in _EVENT_FIELDS], ds))
         self.n_events = int(n)
-        ms = _require(f, "events/ms_to_idx", path)
-        self._ms = np.asarray(ms[:], dtype=np.int64)
-        self._origin = int(ms.attrs.get("origin_us", 0))
-        if n and (len(self._ms) == 0 or self._ms[-1] != n or np.any(np.diff(self._ms) < 0)
-                  or self._ms[0] < 0):
+        if ver.split(".")[0] == "1":
+            self._open_dense_index(n)
+        else:
+            self._open_sparse_index(n)
+
+    def _open_dense_index(self, n):
+        """Format 1.x: dense ``ms_to_idx``, read lazily (two entries per lookup; it may be huge)."""
+        path = self.path
+        ms = _require(self._f, "events/ms_to_idx", path)
+        if ms.ndim != 1:
+            raise FormatError(path, f"events/ms_to_idx has shape {ms.shape}; expected one dimension")
+        check_h5_stored(ms, path, "events/ms_to_idx")
+        self._index_kind = "dense"
+        self._ms_ds = ms
+        self._n_ms = int(ms.shape[0])
+        try:
+            self._origin = int(ms.attrs.get("origin_us", 0))
+        except (TypeError, ValueError, OverflowError):
+            raise FormatError(path, "events/ms_to_idx attribute origin_us is not an integer") from None
+        if n and (self._n_ms == 0 or int(ms[self._n_ms - 1]) != n or int(ms[0]) < 0):
             raise FormatError(path, f"events/ms_to_idx is inconsistent with {n} events (expected a "
                                     f"non-decreasing index ending at {n}); the file may be truncated")
+
+    def _open_sparse_index(self, n):
+        """Format 2.x: sparse ``index_ms`` / ``index_first`` (at most one entry per stride of events)."""
+        path = self.path
+        a = _require(self._f, "events/index_ms", path)
+        b = _require(self._f, "events/index_first", path)
+        if a.ndim != 1 or b.shape != a.shape:
+            raise FormatError(path, f"events/index_ms {a.shape} and events/index_first {b.shape} must be "
+                                    f"one-dimensional and of equal length")
+        if a.shape[0] > max(1, n):
+            raise FormatError(path, f"the time index has {a.shape[0]:,} entries for {n:,} events (at most one "
+                                    f"per event)")
+        self._index_kind = "sparse"
+        self._idx_ms = np.asarray(a[:], dtype=np.int64)
+        self._idx_first = np.asarray(b[:], dtype=np.int64)
+        k = len(self._idx_ms)
+        if n and (k == 0 or self._idx_first[0] != 0 or np.any(np.diff(self._idx_ms) <= 0)
+                  or np.any(np.diff(self._idx_first) <= 0) or self._idx_first[-1] >= n):
+            raise FormatError(path, f"the time index (events/index_ms, events/index_first) is inconsistent "
+                                    f"with {n} events (expected strictly increasing entries starting at 0)")
 
     @property
     def time_range_us(self) -> tuple[int, int] | None:
@@ -365,16 +433,36 @@ class RecordingFile(EventFileReader):
         if t_us is None:
             return default
         t_us = int(t_us)
-        m = (t_us - self._origin) // 1000
-        if m < 0:
-            return 0
-        if m >= len(self._ms) - 1:
-            return self.n_events
-        lo, hi = int(self._ms[m]), int(self._ms[m + 1])
+        n = self.n_events
+        if self._index_kind == "dense":
+            m = (t_us - self._origin) // 1000
+            if m < 0:
+                return 0
+            if m >= self._n_ms - 1:
+                return n
+            lo, hi = (int(v) for v in self._ms_ds[m:m + 2])
+        else:
+            k = int(np.searchsorted(self._idx_ms, t_us // 1000, side="right")) - 1
+            if k < 0:
+                return 0
+            lo = int(self._idx_first[k])
+            hi = int(self._idx_first[k + 1]) if k + 1 < len(self._idx_first) else n
+        if not 0 <= lo <= hi <= n:
+            raise FormatError(self.path, f"the time index points outside the {n} events ({lo}..{hi})")
+        return self._search(t_us, lo, hi)
+
+    def _search(self, t_us, lo, hi):
+        """First index in ``[lo, hi]`` with ``t >= t_us``; reads at most 2^20 times at once."""
+        ds = self._ev["t"]
+        while hi - lo > (1 << 20):  # bisect on the dataset for a huge stretch (one millisecond of a burst)
+            mid = (lo + hi) // 2
+            if int(ds[mid]) < t_us:
+                lo = mid + 1
+            else:
+                hi = mid
         if lo == hi:
             return lo
-        t = self._ev["t"][lo:hi]
-        return lo + int(np.searchsorted(t, t_us, side="left"))
+        return lo + int(np.searchsorted(ds[lo:hi], t_us, side="left"))
 
     @_guarded
     def index_range(self, t_start_us=None, t_end_us=None) -> tuple[int, int]:
@@ -511,7 +599,11 @@ class RecordingFile(EventFileReader):
                                              f"version? Declare the encoding to read it anyway "
                                              f"(frame_encoding=..., --frame-encoding)")
             enc = self._frame_encoding(enc)
-            return Frames(_require(g, "images", self.path)[:], _require(g, "t_start_us", self.path)[:],
+            ims = _require(g, "images", self.path)
+            _check_image_dataset(ims, self.path, "/frames/images")
+            images = ims[:]
+            check_finite(images, self.path, "/frames/images")
+            return Frames(images, _require(g, "t_start_us", self.path)[:],
                           _require(g, "t_end_us", self.path)[:], encoding=enc, **kw)
         except FormatError:
             raise
@@ -524,7 +616,11 @@ class RecordingFile(EventFileReader):
             return None
         g = self._f["hdr"]
         try:
-            return HDRReferences(_require(g, "images", self.path)[:], _require(g, "t_us", self.path)[:])
+            ims = _require(g, "images", self.path)
+            _check_image_dataset(ims, self.path, "/hdr/images")
+            images = ims[:]
+            check_finite(images, self.path, "/hdr/images")
+            return HDRReferences(images, _require(g, "t_us", self.path)[:])
         except FormatError:
             raise
         except Exception as e:

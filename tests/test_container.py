@@ -43,16 +43,23 @@ def test_round_trip_everything(tmp_path):
     assert np.array_equal(hh.read(p).events, rec.events)
 
 
-def test_ms_index_matches_definition(tmp_path):
+def test_time_index_matches_definition(tmp_path, monkeypatch):
+    import hybridhdr.container as container
+    monkeypatch.setattr(container, "INDEX_STRIDE", 50)
     rec = random_recording(1, n=5000)
     p = write_recording(rec, tmp_path / "r.h5", buffer_events=777)
     with h5py.File(p) as f:
-        ms = f["events/ms_to_idx"][:]
-        origin = f["events/ms_to_idx"].attrs["origin_us"]
+        ms, first = f["events/index_ms"][:], f["events/index_first"][:]
+        assert f.attrs["hybridhdr_format_version"] == "2.0" and "ms_to_idx" not in f["events"]
     t = rec.events["t"]
-    expect = np.searchsorted(t, origin + 1000 * np.arange(len(ms)), side="left")
-    assert np.array_equal(ms, expect)
-    assert ms[-1] == len(t) and origin <= t[0] < origin + 1000
+    assert first[0] == 0 and np.all(np.diff(ms) > 0) and np.all(np.diff(first) >= 50)
+    # each entry is the first event of its millisecond
+    assert np.array_equal(first, np.searchsorted(t, 1000 * ms, side="left"))
+    assert np.all(t[first[1:] - 1] // 1000 < ms[1:])
+    # greedy: no millisecond start that is >= 50 events after an entry is skipped before the next entry
+    starts = np.flatnonzero(np.diff(t // 1000)) + 1
+    for a, b in zip(first[:-1], first[1:]):
+        assert not np.any((starts >= a + 50) & (starts < b))
 
 
 @settings(max_examples=40, deadline=None)
