@@ -26,8 +26,9 @@ Scoring (:func:`score_run`), per method and suite:
 
 Suites: :func:`edge_sweep_suite` (:func:`hybridhdr.synthetic.edge_sweep_recording`),
 :func:`hdr_suite` (built-in Mitsuba scenes), :func:`ahdr_suite` (``build_ahdr``, codes outside
-[100, 160] clipped) and :func:`real_leave_one_out` (a real recording, each frame in turn withheld
-and predicted at its exposure centre, scored against it on its well-exposed pixels).
+[100, 160] clipped), :func:`real_leave_one_out` (a real recording, each frame in turn withheld
+and predicted at its exposure centre, scored against it on its well-exposed pixels) and
+:func:`real_next_frame` (causal methods predict each frame from the data before it).
 """
 
 from __future__ import annotations
@@ -42,7 +43,7 @@ from .metrics import normalise_pair, pu_ssim, ssim_map
 
 __all__ = ["METHODS", "MethodSpec", "clip_masks", "recoverable_masks", "fit_log_affine", "log_errors",
            "score_run", "SuiteData", "edge_sweep_suite", "hdr_suite", "ahdr_suite", "run_suite",
-           "real_leave_one_out", "LOG_FLOOR"]
+           "real_leave_one_out", "real_next_frame", "LOG_FLOOR"]
 
 #: Floor of the reconstruction before the log of the log-domain errors.
 LOG_FLOOR = 1e-6
@@ -361,62 +362,60 @@ REAL_BASELINES = {"frames_zoh": "hold previous frame", "frames_linear": "linear 
 
 
 def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
-                       well_exposed=REAL_WELL_EXPOSED, log=None) -> list[dict]:
+                       well_exposed=None, log=None) -> list[dict]:
     """Leave-one-frame-out on a real recording.
 
     For each held-out frame k (default: every frame with a frame before and after it inside the
     events' time span), frame k is removed from the input and every method reconstructs at k's
     exposure centre; the reference is frame k linearised by the camera profile (frame-linear
-    units), scored on its well-exposed pixels (codes ``well_exposed``, inclusive). Per method one
+    units), scored on its well-exposed pixels (codes ``well_exposed``, inclusive; default
+    :data:`REAL_WELL_EXPOSED` scaled to the bit depth). Per method one
     row, pooled over the held-out frames (MSE, SSIM, PU21-SSIM and the log-domain error on the
     well-exposed pixels; the recoverable sets need ground truth where the frame clips, which real
-    data lacks).
+    data lacks). Inputs and held-out frames: :mod:`hybridhdr.evaluate.realdata`.
 
     Only the frames inside the events' span are kept (the recording's other frames have no events
     around them).
     """
-    from ..camera import load_profile, profile_for_frames
-    from ..model import Recording
-    fr = rec.frames
-    ev_t0, ev_t1 = int(rec.events["t"][0]), int(rec.events["t"][-1])
-    keep = np.flatnonzero(fr.t_mid_us <= ev_t1)
-    fr = fr.select(keep)
-    if held is None:
-        held = [k for k in range(1, len(fr) - 1) if fr.t_mid_us[k - 1] >= 0 and fr.t_mid_us[k] > ev_t0]
-    prof = profile_for_frames(load_profile(profile), fr)
-    lo, hi = well_exposed
-    per_method: dict = {m.label: {"x": [], "r": [], "v": [], "wall": 0.0, "err": None} for m in methods}
-    for k in held:
-        sub = fr.select(np.setdiff1d(np.arange(len(fr)), [k]))
-        r_k = Recording(rec.events, rec.sensor_size, sub, rec.triggers, None, rec.metadata)
-        ref = prof.intensity(np.asarray(fr.images[k])).astype(np.float64)
-        valid = (fr.images[k] >= lo) & (fr.images[k] <= hi)
-        t = np.array([int(fr.t_mid_us[k])], np.int64)
-        for m in methods:
-            st = per_method[m.label]
-            if st["err"] is not None:
-                continue
-            try:
-                v, wall = _reconstruct(r_k, m, contrast_threshold, profile, t)
-                st["x"].append(np.asarray(v.frames[0], np.float64))
-                st["r"].append(ref)
-                st["v"].append(valid)
-                st["wall"] += wall
-            except Exception as e:
-                st["err"] = f"error: {type(e).__name__}: {e}"
+    return _real_holdout(rec, "leave_one_out", "real_loo", held, methods, profile, contrast_threshold,
+                         well_exposed, log)
+
+
+def real_next_frame(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
+                    well_exposed=None, log=None) -> list[dict]:
+    """Next-frame prediction on a real recording, for the causal methods of ``methods``.
+
+    For each predicted frame k (default as :func:`real_leave_one_out`) the input is cut before it
+    (frames 0..k-1, events before tau_k - 1 us) and every causal method (``mode == "causal"``)
+    reconstructs at tau_k - 1 us; scored as :func:`real_leave_one_out`. ``frames_linear`` (needs
+    frame k+1) is kept as the non-causal reference: it interpolates k-1 and k+1 as in the
+    leave-one-out task. Other non-causal methods are left out.
+    """
+    causal = [m for m in methods if m.mode == "causal" or m.method == "frames_linear"]
+    return _real_holdout(rec, "next_frame", "real_next", held, causal, profile, contrast_threshold,
+                         well_exposed, log)
+
+
+def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, well_exposed, log) -> list[dict]:
+    from . import realdata as RD
+    held = RD.default_held_frames(rec) if held is None else [int(k) for k in held]
+    ref, valid, _ = RD.reference_frames(rec, held, profile, well_exposed)
+    specs = [RD.HoldoutSpec(m.label, m.method, m.mode, method_params(m, contrast_threshold), m.augment)
+             for m in methods]
+    recs = RD.holdout_reconstructions(rec, specs, task=task, held=held, profile=profile)
     rows = []
     for m in methods:
-        st = per_method[m.label]
-        row = {"dataset": "real_loo", "method": m.label, "held_out": [int(k) for k in held],
+        st = recs[m.label]
+        row = {"dataset": name, "method": m.label, "held_out": [int(k) for k in held],
                "events": int(len(rec.events))}
-        if st["err"] is not None or not st["x"]:
-            row["status"] = st["err"] or "error: no held-out frame"
+        if st["error"] is not None or not st["frames"]:
+            row["status"] = st["error"] or "error: no held-out frame"
         else:
-            x, r, v = np.stack(st["x"]), np.stack(st["r"]), np.stack(st["v"])
-            row.update(score_run(x, r, {"well_exposed": v}, valid=v))
-            row["wall_s"] = st["wall"]
-            # each held-out frame re-reads the whole event stream
-            row["events_per_s"] = len(held) * len(rec.events) / st["wall"] if st["wall"] > 0 else float("nan")
+            x = np.stack(st["frames"])
+            row.update(score_run(x, ref, {"well_exposed": valid}, valid=valid))
+            row["wall_s"] = st["wall_s"]
+            # each held-out frame re-reads the event stream (all of it, or up to the cut)
+            row["events_per_s"] = len(held) * len(rec.events) / st["wall_s"] if st["wall_s"] > 0 else float("nan")
             row["status"] = "ok"
         rows.append(row)
         if log is not None:

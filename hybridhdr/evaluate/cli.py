@@ -1,4 +1,4 @@
-"""``hybridhdr evaluate``: metrics of a reconstruction, benchmarks, the paper table."""
+"""``hybridhdr evaluate``: metrics of a reconstruction, benchmarks, the paper table, real-data holdout scoring."""
 
 from __future__ import annotations
 
@@ -61,6 +61,36 @@ def add_parser(sub) -> None:
                    default="none", help="scoring: none = the unaltered reconstruction (as the paper); a fit by name")
     q.add_argument("--debug", action="store_true", help="show tracebacks")
     q.set_defaults(func=run_paper_cmd)
+    h = esub.add_parser("holdout", formatter_class=fmt,
+                        help="real data without ground truth: leave-one-frame-out and next-frame prediction",
+                        description="Score methods on a real recording against its own frames: each held-out "
+                                    "frame k is withheld and reconstructed at its exposure centre "
+                                    "(leave-one-out), and causal methods also predict it from the data before "
+                                    "it at tau_k - 1 us (next-frame). Scored on the frame's well-exposed "
+                                    "pixels (codes 20-235 of 8 bits, scaled to the bit depth) in frame-linear "
+                                    "units (camera profile), beside the hold-previous and linear-interpolation "
+                                    "baselines. See docs/evaluate.md.")
+    h.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and frames")
+    h.add_argument("--method", default="akf",
+                   help="method(s), comma-separated: akf, cf, highpass, direct, edi, frames_zoh, frames_linear")
+    h.add_argument("--mode", default="offline", choices=["offline", "causal", "forward"],
+                   help="reconstruction mode of the method(s); next-frame prediction needs causal")
+    h.add_argument("--task", default="auto", choices=["auto", "leave-one-out", "next-frame", "both"],
+                   help="auto: leave-one-out, plus next-frame prediction when --mode causal")
+    h.add_argument("--frames", default=None, metavar="K,K,...",
+                   help="held-out frame indices (default: every frame with a neighbour on each side inside the "
+                        "events' span)")
+    h.add_argument("--params", type=Path, default=None, help="method parameters (TOML)")
+    h.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
+    h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
+    h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
+                                                              "else built-in)")
+    h.add_argument("--well-exposed", default=None, metavar="LO,HI",
+                   help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
+    h.add_argument("--format", default=None, help="input format (default: detected)")
+    h.add_argument("--json", action="store_true", help="print JSON with the per-frame scores")
+    h.add_argument("--debug", action="store_true", help="show tracebacks")
+    h.set_defaults(func=run_holdout_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
 
@@ -174,4 +204,53 @@ def run_paper_cmd(args) -> int:
     text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
                      hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise)
     print(text)
+    return 0
+
+
+def _holdout_params(method: str, params_path, contrast_threshold):
+    from ..reconstruct.api import make_params, resolve_method
+    m = resolve_method(method)
+    if params_path is None and contrast_threshold is None:
+        return None
+    p = make_params(m, None if params_path is None else str(params_path))
+    if contrast_threshold is not None:
+        if not hasattr(p, "contrast_threshold"):
+            raise ValueError(f"--contrast-threshold does not apply to method {method}")
+        p = p.replace(contrast_threshold=float(contrast_threshold))
+    return p
+
+
+def run_holdout_cmd(args) -> int:
+    from ..io import read
+    from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
+    methods = [m.strip() for m in args.method.split(",") if m.strip()]
+    if not methods:
+        raise ValueError("--method names no method")
+    if args.task == "auto":
+        tasks = ("leave_one_out", "next_frame") if args.mode == "causal" else ("leave_one_out",)
+    elif args.task == "both":
+        tasks = ("leave_one_out", "next_frame")
+    else:
+        tasks = (args.task.replace("-", "_"),)
+    if "next_frame" in tasks and args.mode != "causal":
+        raise ValueError(f"next-frame prediction is for causal methods: use --mode causal (got --mode {args.mode})")
+    label = (lambda m: m) if args.mode == "offline" else (lambda m: f"{m}_{args.mode}")
+    specs = [HoldoutSpec(label(m), m, args.mode, _holdout_params(m, args.params, args.contrast_threshold),
+                         True if args.augmentation else None) for m in methods]
+    well = None
+    if args.well_exposed is not None:
+        try:
+            well = tuple(int(v) for v in args.well_exposed.split(","))
+            assert len(well) == 2
+        except (ValueError, AssertionError):
+            raise ValueError(f"--well-exposed must be 'LO,HI' codes, got {args.well_exposed!r}") from None
+    held = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
+    rec = read(args.recording, format=args.format) if args.format else read(args.recording)
+    res = evaluate_holdout(rec, specs, tasks=tasks, held=held, profile=args.profile, well_exposed=well,
+                           log=lambda msg: print(msg, file=sys.stderr))
+    res["recording"] = str(args.recording)
+    if args.json:
+        print(json.dumps(res, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
+    else:
+        print(format_holdout(res, f"{args.recording.name}: "))
     return 0

@@ -1,13 +1,48 @@
-"""Real-data scoring without ground truth: the frames' well-exposed codes."""
+"""Real-data scoring without ground truth: frames held out of the input become the references.
+
+Two tasks (``hybridhdr evaluate holdout``, ``benchmarks/accuracy.py``'s real suites):
+
+- **leave-one-frame-out** (``leave_one_out``): frame k is removed from the input and the method
+  reconstructs at its exposure centre τ_k from everything else (events and the other frames);
+- **next-frame prediction** (``next_frame``, causal methods only): the input is cut before frame k
+  (frames 0..k−1 and the events with t < τ_k − 1 µs) and the method reconstructs at
+  τ_k − 1 µs; the cut makes the prediction causal by construction, whatever the method's mode.
+
+The reference is frame k itself in frame-linear units (the camera profile's ``CRF⁻¹(code)``, 1.0
+= the clip level; colour frames: luminance codes), scored only on its **well-exposed** pixels,
+codes 20-235 of 8 bits scaled to the bit depth (:func:`well_exposed_range`): elsewhere the frame
+is no measurement of the scene. Scoring follows ``docs/evaluate.md``'s policy (unaltered, then
+reconstruction and reference both divided by the references' maximum over the held-out frames,
+the reconstruction clipped to [0, 1], data range 1), per held-out frame (:func:`score_frame`,
+luminance for colour output): on the well-exposed pixels MSE, PSNR and SSIM (the Gaussian SSIM map of :func:`hybridhdr.evaluate.metrics.ssim_map`,
+averaged over the well-exposed pixels outside the map's border). Means over the held-out frames
+(PSNR: the mean of the per-frame PSNRs).
+
+Baselines beside every method, both frames-only: **hold previous** (``frames_zoh``: frame k−1)
+and **linear interpolation** (``frames_linear`` between k−1 and k+1, in intensity). In the
+next-frame task hold-previous is the causal baseline; linear interpolation needs frame k+1, so
+it is shown as a non-causal reference (the same number as in the leave-one-out task).
+
+Held-out frames (default): the frames whose neighbours k−1 and k+1 exist among the frames with
+mid-exposure inside the events' span (up to the last event) and whose τ_k is after the first
+event; frames after the last event are dropped from the input (no events around them).
+"""
 
 from __future__ import annotations
 
+import dataclasses
 import math
+import time
 
-__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range"]
+import numpy as np
+
+__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "TASKS", "HoldoutSpec", "BASELINES", "default_held_frames",
+           "holdout_input", "holdout_reconstructions", "score_frame", "evaluate_holdout", "format_holdout"]
 
 #: Well-exposed codes of an 8-bit frame (inclusive); scaled to other bit depths.
 WELL_EXPOSED_8BIT = (20, 235)
+
+TASKS = ("leave_one_out", "next_frame")
 
 
 def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int, int]:
@@ -15,3 +50,226 @@ def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int
     range scaled by ``max_code / 255`` (lo rounded up, hi rounded down)."""
     s = int(max_code) / 255.0
     return int(math.ceil(codes_8bit[0] * s - 1e-9)), int(math.floor(codes_8bit[1] * s + 1e-9))
+
+
+@dataclasses.dataclass(frozen=True)
+class HoldoutSpec:
+    """One row of the table: a label, the method, its mode, parameters and augmentation."""
+
+    label: str
+    method: str
+    mode: str = "offline"
+    params: object = None
+    augment: object = None
+
+
+#: The frames-only baselines shown beside every method.
+BASELINES = (HoldoutSpec("hold_previous", "frames_zoh", "causal"),
+             HoldoutSpec("linear_interpolation", "frames_linear", "offline"))
+
+
+def _trimmed_frames(rec):
+    fr = rec.frames
+    if fr is None or len(fr) < 2:
+        raise ValueError("holdout scoring needs at least 2 frames")
+    if len(rec.events) == 0:
+        raise ValueError("holdout scoring needs events")
+    t1 = int(rec.events["t"][-1])
+    keep = np.flatnonzero(fr.t_mid_us <= t1)
+    return fr.select(keep)
+
+
+def default_held_frames(rec) -> list[int]:
+    """Indices (into the frames kept, those with mid-exposure up to the last event) of the frames
+    held out by default: a neighbour on each side and τ_k after the first event."""
+    fr = _trimmed_frames(rec)
+    t0 = int(rec.events["t"][0])
+    return [k for k in range(1, len(fr) - 1) if fr.t_mid_us[k] > t0]
+
+
+def holdout_input(rec, k: int, task: str):
+    """``(recording, t_us)``: the input without frame k (``leave_one_out``) or cut before it
+    (``next_frame``), and the output time (τ_k, or τ_k − 1 µs)."""
+    from ..model import Recording
+    from ..events import slice_time
+    fr = _trimmed_frames(rec)
+    if not 0 <= k < len(fr):
+        raise ValueError(f"held-out frame {k} is not among the {len(fr)} frames inside the events' span")
+    tk = int(fr.t_mid_us[k])
+    if task == "leave_one_out":
+        sub = fr.select(np.setdiff1d(np.arange(len(fr)), [k]))
+        return Recording(rec.events, rec.sensor_size, sub, rec.triggers, None, rec.metadata), tk
+    if task == "next_frame":
+        if k < 1:
+            raise ValueError("next-frame prediction needs a frame before the predicted one")
+        t = tk - 1
+        sub = fr.select(np.arange(k))
+        return Recording(slice_time(rec.events, None, t), rec.sensor_size, sub,
+                         slice_time(rec.triggers, None, t), None, rec.metadata), t
+    raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+
+
+def _luminance(frame):
+    """A reconstructed (H, W) frame as is; an (H, W, 3) linear RGB frame as Rec. 709 luminance."""
+    x = np.asarray(frame, np.float64)
+    if x.ndim == 3:
+        from ..reconstruct.colour import rgb_to_luminance
+        return np.asarray(rgb_to_luminance(x), np.float64)
+    return x
+
+
+def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None) -> dict:
+    """Reconstruct every spec at every held-out frame.
+
+    Returns ``{label: {"frames": [(H, W) float64 or None per held-out frame], "wall_s": float,
+    "error": str or None}}``; the first failure of a spec stops that spec (reported, not hidden).
+    """
+    from ..reconstruct import reconstruct
+    out = {s.label: {"frames": [], "wall_s": 0.0, "error": None} for s in specs}
+    for k in held:
+        for s in specs:
+            st = out[s.label]
+            if st["error"] is not None:
+                continue
+            tk = "leave_one_out" if (task == "next_frame" and s.method == "frames_linear") else task
+            try:
+                r_k, t = holdout_input(rec, k, tk)
+                t0 = time.perf_counter()
+                v = reconstruct(r_k, s.method, s.params, times_us=np.array([t], np.int64), mode=s.mode,
+                                profile=profile, augment=s.augment)
+                st["wall_s"] += time.perf_counter() - t0
+                st["frames"].append(_luminance(v.frames[0]))
+            except Exception as e:  # reported per spec
+                st["error"] = f"error: {type(e).__name__}: {e}"
+                if log is not None:
+                    log(f"{s.label} on frame {k}: {st['error']}")
+    return out
+
+
+def reference_frames(rec, held, profile=None, well_exposed=None):
+    """``(references (n, H, W) float64 frame-linear, valid (n, H, W) bool, (lo, hi))`` of the
+    held-out frames: the profile's ``CRF⁻¹(code)`` and the well-exposed codes."""
+    from ..camera import load_profile, profile_for_frames
+    from ..reconstruct.measurement import frames_to_codes
+    fr = _trimmed_frames(rec)
+    if profile is None:
+        from ..reconstruct.api import _source_profile
+        profile = _source_profile(rec)
+    prof = profile_for_frames(load_profile(profile), fr)
+    lo, hi = well_exposed_range(prof.max_code) if well_exposed is None else tuple(int(v) for v in well_exposed)
+    sel = fr.select(np.asarray(held, np.int64))
+    codes = np.asarray(frames_to_codes(sel, sel.shape))
+    ref = prof.intensity(codes).astype(np.float64)
+    valid = (codes >= lo) & (codes <= hi)
+    return ref, valid, (lo, hi)
+
+
+def score_frame(recon, reference, valid) -> dict:
+    """MSE, PSNR (dB) and SSIM of one reconstruction on the ``valid`` pixels (module docstring)."""
+    from .metrics import ssim_map
+    x = np.asarray(recon, np.float64)
+    r = np.asarray(reference, np.float64)
+    v = np.asarray(valid, bool)
+    n_nonfinite = int(np.count_nonzero(~np.isfinite(x)))
+    x = np.clip(np.where(np.isfinite(x), x, 0.0), 0.0, 1.0)
+    out = {"n_valid": int(v.sum()), "n_nonfinite": n_nonfinite}
+    if not v.any():
+        return {**out, "mse": float("nan"), "psnr_db": float("nan"), "ssim": float("nan")}
+    mse = float(np.mean((x - r)[v] ** 2))
+    smap, bw = ssim_map(x, r, 1.0)
+    inner = np.zeros_like(v)
+    inner[bw:-bw, bw:-bw] = True
+    vi = v & inner
+    out.update(mse=mse, psnr_db=float(10 * np.log10(1.0 / mse)) if mse > 0 else float("inf"),
+               ssim=float(np.mean(smap[vi])) if vi.any() else float("nan"))
+    return out
+
+
+def _is_causal(spec: HoldoutSpec) -> bool:
+    return spec.mode == "causal"
+
+
+def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well_exposed=None, baselines=True,
+                     log=None) -> dict:
+    """Score ``methods`` (HoldoutSpec list) and the baselines on held-out frames.
+
+    Parameters
+    ----------
+    rec : Recording
+    methods : sequence of HoldoutSpec
+    tasks : subset of :data:`TASKS`; ``next_frame`` runs the causal specs only (others are listed
+        as skipped) and the baselines.
+    held : frame indices (into the frames up to the last event), default :func:`default_held_frames`
+
+    Returns
+    -------
+    dict: ``held`` (frame indices), ``t_us`` (their mid-exposures), ``well_exposed_codes``,
+    ``n_events``, and per task ``{"methods": {label: {"method", "mode", "role", "status",
+    "per_frame": [{"frame", "t_us", "mse", "psnr_db", "ssim", "n_valid"}], "mean": {...}}}}``.
+    """
+    fr = _trimmed_frames(rec)
+    held = default_held_frames(rec) if held is None else [int(k) for k in held]
+    if not held:
+        raise ValueError("no frame to hold out: need frames with a neighbour on each side inside the events' span")
+    ref, valid, (lo, hi) = reference_frames(rec, held, profile, well_exposed)
+    specs = list(methods) + (list(BASELINES) if baselines else [])
+    labels = [s.label for s in specs]
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"method labels must be unique, got {labels}")
+    rmax = float(np.nanmax(ref)) if np.isfinite(ref).any() else 1.0
+    rmax = rmax if rmax > 0 else 1.0
+    res = {"held": held, "t_us": [int(fr.t_mid_us[k]) for k in held], "well_exposed_codes": [lo, hi],
+           "reference_max": rmax, "n_events": int(len(rec.events)), "n_frames_in_span": int(len(fr))}
+    for task in tasks:
+        if task not in TASKS:
+            raise ValueError(f"task must be one of {TASKS}, got {task!r}")
+        run = [s for s in specs if task == "leave_one_out" or _is_causal(s) or s in BASELINES]
+        recs = holdout_reconstructions(rec, run, task=task, held=held, profile=profile, log=log)
+        rows = {}
+        for s in specs:
+            role = "baseline" if s in BASELINES else "method"
+            if task == "next_frame" and s.method == "frames_linear":
+                role = "baseline (non-causal: uses frame k+1)"
+            row = {"method": s.method, "mode": s.mode, "role": role}
+            if s not in run:
+                row["status"] = f"skipped: next-frame prediction is for causal methods (mode {s.mode})"
+                rows[s.label] = row
+                continue
+            st = recs[s.label]
+            if st["error"] is not None:
+                row["status"] = st["error"]
+                rows[s.label] = row
+                continue
+            pf = []
+            for i, k in enumerate(held):
+                sc = score_frame(st["frames"][i] / rmax, ref[i] / rmax, valid[i])
+                pf.append({"frame": int(k), "t_us": res["t_us"][i], **sc})
+            row["per_frame"] = pf
+            row["mean"] = {key: float(np.mean([p[key] for p in pf])) for key in ("mse", "psnr_db", "ssim")}
+            row["wall_s"] = st["wall_s"]
+            row["status"] = "ok"
+            rows[s.label] = row
+        res[task] = {"methods": rows}
+    return res
+
+
+def format_holdout(res: dict, title: str = "") -> str:
+    """The tables of :func:`evaluate_holdout` as text (one per task)."""
+    lines = []
+    lo, hi = res["well_exposed_codes"]
+    for task in TASKS:
+        if task not in res:
+            continue
+        head = {"leave_one_out": "leave-one-frame-out (frame k withheld, reconstructed at its exposure centre)",
+                "next_frame": "next-frame prediction (data before tau_k only, reconstructed at tau_k - 1 us)"}[task]
+        lines.append(f"{title}{head}; frames {res['held']}; well-exposed codes {lo}-{hi}; both divided by the "
+                     f"references' max {res['reference_max']:.4g}")
+        lines.append(f"  {'':<24} {'MSE':>10} {'PSNR dB':>8} {'SSIM':>7}  role")
+        for label, row in res[task]["methods"].items():
+            if row["status"] != "ok":
+                lines.append(f"  {label:<24} {row['status']}")
+                continue
+            m = row["mean"]
+            lines.append(f"  {label:<24} {m['mse']:>10.3e} {m['psnr_db']:>8.2f} {m['ssim']:>7.4f}  {row['role']}")
+        lines.append("")
+    return "\n".join(lines).rstrip()

@@ -1,0 +1,114 @@
+"""Real-data scoring without ground truth (hybridhdr.evaluate.realdata) and `evaluate holdout`."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybridhdr.evaluate import realdata as RD
+
+ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_depth"
+
+
+@pytest.fixture(scope="module")
+def rec():
+    from hybridhdr.synthetic import procedural_recording
+    r, _ = procedural_recording((30, 40), 300_000, contrast_threshold=0.15, frame_rate_hz=25.0, step_us=500)
+    return r
+
+
+def test_well_exposed_range():
+    assert RD.well_exposed_range(255) == (20, 235)
+    assert RD.well_exposed_range(1023) == (81, 942)  # 80.2 rounded up, 942.7 rounded down
+    assert RD.well_exposed_range(65535) == (5140, 60395)
+
+
+def test_holdout_inputs(rec):
+    held = RD.default_held_frames(rec)
+    n = len(rec.frames)
+    assert held == list(range(1, n - 1))
+    k = held[1]
+    tk = int(rec.frames.t_mid_us[k])
+    loo, t = RD.holdout_input(rec, k, "leave_one_out")
+    assert t == tk and len(loo.frames) == n - 1 and tk not in loo.frames.t_mid_us
+    assert len(loo.events) == len(rec.events)
+    nf, t = RD.holdout_input(rec, k, "next_frame")
+    assert t == tk - 1 and len(nf.frames) == k
+    assert nf.events["t"].max() < tk - 1 and len(nf.events) == int(np.sum(rec.events["t"] < tk - 1))
+    with pytest.raises(ValueError, match="task"):
+        RD.holdout_input(rec, k, "both")
+
+
+def test_score_frame_closed_form():
+    rng = np.random.default_rng(0)
+    r = rng.uniform(0.1, 0.9, (20, 24))
+    v = np.ones(r.shape, bool)
+    v[:, :4] = False
+    s = RD.score_frame(r, r, v)
+    assert s["mse"] == 0 and s["psnr_db"] == np.inf and s["ssim"] == pytest.approx(1.0)
+    x = r + 0.1
+    x[:, :4] = 5.0  # outside the valid pixels: not scored (nor is the clip to [0, 1] seen there)
+    s = RD.score_frame(x, r, v)
+    assert s["mse"] == pytest.approx(0.01) and s["psnr_db"] == pytest.approx(20.0) and s["n_valid"] == 20 * 20
+    x[0, 10] = np.nan
+    assert RD.score_frame(x, r, v)["n_nonfinite"] == 1
+
+
+def test_evaluate_holdout_baselines_and_causality(rec):
+    specs = [RD.HoldoutSpec("akf", "akf", "offline", {"contrast_threshold": 0.15}),
+             RD.HoldoutSpec("akf_causal", "akf", "causal", {"contrast_threshold": 0.15})]
+    res = RD.evaluate_holdout(rec, specs)
+    held = res["held"]
+    loo, nf = res["leave_one_out"]["methods"], res["next_frame"]["methods"]
+    assert all(r["status"] == "ok" for r in loo.values())
+    assert nf["akf"]["status"].startswith("skipped")
+    # hold-previous is frame k-1 itself: its score by hand
+    ref, valid, _ = RD.reference_frames(rec, held)
+    prev, _, _ = RD.reference_frames(rec, [k - 1 for k in held])
+    m = res["reference_max"]
+    by_hand = [RD.score_frame(p / m, r / m, v)["mse"] for p, r, v in zip(prev, ref, valid)]
+    got = [p["mse"] for p in loo["hold_previous"]["per_frame"]]
+    np.testing.assert_allclose(got, by_hand, rtol=1e-5)
+    assert [p["frame"] for p in loo["hold_previous"]["per_frame"]] == held
+    # a causal method sees nothing after tau_k in either task: 1 µs apart, the same prediction
+    a = [p["mse"] for p in loo["akf_causal"]["per_frame"]]
+    b = [p["mse"] for p in nf["akf_causal"]["per_frame"]]
+    np.testing.assert_allclose(a, b, rtol=1e-3)
+    # baselines are the same in both tasks; linear interpolation is marked non-causal there
+    assert nf["hold_previous"]["mean"] == loo["hold_previous"]["mean"]
+    assert "non-causal" in nf["linear_interpolation"]["role"]
+    text = RD.format_holdout(res)
+    assert "leave-one-frame-out" in text and "next-frame" in text and "hold_previous" in text
+
+
+def test_cli_json_and_errors(rec, tmp_path, capsys):
+    from hybridhdr.cli import main
+    from hybridhdr.container import write_recording
+    p = tmp_path / "rec.h5"
+    write_recording(rec, p)
+    assert main(["evaluate", "holdout", str(p), "--method", "akf,cf", "--mode", "causal",
+                 "--contrast-threshold", "0.15", "--frames", "2,3", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["held"] == [2, 3]
+    for task in ("leave_one_out", "next_frame"):
+        rows = res[task]["methods"]
+        assert set(rows) == {"akf_causal", "cf_causal", "hold_previous", "linear_interpolation"}
+        assert [q["frame"] for q in rows["akf_causal"]["per_frame"]] == [2, 3]
+        assert {"mse", "psnr_db", "ssim", "n_valid", "t_us"} <= set(rows["cf_causal"]["per_frame"][0])
+    assert main(["evaluate", "holdout", str(p), "--task", "next-frame"]) == 1
+    assert "causal" in capsys.readouterr().err
+    assert main(["evaluate", "holdout", str(p), "--method", "frames_zoh", "--contrast-threshold", "0.1"]) == 1
+
+
+@pytest.mark.skipif(not ECD.exists(), reason=f"sample data {ECD} not present")
+def test_ecd_slider_depth_akf_beats_hold_previous():
+    import hybridhdr
+    r = hybridhdr.read(ECD)
+    res = RD.evaluate_holdout(r, [RD.HoldoutSpec("akf", "akf")], tasks=("leave_one_out",))
+    m = res["leave_one_out"]["methods"]
+    assert res["held"] == [1, 2, 3]
+    assert m["akf"]["mean"]["mse"] < m["hold_previous"]["mean"]["mse"]
+    assert m["akf"]["mean"]["ssim"] > m["hold_previous"]["mean"]["ssim"]
