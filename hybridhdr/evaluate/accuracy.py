@@ -415,7 +415,12 @@ def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, w
             row.update(score_run(x, ref, {"well_exposed": valid}, valid=valid))
             row["wall_s"] = st["wall_s"]
             # each held-out frame re-reads the event stream (all of it, or up to the cut)
-            row["events_per_s"] = len(held) * len(rec.events) / st["wall_s"] if st["wall_s"] > 0 else float("nan")
+            if task == "next_frame":
+                cuts = [RD.holdout_input(rec, k, "next_frame")[1] for k in held]
+                n_read = int(np.searchsorted(rec.events["t"], cuts).sum())
+            else:
+                n_read = len(held) * len(rec.events)
+            row["events_per_s"] = n_read / st["wall_s"] if st["wall_s"] > 0 else float("nan")
             row["status"] = "ok"
         rows.append(row)
         if log is not None:
