@@ -17,7 +17,8 @@ import numpy as np
 from .events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
 from .model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
-__all__ = ["ProceduralScene", "procedural_recording", "EdgeSweepScene", "edge_sweep_recording", "ideal_events"]
+__all__ = ["ProceduralScene", "procedural_recording", "EdgeSweepScene", "edge_sweep_recording", "ideal_events",
+           "ColourEdgeSweepScene", "colour_edge_sweep_recording"]
 
 
 @dataclass(frozen=True)
@@ -192,7 +193,8 @@ class EdgeSweepScene:
     A textured background (``background_range``, well exposed) and a bright rectangular object
     whose own texture spans ``object_range`` (3-12x the frames' clip level by default) moving
     along x at constant speed, its texture moving with it; soft edges (logistic, ``edge_px``).
-    ``seed`` draws both textures (sums of five plane waves each).
+    ``seed`` draws both textures (sums of five plane waves each, spatial frequencies up to
+    ``max_cycles_per_px``).
     """
 
     sensor_size: SensorSize = SensorSize(48, 64)
@@ -203,17 +205,18 @@ class EdgeSweepScene:
     x_start_px: float = -12.0
     speed_px_per_s: float = 80.0
     edge_px: float = 0.5
+    max_cycles_per_px: tuple = (0.12, 0.15)  # (background, object) texture bandwidth
 
     def _tex(self):
         rng = np.random.default_rng([int(self.seed), 11])
         h, w = self.sensor_size.shape
-        bg = _Waves(rng, 5, 0.12, (h, w))()
+        bg = _Waves(rng, 5, self.max_cycles_per_px[0], (h, w))()
         lb0, lb1 = np.log(self.background_range[0]), np.log(self.background_range[1])
         yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
         oh, _ = self.object_size_px
         y0 = (h - oh) / 2.0
         ay = self._sig(yy[:, :1] - y0 + 0.5) * self._sig(y0 + oh - 0.5 - yy[:, :1])  # (H, 1)
-        return {"bg": np.exp(lb0 + (lb1 - lb0) * 0.5 * (1 + bg)), "ob": _Waves(rng, 5, 0.15, (h, w)),
+        return {"bg": np.exp(lb0 + (lb1 - lb0) * 0.5 * (1 + bg)), "ob": _Waves(rng, 5, self.max_cycles_per_px[1], (h, w)),
                 "x": xx[:1], "ay": ay}
 
     def _sig(self, z):
@@ -344,3 +347,127 @@ def edge_sweep_recording(seed: int = 0, *, sensor_size=SensorSize(48, 64), durat
                               "object_range": list(scene.object_range), "speed_px_per_s": float(speed_px_per_s),
                               "crf": "gamma 1/2.2, 8-bit", "gt_units": "frame_linear"})
     return Recording(events, ss, frames, empty_triggers(), hdr, md), scene
+
+
+# -- colour edge sweep: the same sweep in RGB, seen by a Bayer camera and by a monochrome one ----
+
+@dataclass(frozen=True)
+class ColourEdgeSweepScene:
+    """:class:`EdgeSweepScene` in linear RGB (frame-linear units per channel).
+
+    The background keeps the grey scene's texture and gets a colour texture of its own: channel
+    ``c`` is multiplied by ``exp(background_tint · w_c)`` with ``w_c`` a seeded sum of plane
+    waves in [-1, 1] (one per channel). The object is ``object_rgb`` times the grey object's
+    intensity: the default ``(1, f, f)`` with ``f = 0.02`` is a saturated red whose G and B are
+    50× (34 dB) below R, a floor that keeps their logarithms finite.
+    """
+
+    base: EdgeSweepScene = EdgeSweepScene()
+    object_rgb: tuple = (1.0, 0.02, 0.02)
+    background_tint: float = 0.5
+    tint_max_cycles_per_px: float = 0.1
+
+    def _tex(self):
+        tx = self.base._tex()
+        rng = np.random.default_rng([int(self.base.seed), 12])
+        h, w = self.base.sensor_size.shape
+        tint = np.stack([_Waves(rng, 5, self.tint_max_cycles_per_px, (h, w))() for _ in range(3)], axis=-1)
+        tx["bg_rgb"] = tx["bg"][..., None] * np.exp(self.background_tint * tint)
+        return tx
+
+    def rgb(self, t_us, tex=None) -> np.ndarray:
+        """Linear RGB at ``t_us`` (µs), float64 (H, W, 3)."""
+        tx = tex or self._tex()
+        b = self.base
+        lo0, lo1 = np.log(b.object_range[0]), np.log(b.object_range[1])
+        x0 = b.x_start_px + b.speed_px_per_s * float(t_us) * 1e-6
+        u = tx["x"] - x0
+        lo = lo0 + (lo1 - lo0) * 0.5 * (1 + tx["ob"](x0))
+        ow = b.object_size_px[1]
+        a = (tx["ay"] * (b._sig(u + 0.5) * b._sig(ow - 0.5 - u)))[..., None]
+        return (1 - a) * tx["bg_rgb"] + a * np.exp(lo)[..., None] * np.asarray(self.object_rgb, np.float64)
+
+    def luminance(self, t_us, tex=None) -> np.ndarray:
+        """Rec. 709 luminance of :meth:`rgb`, float64 (H, W)."""
+        from .camera.encoding import LUMINANCE_WEIGHTS
+        return self.rgb(t_us, tex) @ np.asarray(LUMINANCE_WEIGHTS)
+
+    def object_mask(self, t_us) -> np.ndarray:
+        return self.base.object_mask(t_us)
+
+
+def colour_edge_sweep_recording(seed: int = 0, *, cfa: str | None = "RGGB", frames: str = "mosaic",
+                                sensor_size=SensorSize(48, 64), duration_us: int = 800_000,
+                                contrast_threshold: float = 0.1, frame_rate_hz: float = 20.0,
+                                exposure_us: int = 5_000, step_us: int = 200, object_range=(3.0, 12.0),
+                                speed_px_per_s: float = 80.0, object_rgb=(1.0, 0.02, 0.02),
+                                background_tint: float = 0.5, band_limited: bool = False):
+    """The edge sweep of :func:`edge_sweep_recording` in colour (:class:`ColourEdgeSweepScene`).
+
+    ``cfa`` a Bayer pattern: a colour camera whose event pixels each see their own channel
+    (ideal events of the mosaic of ln RGB) and whose frames are the raw mosaic
+    (``frames="mosaic"``, (K, H, W), ``metadata.frame_camera.cfa`` set) or full RGB
+    (``frames="rgb"``, (K, H, W, 3), as if demosaicked perfectly); HDR references are linear RGB
+    (K, H, W, 3). ``cfa=None``: a monochrome camera on the same scene (events and frames of its
+    Rec. 709 luminance; references luminance). Frames are 8-bit gamma 2.2, per channel as
+    :func:`edge_sweep_recording`.
+
+    ``band_limited=True`` gives the scene what a Bayer camera's optical low-pass filter passes:
+    edges over 1.5 px instead of 0.5 and textures up to 0.05 cycles/px instead of 0.10-0.15
+    (R and B are sampled every 2 px, so their Nyquist limit is 0.25 cycles/px and bilinear
+    interpolation is accurate only well below it).
+
+    Returns
+    -------
+    recording : Recording
+    scene : ColourEdgeSweepScene
+    """
+    from .camera.cfa import mosaic, parse_cfa
+    pattern = parse_cfa(cfa)
+    if frames not in ("mosaic", "rgb"):
+        raise ValueError(f"frames must be 'mosaic' or 'rgb', got {frames!r}")
+    ss = SensorSize.from_any(sensor_size)
+    if duration_us <= 0 or step_us <= 0 or exposure_us <= 0 or frame_rate_hz <= 0:
+        raise ValueError("duration_us, step_us, exposure_us and frame_rate_hz must be > 0")
+    bl = dict(edge_px=1.5, max_cycles_per_px=(0.05, 0.05)) if band_limited else {}
+    base = EdgeSweepScene(ss, seed=int(seed), object_range=tuple(float(v) for v in object_range),
+                          speed_px_per_s=float(speed_px_per_s), **bl)
+    scene = ColourEdgeSweepScene(base, tuple(float(v) for v in object_rgb), float(background_tint),
+                                 0.05 if band_limited else 0.1)
+    tex = scene._tex()
+
+    def view(t):  # what the camera's pixels see: the own channel, or luminance
+        return mosaic(scene.rgb(t, tex), pattern) if pattern else scene.luminance(t, tex)
+
+    ts = np.arange(0, int(duration_us) + 1, int(step_us), dtype=np.int64)
+    events = ideal_events(lambda t: np.log(view(t)), ts, contrast_threshold)
+    period = 1e6 / frame_rate_hz
+    mids = np.arange(period / 2, duration_us + 1, period)
+    mids = mids[(mids - exposure_us / 2 >= 0) & (mids + exposure_us / 2 <= duration_us)]
+    t0 = np.round(mids - exposure_us / 2).astype(np.int64)
+    t1 = t0 + int(exposure_us)
+    wts = np.ones(11)
+    wts[[0, -1]] = 0.5
+    wts /= wts.sum()
+    full_rgb = pattern is not None and frames == "rgb"
+    images = []
+    for a, b in zip(t0, t1):
+        lin = sum(wi * (scene.rgb(t, tex) if full_rgb else view(t)) for wi, t in zip(wts, np.linspace(a, b, 11)))
+        images.append(np.round(255.0 * np.clip(lin, 0, 1) ** (1 / 2.2)).astype(np.uint8))
+    fr = Frames(np.stack(images), t0, t1, encoding="gamma")
+    t_hdr = (t0 + t1) // 2
+    ref = (lambda t: scene.rgb(t, tex)) if pattern else (lambda t: scene.luminance(t, tex))
+    hdr = HDRReferences(np.stack([ref(t) for t in t_hdr]).astype(np.float32), t_hdr)
+    kind = f"Bayer {pattern}" if pattern else "monochrome"
+    md = Metadata(event_camera=CameraInfo(ss, f"ideal {kind} DVS (colour edge sweep)", cfa=pattern),
+                  frame_camera=CameraInfo(ss, f"8-bit gamma-2.2 {kind} camera (colour edge sweep)",
+                                          cfa=pattern),
+                  provenance={"generator": "hybridhdr.synthetic.colour_edge_sweep_recording", "seed": int(seed),
+                              "cfa": pattern, "frames": frames if pattern else "luminance",
+                              "contrast_threshold": float(contrast_threshold), "frame_rate_hz": float(frame_rate_hz),
+                              "exposure_us": int(exposure_us), "step_us": int(step_us),
+                              "object_range": list(base.object_range), "object_rgb": list(scene.object_rgb),
+                              "background_tint": scene.background_tint, "band_limited": bool(band_limited),
+                              "speed_px_per_s": float(speed_px_per_s),
+                              "crf": "gamma 1/2.2, 8-bit", "gt_units": "frame_linear"})
+    return Recording(events, ss, fr, empty_triggers(), hdr, md), scene

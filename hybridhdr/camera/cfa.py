@@ -16,6 +16,14 @@ changes the pattern's name (:func:`crop_pattern`).
     ``[1 2 1; 2 4 2; 1 2 1]/4``, G with ``[0 1 0; 1 4 1; 0 1 0]/4``; at the border only the
     samples inside the image count (their weights renormalised), so no value is invented from
     padding. A pixel's own channel is returned unchanged, bit for bit.
+``"log_bilinear"``
+    The same interpolation of ``ln max(v, eps)``, exponentiated: geometric instead of
+    arithmetic means of the neighbours. The events and the AKF state are log intensity and an
+    HDR scene's textures and edges are multiplicative, so this is the scale-invariant choice
+    (an interpolated value does not depend on the exposure); on the colour edge sweep
+    (``benchmarks/colour.py``) it has the smallest log error of the three, also on the true
+    radiance (0.022 against 0.025 bilinear on the band-limited scene, 0.071 against 0.091 on
+    the sharp one).
 ``"edge_aware"``
     G at R and B pixels from the two G neighbours along the direction of the smaller G
     gradient (mirrored at the border, which keeps the Bayer parity) (measured in log units, so the choice does not depend on the brightness of an
@@ -45,7 +53,7 @@ CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
 #: Command-line choices (``--cfa``): the patterns and ``none`` (monochrome).
 CFA_CHOICES = CFA_PATTERNS + ("none",)
 #: :func:`demosaic` methods.
-DEMOSAIC_METHODS = ("bilinear", "edge_aware")
+DEMOSAIC_METHODS = ("bilinear", "log_bilinear", "edge_aware")
 _CHANNEL = {"R": 0, "G": 1, "B": 2}
 
 
@@ -130,9 +138,12 @@ def _normconv(values, mask, kernel):
 
 def _demosaic_one(m, masks, method, eps):
     out = np.empty(m.shape + (3,), np.float64)
-    if method == "bilinear":
+    if method in ("bilinear", "log_bilinear"):
+        v = np.log(np.maximum(m, eps)) if method == "log_bilinear" else m
         for c in range(3):
-            out[..., c] = _normconv(m, masks[..., c], _K_G if c == 1 else _K_RB)
+            out[..., c] = _normconv(v, masks[..., c], _K_G if c == 1 else _K_RB)
+        if method == "log_bilinear":
+            np.exp(out, out=out)
     else:  # edge_aware
         from scipy.ndimage import convolve
         gm = masks[..., 1]
@@ -171,11 +182,12 @@ def demosaic(mosaic_images, pattern, method: str = "bilinear", eps: float = 1e-6
         Demosaicking non-linear codes works but interpolates the codes, not the light.
     pattern : str
         One of :data:`CFA_PATTERNS`.
-    method : {"bilinear", "edge_aware"}
+    method : {"bilinear", "log_bilinear", "edge_aware"}
         See the module notes.
     eps : float
-        Floor of the values in the log gradients and ratios of ``"edge_aware"`` (unused by
-        ``"bilinear"``); the reconstruction clamps its outputs at 1e-6 frame-linear.
+        Floor of the values in the logarithms of ``"log_bilinear"`` and the log gradients and
+        ratios of ``"edge_aware"`` (unused by ``"bilinear"``); the reconstruction clamps its
+        outputs at 1e-6 frame-linear.
 
     Returns
     -------
