@@ -50,6 +50,8 @@ from typing import Iterator
 import numpy as np
 
 from ...errors import FormatError
+from ..._limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
+                        huge_allowed)
 from ...events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
 from ...io import EventChunk, EventFileReader
 from ...model import CameraInfo, Frames, Metadata
@@ -172,15 +174,30 @@ def _decompress(data: bytes, method: int) -> bytes:
             import lz4.frame
         except ImportError as exc:  # pragma: no cover - dependency missing
             raise ImportError("reading LZ4-compressed AEDAT4 files needs the 'lz4' package: pip install lz4") from exc
-        return lz4.frame.decompress(data)
+        limit = _packet_limit()
+        d = lz4.frame.LZ4FrameDecompressor()
+        out = d.decompress(data, max_length=limit + 1)
+        if len(out) > limit:
+            raise LimitExceeded(None, f"an LZ4 packet inflates beyond {limit:,} bytes; {OVERRIDE_HINT}")
+        return out
     if method in (3, 4):
         try:
             import zstandard
         except ImportError as exc:  # pragma: no cover - dependency missing
             raise ImportError("reading ZSTD-compressed AEDAT4 files needs the 'zstandard' package: "
                               "pip install zstandard") from exc
-        return zstandard.ZstdDecompressor().decompress(data, max_output_size=_MAX_PACKET)
+        limit = _packet_limit()
+        out = bytearray()
+        for piece in zstandard.ZstdDecompressor().read_to_iter(data, read_size=1 << 16, write_size=1 << 20):
+            out += piece
+            if len(out) > limit:
+                raise LimitExceeded(None, f"a ZSTD packet inflates beyond {limit:,} bytes; {OVERRIDE_HINT}")
+        return bytes(out)
     raise _Corrupt(f"unknown compression type {method}")
+
+
+def _packet_limit() -> int:
+    return _MAX_PACKET if huge_allowed() else min(_MAX_PACKET, LIMITS["max_packet_bytes"])
 
 
 def _parse_streams(path, xml: bytes) -> dict[int, dict]:
@@ -293,7 +310,10 @@ class Aedat4Reader(EventFileReader):
             if not info or "width" not in info or "height" not in info:
                 return None
             try:
-                return SensorSize(info["height"], info["width"])
+                return SensorSize(*check_sensor_size(info["height"], info["width"], self.path,
+                                                     f"stream {sid} resolution"))
+            except LimitExceeded:
+                raise
             except (TypeError, ValueError) as exc:
                 raise FormatError(self.path, f"stream {sid}: invalid resolution: {exc}") from None
 
@@ -350,6 +370,9 @@ class Aedat4Reader(EventFileReader):
                         tab, ident = _root(raw, size_prefixed=True)
                     except ImportError:
                         raise
+                    except LimitExceeded as exc:
+                        raise LimitExceeded(self.path, f"packet {i} (stream {sid}): {exc.message}", offset=pos,
+                                            record=i) from None
                     except Exception as exc:  # lz4/zstandard errors, _Corrupt, struct.error
                         raise FormatError(self.path, f"corrupt packet {i} (stream {sid}): {type(exc).__name__}: "
                                                      f"{exc}", offset=pos, record=i) from None
@@ -490,7 +513,7 @@ class Aedat4Reader(EventFileReader):
         px = px[..., 0] if ch == 1 else px[..., 2::-1]  # BGR(A) -> RGB
         px = np.ascontiguousarray(px, dtype=dtype.newbyteorder("="))
         if size is None:
-            size = SensorSize(h, w)
+            size = SensorSize(*check_sensor_size(h, w, self.path, "frame"))
         if (h, w) != size.shape or ox or oy:
             if oy + h > size.height or ox + w > size.width:
                 raise FormatError(self.path, f"frame of shape {(h, w)} at ({ox}, {oy}) does not fit the {size} "
@@ -520,9 +543,12 @@ class Aedat4Reader(EventFileReader):
             return None
         imgs, ts, te = [], [], []
         size = self.frame_size
+        total = 0
         for i, pos, sid, tab, ident in self._packets({self.frame_stream}):
             self._check_ident(ident, b"FRME", i, pos)
             px, a, b, size = self._frame_of(tab, i, pos, size)
+            total += px.nbytes
+            check_frame_bytes(total, self.path, "the decoded frames")
             if imgs and (px.shape != imgs[0].shape or px.dtype != imgs[0].dtype):
                 raise FormatError(self.path, f"frame {len(imgs)} has shape {px.shape} dtype {px.dtype}, unlike "
                                              f"the first frame's {imgs[0].shape} {imgs[0].dtype}", offset=pos, record=i)

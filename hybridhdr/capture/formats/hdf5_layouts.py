@@ -31,6 +31,8 @@ from typing import Iterator
 
 import numpy as np
 
+from ..._limits import (LimitExceeded, check_finite, check_frame_bytes, check_frame_shape, check_h5_stored,
+                        check_sensor_size)
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, SensorSize
 from ...io import EventChunk, EventFileReader
@@ -145,6 +147,7 @@ def _check_columns(path, cols: dict, n: int) -> None:
             raise FormatError(path, f"{ds.name} has {ds.shape[0]} entries but the event count is {n}")
         if ds.dtype.kind not in "uifb":
             raise FormatError(path, f"{ds.name} must be numeric, got dtype {ds.dtype}")
+        check_h5_stored(ds, path, ds.name)  # a declared count with no data behind it
 
 
 def _build_events(path, i0: int, t_us: np.ndarray, x, y, p, ss: SensorSize, last_t: int | None,
@@ -249,8 +252,10 @@ class DsecReader(EventFileReader):
             stored = None
             if "height" in f.attrs and "width" in f.attrs:
                 try:
-                    stored = SensorSize(int(f.attrs["height"]), int(f.attrs["width"]))
-                except (TypeError, ValueError):
+                    stored = SensorSize(*check_sensor_size(f.attrs["height"], f.attrs["width"], self.path))
+                except (TypeError, ValueError, OverflowError) as e:
+                    if isinstance(e, LimitExceeded):
+                        raise
                     stored = None
         self.n_events = n
         self.add_t_offset = bool(options.get("add_t_offset", True))
@@ -314,7 +319,7 @@ class MonashReader(EventFileReader):
             if res is not None:
                 r = np.asarray(res).reshape(-1)
                 if r.size >= 2 and r.dtype.kind in "iuf" and np.all(r[:2] > 0) and np.all(r[:2] <= 65536):
-                    stored = (int(r[0]), int(r[1]))
+                    stored = check_sensor_size(r[0], r[1], self.path)
                 else:
                     raise FormatError(self.path, f"root attribute sensor_resolution must be (height, width), got {res!r}")
             attrs = {k: f.attrs[k] for k in ("num_events", "num_imgs", "t0", "tk", "duration") if k in f.attrs}
@@ -373,7 +378,9 @@ class MonashReader(EventFileReader):
         if mx < 0:
             raise FormatError(self.path, "no events, no images and no sensor_resolution: pass sensor_size")
         try:
-            return SensorSize(my + 1, mx + 1)
+            return SensorSize(*check_sensor_size(my + 1, mx + 1, self.path, "sensor inferred from the coordinates"))
+        except LimitExceeded:
+            raise
         except ValueError as exc:
             raise FormatError(self.path, f"cannot infer the sensor size: {exc}") from None
 
@@ -416,8 +423,16 @@ class MonashReader(EventFileReader):
         imgs, ts = [], []
         with _open(self.path) as f:
             g = f["images"]
+            total = 0
             for k, name in enumerate(self._image_names):
                 ds = g[name]
+                if ds.ndim not in (2, 3):
+                    raise FormatError(self.path, f"images/{name} must be (H, W) or (H, W, 3), got {ds.shape}",
+                                      record=k)
+                check_frame_shape((1,) + tuple(ds.shape), self.path, f"images/{name}")
+                total += int(np.prod(ds.shape, dtype=np.float64)) * ds.dtype.itemsize
+                check_frame_bytes(total, self.path, "the images")
+                check_h5_stored(ds, self.path, f"images/{name}")
                 try:
                     im = ds[()]
                     t = ds.attrs.get("timestamp")
@@ -438,6 +453,11 @@ class MonashReader(EventFileReader):
                 if imgs and (im.shape != imgs[0].shape or im.dtype != imgs[0].dtype):
                     raise FormatError(self.path, f"images/{name} has shape {im.shape} dtype {im.dtype}, unlike "
                                                  f"the first image's {imgs[0].shape} {imgs[0].dtype}", record=k)
+                if im.dtype.kind not in "uifb":
+                    raise FormatError(self.path, f"images/{name} must be numeric, got dtype {im.dtype}", record=k)
+                check_finite(im, self.path, f"images/{name}")
+                if abs(tv[0]) * 1e6 >= 2.0 ** 63:
+                    raise FormatError(self.path, f"images/{name}: timestamp {tv[0]!r} s overflows int64 µs", record=k)
                 imgs.append(im)
                 ts.append(int(np.rint(tv[0] * 1e6)))
         t = np.asarray(ts, np.int64)

@@ -29,11 +29,13 @@ import re
 import shutil
 import warnings
 import zipfile
+import zlib
 from pathlib import Path
 from typing import BinaryIO, Iterator
 
 import numpy as np
 
+from ..._limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, SensorSize, empty_events
 from ...io import EventChunk, EventFileReader, EventFileWriter
@@ -63,12 +65,32 @@ def _lines_of(head: bytes, n: int) -> list[bytes] | None:
     return None  # not enough complete lines in the head
 
 
-def _sniff_text(head: bytes) -> str | None:
-    lines = _lines_of(head, 2)
-    if lines is None:
+_BOM = b"\xef\xbb\xbf"
+#: errors a damaged, encrypted or exotic zip raises while it is read
+_ZIP_ERRORS = (zipfile.BadZipFile, EOFError, OSError, ValueError, NotImplementedError, RuntimeError, zlib.error)
+
+
+def _sniff_text(head: bytes, at_eof: bool = False) -> str | None:
+    """``"e2vid"`` for a ``width height`` line followed by ``t x y p`` lines, comments or nothing
+    (a UTF-8 BOM is skipped); ``"ecd"`` for a first ``t x y p`` line. ``at_eof``: ``head`` is the
+    whole file, so its last line is complete."""
+    if head.startswith(_BOM):
+        head = head[len(_BOM):]
+    if not head or b"\x00" in head:
         return None
-    if _LINE2INT.match(lines[0]) and _LINE4.match(lines[1]):
-        return "e2vid"
+    lines = head.replace(b"\r\n", b"\n").split(b"\n")
+    if not at_eof:
+        lines = lines[:-1]  # the last piece may be cut by the 4 KB head
+    if not lines:
+        return None
+    if _LINE2INT.match(lines[0]):
+        # the header, then comments / blank lines (any amount), then the first data line: t x y p
+        for ln in lines[1:]:
+            st = ln.strip()
+            if not st or st.startswith(b"#"):
+                continue
+            return "e2vid" if _LINE4.match(ln) else None
+        return "e2vid"  # header only, or header + comments filling the head
     if _LINE4.match(lines[0]):
         return "ecd"
     return None
@@ -79,7 +101,7 @@ def _zip_txt_member(path: Path) -> str | None:
     try:
         with zipfile.ZipFile(path) as zf:
             names = [n for n in zf.namelist() if n.lower().endswith(".txt") and not n.endswith("/")]
-    except (zipfile.BadZipFile, OSError, ValueError, EOFError, NotImplementedError):
+    except _ZIP_ERRORS:
         return None
     return names[0] if len(names) == 1 else None
 
@@ -96,9 +118,9 @@ def sniff(path: Path, head: bytes) -> str | None:
                 return None
             with zipfile.ZipFile(path) as zf, zf.open(name) as f:
                 inner = f.read(4096)
-            return "e2vid" if _sniff_text(inner) == "e2vid" else None
-        return _sniff_text(head)
-    except (OSError, ValueError, zipfile.BadZipFile, EOFError, NotImplementedError):
+            return "e2vid" if _sniff_text(inner, len(inner) < 4096) == "e2vid" else None
+        return _sniff_text(head, len(head) < 4096)
+    except _ZIP_ERRORS:
         return None
 
 
@@ -130,7 +152,10 @@ def parse_seconds_exact(tokens) -> np.ndarray:
         s = tok.decode("ascii") if isinstance(tok, (bytes, bytearray)) else str(tok)
         s = s.strip()
         if "e" in s or "E" in s:
-            out[i] = int(round(float(s) * 1e6))
+            v = float(s) * 1e6
+            if not np.isfinite(v) or abs(v) >= 9.2e18:
+                raise ValueError(f"{s} s is not finite or overflows int64 µs")
+            out[i] = int(round(v))
             continue
         neg = s.startswith("-")
         s = s.lstrip("+-")
@@ -305,8 +330,7 @@ def _scan_max_xy(path, opener, first_line: int) -> tuple[int, int, int]:
 
 
 def _read_image(path: Path) -> np.ndarray:
-    from PIL import Image
-    with Image.open(path) as im:
+    with open_image(path, "frame") as im:
         mode = im.mode
         if mode in ("1", "P", "LA", "PA", "CMYK", "YCbCr", "HSV", "LAB"):
             im = im.convert("RGB" if mode in ("P", "PA", "CMYK", "YCbCr", "HSV", "LAB") else "L")
@@ -319,10 +343,18 @@ def _read_image(path: Path) -> np.ndarray:
 
 
 def _image_size(path: Path) -> SensorSize:
-    from PIL import Image
-    with Image.open(path) as im:
+    with open_image(path, "frame") as im:
         w, h = im.size
     return SensorSize(int(h), int(w))
+
+
+def _decoded_bytes(path: Path) -> int:
+    """Bytes the decoded image will take (from its header only)."""
+    with open_image(path, "frame") as im:
+        w, h = im.size
+        bands = len(im.getbands())
+        depth = 2 if im.mode.startswith("I;16") or im.mode in ("I", "F") else 1
+    return int(w) * int(h) * min(bands, 3) * depth
 
 
 # ------------------------------------------------------------------------------------------------
@@ -377,6 +409,8 @@ class EcdReader(EventFileReader):
             first = self._frame_list[0][1]
             try:
                 self.sensor_size = _image_size(first)
+            except LimitExceeded:
+                raise
             except (OSError, ValueError) as exc:
                 raise FormatError(self.images_txt, f"cannot read the first frame {first}: {exc}",
                                   record=self._frame_list[0][2]) from None
@@ -386,7 +420,8 @@ class EcdReader(EventFileReader):
             if n == 0:
                 raise FormatError(self.events_path, "no events and no frames: cannot infer the sensor size; "
                                                     "pass sensor_size=(height, width)")
-            self.sensor_size = SensorSize(my + 1, mx + 1)
+            self.sensor_size = SensorSize(*check_sensor_size(my + 1, mx + 1, self.events_path,
+                                                             "sensor inferred from the coordinates"))
             source = "inferred"
             note = ("ECD stores no sensor size and there are no frames: inferred as max coordinate + 1 "
                     "over all events (may be smaller than the real sensor)")
@@ -441,8 +476,8 @@ class EcdReader(EventFileReader):
                                                    f"{raw[:80]!r}", record=k)
             try:
                 ts = float(toks[0])
-                if not np.isfinite(ts):
-                    raise ValueError("not finite")
+                if not np.isfinite(ts) or abs(ts) * 1e6 >= 9.2e18:
+                    raise ValueError("not finite or overflows int64 µs")
                 rel = toks[1].decode("utf-8").strip()
             except (ValueError, UnicodeDecodeError) as exc:
                 raise FormatError(self.images_txt, f"line {k}: bad timestamp or file name ({exc}): {raw[:80]!r}",
@@ -475,11 +510,17 @@ class EcdReader(EventFileReader):
         if not self._frame_list:
             return Frames.empty(*self.sensor_size.shape)
         imgs = []
+        total = 0
         for t_us, p, k in self._frame_list:
             try:
+                total += _decoded_bytes(p)  # before decoding: N references to one big PNG add up
+                check_frame_bytes(total, self.images_txt, f"the {len(self._frame_list)} frames listed")
                 im = _read_image(p)
-            except (OSError, ValueError, SyntaxError) as exc:
-                raise FormatError(self.images_txt, f"line {k}: cannot read frame {p}: {exc}", record=k) from None
+            except LimitExceeded as exc:
+                raise LimitExceeded(self.images_txt, f"line {k}: {p}: {exc.message}", record=k) from None
+            except (OSError, ValueError, SyntaxError) as exc:  # FormatError of an unreadable image too
+                raise FormatError(self.images_txt, f"line {k}: cannot read frame {p}: "
+                                                   f"{getattr(exc, 'message', exc)}", record=k) from None
             if imgs and (im.shape != imgs[0].shape or im.dtype != imgs[0].dtype):
                 raise FormatError(self.images_txt, f"line {k}: frame {p} has shape {im.shape} dtype {im.dtype}, "
                                                    f"unlike the first frame's {imgs[0].shape} {imgs[0].dtype}",
@@ -615,14 +656,18 @@ class E2vidReader(EventFileReader):
         try:
             with self._open() as f:
                 first = f.readline(256)
-        except (OSError, zipfile.BadZipFile, EOFError, ValueError) as exc:
-            raise FormatError(self.path, f"cannot read: {exc}") from None
+        except _ZIP_ERRORS as exc:
+            raise FormatError(self.path, f"cannot read ({type(exc).__name__}: {exc})") from None
+        if first.startswith(_BOM):
+            first = first[len(_BOM):]
         m = _LINE2INT.match(first.rstrip(b"\r\n"))
         if m is None:
             raise FormatError(self.path, f"line 1: expected 'width height', got {first[:80]!r}", record=1)
         w, h = int(m.group(1)), int(m.group(2))
         try:
-            stored = SensorSize(h, w)
+            stored = SensorSize(*check_sensor_size(h, w, self.path))
+        except LimitExceeded:
+            raise
         except (TypeError, ValueError) as exc:
             raise FormatError(self.path, f"line 1: invalid sensor size: {exc}", record=1) from None
         src = "option" if self.sensor_size is not None else "file"
@@ -654,8 +699,11 @@ class E2vidReader(EventFileReader):
                     for ln, b in _iter_blocks(f, 2, path=self.path):
                         yield parser.parse(b, ln)
                 yield from _chunked(gen(), chunk_events)
-        except (zipfile.BadZipFile, EOFError, OSError) as exc:
-            raise FormatError(self.path, f"cannot read the text (corrupt or truncated zip?): {exc}") from None
+        except FormatError:
+            raise
+        except _ZIP_ERRORS as exc:  # zlib.error (corrupt deflate), RuntimeError (encrypted member), ...
+            raise FormatError(self.path, f"cannot read the text (corrupt, encrypted or truncated zip?): "
+                                         f"{type(exc).__name__}: {exc}") from None
 
 
 class _ZipMember(io.RawIOBase):
