@@ -14,6 +14,16 @@ are mandatory render times, so they are exact renders, not interpolations.
 
 Random streams: ``np.random.SeedSequence(seed).spawn(2)`` seeds the event sensor and the frame
 camera, so the same seed gives the same bits.
+
+**Colour** (``cfa="RGGB"``, ``"BGGR"``, ``"GRBG"``, ``"GBRG"``): a Bayer event sensor and a frame
+sensor behind the same filter (the DAVIS346 colour). A source may render linear RGB
+(H, W, 3); each pixel of both sensors sees only its own channel
+(:func:`hybridhdr.camera.cfa.mosaic`), so the sampler, the event sensor and the frame camera
+work unchanged on the mosaic; frames are the raw mosaic (K, H, W) and HDR references the
+rendered RGB (K, H, W, 3) (the rendered grey for a grey source, whose mosaic is the grey image).
+Both cameras' ``metadata.*.cfa`` record the pattern. The Mitsuba sources render luminance
+(``llvm_ad_mono``, or ``scalar_rgb`` reduced to Y), so colour scenes come from sources that
+return RGB, e.g. :func:`hybridhdr.synthetic.colour_edge_sweep_recording`'s scene.
 """
 
 from __future__ import annotations
@@ -73,6 +83,43 @@ def _check_source(source):
                         f"{type(source).__name__} lacks {missing}")
 
 
+class _MosaicSource:
+    """A radiance source seen through a Bayer filter: :meth:`render` returns each pixel's own
+    channel of the wrapped source's RGB render; :meth:`rgb` the render itself (the most recent
+    renders are kept, so ground truth at a sampled time costs no extra render)."""
+
+    def __init__(self, source, pattern: str):
+        self._src = source
+        self.pattern = pattern
+        self.sensor_size = source.sensor_size
+        self.duration_us = source.duration_us
+        self._recent: dict[int, np.ndarray] = {}
+
+    def __getattr__(self, name):
+        return getattr(self._src, name)
+
+    def rgb(self, t_us: int) -> np.ndarray:
+        t = int(t_us)
+        if t not in self._recent:
+            self._recent[t] = np.asarray(self._src.render(t))
+            while len(self._recent) > 8:
+                self._recent.pop(next(iter(self._recent)))
+        return self._recent[t]
+
+    def render(self, t_us: int) -> np.ndarray:
+        from ..camera.cfa import mosaic
+        r = self.rgb(t_us)
+        if r.ndim == 3:
+            return mosaic(r, self.pattern)
+        return r  # a grey scene: every channel is the grey value
+
+    def max_image_speed_px_per_s(self, t0_us: int, t1_us: int) -> float:
+        return self._src.max_image_speed_px_per_s(t0_us, t1_us)
+
+    def describe(self) -> dict:
+        return dict(self._src.describe(), cfa=self.pattern)
+
+
 class _MemorySink:
     def __init__(self):
         self.events, self.frames, self.hdr_im, self.hdr_t = [], [], [], []
@@ -89,8 +136,12 @@ class _MemorySink:
         self.hdr_t.append(h.t_us)
 
 
-def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress):
+def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress, cfa=None):
     _check_source(source)
+    from ..camera.cfa import parse_cfa
+    pattern = parse_cfa(cfa)
+    if pattern is not None:
+        source = _MosaicSource(source, pattern)
     params = _resolve_sensor(sensor)
     sampling = sampling or SamplingParams()
     if not isinstance(sampling, SamplingParams):
@@ -152,7 +203,8 @@ def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress)
                     sampler.add_mandatory(tm)
                 hdr_times.add(iv[0] + (iv[1] - iv[0]) // 2)
         if t in hdr_times:
-            sink.write_hdr(HDRReferences(np.asarray(r, np.float32)[None], np.array([t], np.int64)))
+            ref = r if pattern is None else source.rgb(t)
+            sink.write_hdr(HDRReferences(np.asarray(ref, np.float32)[None], np.array([t], np.int64)))
             n_hdr += 1
         if pbar is not None:
             pbar.update(t - last)
@@ -172,16 +224,17 @@ def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress)
             "camera": None if cam is None else {**camera.to_dict(), **cam.crf_metadata()},
             "sampling": sampling.to_dict(), "seed": seed, "seed_entropy": str(seq.entropy),
             "gt_times_us": gt, "renders": renders, "stats": stats}
-    meta = Metadata(event_camera=CameraInfo(ss, model="hybridhdr simulated event sensor"),
+    meta = Metadata(event_camera=CameraInfo(ss, model="hybridhdr simulated event sensor", cfa=pattern),
                     frame_camera=CameraInfo(ss if cam is not None else None,
-                                            model="hybridhdr simulated frame camera" if cam is not None else ""),
+                                            model="hybridhdr simulated frame camera" if cam is not None else "",
+                                            cfa=pattern if cam is not None else None),
                     provenance=prov)
     return renders, stats, meta
 
 
 def simulate(source: RadianceSource, *, sensor: str | EventSensorParams = "clean",
              camera: FrameCameraParams | None = None, sampling: SamplingParams | None = None,
-             gt_times_us=None, seed: int | None = 0, progress: bool = True) -> SimulationResult:
+             gt_times_us=None, seed: int | None = 0, progress: bool = True, cfa: str | None = None) -> SimulationResult:
     """Simulate a hybrid recording from ``source`` in memory.
 
     Parameters
@@ -198,6 +251,9 @@ def simulate(source: RadianceSource, *, sensor: str | EventSensorParams = "clean
     seed : int or None
     progress : bool
         tqdm bar on stderr.
+    cfa : {"RGGB", "BGGR", "GRBG", "GBRG"} or None
+        A Bayer colour camera (module notes): events and raw mosaic frames of each pixel's own
+        channel of an RGB source, RGB references. None: monochrome (unchanged).
 
     Returns
     -------
@@ -208,7 +264,7 @@ def simulate(source: RadianceSource, *, sensor: str | EventSensorParams = "clean
     """
     sink = _MemorySink()
     renders, stats, meta = _run(source, sink, sensor=sensor, camera=camera, sampling=sampling,
-                                gt_times_us=gt_times_us, seed=seed, progress=progress)
+                                gt_times_us=gt_times_us, seed=seed, progress=progress, cfa=cfa)
     events = np.concatenate(sink.events) if sink.events else np.zeros(0, EVENT_DTYPE)
     frames = None
     if sink.frames:
@@ -224,7 +280,7 @@ def simulate(source: RadianceSource, *, sensor: str | EventSensorParams = "clean
 def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorParams = "clean",
                      camera: FrameCameraParams | None = None, sampling: SamplingParams | None = None,
                      gt_times_us=None, seed: int | None = 0, progress: bool = True,
-                     compression: str | None = "gzip") -> SimulationResult:
+                     compression: str | None = "gzip", cfa: str | None = None) -> SimulationResult:
     """Like :func:`simulate`, streaming into the hybridhdr container at ``path`` (HDF5).
 
     Events are handed to the writer after every step (it buffers at most ``buffer_events``),
@@ -254,7 +310,7 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
         raise
     try:
         renders, stats, meta = _run(source, w, sensor=sensor, camera=camera, sampling=sampling,
-                                    gt_times_us=gt_times_us, seed=seed, progress=progress)
+                                    gt_times_us=gt_times_us, seed=seed, progress=progress, cfa=cfa)
         w.final_metadata = meta
         w.close()
     except BaseException:
