@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import json
 import sys
 from pathlib import Path
@@ -51,12 +52,29 @@ def add_parser(subparsers) -> None:
     p.add_argument("--end-us", type=int, default=None, help="outputs before this time (µs)")
     p.add_argument("--workers", type=int, default=1, help="threads for the row-band parallel kernels")
     p.add_argument("--chunk-events", type=int, default=1 << 20, help="events per streamed chunk")
-    p.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
-    p.add_argument("--mp4", action="store_true", help="also write a tone-mapped MP4 preview")
-    p.add_argument("--no-exr", action="store_true", help="skip the EXR sequence")
+    o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
+    o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
+    o.add_argument("--mp4", action="store_true", help="also write a tone-mapped MP4 preview (every output frame)")
+    o.add_argument("--playback-fps", type=float, default=30.0,
+                   help="frame rate the MP4 preview plays at (outputs at --fps 300 play 10x slowed down at 30)")
+    o.add_argument("--no-exr", action="store_true", help="skip the EXR sequence")
+    o.add_argument("--exr-compression", default=None, metavar="NAME",
+                   help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
+                        f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: zip, lossless]")
+    o.add_argument("--writers", type=int, default=None,
+                   help="writer processes encoding files while the filter runs; 0 writes in the main thread "
+                        "(same bytes) [default: min(2, CPUs)]")
+    o.add_argument("--overwrite", action="store_true",
+                   help="OUT may be non-empty: replace the files a reconstruct run writes there (frame_*.exr, "
+                        "timestamps.txt, run.json, previews), keep everything else")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run)
+
+
+def _exr_choices() -> list[str]:
+    from .output import exr_compressions
+    return exr_compressions()
 
 
 def _parse_value(s: str):
@@ -141,12 +159,15 @@ def _toml_fields(cls, path) -> dict:
 
 
 def run(args) -> int:
-    """Run ``hybridhdr reconstruct``; returns the exit status."""
+    """Run ``hybridhdr reconstruct``; returns the exit status (2: bad arguments, 1: failed while running,
+    e.g. a full disk; OUT.partial is then removed and OUT untouched)."""
     import numpy as np
 
     from .._version import __version__
-    from .api import METHODS, Video, reconstruct_iter, resolve_method
-    from .output import write_exr_sequence, write_mp4, write_png_previews
+    from .api import METHODS, reconstruct_iter, resolve_method
+    from .output import DEFAULT_EXR_COMPRESSION, OutputFolder, VideoWriter, exr_compressions
+    folder = writer = None
+    stage = "arguments"
     try:
         method = resolve_method(args.method)
         params = build_params(args)
@@ -154,62 +175,101 @@ def run(args) -> int:
         times = None
         if args.times_us is not None:
             times = np.loadtxt(args.times_us, dtype=np.int64, ndmin=1, comments="#")
-        out = Path(args.out)
-        out.mkdir(parents=True, exist_ok=True)
-        bar = None
-        progress = None
-        if not args.no_progress:
-            from tqdm import tqdm
-            bar = tqdm(unit="ev", unit_scale=True, desc=f"reconstruct {method}", file=sys.stderr)
-            progress = bar.update
-        info: dict = {}
-        ts, imgs = [], []
-        source = str(args.recording)
-        if getattr(args, "frame_encoding", None) is not None:
-            from ..io import open_reader
-            source = open_reader(args.recording, frame_encoding=args.frame_encoding)
-        try:
-            for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
-                                           mode=args.mode, profile=args.profile, t_start_us=args.start_us,
-                                           t_end_us=args.end_us, n_workers=args.workers,
-                                           chunk_events=args.chunk_events, progress=progress, info=info,
-                                           augment=augment):
-                ts.append(t)
-                imgs.append(img)
-        finally:
-            if bar is not None:
-                bar.close()
-            if not isinstance(source, str):
-                source.close()
-        if not imgs:
-            raise ValueError("no output frames in the requested time range")
-        video = Video(np.stack(imgs), np.asarray(ts, np.int64), method, params.to_dict(), info)
-        written = {}
-        if not args.no_exr:
-            written["exr"] = len(write_exr_sequence(video, out))
-        if args.png:
-            written["png"] = len(write_png_previews(video, out / "previews"))
-        if args.mp4:
-            written["mp4"] = str(write_mp4(video, out / "preview.mp4", fps=args.fps or 30.0))
-        run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
-                    "method_description": METHODS[method][3], "mode": args.mode, "params": params.to_dict(),
-                    "profile": str(args.profile) if args.profile else "built-in 8-bit",
-                    "n_frames": len(video), "n_events_used": info.get("n_events_used"), "written": written}
-        n_pix = int(info.get("n_output_pixels") or 0)
-        run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
-                                      "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
-        for key in ("augment", "augmentation", "edi_thresholds", "two_sided"):
-            if key in info:
-                run_info[key] = info[key]
-        (out / "run.json").write_text(json.dumps(run_info, indent=1, default=str) + "\n")
-        print(f"{method}: {len(video)} frames {int(video.t_us[0])}..{int(video.t_us[-1])} µs, "
+        compression = (args.exr_compression or DEFAULT_EXR_COMPRESSION).lower()
+        if compression not in exr_compressions():
+            raise ValueError(f"--exr-compression {args.exr_compression!r}: expected one of {exr_compressions()}")
+        if not args.playback_fps > 0:
+            raise ValueError(f"--playback-fps must be > 0, got {args.playback_fps}")
+        if args.writers is not None and args.writers < 0:
+            raise ValueError(f"--writers must be >= 0, got {args.writers}")
+        if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
+            raise FileNotFoundError(f"recording {args.recording} not found")
+        folder = OutputFolder(args.out, overwrite=args.overwrite)
+        stage = "run"
+        with _signals_exit():
+            # the writer pool forks here, before any other thread (progress bars, readers) starts
+            bars = []
+            writer = VideoWriter(folder.path, exr=not args.no_exr, compression=compression, png=args.png,
+                                 mp4=args.mp4, playback_fps=args.playback_fps, writers=args.writers)
+            progress = None
+            if not args.no_progress:
+                from tqdm import tqdm
+                bars.append(tqdm(unit="ev", unit_scale=True, desc=f"reconstruct {method}", file=sys.stderr,
+                                 position=0))
+                bars.append(tqdm(unit="img", desc="written", file=sys.stderr, position=1))
+                progress = bars[0].update
+                writer.on_written = bars[1].update
+            info: dict = {}
+            source = str(args.recording)
+            if getattr(args, "frame_encoding", None) is not None:
+                from ..io import open_reader
+                source = open_reader(args.recording, frame_encoding=args.frame_encoding)
+            try:
+                for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
+                                               mode=args.mode, profile=args.profile, t_start_us=args.start_us,
+                                               t_end_us=args.end_us, n_workers=args.workers,
+                                               chunk_events=args.chunk_events, progress=progress, info=info,
+                                               augment=augment):
+                    writer.write(t, img)
+                if writer.n == 0:
+                    raise ValueError("no output frames in the requested time range")
+                written = writer.close()
+            finally:
+                for b in bars:
+                    b.close()
+                if not isinstance(source, str):
+                    source.close()
+            run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
+                        "method_description": METHODS[method][3], "mode": args.mode, "params": params.to_dict(),
+                        "profile": str(args.profile) if args.profile else info.get("profile", "built-in 8-bit"),
+                        "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written}
+            n_pix = int(info.get("n_output_pixels") or 0)
+            run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
+                                          "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
+            for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
+                if key in info:
+                    run_info[key] = info[key]
+            run_info["info"] = {k: v for k, v in info.items() if k != "params"}
+            with open(folder.path / "run.json", "w", encoding="utf-8") as f:
+                f.write(json.dumps(run_info, indent=1, default=str) + "\n")
+            out = folder.commit()
+        print(f"{method}: {writer.n} frames {writer.t_first}..{writer.t_last} µs, "
               f"{info.get('n_events_used', 0)} events -> {out}")
         return 0
-    except (ValueError, TypeError, FileNotFoundError, OSError) as e:
-        if getattr(args, "debug", False):
+    except BaseException as e:
+        if writer is not None:
+            writer.abort()
+        if folder is not None:
+            folder.abort()
+        if isinstance(e, (KeyboardInterrupt, SystemExit)):
+            raise
+        if not isinstance(e, (ValueError, TypeError, OSError, ImportError)) or getattr(args, "debug", False):
             raise
         print(f"hybridhdr reconstruct: error: {e}", file=sys.stderr)
-        return 2
+        usage = stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError))
+        return 2 if usage else 1
+
+
+@contextlib.contextmanager
+def _signals_exit():
+    """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only), so
+    the writer pool and OUT.partial are cleaned up instead of the process just ending."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+
+    def _exit(signum, frame):
+        raise SystemExit(128 + signum)
+
+    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    old = {sg: signal.signal(sg, _exit) for sg in sigs}
+    try:
+        yield
+    finally:
+        for sg, h in old.items():
+            signal.signal(sg, h)
 
 
 def demo_step(recording, out_dir) -> str:
