@@ -189,3 +189,14 @@ def test_sniff(tmp_path):
     assert R.sniff(tmp_path, b"") is None
     (tmp_path / "metadata.yaml").write_text("rosbag2_bagfile_information:\n  version: 9\n")
     assert R.sniff(tmp_path, b"") == "rosbag"
+
+
+@pytest.mark.parametrize("ext", [".txt", ".h5", ".zip", ".bin", ""])
+def test_ros1_bag_under_another_name_is_read(tmp_path, ext):
+    # detection is by the '#ROSBAG V2.0' magic, never by the extension
+    ev = _events(300)
+    path = _build(tmp_path, False, lambda ts, r2: {"/dvs/events": (R.EVENT_ARRAY, _event_array_msgs(ts, r2, ev, 128))})
+    renamed = path.rename(tmp_path / ("renamed" + ext))
+    assert hh.detect_format(renamed) == "rosbag"
+    np.testing.assert_array_equal(hh.read(renamed).events, ev)
+    assert not list(tmp_path.glob("*.bag"))

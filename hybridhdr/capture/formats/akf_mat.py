@@ -48,6 +48,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ..._limits import LimitExceeded, check_finite, check_frame_bytes, check_sensor_size
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, SensorSize
 from ...io import EventChunk, EventFileReader, EventFileWriter
@@ -84,6 +85,10 @@ def matlab_v73_header(created: str | None = None) -> bytes:
 # MAT v5 data types (miXXX) -> NumPy element type; array classes (mxXXX) -> NumPy dtype.
 _MI_TYPES = {1: "i1", 2: "u1", 3: "i2", 4: "u2", 5: "i4", 6: "u4", 7: "f4", 9: "f8", 12: "i8", 13: "u8"}
 _MX_CLASSES = {6: "f8", 7: "f4", 8: "i1", 9: "u1", 10: "i2", 11: "u2", 12: "i4", 13: "u4", 14: "i8", 15: "u8"}
+_MX_OTHER = {1: "cell", 2: "struct", 3: "object", 4: "char", 5: "sparse", 16: "function handle", 17: "opaque"}
+#: MATLAB_class values of numeric arrays in v7.3 files
+_NUMERIC_CLASSES = {b"double", b"single", b"int8", b"uint8", b"int16", b"uint16", b"int32", b"uint32", b"int64",
+                    b"uint64", b"logical"}
 _MI_MATRIX, _MI_COMPRESSED = 14, 15
 _MAX_MAT5_BYTES = 1 << 31
 
@@ -136,7 +141,8 @@ def _mat5_matrix(path, buf: bytes, pos: int, end: int, e: str, base: int):
     except UnicodeDecodeError:
         raise FormatError(path, f"{where}: variable name is not ASCII", offset=base) from None
     if cls not in _MX_CLASSES:
-        return name, np.empty(0, dtype=object)
+        # a 0-d object array naming the class: readers turn it into an error, never 0 events
+        return name, np.array(_MX_OTHER.get(cls, f"class-{cls}"), dtype=object)
     if complex_:
         raise FormatError(path, f"{where}: variable {name!r} is complex; expected a real array", offset=base)
     count = int(np.prod(dims)) if dims.size else 0
@@ -329,7 +335,9 @@ class AkfMatReader(EventFileReader):
         if self.sensor_size is None:
             if h is not None and w is not None:
                 try:
-                    self.sensor_size = SensorSize(int(h), int(w))
+                    self.sensor_size = SensorSize(*check_sensor_size(h, w, self.path, "im_height/im_width"))
+                except LimitExceeded:
+                    raise
                 except (TypeError, ValueError) as exc:
                     raise FormatError(self.path, f"invalid im_height/im_width {h!r}/{w!r}: {exc}") from None
                 src = "im_height/im_width"
@@ -389,6 +397,14 @@ class AkfMatReader(EventFileReader):
             return None
         if not isinstance(obj, h5py.Dataset):
             raise FormatError(self.path, f"variable {name!r} must be a numeric array, got a {type(obj).__name__}")
+        cls = obj.attrs.get("MATLAB_class")
+        if cls is not None:
+            cls = cls if isinstance(cls, bytes) else str(np.asarray(cls).astype(str)).encode()
+            if cls not in _NUMERIC_CLASSES:
+                raise FormatError(self.path, f"variable {name!r} is a MATLAB {cls.decode(errors='replace')} array; "
+                                             f"expected a numeric one")
+        if "MATLAB_sparse" in obj.attrs:
+            raise FormatError(self.path, f"variable {name!r} is a MATLAB sparse array; expected a full numeric one")
         if obj.attrs.get("MATLAB_empty", 0):
             return "empty"
         if obj.dtype.kind not in "uifb":
@@ -419,6 +435,9 @@ class AkfMatReader(EventFileReader):
             for k in names:
                 if k in d:
                     v = np.asarray(d[k])
+                    if v.dtype == object:
+                        raise FormatError(self.path, f"variable {k!r} is a MATLAB {v.item() if v.ndim == 0 else ''} "
+                                                     f"array; expected a numeric one")
                     if v.dtype.kind not in "uifb":
                         raise FormatError(self.path, f"variable {k!r} must be numeric, got {v.dtype}")
                     out[k] = v
@@ -448,6 +467,9 @@ class AkfMatReader(EventFileReader):
             raise FormatError(self.path, f"MAT-file has no 'events' variable; variables: "
                                          f"{sorted(k for k in self._v5_cache if not k.startswith('__'))}")
         ev = np.asarray(ev)
+        if ev.dtype == object:
+            raise FormatError(self.path, f"events is a MATLAB {ev.item() if ev.ndim == 0 else 'non-numeric'} array; "
+                                         f"expected a numeric N x 4 matrix")
         if ev.size == 0:
             return 0
         if ev.ndim != 2 or ev.shape[1] != 4 or ev.dtype.kind not in "uifb":
@@ -469,7 +491,10 @@ class AkfMatReader(EventFileReader):
         if len(shp) not in (2, 3, 4) or 0 in shp[:2]:
             raise FormatError(self.path, f"image must be H x W x K (or H x W x 3 x K), got shape {shp}")
         try:
-            SensorSize(int(shp[0]), int(shp[1]))
+            SensorSize(*check_sensor_size(int(shp[0]), int(shp[1]), self.path, "image"))
+            check_frame_bytes(float(np.prod(shp, dtype=np.float64)) * 8, self.path, "image")
+        except LimitExceeded:
+            raise
         except ValueError as exc:
             raise FormatError(self.path, f"invalid image shape {shp}: {exc}") from None
         return int(shp[0]), int(shp[1])
@@ -490,7 +515,7 @@ class AkfMatReader(EventFileReader):
                     yield i0, np.asarray(blk, dtype=np.float64).T
         else:
             ev = np.asarray(self._v5_cache["events"])
-            if ev.dtype.kind not in "uifb":
+            if ev.dtype == object or ev.dtype.kind not in "uifb":
                 raise FormatError(self.path, f"events must be numeric, got dtype {ev.dtype}")
             for i0 in range(0, self.n_events, chunk_events):
                 yield i0, np.asarray(ev[i0:i0 + chunk_events], dtype=np.float64)
@@ -507,7 +532,7 @@ class AkfMatReader(EventFileReader):
             mx, my = max(mx, int(xy[:, 0].max())), max(my, int(xy[:, 1].max()))
         if mx == 0:
             raise FormatError(self.path, "no events, no image and no im_height/im_width: pass sensor_size")
-        return SensorSize(my, mx)
+        return SensorSize(*check_sensor_size(my, mx, self.path, "sensor inferred from the coordinates"))
 
     # -- reader API ---------------------------------------------------------------------------
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
@@ -616,6 +641,7 @@ class AkfMatReader(EventFileReader):
             raise FormatError(self.path, f"image must be H x W x K or H x W x 3 x K, got shape {im.shape}")
         if frames.dtype.kind not in "uif":
             raise FormatError(self.path, f"image must be numeric, got dtype {frames.dtype}")
+        check_finite(frames, self.path, "image")
         ts, te = self._times(frames.shape[0])
         order = np.argsort(ts, kind="stable")
         try:

@@ -60,6 +60,7 @@ from typing import Iterator
 
 import numpy as np
 
+from ..._limits import check_sensor_size
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
 from ...io import EventChunk, EventFileReader, EventFileWriter
@@ -226,20 +227,29 @@ def _raw_format_of(h: RawHeader) -> str | None:
     return None
 
 
-def _geometry(h: RawHeader) -> SensorSize | None:
-    """Sensor size from the header: format fields, ``geometry WxH``, DAT Width/Height, plugin."""
+def _geometry(h: RawHeader, path=None) -> SensorSize | None:
+    """Sensor size from the header: format fields, ``geometry WxH``, DAT Width/Height, plugin.
+
+    A size the header states but that is not valid (not integers, zero, above the limit) is an
+    error, never dropped in favour of a guess."""
     _, fields = _format_fields(h)
-    try:
-        if "height" in fields and "width" in fields:
-            return SensorSize(int(fields["height"]), int(fields["width"]))
+    stated = None
+    if "height" in fields and "width" in fields:
+        stated = (fields["height"], fields["width"], "format height/width")
+    else:
         g = h.get_ci("geometry")
         if g and "x" in g.lower():
             w, hh = g.lower().split("x", 1)
-            return SensorSize(int(hh), int(w))
-        if h.get_ci("width") and h.get_ci("height"):
-            return SensorSize(int(h.get_ci("height")), int(h.get_ci("width")))
-    except (ValueError, TypeError):
-        return None
+            stated = (hh, w, "geometry")
+        elif h.get_ci("width") or h.get_ci("height"):
+            stated = (h.get_ci("height"), h.get_ci("width"), "Width/Height")
+    if stated is not None:
+        hh, w, what = stated
+        try:
+            hv, wv = int(str(hh).strip()), int(str(w).strip())
+        except (ValueError, TypeError):
+            raise FormatError(path, f"header {what} {w!r} x {hh!r} (width x height) is not a pair of integers") from None
+        return SensorSize(*check_sensor_size(hv, wv, path, f"header {what}"))
     return _geometry_from_generation(h)
 
 
@@ -682,7 +692,7 @@ class _PropheseeReader(EventFileReader):
         self._data_offset = self.header.data_offset
         self._check_header(data)
         if self.sensor_size is None:
-            self.sensor_size = _geometry(self.header)
+            self.sensor_size = _geometry(self.header, self.path)
         ss = self.sensor_size
         if ss is not None and (ss.width > self._max_coord or ss.height > self._max_coord):
             raise FormatError(self.path, f"sensor size {ss} exceeds the {self._max_coord}-pixel "

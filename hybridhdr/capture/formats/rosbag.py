@@ -24,6 +24,7 @@ Options: ``topic=`` chooses the topic (default: the first topic, by name, of a s
 from __future__ import annotations
 
 import contextlib
+import os
 from pathlib import Path
 from typing import Iterator
 
@@ -192,19 +193,33 @@ class RosbagReader(EventFileReader):
     @contextlib.contextmanager
     def _reader(self):
         from rosbags.highlevel import AnyReader
+        tmpdir = None
+        bag = self.path
+        if bag.is_file() and bag.suffix != ".bag":
+            # rosbags tells ROS 1 from ROS 2 by the '.bag' suffix; we detected the ROS 1 magic, so
+            # hand it the file under a '.bag' name (a symlink, nothing copied)
+            import tempfile
+            tmpdir = tempfile.mkdtemp(prefix="hybridhdr-bag-")
+            bag = Path(tmpdir) / "recording.bag"
+            os.symlink(self.path.resolve(), bag)
         try:
-            reader = AnyReader([self.path], default_typestore=self._typestore)
-            reader.open()
-        except Exception as exc:
-            raise FormatError(self.path, f"cannot open the bag (corrupt, truncated or unsupported?): "
-                                         f"{type(exc).__name__}: {exc}") from None
-        try:
-            yield reader
-        finally:
             try:
-                reader.close()
-            except Exception:
-                pass
+                reader = AnyReader([bag], default_typestore=self._typestore)
+                reader.open()
+            except Exception as exc:
+                raise FormatError(self.path, f"cannot open the bag (corrupt, truncated or unsupported?): "
+                                             f"{type(exc).__name__}: {exc}") from None
+            try:
+                yield reader
+            finally:
+                try:
+                    reader.close()
+                except Exception:
+                    pass
+        finally:
+            if tmpdir is not None:
+                import shutil
+                shutil.rmtree(tmpdir, ignore_errors=True)
 
     def _messages(self, r) -> Iterator[tuple[int, tuple]]:
         conns = [c for c in r.connections if c.topic == self.topic]
