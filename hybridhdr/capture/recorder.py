@@ -188,8 +188,35 @@ def _decode(rtype: int, payload: bytes):
         return tr
     if rtype == T_FRAME:
         ml = struct.unpack_from("<I", payload, 0)[0]
+        if 4 + ml > len(payload):
+            raise ValueError(f"FRAME record metadata length {ml} exceeds the record")
         meta = json.loads(payload[4:4 + ml])
-        im = np.frombuffer(payload, dtype=np.dtype(meta["dtype"]), offset=4 + ml).reshape(meta["shape"])
+        if not isinstance(meta, dict):
+            raise ValueError("FRAME record metadata is not a JSON object")
+        dt = np.dtype(str(meta["dtype"]))
+        if dt.kind not in "uif" or dt.itemsize > 8:
+            raise ValueError(f"FRAME record pixel dtype {dt} is not numeric")
+        shape = meta["shape"]
+        if (not isinstance(shape, list) or len(shape) not in (2, 3)
+                or not all(isinstance(v, int) and 0 < v <= 1 << 16 for v in shape)):
+            raise ValueError(f"FRAME record shape {shape!r} is not a valid image shape")
+        from .._limits import check_finite, check_sensor_size
+        check_sensor_size(shape[0], shape[1], None, "journal frame")
+        for k in ("t_start_us", "t_end_us", "exposure_us", "sequence"):
+            v = meta.get(k)
+            if v is not None and (not isinstance(v, int) or not -(1 << 63) <= v < (1 << 63)):
+                raise ValueError(f"FRAME record {k} = {v!r} is not an int64")
+        if meta.get("t_start_us") is None or meta.get("t_end_us") is None:
+            raise ValueError("FRAME record has no exposure interval")
+        for k in ("iso", "gain"):
+            v = meta.get(k)
+            if v is not None and (not isinstance(v, (int, float)) or not np.isfinite(float(v))):
+                raise ValueError(f"FRAME record {k} = {v!r} is not a finite number")
+        n = int(np.prod(shape)) * dt.itemsize
+        if len(payload) - 4 - ml != n:
+            raise ValueError(f"FRAME record holds {len(payload) - 4 - ml} pixel bytes, expected {n}")
+        im = np.frombuffer(payload, dtype=dt, offset=4 + ml).reshape(shape)
+        check_finite(im, None, "journal frame")
         return meta, im
     return json.loads(payload)
 
@@ -218,6 +245,10 @@ def read_journal(path, on_record=None) -> JournalContents:
             if sync != _SYNC or zlib.crc32(head[:28]) != hcrc:
                 reason = f"corrupt record header at byte {pos}"
                 break
+            if stored > size - pos - _HDR.size:
+                reason = (f"truncated record at byte {pos} ({size - pos - _HDR.size} of {stored} payload "
+                          f"bytes)")
+                break
             payload = f.read(stored)
             if len(payload) < stored:
                 reason = f"truncated record at byte {pos} ({len(payload)} of {stored} payload bytes)"
@@ -225,18 +256,38 @@ def read_journal(path, on_record=None) -> JournalContents:
             if zlib.crc32(payload) != crc:
                 reason = f"checksum mismatch in record at byte {pos}"
                 break
-            if flags & _F_LZ4:
-                if lz4 is None:
-                    raise ImportError("this journal is LZ4-compressed; install lz4 to recover it")
-                payload = lz4.decompress(payload, uncompressed_size=raw_len)
             try:
+                if flags & _F_LZ4:
+                    if lz4 is None:
+                        raise ImportError("this journal is LZ4-compressed; install lz4 to recover it")
+                    # LZ4 expands at most ~255x; a larger declared size is a forged header
+                    if raw_len > 255 * stored + 64:
+                        raise ValueError(f"declared raw length {raw_len} is impossible for {stored} LZ4 bytes")
+                    from .._limits import check_packet_size
+                    check_packet_size(raw_len, path, "journal record", offset=pos)
+                    payload = lz4.decompress(payload, uncompressed_size=raw_len)
+                elif raw_len != stored:
+                    raise ValueError(f"raw length {raw_len} differs from the stored {stored} bytes")
                 obj = _decode(rtype, payload)
-            except (ValueError, KeyError, json.JSONDecodeError) as e:
-                reason = f"undecodable record at byte {pos} ({e})"
+            except ImportError:
+                raise
+            except FormatError:
+                raise
+            except (ValueError, KeyError, TypeError, OverflowError, IndexError, struct.error, MemoryError,
+                    json.JSONDecodeError, UnicodeDecodeError) as e:
+                reason = f"undecodable record at byte {pos} ({type(e).__name__}: {e})"
+                break
+            except Exception as e:  # lz4.block.LZ4BlockError and the like
+                reason = f"undecodable record at byte {pos} ({type(e).__name__}: {e})"
                 break
             if contents is None:
-                if rtype != T_HEADER:
+                if rtype != T_HEADER or not isinstance(obj, dict):
                     raise FormatError(path, "journal does not start with a HEADER record", offset=pos)
+                from .._limits import check_sensor_size
+                try:
+                    check_sensor_size(obj.get("sensor_height"), obj.get("sensor_width"), path, "journal sensor")
+                except FormatError as e:
+                    raise FormatError(path, f"journal HEADER: {e.message}", offset=pos) from None
                 contents = JournalContents(header=obj)
             else:
                 contents.records += 1
