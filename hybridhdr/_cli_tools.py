@@ -17,6 +17,9 @@ def add_parsers(sub) -> None:
     p.add_argument("file", type=Path, help="event file or folder")
     p.add_argument("--from", dest="format", default=None, help="format override (default: detect)")
     p.add_argument("--json", action="store_true", help="print JSON instead of a table")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the size limits on what file headers may ask for (sensor/frame side 8192, 4 GiB of "
+                        "frames, 256 MiB packets; docs/security.md) for genuinely huge data")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_info)
 
@@ -35,6 +38,9 @@ def add_parsers(sub) -> None:
                         "IEC 61966-2-1), replacing what the input states or its reader assumes; stored in the "
                         "output (the container's /frames encoding). Default: as read")
     p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the size limits on what file headers may ask for (sensor/frame side 8192, 4 GiB of "
+                        "frames, 256 MiB packets; docs/security.md) for genuinely huge data")
     p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_convert)
 
@@ -105,7 +111,9 @@ def format_info(info: dict) -> str:
 
 
 def run_info(args) -> int:
-    info = summarise(args.file, args.format)
+    from ._limits import allow_huge
+    with allow_huge(args.allow_huge):
+        info = summarise(args.file, args.format)
     print(json.dumps(info) if args.json else format_info(info))
     return 0
 
@@ -179,8 +187,10 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
 
 
 def run_convert(args) -> int:
-    res = convert(args.input, args.output, args.from_format, args.to_format, args.start_us, args.end_us,
-                  args.chunk_events, progress=not args.no_progress, frame_encoding=args.frame_encoding)
+    from ._limits import allow_huge
+    with allow_huge(args.allow_huge):
+        res = convert(args.input, args.output, args.from_format, args.to_format, args.start_us, args.end_us,
+                      args.chunk_events, progress=not args.no_progress, frame_encoding=args.frame_encoding)
     enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
     print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
     if args.frame_encoding is not None and res["frame_encoding"] is None:

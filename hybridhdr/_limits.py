@@ -45,7 +45,8 @@ LIMITS = {
 
 OVERRIDE_HINT = "if the data really is that large, pass --allow-huge (or set HYBRIDHDR_ALLOW_HUGE=1)"
 
-_local = threading.local()
+_state = {"allow": 0}  # process-wide: the recorder's source threads see it too
+_lock = threading.Lock()
 
 
 class LimitExceeded(FormatError):
@@ -54,22 +55,24 @@ class LimitExceeded(FormatError):
 
 def huge_allowed() -> bool:
     """True when the limits are lifted (``allow_huge`` or ``HYBRIDHDR_ALLOW_HUGE=1``)."""
-    if getattr(_local, "allow", 0):
+    if _state["allow"]:
         return True
     return os.environ.get("HYBRIDHDR_ALLOW_HUGE", "").strip().lower() in ("1", "true", "yes", "on")
 
 
 @contextlib.contextmanager
 def allow_huge(enabled: bool = True):
-    """Lift the size limits inside the block (this thread) when ``enabled``."""
+    """Lift the size limits inside the block (process-wide, nestable) when ``enabled``."""
     if not enabled:
         yield
         return
-    _local.allow = getattr(_local, "allow", 0) + 1
+    with _lock:
+        _state["allow"] += 1
     try:
         yield
     finally:
-        _local.allow -= 1
+        with _lock:
+            _state["allow"] -= 1
 
 
 def _exceeded(path, what: str, value, limit, offset=None, record=None):

@@ -53,6 +53,7 @@ def add_parser(sub) -> None:
     r.add_argument("--frame-sync", choices=("off", "input", "output"), default=None, help="OAK FSYNC role")
     r.add_argument("--trigger-channels", type=int, nargs="*", default=(), help="Prophesee trigger inputs to enable")
     r.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    r.add_argument("--allow-huge", action="store_true", help="lift the header size limits (docs/security.md)")
     r.add_argument("--debug", action="store_true", help="show tracebacks")
     r.set_defaults(func=run_record)
 
@@ -98,6 +99,7 @@ def add_parser(sub) -> None:
     v.add_argument("--out", type=Path, default=None, help="output container (default: the recording name)")
     v.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
     v.add_argument("--keep-journal", action="store_true", help="keep the journal after a successful recovery")
+    v.add_argument("--allow-huge", action="store_true", help="lift the header size limits (docs/security.md)")
     v.add_argument("--debug", action="store_true", help="show tracebacks")
     v.set_defaults(func=run_recover)
 
@@ -171,6 +173,12 @@ def _frame_source(args, t_origin_us=None):
 
 
 def run_record(args) -> int:
+    from .._limits import allow_huge
+    with allow_huge(args.allow_huge):
+        return _run_record(args)
+
+
+def _run_record(args) -> int:
     from .recorder import Recorder
     from .sources import ReplayEventSource
     ev = _event_source(args)
@@ -316,8 +324,10 @@ def run_sync(args) -> int:
 
 # -- recover ----------------------------------------------------------------------------------
 def run_recover(args) -> int:
+    from .._limits import allow_huge
     from .recorder import journal_path, recover
-    res = recover(args.file, args.out, compression=_comp(args.compression), progress=True)
+    with allow_huge(args.allow_huge):
+        res = recover(args.file, args.out, compression=_comp(args.compression), progress=True)
     print(f"recovered {res['output']}: {res['events']:,} events, {res['triggers']:,} triggers, "
           f"{res['frames']:,} frames; {res['flushes']} flushes in the journal, "
           f"{res['events_after_last_flush']:,} events after the last flush were intact; stopped at: "
