@@ -271,8 +271,6 @@ def read_journal(path, on_record=None) -> JournalContents:
                 obj = _decode(rtype, payload)
             except ImportError:
                 raise
-            except FormatError:
-                raise
             except (ValueError, KeyError, TypeError, OverflowError, IndexError, struct.error, MemoryError,
                     json.JSONDecodeError, UnicodeDecodeError) as e:
                 reason = f"undecodable record at byte {pos} ({type(e).__name__}: {e})"

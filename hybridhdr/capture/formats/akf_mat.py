@@ -183,10 +183,11 @@ def read_mat5(path, names=None) -> dict:
         On any structural problem (truncation, inconsistent sizes, bad compression).
     """
     import zlib
+    import os
     with open(path, "rb") as f:
-        buf = f.read(_MAX_MAT5_BYTES + 1)
-    if len(buf) > _MAX_MAT5_BYTES:
-        raise FormatError(path, "MAT v5 files are limited to 2 GB")
+        if os.fstat(f.fileno()).st_size > _MAX_MAT5_BYTES:  # never ask read() for 2 GB up front
+            raise FormatError(path, "MAT v5 files are limited to 2 GB")
+        buf = f.read()
     if len(buf) < 128:
         raise FormatError(path, f"truncated MAT-file header ({len(buf)} bytes)", offset=len(buf))
     e = {b"IM": "<", b"MI": ">"}.get(bytes(buf[126:128]))
@@ -201,13 +202,16 @@ def read_mat5(path, names=None) -> dict:
             break  # zero padding at the end
         typ, n, p, nxt = _mat5_tag(path, buf, pos, len(buf), e, f"element at byte {pos}")
         if typ == _MI_COMPRESSED:
+            from ..._limits import LIMITS, OVERRIDE_HINT, LimitExceeded, huge_allowed
+            limit = _MAX_MAT5_BYTES if huge_allowed() else min(_MAX_MAT5_BYTES, LIMITS["max_packet_bytes"])
             d = zlib.decompressobj()
             try:
-                inner = d.decompress(bytes(buf[p:p + n]), _MAX_MAT5_BYTES)
+                inner = d.decompress(bytes(buf[p:p + n]), limit)
             except zlib.error as exc:
                 raise FormatError(path, f"corrupt compressed variable: {exc}", offset=pos) from None
             if d.unconsumed_tail:
-                raise FormatError(path, "compressed variable expands beyond 2 GB", offset=pos)
+                raise LimitExceeded(path, f"a compressed variable expands beyond {limit:,} bytes; {OVERRIDE_HINT}",
+                                    offset=pos)
             ityp, inn, ip, _ = _mat5_tag(path, inner, 0, len(inner), e, f"compressed element at byte {pos}")
             if ityp != _MI_MATRIX:
                 raise FormatError(path, f"compressed element holds type {ityp}, expected a matrix", offset=pos)

@@ -511,10 +511,20 @@ class EcdReader(EventFileReader):
             return Frames.empty(*self.sensor_size.shape)
         imgs = []
         total = 0
+        sizes: dict = {}
+        for t_us, p, k in self._frame_list:  # before decoding anything: N references to one big PNG add up
+            try:
+                if p not in sizes:
+                    sizes[p] = _decoded_bytes(p)
+            except LimitExceeded as exc:
+                raise LimitExceeded(self.images_txt, f"line {k}: {p}: {exc.message}", record=k) from None
+            except (OSError, ValueError, SyntaxError) as exc:
+                raise FormatError(self.images_txt, f"line {k}: cannot read frame {p}: "
+                                                   f"{getattr(exc, 'message', exc)}", record=k) from None
+            total += sizes[p]
+            check_frame_bytes(total, self.images_txt, f"the {len(self._frame_list)} frames listed")
         for t_us, p, k in self._frame_list:
             try:
-                total += _decoded_bytes(p)  # before decoding: N references to one big PNG add up
-                check_frame_bytes(total, self.images_txt, f"the {len(self._frame_list)} frames listed")
                 im = _read_image(p)
             except LimitExceeded as exc:
                 raise LimitExceeded(self.images_txt, f"line {k}: {p}: {exc.message}", record=k) from None

@@ -1,0 +1,825 @@
+"""Hostile-input suite: generated *semantic* cases for every reader, each run in a child process.
+
+Each case builds a file that is well formed except for one hostile property (a bomb, a huge declared
+size, non-finite values, a mistyped array, an overflowing timestamp, a header that disagrees with
+the data) or a file that used to be falsely rejected. It is then read through the command line
+(``hybridhdr info --json`` or ``capture recover``) in a child forked from a process that has
+imported hybridhdr once (so a case costs milliseconds, not an interpreter start), with
+``RLIMIT_AS`` = the address space at fork + ``--mem-gib`` GiB and a wall-clock timeout.
+
+Outcome of a case (the table's columns):
+
+* ``clean``: exit 1 with exactly one ``error:`` line and no traceback (cases expecting an error);
+* ``ok``: exit 0 and the expected result (cases that must be read, e.g. former false rejects);
+* ``traceback``: an exception escaped (any traceback on stderr, or MemoryError under the cap);
+* ``crash``: the child died from a signal (SIGSEGV, SIGABRT, SIGKILL by the OOM killer);
+* ``hang``: it ran past the timeout and was killed;
+* ``silent``: exit 0 where an error was expected, or a wrong result where success was expected.
+
+Run ``python -m tests.hostile.cases [--quick] [--json]``; the last line is one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import io
+import json
+import os
+import resource
+import signal
+import struct
+import sys
+import tempfile
+import time
+import traceback
+import zipfile
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+COLUMNS = ("tried", "clean", "ok", "traceback", "crash", "hang", "silent")
+CASES: list[tuple[str, str, object, str]] = []  # (reader, name, builder(dir) -> (argv, check), expect)
+
+
+def case(reader: str, expect: str = "error"):
+    def deco(fn):
+        CASES.append((reader, fn.__name__, fn, expect))
+        return fn
+    return deco
+
+
+# -- helpers ------------------------------------------------------------------------------------
+def _events(n=1000, w=64, h=48, t0=0, span=1_000_000, seed=0):
+    import hybridhdr as hh
+    rng = np.random.default_rng(seed)
+    return hh.make_events(np.sort(rng.integers(t0, t0 + span, n)), rng.integers(0, w, n), rng.integers(0, h, n),
+                          rng.choice([-1, 1], n))
+
+
+def _info(path, expect_events=None):
+    argv = ["info", str(path), "--json"]
+    if expect_events is None:
+        return argv, None
+
+    def check(stdout):
+        info = json.loads(stdout.strip().splitlines()[-1])
+        return info["events"] == expect_events, f"events {info['events']} != {expect_events}"
+    return argv, check
+
+
+def _container(path, n=100, frames=None, ss=(48, 64), **kw):
+    import hybridhdr as hh
+    from hybridhdr.container import write_recording
+    return write_recording(hh.Recording(_events(n, ss[1], ss[0]), ss, frames), path, **kw)
+
+
+def _png_header_only(path, w, h):
+    """A PNG whose IHDR declares w x h (8-bit grey) followed by a tiny IDAT: the size is in the header."""
+    def chunk(typ, data):
+        return struct.pack(">I", len(data)) + typ + data + struct.pack(">I", zlib.crc32(typ + data) & 0xFFFFFFFF)
+    ihdr = struct.pack(">IIBBBBB", w, h, 8, 0, 0, 0, 0)
+    Path(path).write_bytes(b"\x89PNG\r\n\x1a\n" + chunk(b"IHDR", ihdr) + chunk(b"IDAT", zlib.compress(b"\0" * 64))
+                           + chunk(b"IEND", b""))
+    return path
+
+
+def _ecd_folder(d, n_images=0, image=None, images_txt=None, events_txt=None):
+    d.mkdir(parents=True, exist_ok=True)
+    (d / "events.txt").write_text(events_txt if events_txt is not None else
+                                  "".join(f"{i * 1e-3:.6f} {i % 10} {i % 7} {i % 2}\n" for i in range(50)))
+    if images_txt is not None:
+        (d / "images").mkdir(exist_ok=True)
+        if image is not None:
+            image(d / "images" / "a.png")
+        (d / "images.txt").write_text(images_txt)
+    return d
+
+
+# -- hybridhdr container ------------------------------------------------------------------------
+@case("hybridhdr")
+def container_sensor_65536(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        f.attrs["sensor_height"] = f.attrs["sensor_width"] = 65536
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_declared_1e11_events_no_chunks(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        g = f["events"]
+        for name, dt in (("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")):
+            del g[name]
+            g.create_dataset(name, shape=(10**11,), dtype=dt, chunks=(1 << 17,), compression="gzip")
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_nan_frames(d):
+    import hybridhdr as hh
+    import h5py
+    p = _container(d / "r.h5", frames=hh.Frames(np.ones((2, 48, 64), np.float32), [0, 10], [5, 15]))
+    with h5py.File(p, "a") as f:
+        f["frames/images"][1] = np.nan
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_posinf_frames(d):
+    import hybridhdr as hh
+    import h5py
+    p = _container(d / "r.h5", frames=hh.Frames(np.ones((2, 48, 64), np.float32), [0, 10], [5, 15]))
+    with h5py.File(p, "a") as f:
+        f["frames/images"][0, 3, 3] = np.inf
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_frames_10000sq_declared(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        g = f.create_group("frames")
+        g.create_dataset("images", shape=(2, 10000, 10000), dtype="u1", chunks=(1, 10000, 10000))
+        g["t_start_us"] = np.array([0, 10])
+        g["t_end_us"] = np.array([5, 15])
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_frames_4gib_declared(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        g = f.create_group("frames")
+        g.create_dataset("images", shape=(100, 8000, 8000), dtype="u1", chunks=(1, 8000, 8000))
+        g["t_start_us"] = np.arange(100)
+        g["t_end_us"] = np.arange(100)
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_v10_dense_index_forged(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        f.attrs["hybridhdr_format_version"] = "1.0"
+        f["events"].create_dataset("ms_to_idx", shape=(10**12,), dtype="<i8", chunks=(1 << 16,))
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_events_t_float(d):
+    import h5py
+    p = _container(d / "r.h5")
+    with h5py.File(p, "a") as f:
+        t = f["events/t"][:]
+        del f["events/t"]
+        f["events/t"] = t.astype(np.float64)
+    return _info(p)
+
+
+@case("hybridhdr")
+def container_index_inconsistent(d):
+    import h5py
+    p = _container(d / "r.h5", n=20000)
+    with h5py.File(p, "a") as f:
+        f["events/index_first"][-1] = 10**15
+    return _info(p)
+
+
+@case("hybridhdr", "ok")
+def container_two_events_1_16_days_apart(d):
+    import hybridhdr as hh
+    from hybridhdr.container import write_recording
+    ev = hh.make_events([0, int(1.16 * 86400e6)], [0, 1], [0, 1], [1, -1])
+    p = write_recording(hh.Recording(ev, (48, 64)), d / "r.h5")
+    size = p.stat().st_size
+    argv, check = _info(p, 2)
+    return argv, lambda out: (check(out)[0] and size < 1 << 20, f"file {size} bytes")
+
+
+@case("hybridhdr", "ok")
+def container_int64_extreme_times(d):
+    import hybridhdr as hh
+    from hybridhdr.container import write_recording
+    big = np.iinfo(np.int64).max
+    ev = hh.make_events([-big - 1, 0, big], [0, 1, 2], [0, 1, 2], [1, -1, 1])
+    return _info(write_recording(hh.Recording(ev, (48, 64)), d / "r.h5"), 3)
+
+
+# -- Prophesee ----------------------------------------------------------------------------------
+def _dat(path, ev, header_extra=(), height=48, width=64):
+    import hybridhdr as hh
+    hh.write(hh.Recording(ev, (height, width)), path, "dat")
+    data = Path(path).read_bytes()
+    # replace the Height/Width lines
+    lines = data.split(b"\n")
+    out = [ln for ln in lines[:20] if not (ln.startswith(b"% Height") or ln.startswith(b"% Width"))]
+    out = [ln for ln in out if ln.startswith(b"%")]
+    rest = data[sum(len(ln) + 1 for ln in lines[:20] if ln.startswith(b"%")):]
+    hdr = b"\n".join(out[:1] + [bytes(x, "ascii") for x in header_extra] + out[1:]) + b"\n"
+    Path(path).write_bytes(hdr + rest)
+    return path
+
+
+@case("dat")
+def dat_width_99999(d):
+    return _info(_dat(d / "a.dat", _events(), ["% Height 48", "% Width 99999"]))
+
+
+@case("dat")
+def dat_height_smaller_than_data(d):
+    return _info(_dat(d / "a.dat", _events(), ["% Height 10", "% Width 64"]))
+
+
+@case("dat")
+def dat_width_not_a_number(d):
+    return _info(_dat(d / "a.dat", _events(), ["% Height 48", "% Width 1e9"]))
+
+
+@case("evt3")
+def evt3_format_height_100000(d):
+    import hybridhdr as hh
+    p = d / "a.raw"
+    hh.write(hh.Recording(_events(), (48, 64)), p, "evt3")
+    data = p.read_bytes()
+    data = data.replace(b"height=48", b"height=100000", 1)
+    p.write_bytes(data)
+    return _info(p)
+
+
+@case("evt2")
+def evt2_geometry_zero(d):
+    import hybridhdr as hh
+    p = d / "a.raw"
+    hh.write(hh.Recording(_events(), (48, 64)), p, "evt2")
+    data = p.read_bytes()
+    i = data.index(b"\n% end") if b"\n% end" in data else data.index(b"\n")
+    data = data.replace(b"height=48", b"height=0", 1).replace(b"width=64", b"width=0", 1)
+    if b"height=0" not in data:
+        data = data[:i] + b"\n% geometry 0x0" + data[i:]
+    p.write_bytes(data)
+    return _info(p)
+
+
+# -- AEDAT4 -------------------------------------------------------------------------------------
+def _aedat4(path, size=(32, 24), compression="LZ4", n=200):
+    import datetime  # noqa: F401
+    import dv_processing as dv
+    import hybridhdr as hh
+    ev = _events(n, size[0], size[1])
+    cfg = dv.io.MonoCameraWriter.Config("TestCam_ABC123")
+    cfg.addEventStream(size)
+    cfg.compression = getattr(dv.CompressionType, compression)
+    w = dv.io.MonoCameraWriter(str(path), cfg)
+    store = dv.EventStore()
+    for t, x, y, p in ev.tolist():
+        store.push_back(int(t), int(x), int(y), bool(p > 0))
+    w.writeEvents(store)
+    del w
+    return path, hh
+
+
+def _aedat4_with_packet(path, payload: bytes, compression="LZ4"):
+    """A dv-written header (data table position set to -1) followed by one event packet ``payload``."""
+    from hybridhdr.capture.formats import aedat4 as A
+    _aedat4(path, compression=compression)
+    data = Path(path).read_bytes()
+    hsize = struct.unpack_from("<i", data, len(A.MAGIC))[0]
+    start = len(A.MAGIC) + 4 + hsize
+    header = bytearray(data[:start])
+    # the table position is an int64 in the header equal to some offset >= start: set it to -1
+    for off in range(len(A.MAGIC) + 4, start - 7):
+        v = struct.unpack_from("<q", header, off)[0]
+        if start <= v <= len(data) and v > start:
+            struct.pack_into("<q", header, off, -1)
+            break
+    Path(path).write_bytes(bytes(header) + struct.pack("<ii", 0, len(payload)) + payload)
+    return path
+
+
+@case("aedat4")
+def aedat4_resolution_10000sq(d):
+    p, _ = _aedat4(d / "a.aedat4", size=(10000, 10000), n=10)
+    return _info(p)
+
+
+@case("aedat4")
+def aedat4_lz4_packet_bomb_300mib(d):
+    import lz4.frame
+    return _info(_aedat4_with_packet(d / "a.aedat4", lz4.frame.compress(b"\0" * (300 << 20)), "LZ4"))
+
+
+@case("aedat4")
+def aedat4_zstd_packet_bomb_300mib(d):
+    import zstandard
+    return _info(_aedat4_with_packet(d / "a.aedat4", zstandard.ZstdCompressor().compress(b"\0" * (300 << 20)),
+                                     "ZSTD"))
+
+
+@case("aedat4")
+def aedat4_zstd_declares_1tib(d):
+    # frame header: single segment, 8-byte content size = 2^40, then one RLE block of zeros
+    frame = b"\x28\xb5\x2f\xfd\xe0" + struct.pack("<Q", 1 << 40) + struct.pack("<I", (1 << 3 | 1 << 1 | 1) | (1 << 23))[:3] + b"\0"
+    return _info(_aedat4_with_packet(d / "a.aedat4", frame, "ZSTD"))
+
+
+# -- ECD ----------------------------------------------------------------------------------------
+@case("ecd")
+def ecd_image_time_1e300(d):
+    f = _ecd_folder(d / "ecd", images_txt="1e300 images/a.png\n",
+                    image=lambda p: _png_header_only(p, 64, 48))
+    return _info(f)
+
+
+@case("ecd")
+def ecd_60_refs_to_9500sq_png(d):
+    f = _ecd_folder(d / "ecd", images_txt="".join(f"{i * 0.01:.2f} images/a.png\n" for i in range(60)),
+                    image=lambda p: _png_header_only(p, 9500, 9500))
+    return _info(f)
+
+
+@case("ecd")
+def ecd_200_refs_to_6000sq_png(d):
+    f = _ecd_folder(d / "ecd", images_txt="".join(f"{i * 0.01:.2f} images/a.png\n" for i in range(200)),
+                    image=lambda p: _png_header_only(p, 6000, 6000))
+    return ["info", str(f), "--json", "--from", "ecd"], None
+
+
+@case("ecd")
+def ecd_png_bomb_100k_sq(d):
+    f = _ecd_folder(d / "ecd", images_txt="0.0 images/a.png\n", image=lambda p: _png_header_only(p, 100000, 100000))
+    return _info(f)
+
+
+@case("ecd")
+def ecd_events_nan_time(d):
+    return _info(_ecd_folder(d / "ecd", events_txt="0.1 1 1 1\nnan 2 2 0\n"))
+
+
+@case("ecd")
+def ecd_events_time_1e300(d):
+    return _info(_ecd_folder(d / "ecd", events_txt="0.1 1 1 1\n1e300 2 2 0\n"))
+
+
+@case("ecd")
+def ecd_events_inf_time(d):
+    return _info(_ecd_folder(d / "ecd", events_txt="0.1 1 1 1\ninf 2 2 0\n"))
+
+
+@case("ecd")
+def ecd_coordinates_imply_65536_sensor(d):
+    return _info(_ecd_folder(d / "ecd", events_txt="0.1 1 1 1\n0.2 65535 65535 0\n"))
+
+
+# -- E2VID --------------------------------------------------------------------------------------
+_E2VID_BODY = "".join(f"{i * 1e-3:.6f} {i % 10} {i % 7} {i % 2}\n" for i in range(30))
+
+
+@case("e2vid")
+def e2vid_header_99999(d):
+    p = d / "e.txt"
+    p.write_text("99999 10\n" + _E2VID_BODY)
+    return _info(p)
+
+
+@case("e2vid", "ok")
+def e2vid_utf8_bom(d):
+    p = d / "e.txt"
+    p.write_bytes(b"\xef\xbb\xbf" + ("64 48\n" + _E2VID_BODY).encode())
+    return _info(p, 30)
+
+
+@case("e2vid", "ok")
+def e2vid_header_only(d):
+    p = d / "e.txt"
+    p.write_text("64 48\n")
+    return _info(p, 0)
+
+
+@case("e2vid", "ok")
+def e2vid_5kb_of_comments(d):
+    p = d / "e.txt"
+    p.write_text("64 48\n" + "# comment line that is fairly long to fill the head\n" * 100 + _E2VID_BODY)
+    return _info(p, 30)
+
+
+def _zip(path, text: str):
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as z:
+        z.writestr("events.txt", text)
+    return path
+
+
+@case("e2vid")
+def e2vid_zip_corrupt_deflate(d):
+    p = _zip(d / "e.zip", "64 48\n" + _E2VID_BODY * 50)
+    data = bytearray(p.read_bytes())
+    off = 30 + len("events.txt")
+    for i in range(off + 20, off + 60):
+        data[i] ^= 0x5A
+    p.write_bytes(bytes(data))
+    return ["info", str(p), "--json", "--from", "e2vid"], None
+
+
+@case("e2vid")
+def e2vid_zip_encrypted_member(d):
+    p = _zip(d / "e.zip", "64 48\n" + _E2VID_BODY)
+    data = bytearray(p.read_bytes())
+    data[6] |= 1  # local header: encrypted
+    cd = data.rfind(b"PK\x01\x02")
+    data[cd + 8] |= 1  # central directory: encrypted
+    p.write_bytes(bytes(data))
+    return ["info", str(p), "--json", "--from", "e2vid"], None
+
+
+# -- DSEC / Monash ------------------------------------------------------------------------------
+@case("dsec")
+def dsec_declares_1e11_events_no_chunks(d):
+    import h5py
+    p = d / "events.h5"
+    with h5py.File(p, "w") as f:
+        g = f.create_group("events")
+        for name, dt in (("x", "<u2"), ("y", "<u2"), ("t", "<u4"), ("p", "u1")):
+            g.create_dataset(name, shape=(10**11,), dtype=dt, chunks=(1 << 16,), compression="gzip")
+        f["ms_to_idx"] = np.zeros(4, np.uint64)
+        f["t_offset"] = np.int64(0)
+    return _info(p)
+
+
+@case("dsec")
+def dsec_height_attr_100000(d):
+    import h5py
+    p = d / "events.h5"
+    with h5py.File(p, "w") as f:
+        g = f.create_group("events")
+        for name in "xytp":
+            g[name] = np.zeros(10, np.uint16 if name in "xy" else np.uint32 if name == "t" else np.uint8)
+        f["t_offset"] = np.int64(0)
+        f.attrs["height"], f.attrs["width"] = 100000, 640
+    return _info(p)
+
+
+def _monash(path, images=None, attrs=None):
+    import h5py
+    with h5py.File(path, "w") as f:
+        g = f.create_group("events")
+        g["xs"] = np.arange(10, dtype=np.int16)
+        g["ys"] = np.arange(10, dtype=np.int16)
+        g["ts"] = np.linspace(0, 1, 10)
+        g["ps"] = np.ones(10, bool)
+        f.attrs["sensor_resolution"] = (48, 64)
+        for k, v in (attrs or {}).items():
+            f.attrs[k] = v
+        if images is not None:
+            images(f.create_group("images"))
+    return path
+
+
+@case("monash")
+def monash_nan_float_image(d):
+    def im(g):
+        a = np.ones((48, 64), np.float32)
+        a[1, 1] = np.nan
+        g["image000000000"] = a
+        g["image000000000"].attrs["timestamp"] = 0.5
+    return _info(_monash(d / "m.h5", im))
+
+
+@case("monash")
+def monash_image_10000sq_declared(d):
+    def im(g):
+        g.create_dataset("image000000000", shape=(10000, 10000), dtype="u1", chunks=(1000, 1000))
+        g["image000000000"].attrs["timestamp"] = 0.5
+    return _info(_monash(d / "m.h5", im, {"sensor_resolution": (48, 64)}))
+
+
+@case("monash")
+def monash_image_timestamp_1e300(d):
+    def im(g):
+        g["image000000000"] = np.zeros((48, 64), np.uint8)
+        g["image000000000"].attrs["timestamp"] = 1e300
+    return _info(_monash(d / "m.h5", im))
+
+
+# -- AKF .mat -----------------------------------------------------------------------------------
+def _mat5(path, events):
+    import scipy.io
+    scipy.io.savemat(path, {"events": events, "im_height": 48.0, "im_width": 64.0})
+    return path
+
+
+@case("akf_mat")
+def mat5_events_cell(d):
+    return _info(_mat5(d / "a.mat", np.array([[1.0, 2.0], [3.0, 4.0]], dtype=object)))
+
+
+@case("akf_mat")
+def mat5_events_struct(d):
+    return _info(_mat5(d / "a.mat", {"t": np.arange(4.0)}))
+
+
+@case("akf_mat")
+def mat5_events_sparse(d):
+    import scipy.sparse
+    return _info(_mat5(d / "a.mat", scipy.sparse.csc_matrix(np.ones((3, 4)))))
+
+
+@case("akf_mat")
+def mat5_events_char(d):
+    return _info(_mat5(d / "a.mat", "1 2 3 4"))
+
+
+def _mat73(path, events=None, image=None, extra=None):
+    from hybridhdr.capture.formats.akf_mat import matlab_v73_header
+    import h5py
+    with h5py.File(path, "w", userblock_size=512) as f:
+        if events is not None:
+            ds = f.create_dataset("events", data=events)
+            ds.attrs["MATLAB_class"] = np.bytes_(b"double" if events.dtype.kind == "f" else b"char")
+        for k, v in (extra or {}).items():
+            ds = f.create_dataset(k, data=np.asarray(v, np.float64).reshape(1, 1))
+            ds.attrs["MATLAB_class"] = np.bytes_(b"double")
+        if image is not None:
+            ds = f.create_dataset("image", data=image)
+            ds.attrs["MATLAB_class"] = np.bytes_(b"double")
+            ds = f.create_dataset("time_image", data=np.arange(image.shape[0], dtype=np.float64).reshape(-1, 1))
+            ds.attrs["MATLAB_class"] = np.bytes_(b"double")
+    with open(path, "r+b") as fh:
+        fh.write(matlab_v73_header())
+    return path
+
+
+@case("akf_mat")
+def mat73_events_char(d):
+    return _info(_mat73(d / "a.mat", np.frombuffer(b"1 2 3 4 5 6 7 8", np.uint8).astype(np.uint16).reshape(1, -1)
+                        [:, :12].reshape(4, 3), extra={"im_height": 48, "im_width": 64}))
+
+
+@case("akf_mat")
+def mat73_nan_image(d):
+    im = np.ones((2, 64, 48))
+    im[1, 2, 3] = np.nan
+    ev = np.array([[1.0, 2.0], [1, 1], [1, 1], [1, 0]])  # MATLAB N x 4 stored transposed
+    return _info(_mat73(d / "a.mat", ev, im, {"im_height": 48, "im_width": 64}))
+
+
+@case("akf_mat")
+def mat73_im_height_100000(d):
+    ev = np.array([[1.0, 2.0], [1, 1], [1, 1], [1, 0]])
+    return _info(_mat73(d / "a.mat", ev, None, {"im_height": 100000, "im_width": 64}))
+
+
+@case("akf_mat")
+def mat73_events_inf_time(d):
+    ev = np.array([[1.0, np.inf], [1, 1], [1, 1], [1, 0]])
+    return _info(_mat73(d / "a.mat", ev, None, {"im_height": 48, "im_width": 64}))
+
+
+# -- rosbag -------------------------------------------------------------------------------------
+def _ros1_bag(path):
+    from rosbags.rosbag1 import Writer
+    from hybridhdr.capture.formats import rosbag as R
+    ts = R.make_typestore(ros2=False)
+    Event, EA = ts.types["dvs_msgs/msg/Event"], ts.types[R.EVENT_ARRAY]
+    Time, Header = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
+    evs = [Event(x=i % 10, y=i % 7, ts=Time(sec=1, nanosec=i * 1000), polarity=bool(i % 2)) for i in range(20)]
+    msg = EA(header=Header(seq=0, stamp=Time(sec=1, nanosec=0), frame_id="cam"), height=48, width=64, events=evs)
+    tmp = path.with_name("tmp.bag")
+    with Writer(tmp) as w:
+        c = w.add_connection("/dvs/events", R.EVENT_ARRAY, typestore=ts)
+        w.write(c, 1_000_000_000, ts.serialize_ros1(msg, R.EVENT_ARRAY))
+    tmp.rename(path)
+    return path
+
+
+for _ext in (".txt", ".h5", ".zip", ".bin"):
+    def _mk(ext):
+        def fn(d):
+            return _info(_ros1_bag(d / ("renamed" + ext)), 20)
+        fn.__name__ = f"ros1_bag_renamed_{ext[1:]}"
+        return fn
+    case("rosbag", "ok")(_mk(_ext))
+
+
+# -- capture journal (capture recover) ----------------------------------------------------------
+def _journal(d, records):
+    from hybridhdr.capture import recorder as J
+    jp = d / "rec.h5.journal"
+    hdr = {"format": "hybridhdr-journal", "version": 1, "sensor_height": 48, "sensor_width": 64, "metadata": {}}
+    w = J.JournalWriter(jp, hdr, compression=None)
+    for rtype, payload, raw_len in records:
+        head = struct.pack("<IBBHQQI", J._SYNC, rtype, 1 if raw_len is not None else 0, 0, len(payload),
+                           len(payload) if raw_len is None else raw_len, zlib.crc32(payload))
+        w._f.write(head + struct.pack("<I", zlib.crc32(head)) + payload)
+    w.close()
+    return jp
+
+
+def _recover_argv(d):
+    return ["capture", "recover", str(d / "rec.h5"), "--out", str(d / "out.h5")]
+
+
+@case("journal", "ok")
+def journal_frame_overflowing_time(d):
+    from hybridhdr.capture import recorder as J
+    meta = json.dumps({"t_start_us": 10**30, "t_end_us": 1, "exposure_us": 1, "shape": [2, 2], "dtype": "|u1",
+                       "sequence": 0}).encode()
+    _journal(d, [(J.T_FRAME, struct.pack("<I", len(meta)) + meta + b"\0" * 4, None)])
+    return _recover_argv(d), lambda out: ("undecodable record" in out, out[-300:])
+
+
+@case("journal", "ok")
+def journal_lz4_declares_2_pow_60(d):
+    from hybridhdr.capture import recorder as J
+    _journal(d, [(J.T_EVENTS, b"\0" * 64, 1 << 60)])
+    return _recover_argv(d), lambda out: ("undecodable record" in out, out[-300:])
+
+
+@case("journal", "ok")
+def journal_frame_nan_pixels(d):
+    from hybridhdr.capture import recorder as J
+    meta = json.dumps({"t_start_us": 0, "t_end_us": 1, "exposure_us": 1, "shape": [2, 2], "dtype": "<f4",
+                       "sequence": 0}).encode()
+    _journal(d, [(J.T_FRAME, struct.pack("<I", len(meta)) + meta + np.full(4, np.nan, np.float32).tobytes(), None)])
+    return _recover_argv(d), lambda out: ("undecodable record" in out, out[-300:])
+
+
+@case("journal")
+def journal_header_sensor_65536(d):
+    from hybridhdr.capture import recorder as J
+    jp = d / "rec.h5.journal"
+    w = J.JournalWriter(jp, {"sensor_height": 65536, "sensor_width": 65536}, compression=None)
+    w.close()
+    return _recover_argv(d), None
+
+
+# -- runner (fork server) -----------------------------------------------------------------------
+def _preload():
+    import hybridhdr.cli  # noqa: F401
+    from hybridhdr import io as hio
+    for m in set(hio.FORMAT_MODULES.values()):
+        try:
+            __import__(m)
+        except ImportError:
+            pass
+    import hybridhdr.capture.cli  # noqa: F401
+    import hybridhdr.capture.recorder  # noqa: F401
+    for m in ("PIL.Image", "PIL.PngImagePlugin", "lz4.frame", "lz4.block", "zstandard", "rosbags.highlevel",
+              "scipy.io", "tqdm"):
+        try:
+            __import__(m)
+        except ImportError:
+            pass
+    # compile/load the numba kernels once, here, not in every child
+    import hybridhdr as hh
+    from hybridhdr.container import write_recording
+    with tempfile.TemporaryDirectory() as t:
+        p = write_recording(hh.Recording(_events(10), (48, 64)), Path(t) / "w.h5")
+        for fmt, name in (("evt2", "a.raw"), ("evt3", "b.raw"), ("dat", "c.dat"), ("ecd", "e")):
+            hh.write(hh.read(p), Path(t) / name, fmt)
+            hh.read(Path(t) / name)
+
+
+def _vm_size() -> int:
+    with open("/proc/self/status") as f:
+        for ln in f:
+            if ln.startswith("VmSize:"):
+                return int(ln.split()[1]) * 1024
+    return 0
+
+
+def _run_child(argv, out_path, err_path, mem_bytes):
+    pid = os.fork()
+    if pid == 0:  # child
+        code = 70
+        try:
+            fo = os.open(out_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+            fe = os.open(err_path, os.O_WRONLY | os.O_CREAT | os.O_TRUNC)
+            os.dup2(fo, 1)
+            os.dup2(fe, 2)
+            sys.stdout = io.TextIOWrapper(os.fdopen(1, "wb", buffering=0), write_through=True)
+            sys.stderr = io.TextIOWrapper(os.fdopen(2, "wb", buffering=0), write_through=True)
+            lim = _vm_size() + mem_bytes
+            resource.setrlimit(resource.RLIMIT_AS, (lim, lim))
+            from hybridhdr.cli import main
+            code = int(main(argv) or 0)
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else 2
+        except BaseException:
+            try:
+                traceback.print_exc()
+            except BaseException:
+                pass
+            code = 70
+        finally:
+            try:
+                sys.stdout.flush()
+                sys.stderr.flush()
+            except BaseException:
+                pass
+            os._exit(code)
+    return pid
+
+
+def _wait(pid, timeout):
+    t_end = time.monotonic() + timeout
+    while True:
+        wpid, status, ru = os.wait4(pid, os.WNOHANG)
+        if wpid == pid:
+            return status, ru, False
+        if time.monotonic() > t_end:
+            os.kill(pid, signal.SIGKILL)
+            _, status, ru = os.wait4(pid, 0)
+            return status, ru, True
+        time.sleep(0.005)
+
+
+def run_cases(quick=True, timeout=None, mem_gib=1.5, selected=None, log=None):
+    """Run every case; returns ``(table, rows)``: per-reader counts and one row per case."""
+    _preload()
+    timeout = timeout or (20.0 if quick else 120.0)
+    table: dict[str, dict[str, int]] = {}
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="hybridhdr-hostile-") as base:
+        for k, (reader, name, builder, expect) in enumerate(CASES):
+            if selected and not any(s in name for s in selected):
+                continue
+            d = Path(base) / f"{k:03d}_{name}"
+            d.mkdir()
+            t_build = time.perf_counter()
+            argv, check = builder(d)
+            t0 = time.perf_counter()
+            out_p, err_p = d / "_stdout", d / "_stderr"
+            pid = _run_child(argv, out_p, err_p, int(mem_gib * (1 << 30)))
+            status, ru, hung = _wait(pid, timeout)
+            dt = time.perf_counter() - t0
+            out = out_p.read_text(errors="replace")
+            err = err_p.read_text(errors="replace")
+            rss_mb = ru.ru_maxrss / 1024
+            if hung:
+                outcome = "hang"
+            elif os.WIFSIGNALED(status):
+                outcome = "crash"
+            else:
+                rc = os.WEXITSTATUS(status)
+                err_lines = [ln for ln in err.splitlines() if "error:" in ln]
+                if "Traceback" in err or rc == 70:
+                    outcome = "traceback"
+                elif rc == 1 and len(err_lines) == 1:
+                    outcome = "clean" if expect == "error" else "silent"
+                elif rc == 0:
+                    if expect == "error":
+                        outcome = "silent"
+                    else:
+                        good, why = check(out + err) if check else (True, "")
+                        outcome = "ok" if good else "silent"
+                else:
+                    outcome = "traceback"
+            row = {"reader": reader, "case": name, "expect": expect, "outcome": outcome,
+                   "seconds": round(dt, 3), "build_s": round(t0 - t_build, 3), "peak_rss_mb": round(rss_mb, 1),
+                   "message": (err.strip().splitlines() or [""])[-1][:300]}
+            rows.append(row)
+            t = table.setdefault(reader, dict.fromkeys(COLUMNS, 0))
+            t["tried"] += 1
+            t[outcome] += 1
+            if log is not None:
+                print(f"{outcome:<9} {reader:<9} {name:<42} {dt:6.2f}s {rss_mb:7.1f} MB  {row['message'][:110]}",
+                      file=log, flush=True)
+    return table, rows
+
+
+def format_table(table) -> str:
+    lines = [f"{'reader':<10}" + "".join(f"{c:>10}" for c in COLUMNS)]
+    tot = dict.fromkeys(COLUMNS, 0)
+    for r in sorted(table):
+        lines.append(f"{r:<10}" + "".join(f"{table[r][c]:>10}" for c in COLUMNS))
+        for c in COLUMNS:
+            tot[c] += table[r][c]
+    lines.append(f"{'total':<10}" + "".join(f"{tot[c]:>10}" for c in COLUMNS))
+    return "\n".join(lines)
+
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--quick", action="store_true", help="short timeout per case (20 s)")
+    ap.add_argument("--json", action="store_true", help="print only the JSON summary")
+    ap.add_argument("--mem-gib", type=float, default=1.5, help="RLIMIT_AS headroom above the address space at fork")
+    ap.add_argument("-k", action="append", default=None, help="run only cases whose name contains this")
+    a = ap.parse_args(argv)
+    table, rows = run_cases(quick=a.quick, mem_gib=a.mem_gib, selected=a.k, log=None if a.json else sys.stderr)
+    if not a.json:
+        print(format_table(table))
+    bad = sum(t["traceback"] + t["crash"] + t["hang"] + t["silent"] for t in table.values())
+    print(json.dumps({"table": table, "cases": rows, "bad": bad,
+                      "max_peak_rss_mb": max((r["peak_rss_mb"] for r in rows), default=0),
+                      "max_seconds": max((r["seconds"] for r in rows), default=0)}))
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
