@@ -204,17 +204,22 @@ def check_h5_stored(ds, path=None, name: str | None = None) -> None:
                                 f"stored; the file is truncated or its size is forged")
 
 
-def check_finite(a, path=None, what: str = "frames") -> None:
-    """Floating-point data must be finite (NaN / ±inf are errors, never silently propagated)."""
+def check_finite(a, path=None, what: str = "frames", allow_nan: bool = False) -> None:
+    """Floating-point data must be finite (NaN / ±inf are errors, never silently propagated).
+
+    ``allow_nan``: NaN is a documented mask of the data (HDR references: pixel not covered), so
+    only ±inf is an error."""
     a = np.asarray(a)
     if a.dtype.kind not in "fc" or a.size == 0:
         return
-    bad = ~np.isfinite(a)
+    bad = np.isinf(a) if allow_nan else ~np.isfinite(a)
     if bad.any():
         idx = np.unravel_index(int(np.argmax(bad)), a.shape)
         n = int(bad.sum())
         raise FormatError(path, f"{what} hold {n:,} non-finite values (first {a[idx]!r} at index "
-                                f"{tuple(int(i) for i in idx)}); NaN and infinity are not valid intensities")
+                                f"{tuple(int(i) for i in idx)}); "
+                                + ("infinity is not a valid radiance (NaN marks uncovered pixels)" if allow_nan
+                                   else "NaN and infinity are not valid intensities"))
 
 
 def open_image(path, what: str = "image"):

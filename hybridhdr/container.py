@@ -246,7 +246,7 @@ class RecordingWriter(EventFileWriter):
             raise TypeError(f"hdr must be HDRReferences, got {type(hdr).__name__}")
         f = self._f
         im = hdr.images
-        check_finite(im, self.path, "HDR references")
+        check_finite(im, self.path, "HDR references", allow_nan=True)
         if "hdr" not in f:
             g = f.create_group("hdr")
             g.create_dataset("images", shape=(0,) + im.shape[1:], maxshape=(None,) + im.shape[1:],
@@ -619,7 +619,7 @@ class RecordingFile(EventFileReader):
             ims = _require(g, "images", self.path)
             _check_image_dataset(ims, self.path, "/hdr/images")
             images = ims[:]
-            check_finite(images, self.path, "/hdr/images")
+            check_finite(images, self.path, "/hdr/images", allow_nan=True)
             return HDRReferences(images, _require(g, "t_us", self.path)[:])
         except FormatError:
             raise
