@@ -16,6 +16,7 @@ from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassPar
 from .augment import AugmentedMeasurements, AugmentParams
 from .edi import EDIEngine, EDIParams, EventArrays, StreamingEventArrays
 from .profile import load_profile
+from .learned.params import E2VIDParams, FireNetParams
 from .smoother import output_times, two_sided_iter
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
@@ -31,6 +32,10 @@ METHODS: dict[str, tuple[type, bool, bool, str]] = {
     "frames_linear": (FramesParams, True, False, "frames only, linear interpolation in intensity"),
     "edi": (EDIParams, True, True, "EDI deblurring: high-rate video from each blurred frame and its events "
                                    "(Pan et al., CVPR 2019)"),
+    "e2vid": (E2VIDParams, False, True, "E2VID recurrent UNet on event voxel grids, events only, released "
+                                        "weights (Rebecq et al., TPAMI 2019)"),
+    "firenet": (FireNetParams, False, True, "FireNet light recurrent network, events only, released weights "
+                                            "(Scheerlinck et al., WACV 2020)"),
 }
 METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
 MODES = ("offline", "causal", "forward")
@@ -242,6 +247,9 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
                   augment: AugmentParams | None = None):
     needs_frames = METHODS[method][1]
     prof = load_profile(profile)
+    if method in ("e2vid", "firenet"):  # learned, events only (reconstruct.learned; needs PyTorch)
+        from .learned.engine import LearnedEngine
+        return LearnedEngine(shape, params, method), prof
     if method == "edi":
         if frames is None or len(frames) == 0:
             raise ValueError("method 'edi' needs frames, but the recording has none")
@@ -386,12 +394,14 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
             clock = E.OutputClock(times_us=times_us, fps=fps)
             start = t_start_us
             chunks = chunk_factory(int(chunk_events)) if engine.uses_events else iter(())
-            if method == "highpass" and start is None:
+            if not METHODS[method][1] and start is None:  # events only: start at the first event
                 chunks = iter(chunks)
                 first = next(chunks, None)
                 if first is None:
-                    raise ValueError("method 'highpass' needs events, but the source has none")
+                    raise ValueError(f"method {method!r} needs events, but the source has none")
                 start = int(first[0][0])
+                if clock.times is not None and clock.times.size:  # e.g. frame times before the first event
+                    start = min(start, int(clock.times[0]))
                 import itertools
                 chunks = itertools.chain([first], chunks)
             if info is not None:
@@ -428,7 +438,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     ----------
     source : Recording, reader, RecordingFile or path
         The hybrid recording (events sorted by ``t`` in µs; frames with exposure intervals).
-    method : {"akf", "cf", "highpass", "direct", "frames_zoh", "frames_linear", "edi"}
+    method : {"akf", "cf", "highpass", "direct", "frames_zoh", "frames_linear", "edi", "e2vid", "firenet"}
         Aliases: "hpf" = "highpass", "frames" = "frames_zoh".
     params : Params, dict, TOML path or None
         The method's parameters (:class:`AKFParams`, :class:`CFParams`, ...); None for defaults.

@@ -61,7 +61,7 @@ def test_params_toml_and_presets(tmp_path):
 def test_bad_calls():
     rec, _ = ideal_recording()
     with pytest.raises(ValueError, match="unknown method"):
-        reconstruct(rec, "e2vid")
+        reconstruct(rec, "no_such_method")
     with pytest.raises(ValueError, match="strictly increasing"):
         reconstruct(rec, "akf", times_us=[30_000, 20_000])
     with pytest.raises(ValueError, match="before the filter can start"):
