@@ -204,6 +204,9 @@ def _threshold_arrays(thresholds):
     if isinstance(thresholds, (str, os.PathLike)):
         from ..calibrate.thresholds import load_thresholds
         thresholds = load_thresholds(thresholds)
+    if hasattr(thresholds, "filled"):  # a ThresholdMap: pixels it could not estimate take its fallbacks
+        c_on, c_off = thresholds.filled()
+        return np.asarray(c_on), np.asarray(c_off)
     if isinstance(thresholds, dict):
         return np.asarray(thresholds["c_on"]), np.asarray(thresholds["c_off"])
     if hasattr(thresholds, "c_on") and hasattr(thresholds, "c_off"):
