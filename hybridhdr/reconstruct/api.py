@@ -8,6 +8,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._limits import check_fps_outputs, check_output_count, check_sensor_size
 from ..events import SensorSize, events_fields
 from ..model import Frames, Recording
 from . import _engine as E
@@ -195,6 +196,26 @@ def _source_profile(source):
                          f"{e}") from None
 
 
+def _time_span_us(source, frames) -> tuple[int, int] | None:
+    """(first, last) µs of the data a source declares without reading its events, or None."""
+    lo = hi = None
+    if isinstance(source, Recording) and len(source.events):
+        lo, hi = int(source.events["t"][0]), int(source.events["t"][-1])
+    else:
+        tr = getattr(source, "time_range_us", None)
+        try:
+            tr = tr() if callable(tr) else tr
+        except Exception:  # noqa: BLE001 - a reader that cannot say declares nothing
+            tr = None
+        if tr is not None:
+            lo, hi = int(tr[0]), int(tr[1])
+    if frames is not None and len(frames):
+        f0, f1 = int(frames.t_mid_us[0]), int(frames.t_mid_us[-1])
+        lo = f0 if lo is None else min(lo, f0)
+        hi = f1 if hi is None else max(hi, f1)
+    return None if lo is None else (lo, hi)
+
+
 def _threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
     a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.calibrate.thresholds.load_thresholds`
@@ -332,10 +353,19 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
     p = make_params(method, params)
     aug = make_augment_params(augment)
     thr = _threshold_arrays(thresholds)
+    if times_us is not None:
+        check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
     ss, frames, chunk_factory, close, n_declared = _open_source(source)
     events = None
     try:
         shape = _sensor_shape(ss, frames)
+        check_sensor_size(*shape, what="sensor (per-pixel filter state)")
+        if fps is not None and times_us is None:
+            span = _time_span_us(source, frames)
+            if span is not None:
+                lo = span[0] if t_start_us is None else max(span[0], int(t_start_us))
+                hi = span[1] + 1 if t_end_us is None else int(t_end_us)
+                check_fps_outputs(lo, max(hi, lo), fps)
         use_aug = (method == "akf" and mode != "causal" and measurements is None and aug.enabled
                    and frames is not None and len(frames) > 0)
         if use_aug or method == "edi":
