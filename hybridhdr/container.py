@@ -15,6 +15,9 @@ Layout (format version 2.0; see ``docs/recording-format.md``)::
     /frames/gain, /frames/iso              float64 (K,), optional
     /triggers/t int64, /triggers/channel uint16, /triggers/edge int8
     /hdr/images float32 (K, H, W[, 3]), /hdr/t_us int64 (K,)
+    /thresholds/c_on, /thresholds/c_off  float64 (H, W), optional: per-pixel ON/OFF contrast
+                            thresholds (log units; NaN = not estimated); attrs fallback_on,
+                            fallback_off, method, provenance_json (``store_thresholds``)
 
 The writer streams: events are appended in chunks with a bounded buffer, the sparse time index
 (one entry per ``index_stride`` events at most, so its size follows the events, not the time span)
@@ -626,6 +629,27 @@ class RecordingFile(EventFileReader):
         except Exception as e:
             raise FormatError(self.path, f"corrupt /hdr group: {e}") from None
 
+    def read_thresholds(self):
+        """The stored per-pixel ON/OFF threshold map (``ThresholdMap``), or None."""
+        if "thresholds" not in self._f:
+            return None
+        from .calibrate.thresholds import ThresholdMap
+        g = self._f["thresholds"]
+        try:
+            c_on, c_off = _require(g, "c_on", self.path), _require(g, "c_off", self.path)
+            for ds, name in ((c_on, "c_on"), (c_off, "c_off")):
+                if self.sensor_size is not None and tuple(ds.shape) != self.sensor_size.shape:
+                    raise FormatError(self.path, f"/thresholds/{name} has shape {ds.shape}, the sensor is "
+                                                 f"{self.sensor_size.shape}")
+            prov = json.loads(str(g.attrs.get("provenance_json", "{}")))
+            return ThresholdMap(c_on=c_on[:], c_off=c_off[:], fallback_on=float(g.attrs["fallback_on"]),
+                                fallback_off=float(g.attrs["fallback_off"]),
+                                method=str(g.attrs.get("method", "unknown")), provenance=prov)
+        except FormatError:
+            raise
+        except Exception as e:
+            raise FormatError(self.path, f"corrupt /thresholds group: {e}") from None
+
     @_guarded
     def read(self, t_start_us=None, t_end_us=None) -> Recording:
         ev = self.events(t_start_us, t_end_us)
@@ -648,6 +672,39 @@ class RecordingFile(EventFileReader):
             self._f.close()
         except Exception:
             pass
+
+
+def store_thresholds(path, threshold_map) -> None:
+    """Store a per-pixel ON/OFF threshold map (``hybridhdr.calibrate.thresholds.ThresholdMap``) in an
+    existing container, replacing any stored one.
+
+    The group is written under a temporary name and then linked as ``/thresholds`` (one metadata
+    operation), so a failure leaves the previous map, or none, never a half-written one.
+    """
+    h5py = _h5py()
+    path = Path(path)
+    c_on, c_off = np.asarray(threshold_map.c_on, np.float64), np.asarray(threshold_map.c_off, np.float64)
+    with RecordingFile(path) as r:
+        ss = r.sensor_size
+    if ss is not None and c_on.shape != ss.shape:
+        raise ValueError(f"{path}: threshold map has shape {c_on.shape}, the recording's sensor is {ss.shape}")
+    try:
+        with h5py.File(path, "r+") as f:
+            if "thresholds_tmp" in f:
+                del f["thresholds_tmp"]
+            g = f.create_group("thresholds_tmp")
+            g.create_dataset("c_on", data=c_on)
+            g.create_dataset("c_off", data=c_off)
+            g.attrs["fallback_on"] = float(threshold_map.fallback_on)
+            g.attrs["fallback_off"] = float(threshold_map.fallback_off)
+            g.attrs["method"] = str(getattr(threshold_map, "method", ""))
+            g.attrs["provenance_json"] = json.dumps(getattr(threshold_map, "provenance", {}), default=str)
+            f.flush()
+            if "thresholds" in f:
+                del f["thresholds"]
+            f.move("thresholds_tmp", "thresholds")
+    except OSError as e:
+        raise FormatError(path, f"could not store the threshold map: {e}") from None
 
 
 def write_recording(recording: Recording, path, **options) -> Path:

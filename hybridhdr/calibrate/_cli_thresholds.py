@@ -37,6 +37,8 @@ def register(steps) -> None:
     p.add_argument("--c-range", default="0.01,2.0", metavar="LO,HI", help="accepted thresholds (log units)")
     p.add_argument("--include-partial-intervals", action="store_true",
                    help="also use frame intervals not fully inside the events' time span")
+    p.add_argument("--store", action="store_true",
+                   help="also store the map in RECORDING (a hybridhdr container), where reconstruct uses it")
     p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run_thresholds)
 
@@ -66,6 +68,9 @@ def run_thresholds(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     tm.provenance.update(command=sys.argv, hybridhdr_version=__version__, input=str(args.recording))
     tm.save(out / "thresholds.npz")
+    if args.store:
+        from ..container import store_thresholds
+        store_thresholds(args.recording, tm)
     plot_thresholds(tm, out / "thresholds.png",
                     title=f"{args.recording.name}: {int(tm.valid.sum())} of {tm.valid.size} pixels estimated "
                           f"({100 * tm.valid.mean():.2f} %)")

@@ -216,6 +216,19 @@ def _time_span_us(source, frames) -> tuple[int, int] | None:
     return None if lo is None else (lo, hi)
 
 
+def _stored_thresholds(source):
+    """The threshold map a container source stores (``/thresholds``), or None."""
+    if isinstance(source, (str, os.PathLike)):
+        try:
+            from ..container import RecordingFile
+            with RecordingFile(source) as r:
+                return r.read_thresholds()
+        except Exception:  # noqa: BLE001 - not a container: nothing stored
+            return None
+    fn = getattr(source, "read_thresholds", None)
+    return fn() if callable(fn) else None
+
+
 def _threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
     a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.calibrate.thresholds.load_thresholds`
@@ -358,6 +371,12 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
     ss, frames, chunk_factory, close, n_declared = _open_source(source)
     events = None
     try:
+        if thr is None and thresholds is None and method in ("akf", "cf", "direct", "highpass"):
+            stored = _stored_thresholds(source)  # a map calibrated into the container is used
+            if stored is not None:
+                thr = _threshold_arrays(stored)
+                if info is not None:
+                    info["thresholds"] = "per-pixel map stored in the recording"
         shape = _sensor_shape(ss, frames)
         check_sensor_size(*shape, what="sensor (per-pixel filter state)")
         if fps is not None and times_us is None:

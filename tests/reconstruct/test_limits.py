@@ -44,3 +44,28 @@ def test_huge_sensor_is_refused_and_the_override_is_honoured():
         reconstruct(rec, "frames", times_us=[500])
     with allow_huge():
         assert reconstruct(rec, "frames", times_us=[500]).frames.shape == (1, h, w)
+
+
+def test_threshold_map_stored_in_the_container_is_used(tmp_path):
+    from hybridhdr.calibrate.thresholds import ThresholdMap
+    from hybridhdr.container import RecordingFile, store_thresholds, write_recording
+    rec = _rec()
+    path = write_recording(rec, tmp_path / "r.h5")
+    on = np.full((4, 5), 0.15)
+    on[0, 0] = np.nan  # not estimated: takes the fallback
+    tm = ThresholdMap(c_on=on, c_off=np.full((4, 5), 0.25), fallback_on=0.2, fallback_off=0.3)
+    store_thresholds(path, tm)
+    store_thresholds(path, tm)  # replacing works
+    with RecordingFile(path) as r:
+        back = r.read_thresholds()
+    np.testing.assert_array_equal(back.c_on, tm.c_on)
+    assert (back.fallback_on, back.fallback_off) == (0.2, 0.3)
+    a = reconstruct(path, "akf", times_us=[4_000], mode="causal")
+    b = reconstruct(rec, "akf", times_us=[4_000], mode="causal", thresholds=tm)
+    c = reconstruct(rec, "akf", times_us=[4_000], mode="causal")
+    np.testing.assert_array_equal(a.frames, b.frames)
+    assert not np.array_equal(a.frames, c.frames)
+    assert a.info["thresholds"].startswith("per-pixel map")
+    with pytest.raises(ValueError, match="shape"):
+        store_thresholds(path, ThresholdMap(c_on=np.ones((2, 2)), c_off=np.ones((2, 2)), fallback_on=1.0,
+                                            fallback_off=1.0))
