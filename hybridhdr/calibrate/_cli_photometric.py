@@ -61,7 +61,11 @@ def register(steps) -> None:
                    help="new recording (hybridhdr HDF5) with the warped references; required with --register")
     q.add_argument("--features", default="surf", choices=["surf", "sift"],
                    help="keypoints: SURF (mahotas, or OpenCV non-free when present) or SIFT")
-    q.add_argument("--ecc", action=argparse.BooleanOptionalAction, default=True, help="ECC refinement")
+    q.add_argument("--ecc", action=argparse.BooleanOptionalAction, default=True,
+                   help="ECC refinement in the frame's grid, kept only when it lowers the residual")
+    q.add_argument("--align", action=argparse.BooleanOptionalAction, default=True,
+                   help="align the brackets to each other before merging (AlignMTB, then a keypoint homography; "
+                        "each kept only when it lowers the residual, so tripod brackets stay as they are)")
     q.add_argument("--ratio", type=float, default=0.75, help="Lowe ratio-test threshold")
     q.add_argument("--ransac-px", type=float, default=3.0, help="MAGSAC/RANSAC inlier threshold in pixels")
     q.add_argument("--no-progress", action="store_true", help="no progress bar")
@@ -153,7 +157,7 @@ def run_hdr_reference(args) -> int:
     from .._version import __version__
     from ..capture.brackets import read_bracket_set
     from .crf import CRF, debevec
-    from .hdr_reference import RegistrationParams, merge_brackets, register_recording, write_exr
+    from .hdr_reference import RegistrationParams, align_brackets, merge_brackets, register_recording, write_exr
 
     t0 = time.perf_counter()
     if args.register is not None and args.out_recording is None:
@@ -167,19 +171,31 @@ def run_hdr_reference(args) -> int:
     if args.crf is not None:
         crf = CRF.load(args.crf)
         crf_src = str(args.crf)
-    elif bs.encoding not in ("raw", "linear"):
+    align: dict = {"enabled": bool(args.align)}
+    if args.align and len(bs) > 1:
+        bs = align_brackets(bs, features="sift", info=align)
+        mask = _mask(bs, _colour(args.ignore_colour))
+        align["moved"] = [bs.files[d["image"]] for d in align["pairs"] if d["method"] != "identity"]
+        print(f"align: {len(align['moved'])} of {len(bs) - 1} brackets moved to {bs.files[align['anchor']]}",
+              file=sys.stderr)
+    if crf is None and bs.encoding not in ("raw", "linear"):
         crf = debevec(bs, None, mask=mask)
         crf_src = "estimated here (Debevec)"
     info: dict = {}
     E = merge_brackets(bs, None, crf, weighting=args.weighting, info=info)
-    write_exr(args.out, E)
     report = {"hybridhdr_version": __version__, "command": sys.argv, "brackets": str(args.brackets),
               "reference": str(args.out), "shape": list(E.shape), "crf": crf_src, "merge": info,
-              "radiance_range": [float(np.nanmin(E)), float(np.nanmax(E))]}
+              "alignment": align, "radiance_range": [float(np.nanmin(E)), float(np.nanmax(E))], "warnings": []}
     frame = H = None
     if args.register is not None:
+        # registered before anything is written: a failure leaves no EXR, JSON, PNG or recording
         p = RegistrationParams(features=args.features, ecc=args.ecc, ratio=args.ratio, ransac_px=args.ransac_px)
-        out_rec, frames = register_recording(E, args.register, args.out_recording, p, progress=not args.no_progress)
+        out_rec, frames = register_recording(E, args.register, args.out_recording, p, progress=not args.no_progress,
+                                             valid=mask)
+        for f in frames:
+            for w in f.get("warnings", []):
+                report["warnings"].append(f"frame {f['frame']}: {w}")
+                print(f"warning: frame {f['frame']}: {w}", file=sys.stderr)
         report.update(recording=str(args.register), out_recording=str(out_rec), registration=frames,
                       features=args.features, ecc=args.ecc,
                       mean_time_s=float(np.mean([f["time_s"] for f in frames])),
@@ -189,6 +205,7 @@ def run_hdr_reference(args) -> int:
             fr = r.read_frames()
         frame = fr.images[frames[0]["frame"]]
         H = np.asarray(frames[0]["homography"])
+    write_exr(args.out, E)
     report["time_s"] = time.perf_counter() - t0
     _write_json(args.out.with_suffix(".json"), report)
     _plot_reference(E, frame, H, args.out.with_suffix(".png"))

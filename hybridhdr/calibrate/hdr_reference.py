@@ -40,7 +40,7 @@ from .crf import CRF, check_brackets, hat_weight
 
 __all__ = ["merge_brackets", "write_exr", "read_exr_rgb", "read_rgbe", "corner_error", "register", "Registration", "RegistrationParams",
            "warp_reference", "refine_ecc", "to_grey", "photometric_match", "surf_backend", "FEATURES",
-           "register_recording"]
+           "register_recording", "RegistrationError", "align_brackets"]
 
 FEATURES = ("surf", "sift")
 
@@ -502,19 +502,83 @@ def _match(d1, d2, ratio, lap1=None, lap2=None):
     return np.array(pairs, np.int64).reshape(-1, 2)
 
 
+class RegistrationError(ValueError):
+    """Registration cannot succeed (too few matches, a degenerate homography, unrelated images)."""
+
+
+def _check_homography(H, what: str = "homography") -> np.ndarray:
+    """A finite, invertible, well-conditioned 3x3 homography normalised to ``H[2, 2] = 1``."""
+    H = None if H is None else np.asarray(H, np.float64)
+    if H is None or H.shape != (3, 3) or not np.all(np.isfinite(H)) or abs(H[2, 2]) < 1e-12:
+        raise RegistrationError(f"registration failed: the {what} is degenerate (not finite or H[2,2] = 0)")
+    H = H / H[2, 2]
+    c = np.linalg.cond(H)
+    if not np.isfinite(c) or c > 1e10:
+        raise RegistrationError(f"registration failed: the {what} is singular (condition number {c:.3g})")
+    return H
+
+
+def _tone_fit(x: np.ndarray, y: np.ndarray, n_bins: int = 64):
+    """Monotone map ``x -> y`` from co-located samples: means of ``y`` in quantile bins of ``x``,
+    made non-decreasing, linearly interpolated. Returns a callable; None with < 100 samples."""
+    x = np.asarray(x, np.float64).ravel()
+    y = np.asarray(y, np.float64).ravel()
+    if x.size < 100:
+        return None
+    edges = np.unique(np.quantile(x, np.linspace(0.0, 1.0, n_bins + 1)))
+    if edges.size < 3:
+        return None
+    idx = np.clip(np.searchsorted(edges, x, side="right") - 1, 0, edges.size - 2)
+    cnt = np.bincount(idx, minlength=edges.size - 1)
+    ok = cnt > 0
+    cx = np.bincount(idx, x, minlength=edges.size - 1)[ok] / cnt[ok]
+    cy = np.maximum.accumulate(np.bincount(idx, y, minlength=edges.size - 1)[ok] / cnt[ok])
+    return lambda v: np.interp(v, cx, cy)
+
+
+def _grid_residual(fixed: np.ndarray, moving: np.ndarray, H: np.ndarray, fixed_ok: np.ndarray,
+                   moving_ok: np.ndarray | None = None):
+    """RMS of ``fixed - m(moving warped by H)`` over the pixels both see well, with ``m`` the
+    monotone tone map fitted on those pixels. Returns (rms, warped-and-mapped moving, mask)."""
+    import cv2
+    h, w = fixed.shape
+    mv = cv2.warpPerspective(moving.astype(np.float32), H, (w, h), flags=cv2.INTER_LINEAR,
+                             borderMode=cv2.BORDER_REPLICATE)
+    src_ok = np.ones(moving.shape, np.float32) if moving_ok is None else moving_ok.astype(np.float32)
+    cov = cv2.warpPerspective(src_ok, H, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                              borderValue=0) > 0.999
+    m = cov & fixed_ok
+    tm = _tone_fit(mv[m], fixed[m])
+    if tm is None:
+        return np.inf, None, m
+    mapped = tm(mv)
+    return float(np.sqrt(np.mean((fixed[m] - mapped[m]) ** 2))), mapped, m
+
+
 def register(reference: np.ndarray, frame: np.ndarray, params: RegistrationParams | None = None, *,
              valid=None) -> Registration:
     """Homography from the HDR ``reference`` (radiance, any scale) to an LDR ``frame`` (codes).
 
-    Raises ValueError when fewer than ``min_inliers`` matches survive (e.g. unrelated images).
+    Keypoints give ``H``; with ``params.ecc`` the reference is then **resampled into the frame's
+    grid** by ``H`` (so ECC works on two images of one size, whatever the sizes of reference
+    and frame), tone-mapped onto the frame by a monotone map fitted on co-located pixels, and
+    ECC estimates the remaining homography. The ECC result is kept only if it lowers the
+    photometric residual (RMS of frame minus tone-mapped warped reference, re-fitted for each
+    homography, over the frame pixels the reference covers); otherwise, or when ECC fails, the keypoint
+    ``H`` is kept and ``info["warnings"]`` says why (``info["ecc"]`` has the details).
+
+    ``valid``: optional (H, W) bool mask of usable reference pixels.
+
+    Raises :class:`RegistrationError` (a ValueError) when fewer than ``min_inliers`` matches
+    survive or the homography is degenerate (e.g. unrelated images).
     """
     import cv2
     p = params or RegistrationParams()
     t0 = time.perf_counter()
     ref = np.asarray(reference)
     frm = np.asarray(frame)
-    if ref.shape[:2] != frm.shape[:2] and min(ref.shape[:2] + frm.shape[:2]) < 16:
-        raise ValueError(f"images too small to register: reference {ref.shape}, frame {frm.shape}")
+    if min(ref.shape[:2] + frm.shape[:2]) < 16:
+        raise RegistrationError(f"images too small to register: reference {ref.shape}, frame {frm.shape}")
     fgrey = to_grey(frm)
     rmatch = photometric_match(ref, fgrey, valid)
     lo, hi = (float(v) for v in np.percentile(fgrey, [0.1, 99.9]))
@@ -524,60 +588,86 @@ def register(reference: np.ndarray, frame: np.ndarray, params: RegistrationParam
     pb, db, lb = _detect(b, p, backend)
     pairs = _match(da, db, p.ratio, la, lb)
     if len(pairs) < max(4, p.min_inliers):
-        raise ValueError(f"registration failed: {len(pairs)} keypoint matches after the ratio test "
-                         f"(need >= {max(4, p.min_inliers)}); keypoints {len(pa)} / {len(pb)}")
+        raise RegistrationError(f"registration failed: {len(pairs)} keypoint matches after the ratio test "
+                                f"(need >= {max(4, p.min_inliers)}); keypoints {len(pa)} / {len(pb)}")
     src, dst = pa[pairs[:, 0]], pb[pairs[:, 1]]
     method = getattr(cv2, "USAC_MAGSAC", cv2.RANSAC)
     H, inl = cv2.findHomography(src, dst, method, p.ransac_px, maxIters=10000, confidence=0.9999)
     if H is None or inl is None or int(inl.sum()) < p.min_inliers:
-        raise ValueError(f"registration failed: {0 if inl is None else int(inl.sum())} homography inliers of "
-                         f"{len(pairs)} matches (need >= {p.min_inliers})")
+        raise RegistrationError(f"registration failed: {0 if inl is None else int(inl.sum())} homography inliers "
+                                f"of {len(pairs)} matches (need >= {p.min_inliers})")
     inl = inl.ravel().astype(bool)
     # least-squares polish on the inliers (MAGSAC's model is fitted on a minimal/weighted set)
     H2, _ = cv2.findHomography(src[inl], dst[inl], 0)
-    if H2 is not None:
+    if H2 is not None and np.all(np.isfinite(H2)):
         H = H2
-    H = H / H[2, 2]
+    H = _check_homography(H)
     proj = cv2.perspectiveTransform(src[inl].reshape(-1, 1, 2).astype(np.float64), H).reshape(-1, 2)
     rep = float(np.sqrt(np.mean(np.sum((proj - dst[inl]) ** 2, axis=1))))
     corr = None
-    info = {}
+    info: dict = {"warnings": []}
     if p.ecc:
         t1 = time.perf_counter()
-        H, corr, ok = _ecc(rmatch, fgrey, H, p)
-        info["ecc_converged"] = ok
+        info["homography_keypoints"] = H.tolist()
+        H, corr, ecc = _ecc_in_frame(ref, fgrey, H, p, valid)
+        info["ecc"] = ecc
+        info["ecc_converged"] = ecc["status"] != "failed"
         info["ecc_time_s"] = time.perf_counter() - t1
+        if ecc["status"] == "failed":
+            info["warnings"].append(f"ECC refinement failed ({ecc['reason']}); the keypoint homography is kept")
+        elif ecc["status"] == "rejected":
+            info["warnings"].append(f"ECC refinement did not lower the residual ({ecc['residual_before']:.4g} -> "
+                                    f"{ecc['residual_after']:.4g}); the keypoint homography is kept")
     return Registration(H, (len(pa), len(pb)), int(len(pairs)), int(inl.sum()), rep, corr,
                         time.perf_counter() - t0, backend, info)
 
 
 def refine_ecc(reference: np.ndarray, frame: np.ndarray, H: np.ndarray, params: RegistrationParams | None = None,
                *, valid=None) -> tuple[np.ndarray, float | None]:
-    """ECC refinement of a reference -> frame homography ``H``; returns ``(H, correlation)``
-    (``correlation`` None when ECC did not converge; then ``H`` is returned unchanged)."""
+    """ECC refinement of a reference -> frame homography ``H`` (see :func:`register`); returns
+    ``(H, correlation)``: the refined ``H`` when it lowers the residual, else ``H`` unchanged;
+    ``correlation`` is None when ECC failed."""
     p = params or RegistrationParams()
-    fgrey = to_grey(frame)
-    H2, corr, _ = _ecc(photometric_match(reference, fgrey, valid), fgrey, np.asarray(H, np.float64), p)
+    H2, corr, _ = _ecc_in_frame(np.asarray(reference), to_grey(frame), _check_homography(H), p, valid)
     return H2, corr
 
 
-def _ecc(ref_matched: np.ndarray, frame: np.ndarray, H: np.ndarray, p: RegistrationParams):
-    """Refine ``H`` (reference -> frame) by ECC between the photometrically matched images."""
+def _ecc_in_frame(reference: np.ndarray, fgrey: np.ndarray, H: np.ndarray, p: RegistrationParams, valid=None):
+    """ECC between the frame and the reference resampled into the frame's grid by ``H``.
+
+    Returns ``(H_kept, correlation or None, report)`` with ``report["status"]`` "kept",
+    "rejected" (did not lower the residual) or "failed" (with ``reason``)."""
     import cv2
-    tmpl = frame.astype(np.float32)
-    inp = ref_matched.astype(np.float32)
-    # ECC: template(x) ~ input(W x) with W mapping template (frame) to input (reference) coords
-    W = np.linalg.inv(H).astype(np.float32)
-    W /= W[2, 2]
+    lr = np.log(np.maximum(to_grey(reference), 1e-12)).astype(np.float32)
+    ref_ok = np.isfinite(lr) & (to_grey(reference) > 0)
+    if valid is not None:
+        ref_ok &= np.asarray(valid, bool)
+    lr = np.where(ref_ok, lr, np.float32(np.nanmedian(lr[ref_ok]) if ref_ok.any() else 0.0)).astype(np.float32)
+    # all covered pixels, clipped ones included: the fitted monotone map reproduces the clipping
+    # (a mask of well-exposed pixels, full of holes, made OpenCV 5's ECC diverge on bright frames)
+    f_ok = np.isfinite(fgrey)
+    res0, mapped, m = _grid_residual(fgrey, lr, H, f_ok, ref_ok)
+    rep = {"status": "failed", "residual_before": res0, "residual_after": None, "correlation": None}
+    if mapped is None or m.sum() < 1000:
+        rep["reason"] = f"only {int(m.sum())} frame pixels covered by the reference (need 1000)"
+        return H, None, rep
     crit = (cv2.TERM_CRITERIA_EPS | cv2.TERM_CRITERIA_COUNT, p.ecc_iterations, p.ecc_eps)
-    hi = float(np.percentile(tmpl, 99.5))
-    mask = ((tmpl > np.percentile(tmpl, 0.5)) & (tmpl < hi)).astype(np.uint8)
     try:
-        corr, W2 = cv2.findTransformECC(tmpl, inp, W, cv2.MOTION_HOMOGRAPHY, crit, mask, p.ecc_blur_px)
-    except cv2.error:
-        return H, None, False
-    H2 = np.linalg.inv(W2.astype(np.float64))
-    return H2 / H2[2, 2], float(corr), True
+        # template(x) ~ input(W x): frame(x) ~ mapped(W x) = reference(H^-1 W x), so H_new = W^-1 H
+        corr, W = cv2.findTransformECC(fgrey.astype(np.float32), mapped.astype(np.float32),
+                                       np.eye(3, dtype=np.float32), cv2.MOTION_HOMOGRAPHY, crit,
+                                       m.astype(np.uint8), p.ecc_blur_px)
+        Hn = _check_homography(np.linalg.inv(_check_homography(W, "ECC warp")) @ H)
+    except (cv2.error, np.linalg.LinAlgError, ValueError) as e:
+        rep["reason"] = str(e).strip().splitlines()[-1][:200]
+        return H, None, rep
+    res1, _, _ = _grid_residual(fgrey, lr, Hn, f_ok, ref_ok)
+    rep.update(residual_after=res1, correlation=float(corr))
+    if res1 < res0:
+        rep["status"] = "kept"
+        return Hn, float(corr), rep
+    rep["status"] = "rejected"
+    return H, float(corr), rep
 
 
 def warp_reference(reference: np.ndarray, H: np.ndarray, shape: tuple) -> np.ndarray:
@@ -604,13 +694,17 @@ def corner_error(H_est: np.ndarray, H_true: np.ndarray, shape: tuple) -> float:
 
 
 def register_recording(reference: np.ndarray, recording_path, out_path, params: RegistrationParams | None = None,
-                       *, progress: bool = True, frame_indices=None) -> tuple[Path, list[dict]]:
+                       *, progress: bool = True, frame_indices=None, valid=None) -> tuple[Path, list[dict]]:
     """Register ``reference`` to every frame of a recording and write a NEW recording with the
     warped references (``HDRReferences`` at the frames' mid-exposure times).
 
     The input file is never modified; the output is written atomically (``.partial`` then rename).
     The references keep RGB when the frames are RGB, else are converted to luminance. Pixels
     outside the reference are NaN.
+
+    Every frame is registered before anything is written: a frame that cannot be registered
+    raises :class:`RegistrationError` naming it, and no output file is left. ``valid``: usable
+    reference pixels (e.g. not the blue border of Debevec's scans).
     """
     import dataclasses
 
@@ -633,7 +727,10 @@ def register_recording(reference: np.ndarray, recording_path, out_path, params: 
         ref_store = ref
     imgs, ts, reports = [], [], []
     for k in tqdm(idx, desc="register", unit="frame", disable=not progress):
-        r = register(ref, fr.images[k], params)
+        try:
+            r = register(ref, fr.images[k], params, valid=valid)
+        except RegistrationError as e:
+            raise RegistrationError(f"{src}: frame {k}: {e}") from None
         imgs.append(warp_reference(ref_store, r.homography, fr.shape))
         ts.append(int(fr.t_mid_us[k]))
         reports.append({"frame": int(k), "t_us": int(fr.t_mid_us[k]), **r.to_dict()})
@@ -641,3 +738,116 @@ def register_recording(reference: np.ndarray, recording_path, out_path, params: 
     out = dataclasses.replace(rec, hdr=hdr)
     write_recording(out, dst)
     return dst, reports
+
+
+# -- bracket-to-bracket alignment --------------------------------------------------------------
+def _pair_homography(fixed: np.ndarray, moving: np.ndarray, fixed_ok, moving_ok, features: str,
+                     max_shift_bits: int):
+    """Candidates for the homography moving -> fixed grid between two exposures of one scene:
+    identity, ``cv2.AlignMTB`` (median threshold bitmaps: exposure-invariant, integer shift) and
+    a keypoint homography on the tone-matched images (larger or non-translational motion). The
+    one with the lowest photometric residual (:func:`_grid_residual`) wins; identity unless
+    another lowers the residual by more than 1 %. Returns (H, method, residuals dict)."""
+    import cv2
+    cands = {"identity": np.eye(3)}
+    try:
+        mtb = cv2.createAlignMTB(max_shift_bits)
+        dx, dy = mtb.calculateShift(_u8(fixed, *np.percentile(fixed, [0, 100])),
+                                    _u8(moving, *np.percentile(moving, [0, 100])))
+        if (dx, dy) != (0, 0):
+            cands["mtb"] = np.array([[1.0, 0, dx], [0, 1.0, dy], [0, 0, 1.0]])
+    except cv2.error:
+        pass
+    try:
+        # quantile matching (needs no co-located pixels, unlike the residual's tone fit)
+        q = np.linspace(0, 100, 257)
+        mq, idx = np.unique(np.percentile(moving, q), return_index=True)
+        if mq.size >= 3:
+            matched = np.interp(moving, mq, np.percentile(fixed, q)[idx])
+            lo, hi = (float(v) for v in np.percentile(fixed, [0.1, 99.9]))
+            p = RegistrationParams(features=features, ecc=False)
+            backend = "sift" if features == "sift" else surf_backend()
+            pa, da, la = _detect(_u8(matched, lo, hi), p, backend)
+            pb, db, lb = _detect(_u8(fixed, lo, hi), p, backend)
+            pairs = _match(da, db, p.ratio, la, lb)
+            if len(pairs) >= p.min_inliers:
+                src, dst = pa[pairs[:, 0]], pb[pairs[:, 1]]
+                H, inl = cv2.findHomography(src, dst, getattr(cv2, "USAC_MAGSAC", cv2.RANSAC), p.ransac_px,
+                                            maxIters=10000, confidence=0.9999)
+                if H is not None and inl is not None and int(inl.sum()) >= p.min_inliers:
+                    inl = inl.ravel().astype(bool)
+                    H2, _ = cv2.findHomography(src[inl], dst[inl], 0)
+                    cands["features"] = _check_homography(H2 if H2 is not None else H)
+    except (cv2.error, ValueError, ImportError):
+        pass
+    res = {k: _grid_residual(fixed, moving, H, fixed_ok, moving_ok)[0] for k, H in cands.items()}
+    best = min(res, key=res.get)
+    if best != "identity" and not res[best] < 0.99 * res["identity"]:
+        best = "identity"
+    return cands[best], best, res
+
+
+def align_brackets(images, exposures_s=None, *, anchor: int | None = None, features: str = "sift",
+                   max_shift_bits: int = 6, info: dict | None = None):
+    """Align hand-held brackets to one anchor exposure before merging.
+
+    Exposures are sorted; each image is aligned to its neighbour towards the anchor (default:
+    the median exposure) by :func:`_pair_homography` (AlignMTB, then a keypoint homography for
+    larger motion, each kept only if it lowers the photometric residual), the pair homographies
+    are chained, and every image is resampled (bilinear) into the anchor's grid. Pixels that
+    no longer see the image take code 0 for coded brackets (weight 0 in the certainty and hat
+    merges) and the white level for RAW/linear ones (excluded as saturated).
+
+    Returns a BracketSet when given one, else a list of images. ``info`` gets per image the
+    method, the homography to the anchor and the residuals (``info["pairs"]``).
+    """
+    import cv2
+
+    from ..capture.brackets import BracketSet
+    bs = images if isinstance(images, BracketSet) else None
+    imgs = [np.asarray(im) for im in (bs.images if bs is not None else images)]
+    ex = np.asarray(bs.exposures_s if bs is not None else exposures_s, np.float64)
+    if len(imgs) != len(ex):
+        raise ValueError(f"{len(imgs)} images but {len(ex)} exposure times")
+    info = {} if info is None else info
+    n = len(imgs)
+    if n < 2:
+        info.update(anchor=0, pairs=[])
+        return images
+    order = np.argsort(ex, kind="stable")
+    a_pos = len(order) // 2 if anchor is None else int(np.flatnonzero(order == anchor)[0])
+    greys = [to_grey(im).astype(np.float32) for im in imgs]
+    linear = bs is not None and bs.encoding in ("raw", "linear")
+    top = [float(np.iinfo(im.dtype).max) if np.issubdtype(im.dtype, np.integer) else 1.0 for im in imgs]
+    oks = [(g > 0.02 * t) & (g < 0.98 * t) for g, t in zip(greys, top)]
+    to_anchor = {int(order[a_pos]): np.eye(3)}
+    pairs = []
+    for step, rng_ in ((-1, range(a_pos - 1, -1, -1)), (1, range(a_pos + 1, n))):
+        for pos in rng_:
+            i, j = int(order[pos]), int(order[pos - step])  # align i to its neighbour j (nearer the anchor)
+            H, how, res = _pair_homography(greys[j], greys[i], oks[j], oks[i], features, max_shift_bits)
+            to_anchor[i] = to_anchor[j] @ H
+            pairs.append({"image": i, "to": j, "method": how, "residuals": res,
+                          "homography_to_anchor": (to_anchor[i] / to_anchor[i][2, 2]).tolist()})
+    out = []
+    for k, im in enumerate(imgs):
+        H = to_anchor[k]
+        if np.allclose(H, np.eye(3)):
+            out.append(im)
+            continue
+        h, w = im.shape[:2]
+        fill = top[k] if linear else 0.0
+        warped = cv2.warpPerspective(im.astype(np.float32), H, (w, h), flags=cv2.INTER_LINEAR,
+                                     borderMode=cv2.BORDER_CONSTANT, borderValue=(fill, fill, fill, fill))
+        cover = cv2.warpPerspective(np.ones((h, w), np.float32), H, (w, h), flags=cv2.INTER_LINEAR,
+                                    borderMode=cv2.BORDER_CONSTANT, borderValue=0) > 0.999
+        warped[~cover] = fill
+        if np.issubdtype(im.dtype, np.integer):
+            warped = np.clip(np.round(warped), 0, top[k])
+        out.append(warped.astype(im.dtype))
+    info.update(anchor=int(order[a_pos]), pairs=sorted(pairs, key=lambda d: d["image"]),
+                n_moved=int(sum(d["method"] != "identity" for d in pairs)))
+    if bs is None:
+        return out
+    import dataclasses
+    return dataclasses.replace(bs, images=out)

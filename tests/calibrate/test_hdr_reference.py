@@ -199,3 +199,114 @@ def test_cli_crf_and_hdr_reference(tmp_path):
     # bad invocation: a clear one-line error, exit status 1
     assert main(["calibrate", "hdr-reference", str(brackets), "--out", str(tmp_path / "x.exr"),
                  "--register", str(rec)]) != 0
+
+
+def _gamma_frame(E, H, size_wh, exposure, rng):
+    """8-bit gamma-2.2 frame of radiance ``E`` warped by ``H`` into a grid of ``size_wh``."""
+    import cv2
+    warped = cv2.warpPerspective(E, H, size_wh, flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    z = 255.0 * np.clip(warped * exposure, 0, 1) ** (1 / 2.2) + rng.normal(0.0, 0.5, warped.shape)
+    return np.clip(np.round(z), 0, 255).astype(np.uint8)
+
+
+@pytest.mark.parametrize("features", ["sift", "surf"])
+def test_ecc_on_frame_of_another_size(features):
+    """Issue 18: ECC used to fail ('setTo' mask size) whenever the frame's size differed from the
+    reference's; it now runs in the frame's grid and is kept only when it lowers the residual."""
+    rng = np.random.default_rng(3)
+    E = hdr_scene(H_, W_, seed=0)
+    H = np.diag([0.85, 0.85, 1.0]) @ random_homography(H_, W_, rng, rot_deg=5.0)
+    H = H / H[2, 2]
+    fw, fh = 480, 400  # the reference is 640x480
+    frame = _gamma_frame(E, H, (fw, fh), 0.3, rng)
+    r = register(E, frame, RegistrationParams(features=features, ecc=True))
+    assert r.info["ecc"]["status"] in ("kept", "rejected"), r.info["ecc"]
+    assert r.info["ecc_converged"]
+    err_kp = corner_error(np.asarray(r.info["homography_keypoints"]), H, (H_, W_))
+    err = corner_error(r.homography, H, (H_, W_))
+    if r.info["ecc"]["status"] == "kept":
+        assert r.info["ecc"]["residual_after"] < r.info["ecc"]["residual_before"]
+        assert not r.info["warnings"]
+    assert err <= 0.15 and err <= err_kp + 0.05, (err_kp, err)
+
+
+def test_ecc_failure_is_a_warning(monkeypatch):
+    import cv2
+    rng = np.random.default_rng(5)
+    E = hdr_scene(H_, W_, seed=0)
+    H = random_homography(H_, W_, rng)
+    frame = render_frame(E, H, 0.3, rng)
+
+    def boom(*a, **k):
+        raise cv2.error("synthetic failure")
+    monkeypatch.setattr(cv2, "findTransformECC", boom)
+    r = register(E, frame, RegistrationParams(features="sift", ecc=True))
+    assert r.info["ecc"]["status"] == "failed" and not r.info["ecc_converged"]
+    assert any("ECC refinement failed" in w for w in r.info["warnings"])
+    np.testing.assert_allclose(r.homography, r.info["homography_keypoints"])
+    assert r.to_dict()["warnings"] == r.info["warnings"]
+
+
+def test_degenerate_homography_is_a_registration_error():
+    from hybridhdr.calibrate.hdr_reference import RegistrationError, _check_homography
+    with pytest.raises(RegistrationError, match="singular"):
+        _check_homography(np.array([[1.0, 2, 0], [2, 4, 0], [0, 0, 1]]))
+    with pytest.raises(RegistrationError, match="degenerate"):
+        _check_homography(np.full((3, 3), np.nan))
+    assert issubclass(RegistrationError, ValueError)
+
+
+def test_align_brackets_recovers_hand_held_motion():
+    import cv2
+
+    from hybridhdr.calibrate.hdr_reference import align_brackets
+    rng = np.random.default_rng(7)
+    E = hdr_scene(H_, W_, seed=1)
+    ex = [0.05, 0.2, 0.8]
+    moves = [np.array([[1, 0, 3.4], [0, 1, -2.2], [0, 0, 1.0]]), np.eye(3),
+             random_homography(H_, W_, rng, shift_px=12.0, rot_deg=2.0)]  # the middle one is the anchor
+    bs = BracketSet([render_frame(E, M, t, rng) for M, t in zip(moves, ex)], np.array(ex), "gamma")
+    info = {}
+    al = align_brackets(bs, info=info)
+    assert info["anchor"] == 1 and info["n_moved"] == 2
+    for d in info["pairs"]:
+        # image -> anchor homography should be the inverse of the image's motion
+        k = d["image"]
+        assert corner_error(np.asarray(d["homography_to_anchor"]), np.linalg.inv(moves[k]), (H_, W_)) < 0.3, d
+    assert al.images[1] is bs.images[1] or np.array_equal(al.images[1], bs.images[1])
+    # tripod brackets: nothing moves
+    still = BracketSet([render_frame(E, np.eye(3), t, rng) for t in ex], np.array(ex), "gamma")
+    info2 = {}
+    out = align_brackets(still, info=info2)
+    assert info2["n_moved"] == 0
+    for a, b in zip(out.images, still.images):
+        np.testing.assert_array_equal(a, b)
+    del cv2
+
+
+def test_cli_unrelated_recording_clean_error_no_output(tmp_path, capsys):
+    """Issue 18: '--register' on an unrelated recording ended with 'error: Singular matrix' and
+    still left the EXR; now one clear error line, exit status 1 and no output files."""
+    from hybridhdr.capture.brackets import write_bracket_set
+    from hybridhdr.cli import main
+    from hybridhdr.container import write_recording
+    from hybridhdr.events import SensorSize, make_events
+    from hybridhdr.model import Frames, Recording
+    rng = np.random.default_rng(4)
+    h, w = 240, 320
+    E = hdr_scene(h, w, seed=2)
+    ex = [0.05, 0.2, 0.8]
+    brackets = write_bracket_set(tmp_path / "br", [render_frame(E, np.eye(3), t, rng) for t in ex], ex,
+                                 encoding="gamma", camera={"name": "synthetic"})
+    other = hdr_scene(h, w, seed=99)  # an unrelated scene
+    frames = Frames(np.stack([render_frame(other, np.eye(3), 0.4, rng)]), [0], [10_000], encoding="gamma")
+    rec = write_recording(Recording(make_events([1, 2], [0, 1], [0, 1], [1, -1]), SensorSize(h, w), frames),
+                          tmp_path / "rec.h5")
+    rc = main(["calibrate", "hdr-reference", str(brackets), "--out", str(tmp_path / "ref2.exr"),
+               "--register", str(rec), "--out-recording", str(tmp_path / "rec2.h5"), "--features", "sift",
+               "--no-progress"])
+    err = capsys.readouterr().err
+    assert rc == 1
+    assert "registration failed" in err and "frame 0" in err and "Singular" not in err
+    left = sorted(p.name for p in tmp_path.iterdir())
+    assert left == ["br", "rec.h5"], left
