@@ -29,13 +29,14 @@ Gaussian noise. Assumptions and their limits (docs/reconstruct.md, "Two-sided of
 
 Both passes run the row-band parallel kernels, so the result is bit-identical for any
 ``n_workers``. The backward pass runs first and keeps its estimates (float32 L̂ and P, 8 bytes
-per pixel per output, in a temporary memory-mapped file beyond ``MEMORY_LIMIT_BYTES``); the
-forward pass then streams, fusing as it goes.
+per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary file through
+pwrite/pread, so memory stays bounded); the forward pass then streams, fusing as it goes.
 """
 
 from __future__ import annotations
 
 import math
+import os
 import tempfile
 from typing import Callable, Iterator
 
@@ -48,8 +49,46 @@ from .edi import EventArrays
 
 __all__ = ["reverse_events", "reverse_frames", "fuse", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
 
-#: Backward estimates beyond this size go to a temporary memory-mapped file.
-MEMORY_LIMIT_BYTES = 1 << 30
+#: Backward estimates beyond this size go to an unlinked temporary file, written and read with
+#: pwrite/pread (the page cache, not the process, holds them: memory stays bounded).
+MEMORY_LIMIT_BYTES = 256 << 20
+
+
+class _Store:
+    """Per-output float32 (L̂, P) records of the backward pass: in memory, or in a temporary file."""
+
+    def __init__(self, n_out: int, n_pix: int):
+        self.n_pix = n_pix
+        self.rec = 8 * n_pix
+        self.file = None
+        if self.rec * n_out > MEMORY_LIMIT_BYTES:
+            self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-")
+            self.mem = None
+        else:
+            self.mem = np.empty((n_out, 2, n_pix), np.float32)
+
+    def put(self, i: int, lg: np.ndarray, var: np.ndarray) -> None:
+        if self.file is None:
+            self.mem[i, 0] = lg
+            self.mem[i, 1] = var
+            return
+        buf = np.concatenate([np.asarray(lg, np.float32), np.asarray(var, np.float32)])
+        n = os.pwrite(self.file.fileno(), buf.tobytes(), i * self.rec)
+        if n != self.rec:
+            raise OSError(f"short write of the backward pass's estimates ({n} of {self.rec} bytes)")
+
+    def get(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        if self.file is None:
+            return self.mem[i, 0], self.mem[i, 1]
+        b = os.pread(self.file.fileno(), self.rec, i * self.rec)
+        if len(b) != self.rec:
+            raise OSError(f"short read of the backward pass's estimates ({len(b)} of {self.rec} bytes)")
+        a = np.frombuffer(b, np.float32)
+        return a[:self.n_pix], a[self.n_pix:]
+
+    def close(self) -> None:
+        if self.file is not None:
+            self.file.close()
 
 
 def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
@@ -168,21 +207,15 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     rev_fr = reverse_frames(frames, mirror)
     times = np.asarray(times, dtype=np.int64)
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
-    nbytes = 8 * n_pix * times.size
-    if nbytes > MEMORY_LIMIT_BYTES:
-        tmp = tempfile.TemporaryFile(prefix="hybridhdr-backward-")
-        store = np.memmap(tmp, dtype=np.float32, mode="w+", shape=(times.size, 2, n_pix))
-    else:
-        tmp = None
-        store = np.empty((times.size, 2, n_pix), np.float32)
+    store = _Store(times.size, n_pix)
+    spilled = store.file is not None
     have_b = np.zeros(times.size, bool)
     index = {int(t): i for i, t in enumerate(times)}
     n_b = 0
     for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
                                  progress):
         i = index[int(mirror - tr)]
-        store[i, 0] = lg
-        store[i, 1] = var
+        store.put(i, lg, var)
         have_b[i] = True
         n_b += 1
     n_fused = n_single = n_clamped = n_out = 0
@@ -198,10 +231,11 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
                 lf = pf = None
             img = np.empty(n_pix, np.float32)
             if lf is not None and have_b[i]:
-                n_clamped += K.fuse_to_linear(lf, pf, store[i, 0], store[i, 1], float(offset), K.MIN_INTENSITY, img)
+                lb, pb = store.get(i)
+                n_clamped += K.fuse_to_linear(lf, pf, lb, pb, float(offset), K.MIN_INTENSITY, img)
                 n_fused += 1
             elif lf is not None or have_b[i]:  # one pass only: fusing it with itself is the identity
-                l1, p1 = (lf, pf) if lf is not None else (store[i, 0], store[i, 1])
+                l1, p1 = (lf, pf) if lf is not None else store.get(i)
                 n_clamped += K.fuse_to_linear(l1, p1, l1, p1, float(offset), K.MIN_INTENSITY, img)
                 n_single += 1
             else:  # neither pass covers t (no frame at all around it): cannot happen with frames
@@ -210,11 +244,9 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
             img = img.reshape(shape)
             yield t, img
     finally:
-        if tmp is not None:
-            del store
-            tmp.close()
+        store.close()
     if info is not None:
         info["two_sided"] = {"outputs_fused": n_fused, "outputs_one_pass": n_single,
-                             "backward_outputs": n_b, "spilled_to_disk": tmp is not None}
+                             "backward_outputs": n_b, "spilled_to_disk": spilled}
         info["n_clamped"] = n_clamped
         info["n_output_pixels"] = n_out

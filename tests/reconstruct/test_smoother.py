@@ -169,3 +169,13 @@ def test_per_pixel_thresholds_track_an_asymmetric_sensor():
     assert v.frames[0, 0, 0] == pytest.approx(start, rel=0.02)
     v0 = reconstruct(r, "akf", times_us=[20_001], mode="causal")
     assert abs(v0.frames[0, 0, 0] / start - 1) > 0.3
+
+
+def test_backward_estimates_spilled_to_a_file_give_the_same_frames(monkeypatch):
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(4)
+    a = reconstruct(rec, "akf", fps=500.0)
+    monkeypatch.setattr(sm, "MEMORY_LIMIT_BYTES", 1)
+    b = reconstruct(rec, "akf", fps=500.0)
+    assert b.info["two_sided"]["spilled_to_disk"] and not a.info["two_sided"]["spilled_to_disk"]
+    np.testing.assert_array_equal(a.frames, b.frames)
