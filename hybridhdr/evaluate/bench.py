@@ -455,7 +455,7 @@ def _columns(rows):
             "n_nonfinite", "gain", "offset", "exponent", "reference_max", "peak_luminance_cd_m2", "dataset_seconds",
             "n_events", *TIMING_COLUMNS, "dataset_load_s", "dataset_time_per_data_s"]
     extra = sorted({k for r in rows for k in r} - set(first + ds + mid + mg + rest) - {"_strip"})
-    return first + ds + mid + mg + rest + extra
+    return list(dict.fromkeys(first + ds + mid + mg + rest + extra))  # unique, first place kept
 
 
 def _fmt(v):

@@ -56,6 +56,18 @@ def _ok(r) -> bool:
     return str(r.get("status", "")) == "ok"
 
 
+def outside_legend(ax, **kw):
+    """Legend below the axes, outside the plotting area, so it never covers data or failure
+    markers (``loc="best"`` did); callers' ``tight_layout`` / ``bbox_inches="tight"`` make room."""
+    handles, labels = ax.get_legend_handles_labels()
+    if not handles:
+        return None
+    opts = dict(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=min(3, len(handles)),
+                frameon=False)
+    opts.update(kw)
+    return ax.legend(handles, labels, **opts)
+
+
 def speed_accuracy_points(rows, metric: str, datasets=None, *, group_by: str = "method_label",
                           time_column: str = "time_per_data_s") -> list[dict]:
     """Mean (time per second of data, metric) per group over ok runs of ``datasets``.
@@ -131,7 +143,7 @@ def plot_speed_accuracy(rows, metric: str = "ssim", datasets=None, ax=None, titl
     if not finite:
         ax.text(0.5, 0.5, f"no {metric} values (n/a)", transform=ax.transAxes, ha="center", va="center")
     else:
-        ax.legend(fontsize=7, loc="best")
+        outside_legend(ax)
     return fig, ax
 
 
@@ -256,7 +268,7 @@ def plot_stability(rows, *, dataset: str, axis: str, metric: str = "ssim", bound
     ax.set_ylabel(_LABELS.get(metric, metric) + (" ↓" if lower else " ↑"))
     ax.set_title(title or f"stability: {axis}", fontsize=9)
     ax.grid(True, alpha=0.3)
-    ax.legend(fontsize=7, loc="best")
+    outside_legend(ax)
     return fig, ax
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import html
+import re
 import math
 import os
 import time
@@ -113,6 +114,19 @@ def format_table(header, body) -> str:
     return "\n".join(lines)
 
 
+def _md_inline_html(text: str) -> str:
+    """One Markdown paragraph as HTML: escaped, with `code` and **bold** rendered (no literal marks)."""
+    t = html.escape(str(text))
+    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
+    return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
+
+
+def safe_file_stem(name: str) -> str:
+    """``name`` usable as a file name on every OS: characters other than letters, digits, '.', '-'
+    and '_' (e.g. the ':' of ``HDR:dark_room_window``) become '_'."""
+    return re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).strip("._") or "unnamed"
+
+
 def _html_table(header, body) -> str:
     h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
     b = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in body)
@@ -173,8 +187,8 @@ def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
     if sa is not False:
         sa = sa if isinstance(sa, dict) else {}
         metrics = [m for m in sa.get("metrics", ["mse", "ssim", "q"])]
-        if "q" in metrics and not any(math.isfinite(_f(r.get("q"))) for r in rows):
-            metrics = [m for m in metrics if m != "q"] + ["q"]  # kept: the panel says n/a
+        # a panel with no data is not drawn (e.g. HDR-VDP Q without an HDR-VDP installation)
+        metrics = [m for m in metrics if any(math.isfinite(_f(r.get(m))) for r in rows)] or metrics[:1]
         fig, axes = plt.subplots(1, len(metrics), figsize=(5.6 * len(metrics), 4.4), squeeze=False)
         for ax, m in zip(axes[0], metrics):
             plot_speed_accuracy(rows, m, sa.get("datasets"), ax=ax)
@@ -232,7 +246,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
             if len(strip_paths) >= cap:
                 break
             gv = ", ".join(f"{k[3:]}={r[k]}" for k in r if k.startswith("ds."))
-            p = write_strip(r["_strip"], out / "strips" / f"strip_{r['task']:03d}_{ds}.png",
+            p = write_strip(r["_strip"], out / "strips" / f"strip_{r['task']:03d}_{safe_file_stem(ds)}.png",
                             title=f"{ds}" + (f" ({gv})" if gv else ""))
             strip_paths.append(p)
     chart_paths, fails = ({}, [])
@@ -286,10 +300,10 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     os.replace(tmp, pmd)
     written["report_md"] = pmd
     # HTML
-    parts = [f"<h1>Benchmark report: {html.escape(name)}</h1>", f"<p>{html.escape(md[2])}</p>",
-             f"<p>{html.escape(md[4])}</p>", "<h2>Results</h2>", _html_table(header, body)]
+    parts = [f"<h1>Benchmark report: {html.escape(name)}</h1>", f"<p>{_md_inline_html(md[2])}</p>",
+             f"<p>{_md_inline_html(md[4])}</p>", "<h2>Results</h2>", _html_table(header, body)]
     if cmp_ is not None:
-        parts += ["<h2>AKF vs CF</h2>", f"<p>{html.escape(md[md.index('## AKF vs CF') + 2])}</p>"]
+        parts += ["<h2>AKF vs CF</h2>", f"<p>{_md_inline_html(md[md.index('## AKF vs CF') + 2])}</p>"]
     parts += ["<h2>Numerical failures</h2>",
               _html_table(["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"], nf_body)]
     if fails:

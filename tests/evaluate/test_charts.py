@@ -71,3 +71,77 @@ def test_plots_return_fig_ax(tmp_path):
     import matplotlib.pyplot as plt
     plt.close(fig)
     plt.close(fig2)
+
+
+def _chart_rows():
+    rows = []
+    for label, method, t, base in (("akf", "akf", 1.0, 0.9), ("cf", "cf", 0.3, 0.8), ("edi", "edi", 2.0, 0.7)):
+        for x in (0, 1, 2, 3):
+            ssim = base - 0.2 * x
+            rows.append(_row(label, method, t * (1 + 0.1 * x), 0.01 * (1 + x), ssim, ds="HDR:dark_room_window",
+                             nonfinite=0, q=math.nan, **{"ds.noise": x}))
+    return rows
+
+
+def _assert_no_legend_overlap_and_no_empty_panel(fig):
+    """Every visible axes has data; no legend box intersects any axes' plotting area."""
+    fig.canvas.draw()
+    r = fig.canvas.get_renderer()
+    axes = [a for a in fig.axes if a.get_visible() and a.axison]
+    for a in axes:
+        assert a.lines or a.collections, f"empty panel: {a.get_title()!r}"
+    for a in fig.axes:
+        leg = a.get_legend()
+        if leg is None:
+            continue
+        lb = leg.get_window_extent(r)
+        for b in axes:
+            assert not lb.overlaps(b.get_window_extent(r)), (a.get_title(), b.get_title())
+        fb = fig.bbox
+        assert lb.x0 >= fb.x0 - 1 and lb.x1 <= fb.x1 + 1, "legend runs off the figure"
+
+
+def test_charts_render_without_legend_overlap_or_empty_panel(tmp_path):
+    from hybridhdr.evaluate.report import write_charts
+    rows = _chart_rows()
+    cfg = {"speed_accuracy": {"metrics": ["mse", "ssim", "q"]},
+           "stability": [{"dataset": "HDR:dark_room_window", "axis": "noise", "metric": "ssim", "bound": 0.4},
+                         {"dataset": "HDR:dark_room_window", "axis": "noise", "metric": "mse"}]}
+    plt = C._plt()
+    figs = []
+    orig_close = plt.close
+    plt.close = lambda fig=None: figs.append(fig)  # keep the figures to inspect them
+    try:
+        paths, _ = write_charts(rows, tmp_path, cfg)
+    finally:
+        plt.close = orig_close
+    assert set(paths) == {"speed_accuracy", "stability"}
+    sa = [f for f in figs if f is not None][0]
+    assert len(sa.axes) == 2  # the HDR-VDP Q panel has no data: not drawn
+    for fig in figs:
+        if fig is not None:
+            _assert_no_legend_overlap_and_no_empty_panel(fig)
+            orig_close(fig)
+
+
+def test_results_csv_unique_columns_and_safe_strip_names(tmp_path):
+    import csv
+
+    import numpy as np
+
+    from hybridhdr.evaluate import bench as B
+    from hybridhdr.evaluate.report import _md_inline_html, safe_file_stem
+    rows = _chart_rows()[:2]
+    for i, r in enumerate(rows):
+        r.update(task=i, run=0, dataset_load_s=0.1, dataset_time_per_data_s=0.2)
+    rows[0]["_strip"] = {"LDR": np.zeros((8, 8)), "akf": np.ones((8, 8)), "reference": np.ones((8, 8))}
+    w = B.write_results(rows, tmp_path, None, charts=False)
+    with open(w["csv"], newline="", encoding="utf-8") as f:
+        header = next(csv.reader(f))
+    assert len(header) == len(set(header)), [c for c in header if header.count(c) > 1]
+    assert header.count("dataset_load_s") == 1
+    assert [p.name for p in w["strips"]] == ["strip_000_HDR_dark_room_window.png"]
+    assert safe_file_stem("a:b/c d") == "a_b_c_d"
+    html_text = (tmp_path / "report.html").read_text()
+    assert "`" not in html_text
+    assert _md_inline_html("use `x < y` and **b**") == "use <code>x &lt; y</code> and <b>b</b>"
