@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi"]
+_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi",
+                   "e2vid", "firenet"]
 
 
 def add_parser(subparsers) -> None:
@@ -46,6 +47,16 @@ def add_parser(subparsers) -> None:
                    help="interpolate with the nominal threshold (no per-pixel eq. 12)")
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
+    p.add_argument("--thresholds", type=Path, default=None,
+                   help="per-pixel ON/OFF contrast thresholds (thresholds.npz from 'hybridhdr calibrate thresholds'); "
+                        "default: the map stored in the recording, if any")
+    p.add_argument("--cfa", choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"), default=None,
+                   help="colour filter array of the event and frame sensors (default: as the recording declares; "
+                        "'none' forces monochrome); colour output is linear RGB")
+    p.add_argument("--demosaic", choices=("log_bilinear", "bilinear", "edge_aware"), default="log_bilinear",
+                   help="demosaicking of colour outputs")
+    p.add_argument("--weights", type=Path, default=None,
+                   help="network checkpoint for --method e2vid / firenet (.pth / .pth.tar; never downloaded)")
     p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
                    help="declare the frames' encoding (default: as the recording states)")
     p.add_argument("--start-us", type=int, default=None, help="first output time (µs)")
@@ -122,6 +133,10 @@ def build_params(args):
         if k not in names:
             raise ValueError(f"--set: unknown parameter {k!r} for {cls.__name__}; expected one of {sorted(names)}")
         d[k] = _parse_value(v)
+    if getattr(args, "weights", None) is not None:
+        if "weights" not in d:
+            raise ValueError(f"--weights applies to --method e2vid / firenet only, got --method {args.method}")
+        d["weights"] = str(args.weights)
     return make_params(method, cls.from_dict(d))
 
 
@@ -209,7 +224,8 @@ def run(args) -> int:
                                                mode=args.mode, profile=args.profile, t_start_us=args.start_us,
                                                t_end_us=args.end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
-                                               augment=augment):
+                                               augment=augment, thresholds=args.thresholds, cfa=args.cfa,
+                                               demosaic=args.demosaic):
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
