@@ -61,6 +61,33 @@ class ProceduralScene:
         return bg + disc
 
 
+def _level_crossings(L_ref, L_prev, L_new, c, t_prev, t_new, pix_x, pix_y, tol):
+    """Ideal events of one sampling step: every crossing of a reference level ``L_ref ± k c`` by
+    the log intensity moving linearly from ``L_prev`` (at ``t_prev``) to ``L_new`` (at ``t_new``),
+    timestamped by linear interpolation (at most ``t_new - 1``). Returns the unsorted batch (or
+    None) and the new reference levels."""
+    d = (L_new - L_ref).ravel()
+    n = np.floor(np.abs(d) / c + tol).astype(np.int64)
+    idx = np.flatnonzero(n)
+    if not idx.size:
+        return None, L_ref
+    sign = np.sign(d[idx])
+    reps = n[idx]
+    pix = np.repeat(idx, reps)
+    k = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps) + 1
+    sgn = np.repeat(sign, reps)
+    lvl = L_ref.ravel()[pix] + sgn * k * c
+    lp, ln = L_prev.ravel()[pix], L_new.ravel()[pix]
+    frac = np.clip((lvl - lp) / np.where(ln != lp, ln - lp, 1.0), 0.0, 1.0)
+    te = t_prev + np.floor(frac * (t_new - t_prev)).astype(np.int64)
+    te = np.minimum(te, t_new - 1)
+    b = np.empty(pix.size, dtype=EVENT_DTYPE)
+    b["t"], b["x"], b["y"], b["p"] = te, pix_x[pix], pix_y[pix], sgn
+    Lr = L_ref.ravel().copy()
+    Lr[idx] += sign * reps * c
+    return b, Lr.reshape(L_ref.shape)
+
+
 def procedural_recording(sensor_size=SensorSize(90, 120), duration_us: int = 500_000, *,
                          contrast_threshold: float = 0.2, frame_rate_hz: float = 20.0,
                          exposure_us: int = 5_000, step_us: int = 250, t0_us: int = 0,
@@ -112,26 +139,9 @@ def procedural_recording(sensor_size=SensorSize(90, 120), duration_us: int = 500
     t_prev = t0_us
     for t_new in range(t0_us + step_us, t0_us + duration_us + 1, step_us):
         L_new = np.log(scene.intensity(t_new))
-        d = (L_new - L_ref).ravel()
-        n = np.floor(np.abs(d) / c).astype(np.int64)
-        idx = np.flatnonzero(n)
-        if idx.size:
-            sign = np.sign(d[idx])
-            reps = n[idx]
-            pix = np.repeat(idx, reps)
-            k = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps) + 1
-            sgn = np.repeat(sign, reps)
-            lvl = L_ref.ravel()[pix] + sgn * k * c
-            lp, ln = L_prev.ravel()[pix], L_new.ravel()[pix]
-            frac = np.clip((lvl - lp) / np.where(ln != lp, ln - lp, 1.0), 0.0, 1.0)
-            te = t_prev + np.floor(frac * (t_new - t_prev)).astype(np.int64)
-            te = np.minimum(te, t_new - 1)
-            b = np.empty(pix.size, dtype=EVENT_DTYPE)
-            b["t"], b["x"], b["y"], b["p"] = te, pix_x[pix], pix_y[pix], sgn
-            batches.append(b[np.argsort(te, kind="stable")])
-            Lr = L_ref.ravel()
-            Lr[idx] += sign * reps * c
-            L_ref = Lr.reshape(h, w)
+        b, L_ref = _level_crossings(L_ref, L_prev, L_new, c, t_prev, t_new, pix_x, pix_y, 0.0)
+        if b is not None:
+            batches.append(b[np.argsort(b["t"], kind="stable")])
         L_prev, t_prev = L_new, t_new
     events = np.concatenate(batches) if batches else empty_events()
 
@@ -270,27 +280,10 @@ def ideal_events(log_intensity, times_us, contrast_threshold: float) -> np.ndarr
     for t_new in times_us[1:]:
         t_new = int(t_new)
         L_new = log_intensity(t_new)
-        d = (L_new - L_ref).ravel()
         # tolerance: a level reached to rounding error counts as crossed
-        n = np.floor(np.abs(d) / c + 1e-9).astype(np.int64)
-        idx = np.flatnonzero(n)
-        if idx.size:
-            sign = np.sign(d[idx])
-            reps = n[idx]
-            pix = np.repeat(idx, reps)
-            k = np.arange(reps.sum()) - np.repeat(np.cumsum(reps) - reps, reps) + 1
-            sgn = np.repeat(sign, reps)
-            lvl = L_ref.ravel()[pix] + sgn * k * c
-            lp, ln = L_prev.ravel()[pix], L_new.ravel()[pix]
-            frac = np.clip((lvl - lp) / np.where(ln != lp, ln - lp, 1.0), 0.0, 1.0)
-            te = t_prev + np.floor(frac * (t_new - t_prev)).astype(np.int64)
-            te = np.minimum(te, t_new - 1)
-            b = np.empty(pix.size, dtype=EVENT_DTYPE)
-            b["t"], b["x"], b["y"], b["p"] = te, pix_x[pix], pix_y[pix], sgn
-            batches.append(b[np.lexsort((b["x"], b["y"], te))])
-            Lr = L_ref.ravel()
-            Lr[idx] += sign * reps * c
-            L_ref = Lr.reshape(h, w)
+        b, L_ref = _level_crossings(L_ref, L_prev, L_new, c, t_prev, t_new, pix_x, pix_y, 1e-9)
+        if b is not None:
+            batches.append(b[np.lexsort((b["x"], b["y"], b["t"]))])
         L_prev, t_prev = L_new, t_new
     return np.concatenate(batches) if batches else empty_events()
 

@@ -178,13 +178,8 @@ def _declared_event_count(source) -> int | None:
 def _source_profile(source):
     """The camera profile a source declares (``metadata.provenance["camera_profile"]``, e.g. an
     AKF ``.mat`` file's ``f_Q`` table), or None."""
-    md = getattr(source, "metadata", None)
-    if callable(md):
-        try:
-            md = md()
-        except Exception:  # noqa: BLE001 - a reader without readable metadata declares nothing
-            return None
-    prov = getattr(md, "provenance", None)
+    from .colour import _metadata
+    prov = getattr(_metadata(source), "provenance", None)
     d = prov.get("camera_profile") if isinstance(prov, dict) else None
     if not isinstance(d, dict):
         return None
