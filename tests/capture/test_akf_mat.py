@@ -257,3 +257,43 @@ def test_read_mat5_matches_scipy(tmp_path, compressed):
         np.testing.assert_array_equal(got[k], ref[k])
     assert got["txt"].dtype == object and got["cell"].dtype == object
     assert set(M.read_mat5(p, ["a", "zz"])) == {"a"}
+
+
+def write_authors_hdr_mat(path, ev, frames, hdr_rgb, *, matlab_header=True):
+    """A file with the layout of the authors' HDR/AHDR sequences (MATLAB v7.3: axes reversed in
+    HDF5): events N x 4 (1-based x, y), image H x W x K uint8, time_image, exposure, f_Q and
+    HDR_mat H x W x 3 x K (double, 0 = unregistered)."""
+    kw = {"userblock_size": 512} if matlab_header else {}
+    with h5py.File(path, "w", **kw) as f:
+        f["events"] = np.stack([ev["t"].astype(float), ev["x"] + 1.0, ev["y"] + 1.0, (ev["p"] > 0) * 1.0])
+        f["image"] = np.transpose(frames.images, (0, 2, 1))                   # MATLAB H x W x K
+        f["time_image"] = ((frames.t_start_us + frames.t_end_us) / 2.0)[:, None]
+        f["exposure"] = (frames.t_end_us - frames.t_start_us).astype(float)[:, None]
+        f["f_Q"] = np.full((1, 256), 7e5)
+        f["HDR_mat"] = np.transpose(hdr_rgb, (0, 3, 2, 1))                  # MATLAB H x W x 3 x K
+        for k in f:
+            f[k].attrs["MATLAB_class"] = np.bytes_(b"uint8" if k == "image" else b"double")
+    if matlab_header:
+        with open(path, "r+b") as fh:
+            fh.write(M.matlab_v73_header())
+    return path
+
+
+@pytest.mark.parametrize("matlab_header", [True, False])
+def test_authors_hdr_layout_reads_as_recording_with_references(tmp_path, matlab_header):
+    ev = _events(50)
+    fr = _frames(3)
+    hdr = np.random.default_rng(3).random((3, SS.height, SS.width, 3)) * 400.0
+    hdr[:, :2] = 0.0                                            # unregistered rows
+    p = write_authors_hdr_mat(tmp_path / "seq.mat", ev, fr, hdr, matlab_header=matlab_header)
+    from hybridhdr.io import detect_format
+    assert detect_format(p) == "akf_mat"
+    rec = hh.read(p)
+    assert rec.hdr is not None and rec.hdr.images.shape == (3, SS.height, SS.width, 3)
+    np.testing.assert_allclose(rec.hdr.images, hdr.astype(np.float32))
+    assert (rec.hdr.images[:, :2] == 0).all()                   # kept as stored: 0 = unregistered
+    np.testing.assert_array_equal(rec.hdr.t_us, np.rint((fr.t_start_us + fr.t_end_us) / 2).astype(np.int64))
+    np.testing.assert_array_equal(rec.frames.images, fr.images)
+    assert len(rec.events) == 50
+    part = hh.read(p, t_start_us=int(rec.hdr.t_us[1]))
+    assert len(part.hdr) == 2 and part.hdr.t_us[0] == rec.hdr.t_us[1]

@@ -25,7 +25,14 @@ Conversions:
   The writer stores ``time_image = t_start_us + (t_end_us - t_start_us) / 2`` (a multiple of
   0.5 µs, exact in a double), so integer exposure intervals round-trip exactly.
 * ``ct`` and ``f_Q`` go to ``metadata.provenance["akf_mat"]``; ``HDR_mat`` is read by
-  :meth:`AkfMatReader.read_hdr`.
+  :meth:`AkfMatReader.read_hdr` and becomes the recording's HDR references in ``read()``, as
+  stored (the authors' HDR and AHDR sequences: registered RGB in the frames' code units, so
+  ``HDR_mat / 255`` is in frame-linear units; **0 marks unregistered pixels**, which their
+  evaluation masks out: ``hybridhdr evaluate metrics --protocol akf2021``).
+
+Detection: the MATLAB text header at byte 0 (v7.3 and v5), or, for a v7.3-style HDF5 file
+written without MATLAB's header, HDF5 holding ``events`` together with ``time_image`` and
+``image`` or ``HDR_mat`` (the keys of the authors' files).
 
 Frame encoding and ``f_Q``: the files state no transfer function for ``image``, and the authors'
 code (``akf_reconstruction.m``; ``../shared/reference/akf.md`` §2) reads the codes as linear
@@ -52,7 +59,7 @@ from ..._limits import LimitExceeded, check_finite, check_frame_bytes, check_sen
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, SensorSize
 from ...io import EventChunk, EventFileReader, EventFileWriter
-from ...model import CameraInfo, Frames, HDRReferences, Metadata
+from ...model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
 __all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5",
            "profile_from_f_q", "f_q_from_profile"]
@@ -66,9 +73,30 @@ _MATLAB_CLASS = {np.dtype(np.float64): b"double", np.dtype(np.float32): b"single
 _MAX_SAFE = float(1 << 53)
 
 
+_HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
+#: Keys of the authors' datasets that identify an AKF file stored as plain HDF5 (no MATLAB header).
+AKF_KEYS = ("events", "time_image")
+AKF_IMAGE_KEYS = ("image", "HDR_mat")
+
+
+def _has_akf_keys(path) -> bool:
+    try:
+        import h5py
+        with h5py.File(path, "r") as f:
+            keys = set(f.keys())
+    except Exception:  # sniffing must never raise
+        return False
+    return all(k in keys for k in AKF_KEYS) and any(k in keys for k in AKF_IMAGE_KEYS)
+
+
 def sniff(path: Path, head: bytes) -> str | None:
-    """``"akf_mat"`` for MATLAB v7.3 or v5 MAT files (text header at byte 0), else None."""
-    return "akf_mat" if head[:116].startswith((_V73, _V5)) else None
+    """``"akf_mat"`` for MATLAB v7.3 or v5 MAT files (text header at byte 0), or an HDF5 file
+    with the AKF keys (``events``, ``time_image`` and ``image`` or ``HDR_mat``), else None."""
+    if head[:116].startswith((_V73, _V5)):
+        return "akf_mat"
+    if head.startswith(_HDF5_MAGIC) and _has_akf_keys(path):
+        return "akf_mat"
+    return None
 
 
 def matlab_v73_header(created: str | None = None) -> bytes:
@@ -321,7 +349,7 @@ class AkfMatReader(EventFileReader):
         super().__init__(path, **options)
         with open(self.path, "rb") as f:
             head = f.read(128)
-        if head.startswith(_V73):
+        if head.startswith(_V73) or (head.startswith(_HDF5_MAGIC) and _has_akf_keys(self.path)):
             self.version = "7.3"
         elif head.startswith(_V5):
             self.version = "5"
@@ -693,6 +721,24 @@ class AkfMatReader(EventFileReader):
             raise FormatError(self.path, f"HDR_mat has {imgs.shape[0]} images but time_image has {ti.size} "
                                          f"finite µs values below 2^53")
         return HDRReferences(imgs.astype(np.float32), np.rint(ti).astype(np.int64))
+
+    def read(self, t_start_us=None, t_end_us=None):
+        """The recording, with ``HDR_mat`` (when present) as its HDR references, as stored."""
+        rec = super().read(t_start_us, t_end_us)
+        hdr = self.read_hdr()
+        if hdr is not None and (t_start_us is not None or t_end_us is not None):
+            t = hdr.t_us
+            keep = np.ones(t.size, bool)
+            if t_start_us is not None:
+                keep &= t >= t_start_us
+            if t_end_us is not None:
+                keep &= t < t_end_us
+            hdr = HDRReferences(hdr.images[keep], t[keep])
+        if hdr is None:
+            return rec
+        order = np.argsort(hdr.t_us, kind="stable")
+        hdr = HDRReferences(hdr.images[order], hdr.t_us[order])
+        return Recording(rec.events, rec.sensor_size, rec.frames, rec.triggers, hdr, rec.metadata)
 
     def _count_time_image(self) -> int:
         ti = self._read_var("time_image")
