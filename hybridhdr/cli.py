@@ -22,7 +22,8 @@ _PLANNED = {"capture": 8, "calibrate": 6, "simulate": 5, "reconstruct": 3, "eval
 
 
 def _fmt():
-    return argparse.ArgumentDefaultsHelpFormatter
+    from ._cliargs import HelpFormatter
+    return HelpFormatter
 
 
 def _unavailable(part):
@@ -35,7 +36,7 @@ def _unavailable(part):
 
 def build_parser() -> argparse.ArgumentParser:
     from . import __version__
-    p = argparse.ArgumentParser(prog="hybridhdr", formatter_class=_fmt(),
+    p = argparse.ArgumentParser(prog="hybridhdr", formatter_class=_fmt(), allow_abbrev=False,
                                 description="HDR video from hybrid event/frame cameras "
                                             "(Wang et al., ICCV 2021, Asynchronous Kalman Filter).")
     p.add_argument("--version", action="version", version=f"hybridhdr {__version__}")
@@ -52,24 +53,58 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_parser(sub)
     from . import _cli_tools
     _cli_tools.add_parsers(sub)
-    return p
+    try:
+        from . import view
+    except ImportError:  # pragma: no cover - a partial install
+        view = None
+    if view is not None:
+        view.add_parser(sub)
+    from ._cliargs import finalise
+    return finalise(p)
+
+
+class _NullWriter:
+    """stderr under --quiet: everything but main's own error line is dropped."""
+
+    def write(self, s):
+        return len(s)
+
+    def flush(self):
+        pass
+
+    def isatty(self):
+        return False
 
 
 def main(argv=None) -> int:
+    import contextlib
+    import logging
+
+    from ._cliargs import cli_wording
     parser = build_parser()
-    args = parser.parse_args(argv)
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        getattr(args, "_parser", parser).error(f"unrecognized arguments: {' '.join(extra)}")
     if not getattr(args, "func", None):
         parser.print_help()
         return 0
+    prog = getattr(args, "_prog", f"hybridhdr {args.command}")
+    quiet = getattr(args, "quiet", False)
+    if quiet:
+        args.no_progress = True
+    verbose = getattr(args, "verbose", 0)
+    logging.basicConfig(level=logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)],
+                        format="%(name)s: %(message)s")
     try:
-        return int(args.func(args) or 0)
+        with contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
+            return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
     except (ValueError, TypeError, FileNotFoundError, OSError, ImportError) as e:
         if getattr(args, "debug", False):
             raise
-        print(f"hybridhdr {args.command}: error: {e}", file=sys.stderr)
+        print(f"{prog}: error: {cli_wording(str(e))}", file=sys.stderr)
         return 1
 
 

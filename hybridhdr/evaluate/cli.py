@@ -2,14 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from .._cliargs import HelpFormatter, json_output, nonneg_int, positive_float
+
 
 def add_parser(sub) -> None:
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._cliargs.finalise
     p = sub.add_parser("evaluate", help="metrics and benchmarks", formatter_class=fmt,
                        description="Score reconstructions (MSE, SSIM, PU21, HDR-VDP Q), run benchmarks, "
                                    "reproduce the paper's Table 1. See docs/evaluate.md.")
@@ -22,17 +23,15 @@ def add_parser(sub) -> None:
     m.add_argument("recon_dir", type=Path, help="folder with timestamps.txt and EXR frames")
     m.add_argument("--reference", type=Path, required=True, help="recording holding HDR references (any readable "
                                                                  "format)")
-    m.add_argument("--tolerance-us", type=int, default=1000, help="largest |t_recon - t_ref| accepted, in µs")
+    m.add_argument("--tolerance-us", type=nonneg_int, default=1000, help="largest |t_recon - t_ref| accepted, in µs")
     m.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],
                    default=None, help="normalisation before scoring (default: none, the unaltered reconstruction "
                                       "as the paper scores; scale/affine fit a gain (and exponent) first)")
-    m.add_argument("--peak-luminance-cd-m2", type=float, default=4000.0,
+    m.add_argument("--peak-luminance-cd-m2", type=positive_float, default=4000.0,
                    help="luminance of the reference maximum for PU21 and HDR-VDP, in cd/m²")
     m.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder (holding hdrvdp3.m); default $HYBRIDHDR_HDRVDP_DIR; Q is n/a without it")
     m.add_argument("--engine", choices=["auto", "octave", "matlab"], default="auto", help="HDR-VDP engine")
-    m.add_argument("--json", action="store_true", help="print JSON")
-    m.add_argument("--debug", action="store_true", help="show tracebacks")
     m.set_defaults(func=run_metrics)
 
     b = esub.add_parser("bench", formatter_class=fmt, help="run a TOML bench file",
@@ -43,10 +42,8 @@ def add_parser(sub) -> None:
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
                                                      "processes")
-    b.add_argument("--workers", type=int, default=None, help="local worker processes (0 = in this process; "
+    b.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes (0 = in this process; "
                                                              "default min(2, CPUs))")
-    b.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    b.add_argument("--debug", action="store_true", help="show tracebacks")
     b.set_defaults(func=run_bench_cmd)
 
     q = esub.add_parser("paper", formatter_class=fmt, help="Table 1 of the paper on simulated HDR and AHDR sets",
@@ -54,12 +51,11 @@ def add_parser(sub) -> None:
                                     "method, print a table shaped like the paper's Table 1.")
     q.add_argument("--out", type=Path, required=True, help="output folder")
     q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
-    q.add_argument("--workers", type=int, default=None, help="local worker processes")
+    q.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes")
     q.add_argument("--scheduler", default=None, help="Dask scheduler address")
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
     q.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],
                    default="none", help="scoring: none = the unaltered reconstruction (as the paper); a fit by name")
-    q.add_argument("--debug", action="store_true", help="show tracebacks")
     q.set_defaults(func=run_paper_cmd)
     h = esub.add_parser("holdout", formatter_class=fmt,
                         help="real data without ground truth: leave-one-frame-out and next-frame prediction",
@@ -88,8 +84,6 @@ def add_parser(sub) -> None:
     h.add_argument("--well-exposed", default=None, metavar="LO,HI",
                    help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
     h.add_argument("--format", default=None, help="input format (default: detected)")
-    h.add_argument("--json", action="store_true", help="print JSON with the per-frame scores")
-    h.add_argument("--debug", action="store_true", help="show tracebacks")
     h.set_defaults(func=run_holdout_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
@@ -161,6 +155,7 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     return res
 
 
+@json_output
 def run_metrics(args) -> int:
     res = score_reconstruction(args.recon_dir, args.reference, tolerance_us=args.tolerance_us,
                                normalise=args.normalise, peak_luminance_cd_m2=args.peak_luminance_cd_m2,
@@ -202,7 +197,7 @@ def run_bench_cmd(args) -> int:
 def run_paper_cmd(args) -> int:
     from .paper import run_paper
     text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
-                     hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise)
+                     hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise, progress=not args.no_progress)
     print(text)
     return 0
 
@@ -220,6 +215,7 @@ def _holdout_params(method: str, params_path, contrast_threshold):
     return p
 
 
+@json_output
 def run_holdout_cmd(args) -> int:
     from ..io import read
     from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
