@@ -54,7 +54,14 @@ Metrics
   doi:10.1109/PCS50896.2021.9477471). ``V = p6·(((p0 + p1·Y^p3)/(1 + p2·Y^p3))^p4 − p5)`` with
   Y clipped to [0.005, 10000] cd/m²; PU-PSNR and PU-SSIM use a peak / data range of 256 as in
   the authors' ``gfxdisp/pu21:matlab/pu21_metric.m`` (``peak="pu_max"`` uses PU(10000)).
-- :func:`hdrvdp_q`: HDR-VDP 3 Q through the user's own installation (GNU Octave or MATLAB).
+- :func:`jod_score`: ColorVideoVDP JOD (:mod:`hybridhdr.evaluate.cvvdp_metric`), the default
+  perceptual metric: on at most :data:`JOD_MAX_FRAMES` (8) evenly spaced matched frames per
+  sequence, each scored as an image against its reference (the mean JOD), on the [0, 1] pair
+  (step 2), with the display model stated (``jod_display_line``). Without cvvdp/PyTorch the
+  score is NaN with ``jod_note`` = :data:`JOD_NA`.
+- :func:`hdrvdp_q`: HDR-VDP 3 Q through the user's own installation (GNU Octave or MATLAB),
+  kept for exact comparison with the paper's Q.
+- :func:`score_akf2021`: the AKF authors' evaluation protocol on their HDR/AHDR sequences.
 - :func:`log_pair`: ``log_mse`` and ``log_ssim``, MSE and SSIM on log intensity mapped to [0, 1]
   by the reference's log range (floored at 1e-4 of the reference maximum): HDR-aware, every
   decade weighs alike; the linear metrics are decided by the brightest pixels.
@@ -80,12 +87,15 @@ import numpy as np
 __all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "ssim_map", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
            "normalise_pair", "apply_normalisation", "log_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
-           "find_hdrvdp", "HDRVDPNotFound"]
+           "find_hdrvdp", "HDRVDPNotFound", "JOD_MAX_FRAMES", "JOD_NA", "jod_frame_indices", "jod_score",
+           "score_akf2021", "AKF2021"]
 
 NORMALISE_MODES = ("none", "scale", "affine", "scale_linear", "affine_linear")
-#: Per-method default normalisation (methods not listed: "none", the unaltered reconstruction).
-#: Empty: every method is scored unaltered by default, as in the paper's Table 1.
-DEFAULT_NORMALISE: dict = {}
+#: Per-method default normalisation (methods not listed: "none", the unaltered reconstruction, as
+#: in the paper's Table 1). The learned events-only methods output a relative intensity in
+#: [0, 1] (the display-referred scale of their training frames), so they are scored after a
+#: fitted gain ("scale"); reports label such runs.
+DEFAULT_NORMALISE: dict = {"e2vid": "scale", "firenet": "scale"}
 
 
 def default_normalise(method: str) -> str:
@@ -413,8 +423,52 @@ def log_pair(test01, ref01, floor: float = 1e-4):
     return t, (lr - lo) / span
 
 
+#: At most this many matched frames per sequence are scored with ColorVideoVDP (evenly spaced).
+JOD_MAX_FRAMES = 8
+#: The JOD cell when cvvdp or PyTorch is not installed.
+JOD_NA = "n/a (install hybridhdr[evaluate])"
+
+
+def jod_frame_indices(n: int, max_frames: int = JOD_MAX_FRAMES) -> np.ndarray:
+    """``min(n, max_frames)`` evenly spaced indices of ``n`` frames, first and last included."""
+    if isinstance(max_frames, bool) or not isinstance(max_frames, (int, np.integer)) or max_frames < 1:
+        raise ValueError(f"max_frames must be an int >= 1, got {max_frames!r}")
+    if n <= 0:
+        return np.zeros(0, np.int64)
+    return np.unique(np.rint(np.linspace(0, n - 1, min(n, int(max_frames)))).astype(np.int64))
+
+
+def jod_score(test01, ref01, *, max_frames: int = JOD_MAX_FRAMES, display: str | None = None) -> dict:
+    """ColorVideoVDP JOD of (K, H, W) sequences already in [0, 1] (:func:`normalise_pair`).
+
+    At most ``max_frames`` evenly spaced frames (:func:`jod_frame_indices`), each scored as an
+    image (they are not consecutive, so cvvdp's temporal channels are not used), averaged.
+    Returns ``jod`` (10 = identical), ``jod_frames``, ``jod_display``, ``jod_display_line`` (the
+    display model and viewing distance), ``jod_seconds``; without cvvdp/PyTorch ``jod`` is NaN
+    and ``jod_note`` says :data:`JOD_NA` (never an exception).
+    """
+    from .cvvdp_metric import DEFAULT_DISPLAY, CVVDPNotAvailable, cvvdp_jod
+    a, b = _pair(test01, ref01, "jod_score")
+    if a.ndim == 2:
+        a, b = a[None], b[None]
+    idx = jod_frame_indices(a.shape[0], max_frames)
+    display = display or DEFAULT_DISPLAY
+    out = {"jod_frames": int(idx.size), "jod_display": display}
+    if not (np.isfinite(a[idx]).all() and np.isfinite(b[idx]).all()):
+        out.update(jod=float("nan"), jod_note="non-finite pixels")
+        return out
+    try:
+        r = cvvdp_jod(a[idx], b[idx], fps=0.0, display=display)
+    except CVVDPNotAvailable:
+        out.update(jod=float("nan"), jod_note=JOD_NA)
+        return out
+    out.update(jod=r.jod, jod_display_line=r.display_line(), jod_seconds=r.seconds, jod_note="")
+    return out
+
+
 def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_luminance_cd_m2: float = 4000.0,
-                pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4) -> dict:
+                pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4,
+                jod: dict | bool | None = None) -> dict:
     """All metrics on matched sequences (K, H, W) of linear intensity.
 
     Parameters
@@ -434,6 +488,9 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
     log_floor : float
         Floor of the [0, 1] intensities before the log of ``log_mse``/``log_ssim`` (1e-4: a
         10 000:1 range).
+    jod : dict or bool, optional
+        ColorVideoVDP JOD (:func:`jod_score`) on the same [0, 1] pair: ``True`` or keyword
+        arguments (``max_frames``, ``display``); ``None``/``False``: not computed.
 
     Returns
     -------
@@ -470,6 +527,76 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
             out["q"] = float("nan")
         else:
             res = hdrvdp_q(t01, r01, **kw)
+            out["q"] = res.q
+            out.update({f"q_{k}": v for k, v in asdict(res).items() if k not in ("q", "q_frames")})
+    if jod:
+        kw = dict(jod) if isinstance(jod, dict) else {}
+        out.update(jod_score(t01, r01, **kw))
+    return out
+
+
+# -- the AKF authors' protocol ------------------------------------------------------------------
+
+#: The AKF authors' evaluation (``hybridhdr evaluate metrics --protocol akf2021``).
+AKF2021 = {"frame_unit": 255.0, "hdrvdp_task": "side-by-side", "hdrvdp_color_encoding": "luminance",
+           "display_diagonal_in": 21.0, "display_resolution": (640, 480), "viewing_distance_m": 1.0,
+           "luminance_scale_cd_m2": 255.0}
+
+
+def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None) -> dict:
+    """Score as the AKF authors' evaluation of their HDR/AHDR sequences (Wang et al., ICCV 2021).
+
+    - the **unaltered** reconstruction (frame-linear units: 1.0 = frame code 255, as the AKF
+      outputs) against the reference's **channel mean / 255** (``HDR_mat`` is stored in code
+      units), no normalisation, no clipping;
+    - pixels where the reference is **0** (unregistered) are masked out of every metric;
+    - MSE over the unmasked pixels of all frames, PSNR = 10·log10(1/MSE) (peak 1 = code 255),
+      SSIM (Gaussian σ = 1.5, K1 = 0.01, K2 = 0.03, data range 1) as the mean of each frame's
+      SSIM map over its unmasked pixels outside the border, averaged over frames;
+    - HDR-VDP 3 Q (with ``hdrvdp``, keyword arguments of :func:`hdrvdp_q`): task
+      ``side-by-side``, ``luminance`` encoding, the pixels per degree of a 21-inch 640×480
+      display at 1 m (:func:`pixels_per_degree`, 26.4), frame units × 255 as cd/m² (the values
+      as the files store them); masked pixels of the reconstruction are set to the reference's
+      (0) so they add no difference.
+
+    Parameters
+    ----------
+    test_frames : (K, H, W) reconstruction, frame-linear units
+    reference_frames : (K, H, W, 3) or (K, H, W) references as stored (``HDR_mat``)
+    """
+    a = np.asarray(test_frames, np.float64)
+    r = np.asarray(reference_frames, np.float64)
+    if r.ndim == 4:
+        r = r.mean(axis=3)
+    a, r = _pair(a, r, "akf2021")
+    if a.ndim != 3:
+        raise ValueError(f"score_akf2021 expects (K, H, W) sequences, got {a.shape}")
+    r = r / AKF2021["frame_unit"]
+    mask = r != 0
+    n_bad = int(np.count_nonzero(~np.isfinite(a)))
+    out = {"protocol": "akf2021", "normalise": "none", "n_frames": int(a.shape[0]), "n_nonfinite": n_bad,
+           "n_masked": int(np.count_nonzero(~mask)), "n_valid": int(np.count_nonzero(mask)),
+           "reference_units": "HDR_mat channel mean / 255 (frame-linear)"}
+    if not mask.any():
+        raise ValueError("akf2021: every reference pixel is 0 (unregistered); nothing to score")
+    m = float(np.mean((a[mask] - r[mask]) ** 2))
+    out["mse"] = m
+    out["psnr_db"] = float("inf") if m == 0 else (10.0 * math.log10(1.0 / m) if math.isfinite(m) else float("nan"))
+    smap, rad = ssim_map(a, r, 1.0)
+    inner = np.zeros_like(mask)
+    inner[:, rad:mask.shape[1] - rad, rad:mask.shape[2] - rad] = True
+    per = [float(smap[k][mask[k] & inner[k]].mean()) for k in range(a.shape[0]) if (mask[k] & inner[k]).any()]
+    out["ssim"] = float(np.mean(per)) if per else float("nan")
+    if hdrvdp is not None:
+        kw = dict(hdrvdp)
+        kw.update(task=AKF2021["hdrvdp_task"], color_encoding=AKF2021["hdrvdp_color_encoding"],
+                  pixels_per_degree=pixels_per_degree(AKF2021["display_diagonal_in"], AKF2021["display_resolution"],
+                                                      AKF2021["viewing_distance_m"]),
+                  luminance_scale_cd_m2=AKF2021["luminance_scale_cd_m2"])
+        if n_bad:
+            out["q"] = float("nan")
+        else:
+            res = hdrvdp_q(np.where(mask, a, r), r, **kw)
             out["q"] = res.q
             out.update({f"q_{k}": v for k, v in asdict(res).items() if k not in ("q", "q_frames")})
     return out

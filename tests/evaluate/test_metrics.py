@@ -145,6 +145,8 @@ def test_normalisation_policy():
     # unaltered scoring by default (the paper's Table 1), for every method
     for m in ("akf", "cf", "highpass", "frames_zoh", "edi", ""):
         assert M.default_normalise(m) == "none"
+    # except the learned events-only methods, whose output is a relative intensity: a gain fit
+    assert M.default_normalise("e2vid") == M.default_normalise("firenet") == "scale"
     # the default keeps the reconstruction's units: a recon at half the reference scores as such
     d = M.score_video(r / 2, r, pu21=False)
     assert d["normalise"] == "none" and d["gain"] == 1.0
