@@ -86,13 +86,22 @@ def _signals_exit():
         yield
         return
 
+    got = []
+
     def _exit(signum, frame):
+        got.append(signum)
         raise SystemExit(128 + signum)
 
     sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
     old = {sg: signal.signal(sg, _exit) for sg in sigs}
     try:
         yield
+    except BaseException:
+        # the SystemExit may arrive wrapped by native code it passed through (a Mitsuba render
+        # turns it into its own error): a received signal decides the exit status
+        if got:
+            raise SystemExit(128 + got[0]) from None
+        raise
     finally:
         for sg, h in old.items():
             signal.signal(sg, h)
