@@ -394,8 +394,10 @@ def _read_spill(spill, shape, index) -> np.ndarray:
     return np.frombuffer(b, np.float32).reshape(shape)
 
 
-def _worker_init():
+def _worker_init(umask: int | None = None):
     import signal
+    if umask is not None:  # a forkserver child inherits the server's umask, not this run's
+        os.umask(umask)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and shuts the pool down
     for name in ("SIGTERM", "SIGHUP"):
         if hasattr(signal, name):
@@ -416,7 +418,8 @@ def _make_pool(n: int, backend: str):
         ctx.set_forkserver_preload(["hybridhdr.reconstruct.output"])
     else:  # pragma: no cover - spawn platforms
         ctx, kind = mp.get_context("spawn"), "process (spawn)"
-    ex = ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_init)
+    from .._atomic import current_umask
+    ex = ProcessPoolExecutor(n, mp_context=ctx, initializer=_worker_init, initargs=(current_umask(),))
     # start every worker now, while this process may still be single-threaded (3.11 forks them all
     # at the first submit): later forks would copy a process whose other threads hold locks
     for f in [ex.submit(int, 0) for _ in range(n)]:

@@ -214,7 +214,12 @@ def test_cli_simulated_full_disk(rec_path, tmp_path, capsys, monkeypatch, writer
             if calls[0] > 3:
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(path))
             return real(path, img, **kw)
-        monkeypatch.setattr(O, "write_exr", failing)  # the forked writers inherit it
+        monkeypatch.setattr(O, "write_exr", failing)
+        # writer processes would inherit the patch only when forked from this process, which the
+        # pool does only while it is single-threaded (not so inside a long test session, where it
+        # uses a forkserver): run the pool on threads so the patch is seen either way
+        real_pool = O._make_pool
+        monkeypatch.setattr(O, "_make_pool", lambda n, backend: real_pool(n, "thread"))
     else:
         real_add = O.LogPercentiles.add
 
