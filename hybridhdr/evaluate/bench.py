@@ -29,11 +29,13 @@ __all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench
 
 TIMING_COLUMNS = ("wall_s", "time_per_data_s", "events_per_s", "peak_rss_mb", "dataset_load_s",
                   "dataset_time_per_data_s")
-METRIC_COLUMNS = ("mse", "psnr_db", "ssim", "global_ssim", "log_mse", "log_ssim", "pu_psnr_db", "pu_ssim", "q")
+METRIC_COLUMNS = ("mse", "psnr_db", "ssim", "global_ssim", "log_mse", "log_ssim", "pu_psnr_db", "pu_ssim", "jod", "q")
 BUNDLED = ("demo", "speed_accuracy", "stability", "tiny")
 
 _BENCH_KEYS = {"name", "seed", "tolerance_us", "peak_luminance_cd_m2", "hdrvdp_dir", "strips",
-               "warmup", "cache_dir"}
+               "warmup", "cache_dir", "jod", "jod_frames", "jod_display", "weights"}
+#: Methods whose ``params.weights`` a ``[bench] weights = { e2vid = PATH, firenet = PATH }`` table fills.
+LEARNED = ("e2vid", "firenet")
 _METHOD_KEYS = {"name", "method", "params", "augment", "mode", "normalise", "threshold_factor", "grid"}
 
 
@@ -53,6 +55,10 @@ class Bench:
     warmup: bool = True
     source: str = ""
     cache_dir: str | None = None
+    jod: bool = True              # ColorVideoVDP JOD of every run (needs cvvdp; else "n/a")
+    jod_frames: int = 8           # at most this many evenly spaced matched frames per run
+    jod_display: str | None = None  # cvvdp display model (default standard_hdr_linear)
+    weights: dict = field(default_factory=dict)  # learned method -> checkpoint path
 
 
 @dataclass(frozen=True)
@@ -137,11 +143,36 @@ def parse_bench(d: dict, source: str = "") -> Bench:
     tol = b.get("tolerance_us", 1000)
     if isinstance(tol, bool) or not isinstance(tol, int) or tol < 0:
         raise ValueError(f"[bench].tolerance_us must be an int >= 0 (µs), got {tol!r}")
+    jod = b.get("jod", True)
+    if not isinstance(jod, bool):
+        raise ValueError(f"[bench].jod must be true or false, got {jod!r}")
+    jf = b.get("jod_frames", 8)
+    if isinstance(jf, bool) or not isinstance(jf, int) or jf < 1:
+        raise ValueError(f"[bench].jod_frames must be an int >= 1, got {jf!r}")
+    jd = b.get("jod_display")
+    if jd is not None and not isinstance(jd, str):
+        raise ValueError(f"[bench].jod_display must be a cvvdp display name, got {jd!r}")
+    weights = b.get("weights") or {}
+    if not isinstance(weights, dict) or not all(k in LEARNED and isinstance(v, str) for k, v in weights.items()):
+        raise ValueError(f"[bench].weights must be a table {{ e2vid = PATH, firenet = PATH }}, got {weights!r}")
+    base = Path(source).parent if source and Path(source).is_file() else None
+
+    def _path(v):  # relative checkpoint paths are relative to the bench file
+        return str(base / v) if base is not None and not Path(v).is_absolute() else v
+    weights = {k: _path(v) for k, v in weights.items()}
+    for m in ms:
+        if resolve_method(m["method"]) in LEARNED:
+            params = m.setdefault("params", {})
+            if params.get("weights"):
+                params["weights"] = _path(params["weights"])
+            elif resolve_method(m["method"]) in weights:
+                params["weights"] = weights[resolve_method(m["method"])]
     return Bench(name=str(b.get("name", Path(source).stem if source else "bench")), seed=int(b.get("seed", 0)),
                  tolerance_us=tol, peak_luminance_cd_m2=float(b.get("peak_luminance_cd_m2", 4000.0)),
                  datasets=ds, methods=ms, charts=d.get("charts", {}), hdrvdp_dir=b.get("hdrvdp_dir"),
                  strips=int(b.get("strips", 4)), warmup=bool(b.get("warmup", True)),
-                 source=str(source), cache_dir=b.get("cache_dir"))
+                 source=str(source), cache_dir=b.get("cache_dir"), jod=jod, jod_frames=jf, jod_display=jd,
+                 weights=weights)
 
 
 def _load_toml_bytes(data: bytes) -> dict:
@@ -337,8 +368,11 @@ def run_task(task, bench_opts: dict) -> list[dict]:
             hv = None
             if bench_opts.get("hdrvdp_dir"):
                 hv = {"hdrvdp_dir": bench_opts["hdrvdp_dir"]}
+            jod = None
+            if bench_opts.get("jod", True):
+                jod = {"max_frames": int(bench_opts.get("jod_frames", 8)), "display": bench_opts.get("jod_display")}
             sc = score_video(v.frames[vi], ref[ri], normalise=run.normalise,
-                             peak_luminance_cd_m2=float(bench_opts["peak_luminance_cd_m2"]), hdrvdp=hv)
+                             peak_luminance_cd_m2=float(bench_opts["peak_luminance_cd_m2"]), hdrvdp=hv, jod=jod)
             row.update(sc)
             row.update(wall_s=wall, time_per_data_s=wall / max(data.duration_us * 1e-6, 1e-12),
                        dataset_time_per_data_s=t_load / max(data.duration_us * 1e-6, 1e-12),
@@ -364,7 +398,8 @@ def run_task(task, bench_opts: dict) -> list[dict]:
 
 def _bench_opts(bench: Bench) -> dict:
     return {"seed": bench.seed, "tolerance_us": bench.tolerance_us, "peak_luminance_cd_m2": bench.peak_luminance_cd_m2,
-            "hdrvdp_dir": bench.hdrvdp_dir, "warmup": bench.warmup, "cache_dir": bench.cache_dir}
+            "hdrvdp_dir": bench.hdrvdp_dir, "warmup": bench.warmup, "cache_dir": bench.cache_dir,
+            "jod": bench.jod, "jod_frames": bench.jod_frames, "jod_display": bench.jod_display}
 
 
 def _pool_context():
@@ -495,7 +530,8 @@ def read_results(path) -> list[dict]:
             for k, v in r.items():
                 try:
                     d[k] = float(v) if v not in ("",) and k not in ("dataset", "dataset_variant", "kind", "method_label", "method_name", "method",
-                                                                     "augment", "mode", "normalise", "status") else v
+                                                                     "augment", "mode", "normalise", "status",
+                                                                     "jod_display", "jod_display_line", "jod_note") else v
                 except ValueError:
                     d[k] = v
             rows.append(d)

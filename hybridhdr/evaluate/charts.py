@@ -5,7 +5,7 @@ Rows are the dicts of :func:`hybridhdr.evaluate.bench.run_bench` (or the rows of
 
 - :func:`speed_accuracy_points` / :func:`plot_speed_accuracy`: one point per method setting
   (``method_label``: method plus its grid values, e.g. AKF with augmentation or deblurring off),
-  x = wall time per second of data (s/s, log axis), y = MSE, SSIM or Q, averaged over the chosen
+  x = wall time per second of data (s/s, log axis), y = MSE, SSIM, JOD or Q, averaged over the chosen
   datasets; the Pareto front (no other point both faster and better) is drawn as a step line
   and its points ringed.
 - :func:`stability_curves` / :func:`plot_stability`: metric against a stress value per method,
@@ -29,10 +29,11 @@ __all__ = ["LOWER_IS_BETTER", "speed_accuracy_points", "pareto_front", "plot_spe
            "stability_curves", "plot_stability", "numerical_failures", "stress_value"]
 
 LOWER_IS_BETTER = {"mse": True, "psnr_db": False, "ssim": False, "global_ssim": False, "pu_psnr_db": False,
-                   "pu_ssim": False, "q": False, "log_mse": True, "log_ssim": False}
+                   "pu_ssim": False, "q": False, "log_mse": True, "log_ssim": False, "jod": False}
 _LABELS = {"mse": "MSE (linear, [0, 1])", "ssim": "SSIM (σ = 1.5)", "q": "HDR-VDP Q", "psnr_db": "PSNR (dB)",
            "pu_ssim": "PU21-SSIM", "pu_psnr_db": "PU21-PSNR (dB)", "global_ssim": "global SSIM (EAF)",
-           "log_mse": "MSE (log intensity, [0, 1])", "log_ssim": "SSIM (log intensity)"}
+           "log_mse": "MSE (log intensity, [0, 1])", "log_ssim": "SSIM (log intensity)",
+           "jod": "ColorVideoVDP JOD (10 = identical)"}
 
 
 def _plt():

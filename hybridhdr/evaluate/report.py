@@ -12,7 +12,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "scoring_label", "write_report", "write_strip", "format_table"]
+__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "scoring_label", "jod_label", "write_report", "write_strip",
+           "format_table"]
 
 
 def _f(v) -> float:
@@ -42,10 +43,12 @@ def summary_table(rows, datasets=None) -> list[dict]:
             vals = [_f(r.get(k)) for r in ok]
             vals = [v for v in vals if not math.isnan(v)]
             return float(np.mean(vals)) if vals else float("nan")
-        out.append({"dataset": ds, "method": label, "runs": len(rs), "ok": len(ok), "mse": mean("mse"),
+        norm = sorted({str(r.get("normalise")) for r in rs if r.get("normalise") not in (None, "", "none")})
+        out.append({"dataset": ds, "method": label, "normalise": ",".join(norm) or "none", "runs": len(rs),
+                    "ok": len(ok), "mse": mean("mse"),
                     "ssim": mean("ssim"), "log_mse": mean("log_mse"), "log_ssim": mean("log_ssim"),
                     "pu_ssim": mean("pu_ssim"), "pu_psnr_db": mean("pu_psnr_db"),
-                    "q": mean("q"), "time_per_data_s": mean("time_per_data_s"), "events_per_s": mean("events_per_s"),
+                    "q": mean("q"), "jod": mean("jod"), "time_per_data_s": mean("time_per_data_s"), "events_per_s": mean("events_per_s"),
                     "peak_rss_mb": mean("peak_rss_mb"), "nonfinite": int(sum(_f(r.get("n_nonfinite")) or 0
                                                                             for r in ok))})
     return out
@@ -89,6 +92,22 @@ def scoring_label(rows) -> str:
         fits = [m for m in modes if m != "none"]
         return f"unaltered reconstructions (normalise=none) except runs with a fitted normalisation ({', '.join(fits)})"
     return f"reconstructions fitted to the reference per run by least squares (normalise={', '.join(modes)})"
+
+
+def jod_label(rows) -> str:
+    """What the JOD column means: the display model and viewing distance of every score (one
+    line per distinct display), the frames scored, or why there is no JOD."""
+    from .metrics import JOD_NA
+    lines = sorted({str(r.get("jod_display_line")) for r in rows if r.get("jod_display_line")})
+    frames = [_f(r.get("jod_frames")) for r in rows if r.get("jod_display_line")]
+    frames = [int(v) for v in frames if math.isfinite(v)]
+    if lines:
+        most = max(frames) if frames else 0
+        return (f"JOD = {'; '.join(lines)}; on at most {most} evenly spaced matched frames per run, each scored "
+                f"as an image against its reference (mean), on the same [0, 1] pair as MSE/SSIM")
+    if any(r.get("jod_note") == JOD_NA for r in rows):
+        return f"JOD (ColorVideoVDP) {JOD_NA}"
+    return "JOD (ColorVideoVDP) not computed (jod = false / --no-jod)"
 
 
 def _lower(pct: float) -> str:
@@ -186,7 +205,7 @@ def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
     sa = charts_cfg.get("speed_accuracy", {})
     if sa is not False:
         sa = sa if isinstance(sa, dict) else {}
-        metrics = [m for m in sa.get("metrics", ["mse", "ssim", "q"])]
+        metrics = [m for m in sa.get("metrics", ["mse", "ssim", "jod", "q"])]
         # a panel with no data is not drawn (e.g. HDR-VDP Q without an HDR-VDP installation)
         metrics = [m for m in metrics if any(math.isfinite(_f(r.get(m))) for r in rows)] or metrics[:1]
         fig, axes = plt.subplots(1, len(metrics), figsize=(5.6 * len(metrics), 4.4), squeeze=False)
@@ -254,10 +273,11 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
         chart_paths, fails = write_charts(rows, out, getattr(bench, "charts", {}) or {})
     written.update(chart_paths)
     summ = summary_table(rows)
-    header = ["dataset", "method", "MSE", "SSIM", "log MSE", "log SSIM", "PU-SSIM", "Q", "time/s data", "Mev/s", "peak RSS MB", "NaN/Inf",
-              "ok/runs"]
-    body = [[s["dataset"], s["method"], _num(s["mse"]), _num(s["ssim"], "{:.3f}"), _num(s["log_mse"]),
-             _num(s["log_ssim"], "{:.3f}"), _num(s["pu_ssim"], "{:.3f}"),
+    header = ["dataset", "method", "MSE", "SSIM", "log MSE", "log SSIM", "PU-SSIM", "JOD", "Q", "time/s data", "Mev/s",
+              "peak RSS MB", "NaN/Inf", "ok/runs"]
+    body = [[s["dataset"], s["method"] + ("" if s["normalise"] == "none" else f" (fitted: {s['normalise']})"),
+             _num(s["mse"]), _num(s["ssim"], "{:.3f}"), _num(s["log_mse"]),
+             _num(s["log_ssim"], "{:.3f}"), _num(s["pu_ssim"], "{:.3f}"), _num(s["jod"], "{:.2f}"),
              _num(s["q"], "{:.2f}"), _num(s["time_per_data_s"], "{:.3g}"),
              _num(s["events_per_s"] / 1e6 if math.isfinite(s["events_per_s"]) else float("nan"), "{:.3g}"),
              _num(s["peak_rss_mb"], "{:.0f}"), s["nonfinite"], f"{s['ok']}/{s['runs']}"] for s in summ]
@@ -272,7 +292,8 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
           f"Scoring (see docs/evaluate.md): {scoring_label(rows)}; both divided by the reference "
           "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
           f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
-          f"{getattr(bench, 'tolerance_us', 1000)} µs. Q is n/a without an HDR-VDP 3 installation.", "",
+          f"{getattr(bench, 'tolerance_us', 1000)} µs. {jod_label(rows)}. Q (HDR-VDP 3, for comparison with the "
+          "paper's Q) is n/a without an HDR-VDP 3 installation.", "",
           "## Results", "", format_table(header, body), ""]
     if cmp_ is not None:
         md += ["## AKF vs CF", "", akf_vs_cf_text(cmp_), ""]

@@ -12,8 +12,9 @@ axes map onto ``EventSensorParams`` / ``FrameCameraParams`` / motion keys
 (:data:`SIMULATOR_KEYS`).
 
 :func:`stability_bench` builds a bench dict (one dataset per axis, its grid = the axis values,
-one stability chart per axis), which :func:`hybridhdr.evaluate.bench.parse_bench` accepts; the
-bundled ``benches/stability.toml`` is the same sweep written out.
+one stability chart per axis and metric: ``metric`` (log SSIM) and the perceptual ColorVideoVDP
+JOD, the bench's default perceptual score), which :func:`hybridhdr.evaluate.bench.parse_bench`
+accepts; the bundled ``benches/stability.toml`` is the same sweep written out.
 """
 
 from __future__ import annotations
@@ -80,7 +81,8 @@ DEFAULT_METHODS = (
 
 
 def stability_bench(axes=None, *, methods=DEFAULT_METHODS, base: dict | None = None, metric: str = "log_ssim",
-                    relative_bound: float = 0.8, seed: int = 0, quick: bool = False, name: str = "stability") -> dict:
+                    relative_bound: float = 0.8, seed: int = 0, quick: bool = False, name: str = "stability",
+                    perceptual: str | None = "jod", perceptual_relative_bound: float = 0.8) -> dict:
     """A bench dict sweeping each stress axis on its own (all other parameters at ``base``).
 
     Parameters
@@ -97,6 +99,9 @@ def stability_bench(axes=None, *, methods=DEFAULT_METHODS, base: dict | None = N
         (or NaN/Inf appears).
     quick : bool
         Three values per axis and a 40x32, 0.25 s scene (for tests).
+    perceptual, perceptual_relative_bound : str or None, float
+        A second panel per axis for this metric (default ``"jod"``, ColorVideoVDP, computed
+        for every run unless ``[bench] jod = false``), after all ``metric`` panels; None: none.
     """
     names = list(STRESS_AXES) if axes is None else list(axes)
     unknown = sorted(set(names) - set(STRESS_AXES))
@@ -123,6 +128,9 @@ def stability_bench(axes=None, *, methods=DEFAULT_METHODS, base: dict | None = N
         datasets.append(d)
         charts.append({"dataset": n, "axis": key, "metric": metric, "relative_bound": relative_bound,
                        "stress": ax.stress, "title": f"{n}: {ax.description}"})
+    if perceptual and perceptual != metric:
+        charts += [{**c, "metric": perceptual, "relative_bound": perceptual_relative_bound,
+                    "title": f"{c['title']} ({perceptual.upper()})"} for c in list(charts)]
     return {"bench": {"name": name, "seed": seed, "tolerance_us": 1000, "strips": 4},
             "datasets": datasets, "methods": [dict(m) for m in methods],
             "charts": {"speed_accuracy": False, "stability": charts}}
