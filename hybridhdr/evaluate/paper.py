@@ -21,7 +21,12 @@ Scores follow :mod:`hybridhdr.evaluate.metrics`: by default the **unaltered** re
 against references in the same frame-linear units (1.0 = the frame camera's clip level at the
 frame's exposure, :mod:`hybridhdr.evaluate.units`), as the paper scores, data range 1 after
 dividing both by the reference maximum; ``normalise=`` names a fit instead, and the table's
-header says which was used; Q needs an HDR-VDP 3 installation (else "n/a"). Our numbers
+header says which was used; the learned events-only baselines (E2VID, FireNet; run when their
+weights are given, never downloaded) output relative intensities and are scored after a fitted
+gain (``normalise="scale"``), marked † in the table. Perceptual quality: ColorVideoVDP JOD (the
+default, on at most 8 evenly spaced frames per sequence, the display model stated; "n/a" without
+cvvdp) and HDR-VDP 3 Q for exact comparison with the paper's Q (needs an installation; the row is
+left out without one). Our numbers
 are not the paper's: different scenes, sensor model and scoring details. What we measure is
 printed whatever it is.
 """
@@ -46,6 +51,11 @@ METHODS = (
     {"name": "edi", "method": "edi"},
     {"name": "frames", "method": "frames"},
 )
+#: The learned baselines of the paper's Table 1, run when weights are given.
+LEARNED_METHODS = ({"name": "e2vid", "method": "e2vid"}, {"name": "firenet", "method": "firenet"})
+#: Column order of Table 1 (the paper's methods); other methods go to a second table.
+TABLE1_COLUMNS = ("e2vid", "firenet", "hpf", "cf", "akf")
+_TITLES = {"e2vid": "E2VID", "firenet": "FireNet", "hpf": "HPF", "cf": "CF", "akf": "AKF"}
 
 
 def _has_ahdr() -> bool:
@@ -67,12 +77,15 @@ HDR_METERING = {"dark_room_window": 36.0, "night_drive_sign": 5.2, "fast_object_
 
 
 def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir=None,
-                normalise: str = "none") -> dict:
+                normalise: str = "none", weights: dict | None = None, jod: bool = True,
+                jod_frames: int = 8) -> dict:
     """The bench dict of the reproduction (datasets named ``HDR:<scene>`` and ``AHDR:<scene>``).
 
     ``normalise``: the scoring of every method, ``"none"`` (default) = the unaltered
     reconstruction against references in frame-linear units, as the paper scores; a fit
-    (``"scale"``, ...) by name."""
+    (``"scale"``, ...) by name. The learned methods (``weights = {"e2vid": PATH, "firenet":
+    PATH}``, those given run) are scored with ``"scale"`` unless another fit is named.
+    ``jod``/``jod_frames``: ColorVideoVDP JOD on at most that many frames per sequence."""
     from .metrics import NORMALISE_MODES
     if normalise not in NORMALISE_MODES:
         raise ValueError(f"normalise must be one of {NORMALISE_MODES}, got {normalise!r}")
@@ -107,8 +120,14 @@ def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir
         bench["cache_dir"] = str(cache_dir)
     if hdrvdp_dir is not None:
         bench["hdrvdp_dir"] = str(hdrvdp_dir)
-    return {"bench": bench, "datasets": ds, "methods": [{**m, "normalise": normalise} for m in METHODS],
-            "charts": {"speed_accuracy": {"metrics": ["mse", "ssim", "log_ssim", "q"]}}}
+    bench.update(jod=bool(jod), jod_frames=int(jod_frames))
+    weights = {k: str(v) for k, v in (weights or {}).items() if v}
+    learned = [{**m, "params": {"weights": weights[m["method"]]},
+                "normalise": "scale" if normalise == "none" else normalise}
+               for m in LEARNED_METHODS if m["method"] in weights]
+    return {"bench": bench, "datasets": ds,
+            "methods": learned + [{**m, "normalise": normalise} for m in METHODS],
+            "charts": {"speed_accuracy": {"metrics": ["mse", "ssim", "log_ssim", "jod", "q"]}}}
 
 
 def _mean(vals):
@@ -125,33 +144,72 @@ def _mean(vals):
 
 
 def paper_table(rows) -> tuple[str, dict]:
-    """Markdown table shaped like Table 1 (methods as rows; MSE, SSIM, Q per set) and the numbers."""
+    """Markdown tables shaped like Table 1: methods as columns (E2VID, FireNet, HPF, CF, AKF, then
+    the paper's AKF), rows MSE, SSIM, JOD (ColorVideoVDP) and, when any run has one, Q (HDR-VDP 3)
+    per set; the other methods in a second table of the same shape. Returns (text, numbers)."""
+    from .metrics import JOD_NA
+    from .report import _lower, scoring_label
     sets = ("HDR", "AHDR")
-    labels = []
+    labels, norm = [], {}
     for r in rows:
         if r["method_label"] not in labels:
             labels.append(r["method_label"])
+        if r.get("normalise") not in (None, "", "none"):
+            norm[r["method_label"]] = str(r["normalise"])
     cell = {}
     for lab in labels:
         for s in sets:
             rs = [r for r in rows if r["method_label"] == lab and str(r["dataset"]).startswith(s + ":")
                   and r.get("status") == "ok"]
-            cell[(lab, s)] = {k: _mean(r.get(k) for r in rs) for k in ("mse", "ssim", "q", "log_mse", "log_ssim")}
+            cell[(lab, s)] = {k: _mean(r.get(k) for r in rs)
+                              for k in ("mse", "ssim", "jod", "q", "log_mse", "log_ssim")}
             cell[(lab, s)]["n"] = len(rs)
+            cell[(lab, s)]["jod_note"] = next((r.get("jod_note") for r in rs if r.get("jod_note")), "")
+            cell[(lab, s)]["jod_done"] = any("jod" in r for r in rs)
+    has_q = any(math.isfinite(c["q"]) for c in cell.values())
 
     def fmt(v, f):
         return "n/a" if not math.isfinite(v) else f.format(v)
-    from .report import scoring_label
-    head = ["method"] + [f"{s} {m}" for s in sets for m in ("MSE", "SSIM", "Q")]
-    lines = [f"Scoring: {scoring_label(rows)}.", "",
-             "| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
-    for lab in labels:
-        c = [fmt(cell[(lab, s)][k], f) for s in sets for k, f in (("mse", "{:.3e}"), ("ssim", "{:.3f}"),
-                                                                    ("q", "{:.2f}"))]
-        lines.append("| " + " | ".join([lab] + c) + " |")
-    p = PAPER_TABLE1
-    lines.append("| *paper: AKF* | " + " | ".join(f"{p[s]['mse']:.3e} | {p[s]['ssim']:.2f} | {p[s]['q']:.2f}"
-                                                    for s in sets) + " |")
+
+    def jod_cell(c):
+        if math.isfinite(c["jod"]):
+            return f"{c['jod']:.2f}"
+        if c["jod_note"] == JOD_NA:
+            return JOD_NA
+        return "n/a" if c["jod_done"] or not c["n"] else "skipped (--no-jod)"
+
+    metrics = [("MSE", lambda c: fmt(c["mse"], "{:.3e}"), "mse", "{:.3e}"),
+               ("SSIM", lambda c: fmt(c["ssim"], "{:.3f}"), "ssim", "{:.2f}"),
+               ("JOD (ColorVideoVDP)", jod_cell, None, None)]
+    if has_q:
+        metrics.append(("Q (HDR-VDP 3)", lambda c: fmt(c["q"], "{:.2f}"), "q", "{:.2f}"))
+
+    def title(lab):
+        return _TITLES.get(lab, lab) + ("†" if lab in norm else "")
+
+    def table(cols, paper_col):
+        head = ["set", "metric"] + [title(c) for c in cols] + (["*paper: AKF*"] if paper_col else [])
+        out = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+        for s in sets:
+            if not any(cell[(c, s)]["n"] for c in cols):
+                continue
+            for name, f, pk, pf in metrics:
+                paper = ([pf.format(PAPER_TABLE1[s][pk]) if pk else "—"] if paper_col else [])
+                out.append("| " + " | ".join([s, name] + [f(cell[(c, s)]) for c in cols] + paper) + " |")
+        return out
+
+    main = [c for c in TABLE1_COLUMNS if c in labels]
+    others = [c for c in labels if c not in main]
+    lines = [f"Scoring: {scoring_label(rows)}.", ""] + table(main, True)
+    if norm:
+        lines += ["", "† events-only output (relative intensity), scored after a fitted gain (normalise="
+                  + ", ".join(sorted(set(norm.values()))) + "); the other methods unaltered as stated above."]
+    if not has_q:
+        p = PAPER_TABLE1
+        lines += ["", f"Q (HDR-VDP 3) not computed: no HDR-VDP 3 installation given (--hdrvdp-dir or "
+                      f"$HYBRIDHDR_HDRVDP_DIR); the paper's AKF Q: HDR {p['HDR']['q']:.2f}, AHDR {p['AHDR']['q']:.2f}."]
+    if others:
+        lines += ["", "Other methods (same scoring):", ""] + table(others, False)
     out = {"cells": {f"{k[0]}|{k[1]}": v for k, v in cell.items()}}
     text = "\n".join(lines)
     for s_ in sets:
@@ -166,27 +224,37 @@ def paper_table(rows) -> tuple[str, dict]:
         pre = "" if s_ == "HDR" else "ahdr_"
         out.update({f"{pre}mse_reduction_pct": red, f"{pre}ssim_improvement_pct": imp,
                     f"{pre}log_mse_reduction_pct": lred, f"{pre}log_ssim_improvement_pct": limp})
-        from .report import _lower
         text += (f"\n\nAKF vs CF on the {s_} set (we measure): AKF MSE {_lower(red)} (paper: 48% lower), SSIM "
                  f"{imp:+.1f}% (paper: +11%); in log intensity: MSE {_lower(lred)}, SSIM {limp:+.1f}%.")
     return text, out
 
 
 def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrvdp_dir=None, seed: int = 0,
-              progress: bool = True, normalise: str = "none") -> str:
-    """Build the sets, run every method, write the report and ``table1.md``; return the text."""
+              progress: bool = True, normalise: str = "none", weights: dict | None = None, jod: bool = True,
+              jod_frames: int = 8) -> str:
+    """Build the sets, run every method, write the report and ``table1.md``; return the text.
+
+    ``weights``: ``{"e2vid": PATH, "firenet": PATH}`` adds those columns (omitted otherwise, with
+    one line saying why). ``jod=False`` skips ColorVideoVDP."""
     from .bench import parse_bench, run_bench, write_results
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
+    weights = {k: v for k, v in (weights or {}).items() if v}
     bench = parse_bench(paper_bench(quick, seed=seed, cache_dir=out / "cache", hdrvdp_dir=hdrvdp_dir,
-                                    normalise=normalise), "<paper>")
+                                    normalise=normalise, weights=weights, jod=jod, jod_frames=jod_frames), "<paper>")
     rows = run_bench(bench, workers=workers, scheduler=scheduler, progress=progress)
     w = write_results(rows, out, bench)
     text, _ = paper_table(rows)
     sets = "AHDR via hybridhdr.simulate.ahdr" if _has_ahdr() else "AHDR = clipped-code camera [100, 160]"
+    from .report import jod_label
+    missing = [m["method"] for m in LEARNED_METHODS if m["method"] not in weights]
     header = (f"Table 1 (shape of Wang et al., ICCV 2021) on simulated sets ({'quick' if quick else 'full'}; "
               f"{sets}); linear MSE/SSIM, data range 1 after dividing by the reference maximum; Q "
-              f"{'from HDR-VDP' if hdrvdp_dir else 'n/a (no HDR-VDP 3 given)'}.\n\n")
+              f"{'from HDR-VDP' if hdrvdp_dir else 'n/a (no HDR-VDP 3 given)'}.\n{jod_label(rows)}.\n")
+    if missing:
+        header += (f"{', '.join(_TITLES[m] for m in missing)} omitted: no weights given (--weights-"
+                   f"{' / --weights-'.join(missing)} PATH, or [bench] weights; hybridhdr never downloads them).\n")
+    header += "\n"
     errors = [r for r in rows if r.get("status") != "ok"]
     if errors:
         text += f"\n\n{len(errors)} runs failed, e.g. {errors[0]['dataset']} / {errors[0]['method_label']}: " \

@@ -109,9 +109,23 @@ def test_paper_table_shape_and_reductions():
     # the table says how it was scored (rows without a normalise column: the default, unaltered)
     assert lines[0].startswith("Scoring: unaltered reconstructions (normalise=none")
     lines = lines[2:]
-    assert lines[0] == "| method | HDR MSE | HDR SSIM | HDR Q | AHDR MSE | AHDR SSIM | AHDR Q |"
-    assert lines[2] == "| akf | 1.000e-02 | 0.900 | n/a | 1.000e-02 | 0.900 | n/a |"
-    assert "paper: AKF" in lines[4]
+    # methods as columns (Table 1's order, then the paper's AKF); MSE, SSIM, JOD rows per set
+    assert lines[0] == "| set | metric | CF | AKF | *paper: AKF* |"
+    assert lines[2] == "| HDR | MSE | 2.000e-02 | 1.000e-02 | 1.710e-02 |"
+    assert lines[3] == "| HDR | SSIM | 0.750 | 0.900 | 0.89 |"
+    assert lines[4] == "| HDR | JOD (ColorVideoVDP) | skipped (--no-jod) | skipped (--no-jod) | — |"
+    assert lines[5].startswith("| AHDR | MSE |")
+    assert "Q (HDR-VDP 3) not computed" in text and "| Q (HDR-VDP 3) |" not in text
+    # JOD and Q values; n/a note when cvvdp is missing; learned columns marked as gain-fitted
+    more = [{**r, "jod": 7.5, "q": 5.0} for r in rows] + [
+        {"dataset": ds, "method_label": "e2vid", "status": "ok", "mse": 0.05, "ssim": 0.5, "q": math.nan,
+         "jod": math.nan, "jod_note": "n/a (install hybridhdr[evaluate])", "normalise": "scale",
+         "log_mse": 0.1, "log_ssim": 0.3} for ds in ("HDR:a", "AHDR:c")]
+    t2 = paper_table(more)[0].splitlines()
+    assert t2[2] == "| set | metric | E2VID† | CF | AKF | *paper: AKF* |"
+    assert "| HDR | JOD (ColorVideoVDP) | n/a (install hybridhdr[evaluate]) | 7.50 | 7.50 | — |" in t2
+    assert "| HDR | Q (HDR-VDP 3) | n/a | 5.00 | 5.00 | 4.83 |" in t2
+    assert any(x.startswith("† events-only output") for x in t2)
     fitted = [{**r, "normalise": "scale"} for r in rows]
     assert paper_table(fitted)[0].splitlines()[0] == ("Scoring: reconstructions fitted to the reference per run "
                                                        "by least squares (normalise=scale).")
