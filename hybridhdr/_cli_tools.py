@@ -2,25 +2,25 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
 import numpy as np
 
+from ._cliargs import HelpFormatter, json_output, positive_int
+from ._timearg import add_time_window
+
 
 def add_parsers(sub) -> None:
-    fmt = argparse.ArgumentDefaultsHelpFormatter
+    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._cliargs.finalise
     p = sub.add_parser("info", help="summarise an event file (format, size, counts, span, rate)",
                        formatter_class=fmt, description="Summarise an event file of any supported format.")
     p.add_argument("file", type=Path, help="event file or folder")
     p.add_argument("--from", dest="format", default=None, help="format override (default: detect)")
-    p.add_argument("--json", action="store_true", help="print JSON instead of a table")
     p.add_argument("--allow-huge", action="store_true",
                    help="lift the size limits on what file headers may ask for (sensor/frame side 8192, 4 GiB of "
                         "frames, 256 MiB packets; docs/security.md) for genuinely huge data")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_info)
 
     p = sub.add_parser("convert", help="convert between event formats", formatter_class=fmt,
@@ -29,19 +29,16 @@ def add_parsers(sub) -> None:
     p.add_argument("output", type=Path)
     p.add_argument("--from", dest="from_format", default=None, help="input format (default: detect)")
     p.add_argument("--to", dest="to_format", default=None, help="output format (default: from extension)")
-    p.add_argument("--start-us", type=int, default=None, help="keep events with t >= this (µs)")
-    p.add_argument("--end-us", type=int, default=None, help="keep events with t < this (µs)")
-    p.add_argument("--chunk-events", type=int, default=1 << 20, help="events per streamed chunk")
+    p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
     from .camera.encoding import ENCODING_CHOICES
     p.add_argument("--frame-encoding", choices=ENCODING_CHOICES, default=None,
                    help="declare the frames' transfer function (linear; gamma2.2: code = max*I^(1/2.2); srgb: "
                         "IEC 61966-2-1), replacing what the input states or its reader assumes; stored in the "
                         "output (the container's /frames encoding). Default: as read")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
+    add_time_window(p, "events, triggers and frames")
     p.add_argument("--allow-huge", action="store_true",
                    help="lift the size limits on what file headers may ask for (sensor/frame side 8192, 4 GiB of "
                         "frames, 256 MiB packets; docs/security.md) for genuinely huge data")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_convert)
 
     p = sub.add_parser("demo", help="run the main job on a built-in procedural recording",
@@ -52,7 +49,6 @@ def add_parsers(sub) -> None:
                                    "simulated HDR/AHDR sets (about 2 minutes on 2 cores).")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument("--seed", type=int, default=0, help="random seed")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run_demo)
 
 
@@ -110,6 +106,7 @@ def format_info(info: dict) -> str:
     return "\n".join(f"{k:<{w}}  {v}" for k, v in rows)
 
 
+@json_output
 def run_info(args) -> int:
     from ._limits import allow_huge
     with allow_huge(args.allow_huge):
@@ -186,13 +183,35 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
     return {"events": n_out, "triggers": n_trig, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
 
 
+@json_output
 def run_convert(args) -> int:
+    import shutil
+
     from ._limits import allow_huge
+    from ._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    windowed = window_given(args)
+    check_window(args)
     with allow_huge(args.allow_huge):
-        res = convert(args.input, args.output, args.from_format, args.to_format, args.start_us, args.end_us,
+        t0 = t1 = None
+        if windowed:
+            relative = args.start_us is None and args.end_us is None and not args.absolute
+            origin = recording_span(args.input, args.from_format, full=False).origin_us if relative else None
+            t0, t1 = resolve_window(args, origin)
+        res = convert(args.input, args.output, args.from_format, args.to_format, t0, t1,
                       args.chunk_events, progress=not args.no_progress, frame_encoding=args.frame_encoding)
-    enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
-    print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
+        if windowed and res["events"] == 0 and res["frame_encoding"] is None:
+            out = Path(args.output)  # an empty window is an error: the (empty) output is not kept
+            if out.is_dir():
+                shutil.rmtree(out)
+            elif out.exists():
+                out.unlink()
+            raise empty_window_error(args, t0, t1, recording_span(args.input, args.from_format))
+    res["window_us"] = [t0, t1]
+    if args.json:
+        print(json.dumps({"output": str(args.output), **res}))
+    else:
+        enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
+        print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
     if args.frame_encoding is not None and res["frame_encoding"] is None:
         print(f"note: {args.input} has no frames; --frame-encoding {args.frame_encoding} had nothing to apply to",
               file=sys.stderr)
@@ -264,6 +283,6 @@ def run_demo(args) -> int:
             select_variant()
         except ImportError:
             pass
-        print(demo_evaluate(out / "evaluate", seed=args.seed))
+        print(demo_evaluate(out / "evaluate", seed=args.seed, progress=not args.no_progress))
     print(f"\noutputs in {out.resolve()}")
     return 1 if bad else 0

@@ -22,6 +22,10 @@ import math
 import re
 
 
+class UsageError(ValueError):
+    """Bad arguments found after parsing (e.g. --end before --start): exit status 2, like argparse's."""
+
+
 class HelpFormatter(argparse.HelpFormatter):
     """Shows ``(default: X)`` once: not when the help already states a default, not for required
     options, positionals, flags, ``None`` or empty defaults."""

@@ -80,7 +80,7 @@ def main(argv=None) -> int:
     import contextlib
     import logging
 
-    from ._cliargs import cli_wording
+    from ._cliargs import UsageError, cli_wording
     parser = build_parser()
     args, extra = parser.parse_known_args(argv)
     if extra:
@@ -105,7 +105,7 @@ def main(argv=None) -> int:
         if getattr(args, "debug", False):
             raise
         print(f"{prog}: error: {cli_wording(str(e))}", file=sys.stderr)
-        return 1
+        return 2 if isinstance(e, UsageError) else 1
 
 
 if __name__ == "__main__":  # pragma: no cover

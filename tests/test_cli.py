@@ -88,7 +88,7 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     rec, _ = procedural_recording((10, 10), 20_000, seed=0)
     src = write_recording(rec, tmp_path / "s.h5")
     rc, _, err = run_cli(capsys, "convert", str(src), str(tmp_path / "o.h5"), "--start-us", "5", "--end-us", "5")
-    assert rc == 1 and "--end-us" in err and not (tmp_path / "o.h5").exists()
+    assert rc == 2 and "--end-us" in err and not (tmp_path / "o.h5").exists()
 
 
 def test_demo_runs(tmp_path, capsys):
