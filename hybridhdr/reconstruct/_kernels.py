@@ -224,6 +224,28 @@ def te_view(te: np.ndarray, height: int, width: int) -> np.ndarray:
     return te.reshape(height + 2, width + 2)[1:-1, 1:-1]
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t, c_on, c_off,
+              s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
+    n = 0
+    w = np.uint64(width)
+    wp = w + ONE + ONE
+    lo = np.uint64(max(row_lo, 0))
+    hi = np.uint64(max(row_hi, 0))
+    for i in range(i0, i1):
+        yy = np.uint64(y[i])
+        xx = np.uint64(x[i])
+        tp = (yy + ONE) * wp + xx + ONE
+        if yy < lo or yy >= hi:
+            if yy + ONE == lo or yy == hi:  # ghost row: neighbour time only
+                te[tp] = t[i]
+            continue
+        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
+        n += 1
+    return n
+
+
 @njit(cache=True, nogil=True)
 def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_step,
                seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
@@ -247,19 +269,28 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     only set ``te`` and all other rows outside ``[row_lo, row_hi)`` are skipped (``0, height``
     is the serial filter). Returns the number of events applied to pixels of the band.
     """
+    if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
+        return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+                         c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, True)
+    return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+                     c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t, c_on,
+                 c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
-    has_px = con_px.shape[0] > 0
     w = np.uint64(width)
     wp = w + ONE + ONE
     lo = np.uint64(max(row_lo, 0))
     hi = np.uint64(max(row_hi, 0))
-    for i in range(i0, i1):
+    for k in range(m):
+        i = i0 + np.int64(idx[k])
         yy = np.uint64(y[i])
         xx = np.uint64(x[i])
         tp = (yy + ONE) * wp + xx + ONE
-        if yy < lo or yy >= hi:
-            if yy + ONE == lo or yy == hi:  # ghost row: neighbour time only
-                te[tp] = t[i]
+        if yy < lo or yy >= hi:  # ghost row
+            te[tp] = t[i]
             continue
         _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
                    seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
@@ -277,24 +308,11 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
     and ``row_hi`` only set ``te``. The arithmetic per event is that of the serial kernel, so
     disjoint bands with private ``te`` arrays reproduce it bit for bit.
     """
-    n = 0
-    has_px = con_px.shape[0] > 0
-    w = np.uint64(width)
-    wp = w + ONE + ONE
-    lo = np.uint64(max(row_lo, 0))
-    hi = np.uint64(max(row_hi, 0))
-    for k in range(m):
-        i = i0 + np.int64(idx[k])
-        yy = np.uint64(y[i])
-        xx = np.uint64(x[i])
-        tp = (yy + ONE) * wp + xx + ONE
-        if yy < lo or yy >= hi:  # ghost row
-            te[tp] = t[i]
-            continue
-        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
-                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
-        n += 1
-    return n
+    if con_px.shape[0] > 0:
+        return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0,
+                            seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, True)
+    return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+                        c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, False)
 
 
 @njit(cache=True, nogil=True, inline="always")
