@@ -156,9 +156,13 @@ def recording_span(path, format=None, *, full: bool = True, chunk_events: int = 
     return Span(ev, frames, n)
 
 
+class EmptyWindowError(ValueError):
+    """The time window holds no data (exit status 1: the arguments were well formed)."""
+
+
 def empty_window_error(args, t0, t1, span: Span) -> ValueError:
     rel = "" if t0 is None and t1 is None else f" [{'-' if t0 is None else f'{t0:,}'}, " \
                                                f"{'-' if t1 is None else f'{t1:,}'}) µs sensor time"
     hint = "" if args.absolute or args.start_us is not None or args.end_us is not None else \
         " (--start/--end count from the recording's first timestamp)"
-    return ValueError(f"nothing in the time window{rel}{hint}; the recording has {span.describe()}")
+    return EmptyWindowError(f"nothing in the time window{rel}{hint}; the recording has {span.describe()}")

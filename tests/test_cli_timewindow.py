@@ -65,9 +65,8 @@ def test_window_errors_before_work(tmp_path, capsys):
         rc, _, err = run_cli(capsys, "convert", src, tmp_path / "o.h5", *args)
         assert rc == 2 and msg in err and "hybridhdr convert: error:" in err, err
         assert not (tmp_path / "o.h5").exists()
-    with pytest.raises(SystemExit) as e:
-        main(["convert", str(src), str(tmp_path / "o.h5"), "--start", "soon"])
-    assert e.value.code == 2 and "expected a time" in capsys.readouterr().err
+    assert main(["convert", str(src), str(tmp_path / "o.h5"), "--start", "soon"]) == 2
+    assert "expected a time" in capsys.readouterr().err
 
 
 def test_relative_window_on_container(tmp_path, capsys):
@@ -83,3 +82,30 @@ def test_relative_window_on_container(tmp_path, capsys):
         ev = r.events()
     sel = rec.events[(rec.events["t"] >= t0 + 50_000) & (rec.events["t"] < t0 + 150_000)]
     assert np.array_equal(ev, sel)
+
+
+def test_reconstruct_windows_and_until(tmp_path, capsys, shared_data):
+    ecd = shared_data("ecd_slider_depth")
+    # numeric arguments are checked before any work: no progress bar, no output folder
+    for args in (("--fps", "0"), ("--fps", "-5"), ("--start", "500ms", "--end", "100ms"), ("--fp", "300"),
+                 ("--workers", "0"), ("--until", "frames")):
+        rc, _, err = run_cli(capsys, "reconstruct", ecd, "--out", tmp_path / "bad", *args)
+        assert rc == 2 and "hybridhdr reconstruct: error:" in err and "ev/s" not in err and "kev" not in err, args
+        assert not (tmp_path / "bad").exists() and not (tmp_path / "bad.partial").exists()
+    rc, _, err = run_cli(capsys, "reconstruct", ecd, "--out", tmp_path / "bad", "--start", "5s", "--no-progress")
+    assert rc == 1 and "3.33382 s" in err and "0.174156 s" in err and not (tmp_path / "bad").exists()
+    # --fps stops at the last event (0.174 s), saying so; --until last runs on to the last frame (3.33 s)
+    rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "a", "--fps", "300",
+                           "--no-exr", "--no-progress", "--json")
+    assert rc == 0, err
+    res = json.loads(out)
+    assert res["t_last_us"] <= 174_156 and res["frames"] == 53 and "outputs stop at the last event" in err
+    rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "b", "--fps", "300",
+                           "--until", "last", "--no-exr", "--no-progress", "--json")
+    res = json.loads(out)
+    assert rc == 0 and res["t_last_us"] > 3_300_000 and res["frames"] == 1001 and "outputs stop" not in err
+    # relative window: 50 ms .. 100 ms after the first timestamp (t = 0 here: the first frame)
+    rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "c", "--fps", "100",
+                           "--start", "50ms", "--end", "100ms", "--no-exr", "--no-progress", "--json")
+    res = json.loads(out)
+    assert rc == 0 and res["t_first_us"] == 50_000 and res["t_last_us"] == 90_000

@@ -2,11 +2,15 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import sys
 from pathlib import Path
+
+from .._cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
+from .._timearg import add_time_window
+
+_FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
 
 _METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi",
                    "e2vid", "firenet"]
@@ -16,25 +20,31 @@ def add_parser(subparsers) -> None:
     """Add the ``reconstruct`` subcommand (sets ``func=run``)."""
     p = subparsers.add_parser(
         "reconstruct", help="HDR video from events and frames (AKF and baselines)",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON], allow_abbrev=False,
         description="Reconstruct linear HDR video with the Asynchronous Kalman Filter (Wang et al., ICCV "
                     "2021) or a baseline; writes float32 EXR frames, timestamps.txt, run.json and "
-                    "optional PNG/MP4 previews.")
+                    "optional PNG/MP4 previews. With --fps the outputs stop at the last event (frame-only "
+                    "methods: the last frame) unless --until says otherwise.")
     p.add_argument("recording", type=Path, help="recording (any format the readers accept)")
     p.add_argument("--method", default="akf", choices=_METHOD_CHOICES, help="reconstruction method")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--mode", default="offline", choices=["offline", "causal", "forward"],
                    help="offline may use future frames; causal uses only the past")
     g = p.add_mutually_exclusive_group()
-    g.add_argument("--fps", type=float, default=None, help="output rate in Hz (default: the frame times)")
-    g.add_argument("--times-us", type=Path, default=None, help="text file of output times in µs, one per line")
+    g.add_argument("--fps", type=positive_float, default=None,
+                   help="outputs per second of recording time (default: at the frame times)")
+    g.add_argument("--times-us", type=Path, default=None,
+                   help="text file of output times in µs sensor time, one per line")
+    p.add_argument("--until", choices=("events", "frames", "last"), default=None,
+                   help="with --fps, where the outputs stop: the last event, the last frame, or whichever is "
+                        "later (default: events; frames for the frame-only methods)")
     p.add_argument("--config", type=Path, default=None, help="parameters from a TOML file (run.toml)")
     p.add_argument("--set", action="append", default=[], metavar="NAME=VALUE",
                    help="override one parameter (repeatable), e.g. --set process_noise_per_s=5e-3")
     p.add_argument("--preset", default=None, choices=["paper", "reference_code"],
                    help="AKF parameter preset (before --config and --set)")
-    p.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
-    p.add_argument("--cutoff-hz", type=float, default=None, help="CF / high-pass cutoff frequency (Hz)")
+    p.add_argument("--contrast-threshold", type=positive_float, default=None, help="contrast threshold c (log units)")
+    p.add_argument("--cutoff-hz", type=positive_float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
     a.add_argument("--augmentation", action="store_true",
                    help="use the augmented frame (EDI deblurring, eq. 12 calibration) as the measurement")
@@ -59,27 +69,24 @@ def add_parser(subparsers) -> None:
                    help="network checkpoint for --method e2vid / firenet (.pth / .pth.tar; never downloaded)")
     p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
                    help="declare the frames' encoding (default: as the recording states)")
-    p.add_argument("--start-us", type=int, default=None, help="first output time (µs)")
-    p.add_argument("--end-us", type=int, default=None, help="outputs before this time (µs)")
-    p.add_argument("--workers", type=int, default=1, help="threads for the row-band parallel kernels")
-    p.add_argument("--chunk-events", type=int, default=1 << 20, help="events per streamed chunk")
+    add_time_window(p, "outputs")
+    p.add_argument("--workers", type=positive_int, default=1, help="threads for the row-band parallel kernels")
+    p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
     o.add_argument("--mp4", action="store_true", help="also write a tone-mapped MP4 preview (every output frame)")
-    o.add_argument("--playback-fps", type=float, default=30.0,
+    o.add_argument("--playback-fps", type=positive_float, default=30.0,
                    help="frame rate the MP4 preview plays at (outputs at --fps 300 play 10x slowed down at 30)")
     o.add_argument("--no-exr", action="store_true", help="skip the EXR sequence")
     o.add_argument("--exr-compression", default=None, metavar="NAME",
                    help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
                         f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: zip, lossless]")
-    o.add_argument("--writers", type=int, default=None,
+    o.add_argument("--writers", type=nonneg_int, default=None,
                    help="writer processes encoding files while the filter runs; 0 writes in the main thread "
                         "(same bytes) [default: min(2, CPUs)]")
     o.add_argument("--overwrite", action="store_true",
                    help="OUT may be non-empty: replace the files a reconstruct run writes there (frame_*.exr, "
                         "timestamps.txt, run.json, previews), keep everything else")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run)
 
 
@@ -173,6 +180,43 @@ def _toml_fields(cls, path) -> dict:
     return d
 
 
+def output_window(args, method: str):
+    """The absolute [start, end) µs of the outputs, and a note when --fps outputs were cut at the end
+    of the events (or frames), from --start/--end/--absolute and --until (see the --help)."""
+    from .._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    check_window(args)
+    windowed = window_given(args)
+    relative = windowed and args.start_us is None and args.end_us is None and not args.absolute
+    if args.until is not None and args.fps is None:
+        raise UsageError("--until applies to --fps outputs")
+    if str(args.recording).startswith("builtin:") or not (relative or args.fps is not None or windowed):
+        return resolve_window(args, None) + (None,)
+    span = recording_span(args.recording, frame_encoding=args.frame_encoding) if args.frame_encoding else \
+        recording_span(args.recording)
+    t0, t1 = resolve_window(args, span.origin_us)
+    note = None
+    if args.fps is not None and t1 is None:
+        until = args.until or ("frames" if method in _FRAME_ONLY or span.events is None else "events")
+        ends = {"events": None if span.events is None else span.events[1],
+                "frames": None if span.frames is None else span.frames[1]}
+        last = max(v for v in ends.values() if v is not None) if any(v is not None for v in ends.values()) else None
+        stop = last if until == "last" else ends[until]
+        if stop is None:
+            raise UsageError(f"--until {until}: the recording has no {until}")
+        t1 = stop + 1
+        if last is not None and stop < last:
+            other = "frames" if until == "events" else "events"
+            note = (f"note: outputs stop at the last {until[:-1]} ({(stop - span.origin_us) / 1e6:g} s from the start); "
+                    f"the {other} run to {(last - span.origin_us) / 1e6:g} s: --until {other} or --until last for more")
+    if windowed:
+        lo = span.origin_us if t0 is None else t0
+        hi_data = max(p[-1] for p in (span.events, span.frames) if p is not None) if span.origin_us is not None else None
+        if hi_data is None or lo > hi_data or (t1 is not None and t1 <= span.origin_us):
+            raise empty_window_error(args, t0, t1, span)
+    return t0, t1, note
+
+
+@json_output
 def run(args) -> int:
     """Run ``hybridhdr reconstruct``; returns the exit status (2: bad arguments, 1: failed while running,
     e.g. a full disk; OUT.partial is then removed and OUT untouched)."""
@@ -185,6 +229,7 @@ def run(args) -> int:
     stage = "arguments"
     try:
         method = resolve_method(args.method)
+        t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
         augment = build_augment(args)
         times = None
@@ -201,6 +246,8 @@ def run(args) -> int:
             raise FileNotFoundError(f"recording {args.recording} not found")
         folder = OutputFolder(args.out, overwrite=args.overwrite)
         stage = "run"
+        if note:
+            print(note, file=sys.stderr)
         with _signals_exit():
             # the writer pool forks here, before any other thread (progress bars, readers) starts
             bars = []
@@ -221,8 +268,8 @@ def run(args) -> int:
                 source = open_reader(args.recording, frame_encoding=args.frame_encoding)
             try:
                 for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
-                                               mode=args.mode, profile=args.profile, t_start_us=args.start_us,
-                                               t_end_us=args.end_us, n_workers=args.workers,
+                                               mode=args.mode, profile=args.profile, t_start_us=t_start_us,
+                                               t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
                                                augment=augment, thresholds=args.thresholds, cfa=args.cfa,
                                                demosaic=args.demosaic):
@@ -249,8 +296,13 @@ def run(args) -> int:
             with open(folder.path / "run.json", "w", encoding="utf-8") as f:
                 f.write(json.dumps(run_info, indent=1, default=str) + "\n")
             out = folder.commit()
-        print(f"{method}: {writer.n} frames {writer.t_first}..{writer.t_last} µs, "
-              f"{info.get('n_events_used', 0)} events -> {out}")
+        if args.json:
+            print(json.dumps({"method": method, "frames": writer.n, "t_first_us": writer.t_first,
+                              "t_last_us": writer.t_last, "events_used": info.get("n_events_used", 0),
+                              "out": str(out)}))
+        else:
+            print(f"{method}: {writer.n} frames {writer.t_first}..{writer.t_last} µs, "
+                  f"{info.get('n_events_used', 0)} events -> {out}")
         return 0
     except BaseException as e:
         if writer is not None:
@@ -261,8 +313,10 @@ def run(args) -> int:
             raise
         if not isinstance(e, (ValueError, TypeError, OSError, ImportError)) or getattr(args, "debug", False):
             raise
-        print(f"hybridhdr reconstruct: error: {e}", file=sys.stderr)
-        usage = stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError))
+        print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
+        from .._timearg import EmptyWindowError
+        usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
+                 and not isinstance(e, EmptyWindowError))
         return 2 if usage else 1
 
 

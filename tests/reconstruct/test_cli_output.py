@@ -198,7 +198,7 @@ def test_cli_existing_folders(rec_path, tmp_path, capsys):
     # bad arguments leave nothing
     assert _run([rec_path, "--out", tmp_path / "b", "--exr-compression", "jpeg"]) == 2
     assert _run([rec_path, "--out", tmp_path / "b", "--playback-fps", "0"]) == 2
-    assert _run([rec_path, "--out", tmp_path / "b", "--start-us", "10000000000"]) == 2
+    assert _run([rec_path, "--out", tmp_path / "b", "--start-us", "10000000000"]) == 1  # empty window: rc 1 (issue 18)
     assert not (tmp_path / "b").exists() and not (tmp_path / "b.partial").exists()
 
 
