@@ -566,8 +566,15 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
     deviation is further scaled by exp(-event_decay) (the per-event decay of the high-pass
     variant; 0 for CF) and L̂ jumps by +c_on or -c_off.
     """
+    if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant
+        return _cf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay, con_px, coff_px,
+                        True)
+    return _cf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay, con_px, coff_px, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay, con_px, coff_px, has_px):
     n = 0
-    has_px = con_px.shape[0] > 0
     for i in range(i0, i1):
         yy = np.int64(y[i])
         if yy < row_lo or yy >= row_hi:
@@ -582,8 +589,14 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
 @njit(cache=True, nogil=True)
 def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px):
     """:func:`cf_events` over the events ``i0 + idx[:m]`` (one row band, from :func:`band_select`)."""
+    if con_px.shape[0] > 0:
+        return _cf_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px, True)
+    return _cf_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px, False)
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _cf_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px, has_px):
     n = 0
-    has_px = con_px.shape[0] > 0
     for k in range(m):
         i = i0 + np.int64(idx[k])
         tif = np.float64(t[i])
