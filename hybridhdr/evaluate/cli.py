@@ -32,6 +32,17 @@ def add_parser(sub) -> None:
     m.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder (holding hdrvdp3.m); default $HYBRIDHDR_HDRVDP_DIR; Q is n/a without it")
     m.add_argument("--engine", choices=["auto", "octave", "matlab"], default="auto", help="HDR-VDP engine")
+    m.add_argument("--protocol", choices=["default", "akf2021"], default="default",
+                   help="default: this page's scoring (docs/evaluate.md); akf2021: the AKF authors' evaluation of "
+                        "their HDR/AHDR .mat sequences (unaltered reconstruction vs the reference's channel mean / "
+                        "255, reference-0 pixels masked; MSE, PSNR, SSIM, HDR-VDP 3 Q in luminance mode at a "
+                        "21-inch 640x480 display from 1 m)")
+    m.add_argument("--metric", default="jod,q", metavar="LIST",
+                   help="perceptual metrics, comma-separated: jod (ColorVideoVDP, on at most 8 evenly spaced "
+                        "frames), q (HDR-VDP 3 when installed), or none")
+    m.add_argument("--display", default=None, metavar="NAME",
+                   help="ColorVideoVDP display model (default standard_hdr_linear: 30-inch 4K HDR, 1500 cd/m², "
+                        "0.7472 m)")
     m.set_defaults(func=run_metrics)
 
     b = esub.add_parser("bench", formatter_class=fmt, help="run a TOML bench file",
@@ -56,6 +67,11 @@ def add_parser(sub) -> None:
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
     q.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],
                    default="none", help="scoring: none = the unaltered reconstruction (as the paper); a fit by name")
+    q.add_argument("--weights-e2vid", type=Path, default=None, metavar="PATH",
+                   help="E2VID checkpoint (E2VID_lightweight.pth.tar); the E2VID column is omitted without it")
+    q.add_argument("--weights-firenet", type=Path, default=None, metavar="PATH",
+                   help="FireNet checkpoint (firenet_1000.pth.tar); the FireNet column is omitted without it")
+    q.add_argument("--no-jod", action="store_true", help="skip ColorVideoVDP (JOD) scoring")
     q.set_defaults(func=run_paper_cmd)
     h = esub.add_parser("holdout", formatter_class=fmt,
                         help="real data without ground truth: leave-one-frame-out and next-frame prediction",
@@ -107,14 +123,28 @@ def _read_timestamps(path: Path):
     return np.asarray(ts, np.int64), names
 
 
+def _perceptual(metric: str) -> set:
+    want = {x.strip() for x in str(metric).split(",") if x.strip()}
+    bad = want - {"jod", "q", "none"}
+    if bad:
+        raise ValueError(f"--metric: unknown metric(s) {sorted(bad)}; expected jod, q or none")
+    return want - {"none"}
+
+
 def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, normalise: str | None = None,
-                         peak_luminance_cd_m2: float = 4000.0, hdrvdp_dir=None, engine: str = "auto") -> dict:
+                         peak_luminance_cd_m2: float = 4000.0, hdrvdp_dir=None, engine: str = "auto",
+                         protocol: str = "default", metric: str = "jod,q", display: str | None = None) -> dict:
     """Score an EXR reconstruction folder against a recording's HDR references (see the CLI help)."""
     import numpy as np
 
     from ..io import read
     from ..reconstruct.output import read_exr
-    from .metrics import HDRVDPNotFound, default_normalise, find_hdrvdp, match_frames, score_video
+    from .metrics import HDRVDPNotFound, default_normalise, find_hdrvdp, match_frames, score_akf2021, score_video
+    if protocol not in ("default", "akf2021"):
+        raise ValueError(f"protocol must be 'default' or 'akf2021', got {protocol!r}")
+    if protocol == "akf2021" and normalise not in (None, "none"):
+        raise ValueError("--protocol akf2021 scores the unaltered reconstruction: drop --normalise")
+    want = _perceptual(metric)
     d = Path(recon_dir)
     tsf = d / "timestamps.txt"
     if not tsf.is_file():
@@ -136,18 +166,26 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
                          f"(recon {t.min() if len(t) else '-'}..{t.max() if len(t) else '-'} µs, references "
                          f"{rec.hdr.t_us.min()}..{rec.hdr.t_us.max()} µs)")
     frames = np.stack([read_exr(d / names[i]) for i in vi])
-    ref = rec.hdr.images if rec.hdr.images.ndim == 3 else rec.hdr.images.mean(axis=3)
-    ref = ref[ri]
+    ref_stored = rec.hdr.images[ri]
+    ref = ref_stored if ref_stored.ndim == 3 else ref_stored.mean(axis=3)
     if frames.shape[1:] != ref.shape[1:]:
         raise ValueError(f"reconstruction frames are {frames.shape[2]}x{frames.shape[1]} but references are "
                          f"{ref.shape[2]}x{ref.shape[1]}")
     hv, q_note = None, None
-    try:
-        find_hdrvdp(hdrvdp_dir)
-        hv = {"hdrvdp_dir": hdrvdp_dir, "engine": engine}
-    except HDRVDPNotFound as e:
-        q_note = str(e)
-    res = score_video(frames, ref, normalise=mode, peak_luminance_cd_m2=peak_luminance_cd_m2, hdrvdp=hv)
+    if "q" in want:
+        try:
+            find_hdrvdp(hdrvdp_dir)
+            hv = {"hdrvdp_dir": hdrvdp_dir, "engine": engine}
+        except HDRVDPNotFound as e:
+            q_note = str(e)
+    else:
+        q_note = "not requested (--metric)"
+    if protocol == "akf2021":
+        res = score_akf2021(frames, ref_stored, hdrvdp=hv)
+    else:
+        jod = {"display": display} if "jod" in want else None
+        res = score_video(frames, ref, normalise=mode, peak_luminance_cd_m2=peak_luminance_cd_m2, hdrvdp=hv,
+                          jod=jod)
     res.update(method=method, matched=int(len(vi)), references=int(len(rec.hdr)), tolerance_us=int(tolerance_us))
     if q_note:
         res["q"] = None
@@ -159,10 +197,31 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
 def run_metrics(args) -> int:
     res = score_reconstruction(args.recon_dir, args.reference, tolerance_us=args.tolerance_us,
                                normalise=args.normalise, peak_luminance_cd_m2=args.peak_luminance_cd_m2,
-                               hdrvdp_dir=args.hdrvdp_dir, engine=args.engine)
+                               hdrvdp_dir=args.hdrvdp_dir, engine=args.engine, protocol=args.protocol,
+                               metric=args.metric, display=args.display)
     if args.json:
         print(json.dumps(res))
         return 0
+    if res.get("protocol") == "akf2021":
+        print(f"{res['matched']} of {res['references']} references matched within {res['tolerance_us']} µs; "
+              f"protocol akf2021 (the AKF authors' evaluation): the unaltered reconstruction against the "
+              f"reference's channel mean / 255 (frame units), {res['n_masked']} reference-0 (unregistered) pixels "
+              f"masked, {res['n_valid']} scored")
+        for k, label in (("mse", "MSE (frame units)"), ("psnr_db", "PSNR (dB, peak 1)"),
+                         ("ssim", "SSIM (σ=1.5, range 1, masked)"), ("n_nonfinite", "NaN/Inf pixels")):
+            print(f"  {label:<32} {res[k]:.6g}" if isinstance(res[k], float) else f"  {label:<32} {res[k]}")
+    else:
+        _print_default(res)
+    if res.get("q") is None:
+        print(f"  {'HDR-VDP Q':<32} n/a ({res.get('q_note')})")
+    else:
+        print(f"  {'HDR-VDP Q':<32} {res['q']:.4g} (version {res['q_version']}, {res['q_task']}, "
+              f"{res['q_color_encoding']}, {res['q_pixels_per_degree']:.3g} ppd, "
+              f"{res['q_luminance_scale_cd_m2']:g} cd/m²)")
+    return 0
+
+
+def _print_default(res) -> None:
     how = "unaltered" if res["normalise"] == "none" else f"gain {res['gain']:.4g} fitted"
     print(f"{res['matched']} of {res['references']} references matched within {res['tolerance_us']} µs; "
           f"normalise={res['normalise']} ({how}); data range 1 after dividing by the reference max "
@@ -171,13 +230,13 @@ def run_metrics(args) -> int:
                      ("global_ssim", "global SSIM (EAF, one window)"), ("pu_psnr_db", "PU21-PSNR (dB)"),
                      ("pu_ssim", "PU21-SSIM"), ("n_nonfinite", "NaN/Inf pixels")):
         print(f"  {label:<32} {res[k]:.6g}" if isinstance(res[k], float) else f"  {label:<32} {res[k]}")
-    if res.get("q") is None:
-        print(f"  {'HDR-VDP Q':<32} n/a ({res.get('q_note')})")
-    else:
-        print(f"  {'HDR-VDP Q':<32} {res['q']:.4g} (version {res['q_version']}, {res['q_task']}, "
-              f"{res['q_color_encoding']}, {res['q_pixels_per_degree']:.3g} ppd, "
-              f"{res['q_luminance_scale_cd_m2']:g} cd/m²)")
-    return 0
+    if "jod" in res:
+        import math
+        if math.isfinite(res["jod"]):
+            print(f"  {'ColorVideoVDP JOD':<32} {res['jod']:.4g} ({res['jod_frames']} frames; "
+                  f"{res['jod_display_line']})")
+        else:
+            print(f"  {'ColorVideoVDP JOD':<32} {res.get('jod_note') or 'n/a'}")
 
 
 def run_bench_cmd(args) -> int:
@@ -197,7 +256,8 @@ def run_bench_cmd(args) -> int:
 def run_paper_cmd(args) -> int:
     from .paper import run_paper
     text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
-                     hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise, progress=not args.no_progress)
+                     hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise, progress=not args.no_progress,
+                     weights={"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}, jod=not args.no_jod)
     print(text)
     return 0
 
