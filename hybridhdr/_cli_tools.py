@@ -125,6 +125,7 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
     camera profile, agrees) and the frames written carry it. The result's ``frame_encoding`` is
     the encoding of the frames written (None without frames).
     """
+    from ._prefetch import Prefetcher
     from .camera.encoding import parse_frame_encoding, with_encoding
     from .events import slice_time
     from .io import open_reader, open_writer, unsupported_parts
@@ -146,9 +147,11 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
         n_out = n_trig = 0
         dropped_trig = 0
         try:
-            with open_writer(output, to_format, sensor_size=r.sensor_size, metadata=r.metadata) as w:
+            with open_writer(output, to_format, sensor_size=r.sensor_size, metadata=r.metadata) as w, \
+                    Prefetcher(r.iter_chunks(chunk_events), depth=2, name="hybridhdr-convert-read") as chunks:
+                # the reader decodes the next chunks in a thread while this one is written
                 can_trig = "triggers" in w.supports
-                for c in r.iter_chunks(chunk_events):
+                for c in chunks:
                     ev, tr = slice_time(c.events, start_us, end_us), slice_time(c.triggers, start_us, end_us)
                     w.write_events(ev)
                     if can_trig:
@@ -161,6 +164,7 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
                         bar.update(len(c.events))
                     if end_us is not None and len(c.events) and c.events["t"][-1] >= end_us:
                         break
+                chunks.close()  # the reader thread has stopped before the reader is used again
                 frames = with_encoding(r.read_frames(), frame_encoding)
                 if frames is not None and (start_us is not None or end_us is not None):
                     frames = frames.slice_time(start_us, end_us)

@@ -255,7 +255,15 @@ class EventFileWriter:
         if len(events) == 0:
             return
         from .events import validate_events
-        validate_events(events, self.sensor_size)
+        if events.flags.c_contiguous and events.ndim == 1:
+            # one fused pass (time order, polarity, coordinates); the full check names the error
+            from ._write_kernels import events_ok
+            ss = self.sensor_size
+            w, h = (0, 0) if ss is None else (ss.width, ss.height)
+            if events_ok(events.view(np.uint8).reshape(len(events), events.dtype.itemsize), events["t"], w, h) >= 0:
+                validate_events(events, self.sensor_size)
+        else:
+            validate_events(events, self.sensor_size)
         if self._last_t is not None and events["t"][0] < self._last_t:
             raise ValueError(f"{self.path}: events must be appended in time order; chunk starts at "
                              f"{int(events['t'][0])} µs after {self._last_t} µs")

@@ -837,3 +837,28 @@ def evt3_encode(t, x, y, p, tt, tch, te, es, out, use_vectors):
             nw += 1
             i += 1
     return nw
+
+
+@njit(cache=True, nogil=True)
+def dat_encode(rec64, prev_t, out):
+    """Pack ``EVENT_DTYPE`` records (int64 (N, 2) view: t, then x | y << 16 | p << 32) into DAT
+    CD words ``out`` (uint32 (N, 2): t mod 2^32, x | y << 14 | (p > 0) << 28).
+
+    Returns the largest step between consecutive times, starting from ``prev_t`` (the writer
+    refuses steps of 2^31 µs or more, which the 32-bit time cannot carry).
+    """
+    gap = np.int64(0)
+    last = prev_t
+    for i in range(rec64.shape[0]):
+        t = rec64[i, 0]
+        w = rec64[i, 1]
+        d = t - last
+        if d > gap:
+            gap = d
+        last = t
+        x = w & 0xFFFF
+        y = (w >> 16) & 0xFFFF
+        pos = 1 if (w >> 32) & 0xFF == 1 else 0
+        out[i, 0] = np.uint32(t & 0xFFFFFFFF)
+        out[i, 1] = np.uint32(x | (y << 14) | (pos << 28))
+    return gap

@@ -1117,6 +1117,7 @@ class DatWriter(EventFileWriter):
         self._f.write("".join(f"% {s}\n" for s in lines).encode("ascii"))
         self._f.write(bytes([12, 8]))
         self._prev_t = None
+        self._buf = np.empty((1 << 20, 2), np.uint32)  # reused output words
 
     def _write_events(self, events: np.ndarray) -> None:
         t = events["t"]
@@ -1126,13 +1127,15 @@ class DatWriter(EventFileWriter):
             raise ValueError(f"{self.path}: the first DAT timestamp must be < 2^32 µs (71.6 min), got "
                              f"{int(t[0])}; subtract an offset first")
         prev = int(t[0]) if self._prev_t is None else self._prev_t
-        if int(t[0]) - prev >= 1 << 31 or (len(t) > 1 and int(np.max(np.diff(t))) >= 1 << 31):
+        if not events.flags.c_contiguous:
+            events = np.ascontiguousarray(events)
+        # one pass (kernel): pack the records and find the largest time step (validated
+        # events: p is +1 or -1, x and y fit the sensor)
+        rec = self._buf[:len(events)] if len(events) <= len(self._buf) else np.empty((len(events), 2), np.uint32)
+        gap = K.dat_encode(events.view(np.int64).reshape(len(events), 2), prev, rec)
+        if gap >= 1 << 31:
             raise ValueError(f"{self.path}: DAT cannot store a gap of 2^31 µs (35.8 min) or more between "
                              "consecutive events (its 32-bit time would be ambiguous)")
-        rec = np.empty((len(events), 2), np.uint32)
-        rec[:, 0] = t & 0xFFFFFFFF
-        rec[:, 1] = (events["x"].astype(np.uint32) | (events["y"].astype(np.uint32) << 14)
-                     | ((events["p"] > 0).astype(np.uint32) << 28))
         self._f.write(memoryview(rec).cast("B"))
         self._prev_t = int(t[-1])
 

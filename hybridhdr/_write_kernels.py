@@ -1,0 +1,189 @@
+"""Numba kernels of the container writer (private): events into HDF5 chunk images, time index.
+
+:func:`stage_events` copies structured events (``EVENT_DTYPE``, 16-byte records) into the four
+column chunk buffers of the container in one pass, either in HDF5's byte-shuffle layout (byte
+``j`` of element ``i`` at ``j * C + i``, ``C`` the chunk length: exactly what the shuffle filter
+produces for a whole chunk) or in the plain little-endian layout, and extends the sparse time
+index (``docs/recording-format.md``) as it goes. The chunk images are then deflated (any
+thread) and stored with HDF5's direct chunk write, so HDF5 only writes bytes.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+#: slots of the index state array ``st``
+ST_HAS_BUCKET, ST_BUCKET, ST_HAS_ENTRY, ST_ENTRY = 0, 1, 2, 3
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _swap(a, b, s, m):
+    """Exchange the bytes of ``a`` above bit ``s`` (per block, mask ``m``) with those of ``b`` below it."""
+    t = ((a >> np.uint64(s)) ^ b) & m
+    return a ^ (t << np.uint64(s)), b ^ t
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _stage_one(rec, r, q, bt, bx, by, bp, C):
+    for j in range(8):
+        bt[j * C + q] = rec[r, j]
+    bx[q] = rec[r, 8]
+    bx[C + q] = rec[r, 9]
+    by[q] = rec[r, 10]
+    by[C + q] = rec[r, 11]
+    bp[q] = rec[r, 12]
+
+
+@njit(cache=True, nogil=True)
+def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride, idx_ms, idx_first, n_idx):
+    """Copy records ``rec[i0:i0+k]`` (uint8 (N, 16) view) to chunk positions ``pos..pos+k``.
+
+    ``t`` is the int64 time column of the same records (may be strided); ``g0`` is the global
+    index of record ``i0``. Index entries (millisecond, first index) are appended to
+    ``idx_ms``/``idx_first`` from ``n_idx`` on; returns the new entry count.
+    """
+    q = pos
+    i = 0
+    if shuffle:
+        rec64 = rec.view(np.int64)  # (N, 2): t, then x | y << 16 | p << 32 (little-endian records)
+        bt64 = bt.view(np.uint64)
+        bx64 = bx.view(np.uint64)
+        by64 = by.view(np.uint64)
+        bp64 = bp.view(np.uint64)
+        # byte planes, 8 events at a time: byte j of 8 consecutive values gathered into one
+        # 64-bit word in registers, one store per plane (scalar until the chunk position is a
+        # multiple of 8 and for the last < 8)
+        while i < k and (q & 7) != 0:
+            _stage_one(rec, i0 + i, q, bt, bx, by, bp, C)
+            i += 1
+            q += 1
+        m32 = np.uint64(0x00000000FFFFFFFF)
+        m16 = np.uint64(0x0000FFFF0000FFFF)
+        m8 = np.uint64(0x00FF00FF00FF00FF)
+        c8 = C >> 3
+        while i + 8 <= k:
+            r = i0 + i
+            w = q >> 3
+            # 8x8 byte transpose of the 8 time values (rows) in three swap stages
+            a0 = np.uint64(rec64[r, 0])
+            a1 = np.uint64(rec64[r + 1, 0])
+            a2 = np.uint64(rec64[r + 2, 0])
+            a3 = np.uint64(rec64[r + 3, 0])
+            a4 = np.uint64(rec64[r + 4, 0])
+            a5 = np.uint64(rec64[r + 5, 0])
+            a6 = np.uint64(rec64[r + 6, 0])
+            a7 = np.uint64(rec64[r + 7, 0])
+            a0, a4 = _swap(a0, a4, 32, m32)
+            a1, a5 = _swap(a1, a5, 32, m32)
+            a2, a6 = _swap(a2, a6, 32, m32)
+            a3, a7 = _swap(a3, a7, 32, m32)
+            a0, a2 = _swap(a0, a2, 16, m16)
+            a1, a3 = _swap(a1, a3, 16, m16)
+            a4, a6 = _swap(a4, a6, 16, m16)
+            a5, a7 = _swap(a5, a7, 16, m16)
+            a0, a1 = _swap(a0, a1, 8, m8)
+            a2, a3 = _swap(a2, a3, 8, m8)
+            a4, a5 = _swap(a4, a5, 8, m8)
+            a6, a7 = _swap(a6, a7, 8, m8)
+            bt64[w] = a0
+            bt64[c8 + w] = a1
+            bt64[2 * c8 + w] = a2
+            bt64[3 * c8 + w] = a3
+            bt64[4 * c8 + w] = a4
+            bt64[5 * c8 + w] = a5
+            bt64[6 * c8 + w] = a6
+            bt64[7 * c8 + w] = a7
+            # the second word of each record: x (bytes 0-1), y (2-3), p (4): the same transpose
+            b0 = np.uint64(rec64[r, 1])
+            b1 = np.uint64(rec64[r + 1, 1])
+            b2 = np.uint64(rec64[r + 2, 1])
+            b3 = np.uint64(rec64[r + 3, 1])
+            b4 = np.uint64(rec64[r + 4, 1])
+            b5 = np.uint64(rec64[r + 5, 1])
+            b6 = np.uint64(rec64[r + 6, 1])
+            b7 = np.uint64(rec64[r + 7, 1])
+            b0, b4 = _swap(b0, b4, 32, m32)
+            b1, b5 = _swap(b1, b5, 32, m32)
+            b2, b6 = _swap(b2, b6, 32, m32)
+            b3, b7 = _swap(b3, b7, 32, m32)
+            b0, b2 = _swap(b0, b2, 16, m16)
+            b1, b3 = _swap(b1, b3, 16, m16)
+            b4, b6 = _swap(b4, b6, 16, m16)
+            b5, b7 = _swap(b5, b7, 16, m16)
+            b0, b1 = _swap(b0, b1, 8, m8)
+            b2, b3 = _swap(b2, b3, 8, m8)
+            b4, b5 = _swap(b4, b5, 8, m8)
+            bx64[w] = b0
+            bx64[c8 + w] = b1
+            by64[w] = b2
+            by64[c8 + w] = b3
+            bp64[w] = b4
+            i += 8
+            q += 8
+        while i < k:
+            _stage_one(rec, i0 + i, q, bt, bx, by, bp, C)
+            i += 1
+            q += 1
+    else:
+        for i in range(k):
+            r = i0 + i
+            q = pos + i
+            for j in range(8):
+                bt[8 * q + j] = rec[r, j]
+            bx[2 * q] = rec[r, 8]
+            bx[2 * q + 1] = rec[r, 9]
+            by[2 * q] = rec[r, 10]
+            by[2 * q + 1] = rec[r, 11]
+            bp[q] = rec[r, 12]
+    # sparse time index: an entry at the first event of a millisecond when at least ``stride``
+    # events have passed since the last entry (the very first event always has one)
+    has_b = st[ST_HAS_BUCKET] != 0
+    b = st[ST_BUCKET]
+    lo = hi = np.int64(0)  # [lo, hi): the times of bucket b (no division while t stays inside)
+    if has_b and b > -(np.int64(1) << 53) and b < (np.int64(1) << 53):
+        lo = b * 1000
+        hi = lo + 1000
+    for i in range(k):
+        tv = t[i0 + i]
+        if has_b and lo <= tv and tv < hi:
+            continue
+        nb = tv // 1000  # Python floor division: exact for any int64, negative times included
+        if has_b and nb == b:
+            continue
+        g = g0 + i
+        if st[ST_HAS_ENTRY] == 0 or g >= st[ST_ENTRY] + stride:
+            idx_ms[n_idx] = nb
+            idx_first[n_idx] = g
+            n_idx += 1
+            st[ST_HAS_ENTRY] = 1
+            st[ST_ENTRY] = g
+        has_b = True
+        b = nb
+        if b > -(np.int64(1) << 53) and b < (np.int64(1) << 53):
+            lo = b * 1000
+            hi = lo + 1000
+        else:  # extreme times: compare buckets by division
+            lo = hi = 0
+    st[ST_HAS_BUCKET] = 1 if has_b else 0
+    st[ST_BUCKET] = b
+    return n_idx
+
+
+@njit(cache=True, nogil=True)
+def events_ok(rec, t, width, height):
+    """Index of the first record that is out of time order, has p not in {+1, -1} or a coordinate
+    outside the sensor (``width``/``height`` <= 0: unchecked), or -1 when all are valid."""
+    n = rec.shape[0]
+    for i in range(n):
+        if i and t[i] < t[i - 1]:
+            return i
+        p = np.int8(rec[i, 12])
+        if p != 1 and p != -1:
+            return i
+        if width > 0:
+            x = np.int64(rec[i, 8]) | (np.int64(rec[i, 9]) << 8)
+            y = np.int64(rec[i, 10]) | (np.int64(rec[i, 11]) << 8)
+            if x >= width or y >= height:
+                return i
+    return -1
