@@ -21,9 +21,13 @@ Frames are (H, W) float32 (EXR channel ``Y``) or (H, W, 3) linear RGB (channels 
 ``B``; previews are 8-bit RGB tone-mapped with one set of limits over all channels).
 
 Tone mapping (previews only; the EXR files hold the linear values untouched):
-``v = clip((log(max(I, 1e-6)) - lo) / (hi - lo), 0, 1) ** (1 / gamma)`` with ``lo`` and ``hi`` the
-``low_percentile`` and ``high_percentile`` of ``log I`` over the whole video (fixed over time so
-brightness changes stay visible), ``gamma = 1`` by default, then ``round(255 v)`` as 8-bit grey.
+``v = clip((log I - lo) / (hi - lo), 0, 1) ** (1 / gamma)`` with ``lo`` and ``hi`` the
+``low_percentile`` and ``high_percentile`` of ``log I`` over the *valid* pixels of the whole video
+(finite and above the 1e-6 floor the reconstruction clamps to; fixed over time so brightness
+changes stay visible), ``gamma = 1`` by default, then ``round(255 v)`` as 8-bit grey. Invalid
+pixels do not move the limits: NaN, -inf and values <= 1e-6 show black, +inf white. (With the
+floor counted, a reconstruction whose clamped or NaN pixels exceed 1 % of the video had its low
+limit pinned at log 1e-6, washing the picture out.)
 The streaming writer computes the same percentiles exactly (:class:`LogPercentiles`: a
 two-level histogram of the float32 bit patterns), so its previews equal :func:`tone_map` of the
 whole video.
@@ -139,21 +143,27 @@ def tone_map(frames: np.ndarray, *, low_percentile: float = 1.0, high_percentile
     """Global log tone mapping of linear frames to uint8; returns (images, (lo, hi)).
 
     ``frames``: (K, H, W), (H, W), (K, H, W, 3) or (H, W, 3) (elementwise, one set of limits for
-    all channels). ``limits`` (in log units) overrides the percentiles, e.g. to tone-map two
-    videos alike.
+    all channels). The percentiles are over the finite values above 1e-6 only (NaN, -inf and
+    values <= 1e-6 map to 0, +inf to 255; see the module docstring). ``limits`` (in log units)
+    overrides the percentiles, e.g. to tone-map two videos alike.
     """
     f = np.asarray(frames, dtype=np.float64)
     if f.ndim not in (2, 3, 4) or (f.ndim == 4 and f.shape[3] != 3):
         raise ValueError(f"frames must have shape (K, H, W), (H, W) or with a last axis of 3, got {f.shape}")
     _check_tone(low_percentile, high_percentile, gamma)
-    lg = np.log(np.maximum(np.nan_to_num(f, nan=_FLOOR, posinf=1e6), _FLOOR))
+    valid = np.isfinite(f) & (f > _FLOOR)
+    lg = np.log(np.where(valid, f, 1.0))
     if limits is None:
-        lo, hi = (float(v) for v in np.percentile(lg, [low_percentile, high_percentile]))
+        if valid.any():
+            lo, hi = (float(v) for v in np.percentile(lg[valid], [low_percentile, high_percentile]))
+        else:
+            lo = hi = float(np.log(_FLOOR))
     else:
         lo, hi = float(limits[0]), float(limits[1])
     if hi <= lo:
         hi = lo + 1e-6
     v = np.clip((lg - lo) / (hi - lo), 0.0, 1.0) ** (1.0 / gamma)
+    v = np.where(valid, v, np.where(np.isposinf(f), 1.0, 0.0))
     return np.round(255.0 * v).astype(np.uint8), (lo, hi)
 
 
@@ -165,12 +175,13 @@ def _check_tone(low_percentile, high_percentile, gamma):
 
 
 class LogPercentiles:
-    """Exact percentiles of :func:`tone_map`'s ``log max(I, 1e-6)`` over a stream of frames.
+    """Exact percentiles of :func:`tone_map`'s ``log I`` over the valid values (finite, > 1e-6) of
+    a stream of frames.
 
     ``log`` and the floor are monotone, so an order statistic of log I is the log of the order
     statistic of I. Every value is mapped to an order-preserving 32-bit key (its float32 bit
     pattern after the floor, NaN and +inf handling of :func:`tone_map`); :meth:`add` counts the
-    keys' top 16 bits, and :meth:`limits` finds the exact keys at the needed ranks with one more
+    keys' top 16 bits (invalid values are left out), and :meth:`limits` finds the exact keys at the needed ranks with one more
     pass that counts the low 16 bits inside the (at most four) top bins concerned. The result is
     ``np.percentile``'s linear interpolation of those values, bit for bit (tested). Memory: two
     65,536-bin histograms.
@@ -182,11 +193,10 @@ class LogPercentiles:
 
     @staticmethod
     def keys(frame) -> np.ndarray:
-        """Order-preserving uint32 keys of tone_map's floored values (flattened)."""
+        """Order-preserving uint32 keys of tone_map's valid values (flattened; finite and > 1e-6,
+        which for float32 is ``x >= _C32``)."""
         x = np.asarray(frame, dtype=np.float32).reshape(-1)
-        y = np.where(np.isnan(x) | (x < _C32), _SENTINEL32, x)
-        y = np.where(np.isposinf(y), np.float32(1e6), y)
-        return y.view(np.uint32)
+        return np.ascontiguousarray(x[np.isfinite(x) & (x >= _C32)]).view(np.uint32)
 
     @staticmethod
     def key_log(key: int) -> float:
@@ -201,9 +211,11 @@ class LogPercentiles:
 
     def limits(self, frames_iter, low_percentile: float = 1.0, high_percentile: float = 99.0) -> tuple[float, float]:
         """(lo, hi) = ``np.percentile(log I, [low, high])`` of everything added; ``frames_iter()``
-        must yield the same frames again (any order)."""
+        must yield the same frames again (any order). Without any valid value: (log 1e-6, log 1e-6),
+        as :func:`tone_map`."""
         if self.n == 0:
-            raise ValueError("no values")
+            lf = float(np.log(_FLOOR))
+            return lf, lf
         n = self.n
         q = np.true_divide([low_percentile, high_percentile], 100)
         vi = (n - 1) * q  # numpy's 'linear' method (Hyndman & Fan 7)
