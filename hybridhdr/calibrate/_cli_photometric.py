@@ -11,13 +11,14 @@ import time
 from pathlib import Path
 
 from .._atomic import write_json_atomic
+from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
 
 
 def register(steps) -> None:
     """Add the ``crf`` and ``hdr-reference`` steps to ``hybridhdr calibrate``."""
     p = steps.add_parser(
         "crf", help="camera response (Debevec/Robertson) and the AKF noise profile from exposure brackets",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON_NO_JSON],
         description="Estimate the camera response function from a bracket set (docs/brackets.md), then the "
                     "certainty/weighting function f_w, the noise level sigma^2_im and the covariance lookup "
                     "R(code) = sigma^2_im / f_w (AKF eqs. 4-6). Writes OUT/crf.json, OUT/camera_profile.json "
@@ -26,11 +27,11 @@ def register(steps) -> None:
                    help="bracket set folder: brackets.json, or images + exposures.txt, or EXIF exposures")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--method", default="debevec", choices=["debevec", "robertson"], help="CRF estimator")
-    p.add_argument("--smoothness", type=float, default=10.0,
+    p.add_argument("--smoothness", type=nonneg_float, default=10.0,
                    help="Debevec smoothness lambda (scaled by sqrt(samples*images/codes))")
-    p.add_argument("--samples", type=int, default=400, help="Debevec: pixels sampled per channel")
+    p.add_argument("--samples", type=positive_int, default=400, help="Debevec: pixels sampled per channel")
     p.add_argument("--seed", type=int, default=0, help="seed of the pixel sampling")
-    p.add_argument("--sigma2-im", type=float, default=None,
+    p.add_argument("--sigma2-im", type=positive_float, default=None,
                    help="frame noise variance in intensity^2 (I in [0,1], top code = 1); default: estimated "
                         "(temporal from equal exposures, else spatial Immerkaer)")
     p.add_argument("--floor", type=float, default=0.09, help="floor of f_w (eq. 6 saturation; AKF code 0.09)")
@@ -39,12 +40,11 @@ def register(steps) -> None:
     p.add_argument("--ignore-colour", default=None, metavar="R,G,B",
                    help="exclude pixels of this exact colour in any image (e.g. 0,0,255 for Debevec's scans)")
     p.add_argument("--name", default="", help="camera name stored in the profile")
-    p.add_argument("--no-progress", action="store_true", help="no progress bar (Robertson)")
     p.set_defaults(func=run_crf)
 
     q = steps.add_parser(
         "hdr-reference", help="merge brackets into an HDR reference (EXR); register it to a recording's frames",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON_NO_JSON],
         description="Merge a bracket set into float32 relative radiance weighted by the certainty function "
                     "(log domain with a CRF; Poisson ML in the linear domain for RAW/linear brackets) and write "
                     "OpenEXR. With --register, register the reference to every frame of a recording (SURF or "
@@ -66,9 +66,8 @@ def register(steps) -> None:
     q.add_argument("--align", action=argparse.BooleanOptionalAction, default=True,
                    help="align the brackets to each other before merging (AlignMTB, then a keypoint homography; "
                         "each kept only when it lowers the residual, so tripod brackets stay as they are)")
-    q.add_argument("--ratio", type=float, default=0.75, help="Lowe ratio-test threshold")
-    q.add_argument("--ransac-px", type=float, default=3.0, help="MAGSAC/RANSAC inlier threshold in pixels")
-    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+    q.add_argument("--ratio", type=positive_float, default=0.75, help="Lowe ratio-test threshold")
+    q.add_argument("--ransac-px", type=positive_float, default=3.0, help="MAGSAC/RANSAC inlier threshold in pixels")
     q.set_defaults(func=run_hdr_reference)
 
 

@@ -5,12 +5,13 @@ Heavy imports (cv2, matplotlib, the readers) happen inside :func:`run`.
 
 from __future__ import annotations
 
-import argparse
 import glob
 import json
 import os
 import sys
 from pathlib import Path
+
+from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
@@ -19,7 +20,7 @@ def register(steps) -> None:
     """Add the ``rig`` step to ``hybridhdr calibrate``."""
     p = steps.add_parser(
         "rig", help="stereo rig: blinking-board event images, intrinsics, extrinsics, frame->event mapping",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON_NO_JSON],
         description="Calibrate an event camera against a frame camera with a blinking checkerboard "
                     "(--events with --frames), or two frame cameras (--left/--right). Writes "
                     "calibration.json (schema in docs/calibrate.md), report.json, PNG plots and, for "
@@ -35,7 +36,7 @@ def register(steps) -> None:
     src.add_argument("--right", nargs="+", default=None, help="camera-2 images (same order as --left)")
     b = p.add_argument_group("board and models")
     b.add_argument("--board", required=True, help="inner corners COLSxROWS, e.g. 9x6")
-    b.add_argument("--square-mm", type=float, required=True, help="square side in millimetres")
+    b.add_argument("--square-mm", type=positive_float, required=True, help="square side in millimetres")
     b.add_argument("--model", default="plumb_bob", choices=["none", "k1", "fixed_k3", "plumb_bob", "rational"],
                    help="distortion model of the frame (or left) camera")
     b.add_argument("--model-events", default=None, choices=["none", "k1", "fixed_k3", "plumb_bob", "rational"],
@@ -44,12 +45,12 @@ def register(steps) -> None:
                    help="corner detector for frame images")
     b.add_argument("--detector-events", default="sb", choices=["sb", "sb+subpix", "classic"],
                    help="corner detector for event images (and for --right)")
-    b.add_argument("--max-sharpness-px", type=float, default=4.0,
+    b.add_argument("--max-sharpness-px", type=nonneg_float, default=4.0,
                    help="drop SB views whose estimated edge width exceeds this (px); 0 disables")
-    b.add_argument("--prune-factor", type=float, default=2.0,
+    b.add_argument("--prune-factor", type=nonneg_float, default=2.0,
                    help="drop views whose RMS error exceeds this times the median and re-calibrate; 0 disables")
-    b.add_argument("--min-views", type=int, default=4, help="fewest views accepted per camera")
-    b.add_argument("--depth-m", type=float, default=None,
+    b.add_argument("--min-views", type=positive_int, default=4, help="fewest views accepted per camera")
+    b.add_argument("--depth-m", type=positive_float, default=None,
                    help="scene depth (metres) of the frame->event homography (default: infinity)")
     e = p.add_argument_group("event images (--events)")
     e.add_argument("--trigger-channel", type=int, default=None, help="trigger channel marking the blink")
@@ -60,12 +61,10 @@ def register(steps) -> None:
                    help="reject a window whose ON-only or OFF-only pixels exceed this fraction of its "
                         "both-polarity pixels")
     e.add_argument("--median-radius", type=int, default=1, help="median filter radius (px)")
-    e.add_argument("--min-period-us", type=int, default=10_000, help="shortest blink period searched (µs)")
-    e.add_argument("--max-period-us", type=int, default=500_000, help="longest blink period searched (µs)")
-    e.add_argument("--min-windows-per-pose", type=int, default=2, help="blink periods a static pose needs")
+    e.add_argument("--min-period-us", type=positive_int, default=10_000, help="shortest blink period searched (µs)")
+    e.add_argument("--max-period-us", type=positive_int, default=500_000, help="longest blink period searched (µs)")
+    e.add_argument("--min-windows-per-pose", type=positive_int, default=2, help="blink periods a static pose needs")
     p.add_argument("--out", type=Path, required=True, help="output folder")
-    p.add_argument("--no-progress", action="store_true", help="hide progress bars")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
     p.set_defaults(func=run)
 
 

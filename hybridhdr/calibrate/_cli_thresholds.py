@@ -2,17 +2,18 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 import time
 from pathlib import Path
 
+from .._cliargs import COMMON, HelpFormatter, json_output, positive_int
+
 
 def register(steps) -> None:
     p = steps.add_parser(
         "thresholds", help="per-pixel ON/OFF contrast thresholds from a recording's frames and events",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON],
         description="Estimate each pixel's ON and OFF contrast thresholds (natural-log units) by non-negative "
                     "least squares of the frames' log-intensity changes on the ON/OFF event counts between "
                     "consecutive frames (well-exposed pixel pairs only), with a pooled global estimate as the "
@@ -30,7 +31,7 @@ def register(steps) -> None:
                    help="I0 of L = log(I + I0), frame-linear units (default: the reconstruction's 1e-3)")
     p.add_argument("--well-exposed", default=None, metavar="LO,HI",
                    help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
-    p.add_argument("--min-intervals", type=int, default=2,
+    p.add_argument("--min-intervals", type=positive_int, default=2,
                    help="usable frame intervals with ON events, and with OFF events, a pixel needs")
     p.add_argument("--min-decorrelation", type=float, default=0.05,
                    help="smallest 1 - rho^2 of a pixel's ON and OFF count columns")
@@ -39,7 +40,6 @@ def register(steps) -> None:
                    help="also use frame intervals not fully inside the events' time span")
     p.add_argument("--store", action="store_true",
                    help="also store the map in RECORDING (a hybridhdr container), where reconstruct uses it")
-    p.add_argument("--json", action="store_true", help="print the summary as JSON")
     p.set_defaults(func=run_thresholds)
 
 
@@ -51,6 +51,7 @@ def _pair(s, name, cast):
     return a, b
 
 
+@json_output
 def run_thresholds(args) -> int:
     from .._atomic import write_json_atomic
     from .._version import __version__

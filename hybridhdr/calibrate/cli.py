@@ -8,8 +8,9 @@ present in this version is simply not listed.
 
 from __future__ import annotations
 
-import argparse
 import importlib
+
+from .._cliargs import HelpFormatter
 
 _STEP_MODULES = ("_cli_rig", "_cli_photometric", "_cli_thresholds")
 
@@ -19,7 +20,7 @@ def add_parser(sub) -> None:
                        description="Calibrate a hybrid event/frame rig: geometry (rig), photometry (crf), "
                                    "HDR references (hdr-reference) and contrast thresholds (thresholds). Each step "
                                    "writes a JSON report and PNG plots.",
-                       formatter_class=argparse.ArgumentDefaultsHelpFormatter)
+                       formatter_class=HelpFormatter)
     steps = p.add_subparsers(dest="calibrate_step", metavar="STEP")
     for name in _STEP_MODULES:
         try:

@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
-import argparse
 import json
 import sys
 from pathlib import Path
 
+from .._cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_output, positive_float, positive_int
+
 DESCRIPTION = "record and read hybrid data (devices, brackets, sync, recorder)"
-_FMT = argparse.ArgumentDefaultsHelpFormatter
+_FMT = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v) come from COMMON
 
 
 def add_parser(sub) -> None:
@@ -19,16 +20,15 @@ def add_parser(sub) -> None:
     p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
     cs = p.add_subparsers(dest="capture_command", metavar="STEP")
 
-    d = cs.add_parser("devices", help="list attached event and frame cameras (USB IDs)", formatter_class=_FMT,
+    d = cs.add_parser("devices", help="list attached event and frame cameras (USB IDs)", formatter_class=_FMT, parents=[COMMON],
                       description="List attached cameras by USB vendor/product ID (Prophesee, iniVation, Luxonis, "
-                                  "FLIR, Basler, ...). Exits 1 when none is found.")
+                                  "FLIR, Basler, ...). Exits 1 when none is found, except with --json, which prints "
+                                  "the list ([] when empty) and exits 0.")
     d.add_argument("--all", action="store_true", help="also list USB devices that are not known cameras")
-    d.add_argument("--json", action="store_true", help="print JSON")
-    d.add_argument("--debug", action="store_true", help="show tracebacks")
     d.set_defaults(func=run_devices)
 
     r = cs.add_parser("record", help="record events (+ frames) through the crash-safe recorder",
-                      formatter_class=_FMT,
+                      formatter_class=_FMT, parents=[COMMON_NO_JSON],
                       description="Record an event source and optionally a frame source into a hybridhdr "
                                   "container. Data go to OUT.journal while recording; after a crash run "
                                   "'hybridhdr capture recover OUT'.")
@@ -38,13 +38,13 @@ def add_parser(sub) -> None:
     r.add_argument("--frames", default=None,
                    help="frame source: a file to replay, or 'oak' / 'device' for a Luxonis OAK camera")
     r.add_argument("--out", type=Path, required=True, help="output container (.h5)")
-    r.add_argument("--duration-s", type=float, default=None, help="stop after this many seconds (default: "
+    r.add_argument("--duration-s", type=positive_float, default=None, help="stop after this many seconds (default: "
                    "end of the replayed file, Ctrl-C for live sources)")
     r.add_argument("--pace", choices=("realtime", "fast"), default="realtime", help="replay pacing")
-    r.add_argument("--speed", type=float, default=1.0, help="replay speed factor (realtime pace)")
-    r.add_argument("--chunk-us", type=int, default=10_000, help="event chunk length (µs)")
-    r.add_argument("--queue-chunks", type=int, default=64, help="recorder queue capacity (chunks/frames)")
-    r.add_argument("--flush-interval-s", type=float, default=1.0, help="journal flush period (s)")
+    r.add_argument("--speed", type=positive_float, default=1.0, help="replay speed factor (realtime pace)")
+    r.add_argument("--chunk-us", type=positive_int, default=10_000, help="event chunk length (µs)")
+    r.add_argument("--queue-chunks", type=positive_int, default=64, help="recorder queue capacity (chunks/frames)")
+    r.add_argument("--flush-interval-s", type=positive_float, default=1.0, help="journal flush period (s)")
     r.add_argument("--on-full", choices=("auto", "block", "drop"), default="auto", help="queue-full policy")
     r.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
     r.add_argument("--fsync", action="store_true", help="fsync the journal at each flush (power-loss safe)")
@@ -52,13 +52,11 @@ def add_parser(sub) -> None:
     r.add_argument("--iso", type=int, default=None, help="OAK manual ISO (100-1600)")
     r.add_argument("--frame-sync", choices=("off", "input", "output"), default=None, help="OAK FSYNC role")
     r.add_argument("--trigger-channels", type=int, nargs="*", default=(), help="Prophesee trigger inputs to enable")
-    r.add_argument("--no-progress", action="store_true", help="hide the progress bar")
     r.add_argument("--allow-huge", action="store_true", help="lift the header size limits (docs/security.md)")
-    r.add_argument("--debug", action="store_true", help="show tracebacks")
     r.set_defaults(func=run_record)
 
     b = cs.add_parser("brackets", help="read a bracket folder (RAW/JPEG/PNG) or capture one with an OAK",
-                      formatter_class=_FMT,
+                      formatter_class=_FMT, parents=[COMMON],
                       description="Summarise a bracket set (RAW files with EXIF exposure, JPEG/PNG with "
                                   "exposures.txt, or a brackets.json folder), optionally rewriting it as a "
                                   "brackets.json folder; or capture one from an OAK camera.")
@@ -66,15 +64,13 @@ def add_parser(sub) -> None:
     b.add_argument("--device", choices=("oak",), default=None, help="capture from a camera instead")
     b.add_argument("--exposures-us", type=int, nargs="+", default=None, help="exposures to capture (µs)")
     b.add_argument("--iso", type=int, default=100, help="ISO for the capture")
-    b.add_argument("--frames-per-step", type=int, default=1, help="frames kept per exposure")
+    b.add_argument("--frames-per-step", type=positive_int, default=1, help="frames kept per exposure")
     b.add_argument("--out", type=Path, default=None, help="write a bracket-set folder (brackets.json + PNG)")
     b.add_argument("--plot", type=Path, default=None, help="PNG contact sheet of the bracket")
-    b.add_argument("--json", action="store_true", help="print JSON")
-    b.add_argument("--debug", action="store_true", help="show tracebacks")
     b.set_defaults(func=run_brackets)
 
     s = cs.add_parser("sync", help="map frame exposures onto the event clock from trigger edges",
-                      formatter_class=_FMT,
+                      formatter_class=_FMT, parents=[COMMON_NO_JSON],
                       description="Pair trigger pulses with frames, fit offset and drift robustly, report "
                                   "jitter and missing/extra triggers, and write the recording with frame "
                                   "times on the event clock.")
@@ -88,11 +84,10 @@ def add_parser(sub) -> None:
     s.add_argument("--out", type=Path, default=None, help="write the synchronised recording here")
     s.add_argument("--report", type=Path, default=None, help="write the report as JSON")
     s.add_argument("--plot", type=Path, default=None, help="PNG of the fit residuals")
-    s.add_argument("--debug", action="store_true", help="show tracebacks")
     s.set_defaults(func=run_sync)
 
     v = cs.add_parser("recover", help="rebuild a recording from the journal of an interrupted capture",
-                      formatter_class=_FMT,
+                      formatter_class=_FMT, parents=[COMMON_NO_JSON],
                       description="Replay REC.h5.journal (left by a crash or kill -9) into REC.h5: everything "
                                   "up to the last flush, plus later records whose checksums are intact.")
     v.add_argument("file", type=Path, help="the recording name (REC.h5) or its journal")
@@ -100,11 +95,10 @@ def add_parser(sub) -> None:
     v.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
     v.add_argument("--keep-journal", action="store_true", help="keep the journal after a successful recovery")
     v.add_argument("--allow-huge", action="store_true", help="lift the header size limits (docs/security.md)")
-    v.add_argument("--debug", action="store_true", help="show tracebacks")
     v.set_defaults(func=run_recover)
 
     e = cs.add_parser("session", help="write or verify a dataset sequence folder with a manifest",
-                      formatter_class=_FMT,
+                      formatter_class=_FMT, parents=[COMMON_NO_JSON],
                       description="Package a recording, calibration, camera profile and bracket sets into one "
                                   "sequence folder with manifest.json (sha256 + size of every file); or "
                                   "verify such a folder with --verify.")
@@ -118,7 +112,6 @@ def add_parser(sub) -> None:
     e.add_argument("--name", default=None, help="sequence name (default: folder name)")
     e.add_argument("--notes", default="", help="free text for the manifest")
     e.add_argument("--verify", type=Path, default=None, metavar="DIR", help="verify an existing session folder")
-    e.add_argument("--debug", action="store_true", help="show tracebacks")
     e.set_defaults(func=run_session)
 
 
@@ -127,9 +120,13 @@ def _comp(v):
 
 
 # -- devices ----------------------------------------------------------------------------------
+@json_output
 def run_devices(args) -> int:
     from .devices import NoDeviceFound, format_devices, list_devices
     devs = list_devices(include_unknown=args.all)
+    if args.json:  # a list, empty or not, is the answer
+        print(json.dumps([d.to_dict() for d in devs]))
+        return 0
     if not devs:
         raise NoDeviceFound("no device found (looked for Prophesee, iniVation, Luxonis OAK, FLIR, Basler, "
                             "Allied Vision, IDS and XIMEA USB IDs; see docs/capture.md)")
@@ -245,6 +242,7 @@ def _plot_brackets(images, exposures_s, path):
     plt.close(fig)
 
 
+@json_output
 def run_brackets(args) -> int:
     if args.device == "oak":
         if not args.exposures_us:
@@ -327,7 +325,7 @@ def run_recover(args) -> int:
     from .._limits import allow_huge
     from .recorder import journal_path, recover
     with allow_huge(args.allow_huge):
-        res = recover(args.file, args.out, compression=_comp(args.compression), progress=True)
+        res = recover(args.file, args.out, compression=_comp(args.compression), progress=not args.no_progress)
     print(f"recovered {res['output']}: {res['events']:,} events, {res['triggers']:,} triggers, "
           f"{res['frames']:,} frames; {res['flushes']} flushes in the journal, "
           f"{res['events_after_last_flush']:,} events after the last flush were intact; stopped at: "

@@ -2,18 +2,20 @@
 
 from __future__ import annotations
 
-import argparse
 import contextlib
 import json
 import sys
 from pathlib import Path
+
+from .._cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
+    positive_int
 
 
 def add_parser(subparsers) -> None:
     """Add the ``simulate`` subcommand (sets ``func=run``)."""
     p = subparsers.add_parser(
         "simulate", help="render scenes to events, LDR frames and HDR ground truth",
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
+        formatter_class=HelpFormatter, parents=[COMMON], allow_abbrev=False,
         description="Render a Mitsuba 3 scene (a TOML scene file or builtin:NAME) with adaptive time "
                     "sampling into events, LDR frames and HDR ground truth, written as a hybridhdr "
                     "recording (HDF5) that 'hybridhdr reconstruct' reads. Scene format: docs/simulate.md.")
@@ -22,47 +24,70 @@ def add_parser(subparsers) -> None:
     p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
     p.add_argument("--preset", default="clean", choices=["ideal", "clean", "noisy"],
                    help="event-sensor preset (noise tiers; docs/simulate.md)")
-    p.add_argument("--fixed-rate-hz", type=float, default=None,
+    p.add_argument("--fixed-rate-hz", type=positive_float, default=None,
                    help="render at this fixed rate (Hz) instead of adaptive sampling")
-    p.add_argument("--min-rate-hz", type=float, default=None, help="adaptive sampling: lowest render rate (Hz)")
-    p.add_argument("--max-rate-hz", type=float, default=None, help="adaptive sampling: highest render rate (Hz)")
-    p.add_argument("--robust-quantile", type=float, default=None,
+    p.add_argument("--min-rate-hz", type=positive_float, default=None, help="adaptive sampling: lowest render rate (Hz)")
+    p.add_argument("--max-rate-hz", type=positive_float, default=None, help="adaptive sampling: highest render rate (Hz)")
+    p.add_argument("--robust-quantile", type=fraction, default=None,
                    help="adaptive sampling: quantile of the per-pixel log change taken as its maximum "
                         "(default: the sampler's; 0.99 ignores anti-aliasing jumps at high-contrast edges)")
     p.add_argument("--seed", type=int, default=0, help="seed of the sensor and camera noise")
-    p.add_argument("--duration-s", type=float, default=None, help="scene length in seconds (default: the scene's)")
-    p.add_argument("--spp", type=int, default=None, help="Mitsuba samples per pixel (default: the scene's)")
+    p.add_argument("--duration-s", type=positive_float, default=None, help="scene length in seconds (default: the scene's)")
+    p.add_argument("--spp", type=positive_int, default=None, help="Mitsuba samples per pixel (default: the scene's)")
     p.add_argument("--render-seed", type=int, default=None,
                    help="Mitsuba sampler seed, the same for every render (default: the scene's)")
     p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb"],
                    help="Mitsuba variant (default: llvm_ad_mono if LLVM works, else scalar_rgb)")
-    p.add_argument("--width", type=int, default=None, help="image width in pixels (intrinsics scale with it)")
-    p.add_argument("--height", type=int, default=None, help="image height in pixels")
+    p.add_argument("--width", type=positive_int, default=None, help="image width in pixels (intrinsics scale with it)")
+    p.add_argument("--height", type=positive_int, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
     f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
-    f.add_argument("--frame-rate-hz", type=float, default=20.0, help="frame rate (Hz)")
-    f.add_argument("--exposure-us", type=int, default=10_000, help="exposure time (µs)")
+    f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=20.0,
+                   help="frames per second (--frame-rate-hz is the old name)")
+    f.add_argument("--exposure-us", type=positive_int, default=10_000, help="exposure time (µs)")
     f.add_argument("--auto-exposure", action="store_true", help="adapt the exposure from frame to frame")
     f.add_argument("--crf", default="gamma", help="camera response: linear, gamma, srgb, akf_s_curve_<K>")
     f.add_argument("--bit-depth", type=int, default=8, choices=[8, 10, 12], help="frame bit depth")
-    f.add_argument("--electrons-per-radiance-s", type=float, default=None,
+    f.add_argument("--electrons-per-radiance-s", type=positive_float, default=None,
                    help="sensitivity: electrons per second per unit radiance (default: the camera model's)")
-    p.add_argument("--gt-rate-hz", type=float, default=None,
-                   help="also store HDR ground truth at this rate (Hz), besides every frame's mid-exposure")
+    p.add_argument("--gt-fps", "--gt-rate-hz", dest="gt_rate_hz", type=positive_float, default=None,
+                   help="also store HDR ground truth at this many per second, besides every frame's mid-exposure "
+                        "(--gt-rate-hz is the old name)")
+    e = p.add_argument_group("event sensor (v2e names; each overrides the --preset's value)")
+    e.add_argument("--pos-thres", type=positive_float, default=None, help="ON contrast threshold, log units (v2e 0.2)")
+    e.add_argument("--neg-thres", type=positive_float, default=None,
+                   help="OFF contrast threshold, log units, given positive (v2e 0.2)")
+    e.add_argument("--sigma-thres", type=nonneg_float, default=None,
+                   help="sigma of the per-pixel threshold mismatch, log units (v2e 0.03)")
+    e.add_argument("--cutoff-hz", type=nonneg_float, default=None,
+                   help="photoreceptor corner frequency at white, Hz (v2e 300; 0 = infinite bandwidth)")
+    e.add_argument("--leak-rate-hz", type=nonneg_float, default=None, help="leak events per pixel per second (v2e 0.01)")
+    e.add_argument("--shot-noise-rate-hz", type=nonneg_float, default=None,
+                   help="shot-noise events per pixel per second, ON + OFF (v2e noisy 5)")
+    e.add_argument("--refractory-period-us", type=nonneg_int, default=None,
+                   help="blind time after each event, µs (v2e 500)")
+    b = p.add_argument_group("builtin:blinking_checkerboard (calibration board)")
+    b.add_argument("--poses", type=positive_int, default=None,
+                   help="static camera views of the board (1-5; 'calibrate rig' needs at least 4 with its default "
+                        "--min-views); default 1")
+    b.add_argument("--blink-period-us", type=positive_int, default=None, help="blink period, µs; default 100000")
     p.add_argument("--preview", type=Path, default=None,
                    help="only render a PNG strip of a few frames (log radiance) to this file and exit")
-    p.add_argument("--preview-frames", type=int, default=4, help="frames in the --preview strip")
-    p.add_argument("--no-progress", action="store_true", help="hide the progress bar")
-    p.add_argument("--debug", action="store_true", help="show tracebacks")
+    p.add_argument("--preview-frames", type=positive_int, default=4, help="frames in the --preview strip")
     p.set_defaults(func=run)
 
 
-def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=None, render_seed=None):
-    """A :class:`Scene` from ``builtin:NAME`` or a TOML path, with the overrides applied."""
+def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=None, render_seed=None,
+                   board_options=None):
+    """A :class:`Scene` from ``builtin:NAME`` or a TOML path, with the overrides applied;
+    ``board_options`` (``poses``, ``period_us``) go to ``builtin:blinking_checkerboard``."""
     from .builtin import builtin_scene
     from .scene import load_scene
+    opts = {k: v for k, v in (board_options or {}).items() if v is not None}
+    if opts and spec not in ("builtin:blinking_checkerboard", "blinking_checkerboard"):
+        raise ValueError(f"--poses/--blink-period-us apply to builtin:blinking_checkerboard, not {spec}")
     if spec.startswith("builtin:"):
-        sc = builtin_scene(spec, duration_s=duration_s)
+        sc = builtin_scene(spec, duration_s=duration_s, **opts)
     else:
         sc = load_scene(spec)
         if duration_s is not None:
@@ -107,6 +132,28 @@ def _signals_exit():
             signal.signal(sg, h)
 
 
+_SENSOR_FLAGS = {"pos_thres": "contrast_threshold_on", "neg_thres": "contrast_threshold_off",
+                 "sigma_thres": "threshold_mismatch_sigma", "cutoff_hz": "photoreceptor_cutoff_hz",
+                 "leak_rate_hz": "leak_rate_hz", "shot_noise_rate_hz": "shot_noise_rate_hz",
+                 "refractory_period_us": "refractory_period_us"}
+
+
+def sensor_params(args):
+    """The --preset's EventSensorParams with the v2e-named flags applied (checked before rendering)."""
+    import dataclasses
+
+    from .sensor import sensor_preset
+    over = {field: getattr(args, flag) for flag, field in _SENSOR_FLAGS.items() if getattr(args, flag, None) is not None}
+    base = sensor_preset(args.preset)
+    if over.get("photoreceptor_cutoff_hz") == 0:
+        over["photoreceptor_cutoff_hz"] = None
+    for name in ("contrast_threshold_on", "contrast_threshold_off"):
+        if name in over and over[name] < base.min_threshold:
+            base = dataclasses.replace(base, min_threshold=min(base.min_threshold, over[name]))
+    return dataclasses.replace(base, **over) if over else base
+
+
+@json_output
 def run(args) -> int:
     from .builtin import BUILTIN_SCENES
     if args.list:
@@ -117,7 +164,9 @@ def run(args) -> int:
     if args.scene is None:
         raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
-                           spp=args.spp, render_seed=args.render_seed)
+                           spp=args.spp, render_seed=args.render_seed,
+                           board_options={"poses": args.poses, "period_us": args.blink_period_us})
+    sensor = sensor_params(args)
     from .render import MitsubaSource
     source = MitsubaSource(scene, variant=args.variant)
     if args.preview is not None:
@@ -169,7 +218,7 @@ def run(args) -> int:
     # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
     source.render(0)
     with _signals_exit():
-        res = simulate_to_file(source, args.out, sensor=args.preset, camera=camera, sampling=sampling,
+        res = simulate_to_file(source, args.out, sensor=sensor, camera=camera, sampling=sampling,
                                gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
     wall = time.perf_counter() - t0
     st = res.stats
@@ -177,8 +226,9 @@ def run(args) -> int:
                "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
                "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
                "render_s": round(source.render_time_s, 3)}
-    print(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders, {summary['events']} events, "
-          f"{summary['frames']} frames, {summary['hdr_references']} HDR references, {wall:.2f} s wall "
-          f"({source.render_time_s:.2f} s rendering)")
+    if not args.json:
+        print(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders, {summary['events']} events, "
+              f"{summary['frames']} frames, {summary['hdr_references']} HDR references, {wall:.2f} s wall "
+              f"({source.render_time_s:.2f} s rendering)")
     print(json.dumps(summary))
     return 0
