@@ -187,6 +187,19 @@ def _version() -> str:
         return "unknown"
 
 
+class _restore_logging:
+    def __init__(self, level):
+        self.level = level
+
+    def __enter__(self):
+        return self
+
+    def __exit__(self, *exc):
+        import logging
+        logging.disable(self.level)
+        return False
+
+
 def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPLAY, anchor: str = "max",
               device: str = "cpu") -> CVVDPResult:
     """ColorVideoVDP quality of ``test`` against ``reference`` in JOD (10 = identical).
@@ -225,7 +238,10 @@ def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPL
     r = np.clip(r * gain, 0, None).astype(np.float32)
     order = "HW" if t.ndim == 3 else "HWC"
     t0 = time.perf_counter()
-    with torch.no_grad(), warnings.catch_warnings():
+    import logging
+    before = logging.root.manager.disable
+    logging.disable(logging.WARNING)  # cvvdp logs "not in absolute photometric units" per frame on the root logger
+    with _restore_logging(before), torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if fps > 0 and t.shape[0] > 1:
             q, _ = m.predict(torch.from_numpy(t), torch.from_numpy(r), dim_order="F" + order,

@@ -103,7 +103,7 @@ def jod_label(rows) -> str:
     frames = [int(v) for v in frames if math.isfinite(v)]
     if lines:
         most = max(frames) if frames else 0
-        return (f"JOD = {'; '.join(lines)}; on at most {most} evenly spaced matched frames per run, each scored "
+        return (f"Perceptual score: {'; '.join(lines)}; on at most {most} evenly spaced matched frames per run, each scored "
                 f"as an image against its reference (mean), on the same [0, 1] pair as MSE/SSIM")
     if any(r.get("jod_note") == JOD_NA for r in rows):
         return f"JOD (ColorVideoVDP) {JOD_NA}"
