@@ -36,7 +36,7 @@ def all_leaves():
 def test_every_command_has_the_common_options_and_no_abbreviations():
     found = all_leaves()
     names = {" ".join(p) for p, _ in found}
-    assert {"info", "convert", "demo", "reconstruct", "simulate", "calibrate crf", "calibrate hdr-reference",
+    assert {"info", "convert", "demo", "view", "reconstruct", "simulate", "calibrate crf", "calibrate hdr-reference",
             "calibrate rig", "calibrate thresholds", "capture recover", "capture devices", "evaluate paper",
             "evaluate metrics"} <= names
     for path, p in found:
@@ -114,7 +114,8 @@ def test_one_name_per_rate():
                       "100"])
     assert a.frame_rate_hz == b.frame_rate_hz == 25 and a.gt_rate_hz == b.gt_rate_hz == 100
     r = p.parse_args(["reconstruct", "x.h5", "--out", "o", "--fps", "300", "--playback-fps", "24"])
-    assert r.fps == 300 and r.playback_fps == 24
+    v = p.parse_args(["view", "x.h5", "--out", "o.mp4", "--fps", "300", "--playback-fps", "24"])
+    assert r.fps == v.fps == 300 and r.playback_fps == v.playback_fps == 24
 
 
 def test_simulate_sensor_flags_and_board_poses():

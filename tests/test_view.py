@@ -25,3 +25,67 @@ def test_tone_map_ignores_bad_pixels():
     # nothing valid at all: black, no error
     u8, _ = tone_map(np.full((2, 3), np.nan))
     assert not u8.any()
+
+
+def _decode(path):
+    import imageio_ffmpeg
+    gen = imageio_ffmpeg.read_frames(str(path))
+    meta = next(gen)
+    w, h = meta["size"]
+    return [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in gen], meta
+
+
+def test_view_colours_panels_and_time_bar(tmp_path, capsys):
+    import json
+
+    import hybridhdr as hh
+    from hybridhdr.cli import main
+    from hybridhdr.container import write_recording
+    from hybridhdr.view import BAR_HEIGHT, BACKGROUND, LABEL_HEIGHT, OFF_COLOUR, ON_COLOUR
+    from PIL import Image
+    # 40x30 sensor; ON events at (5, 5) in every 100 ms window, OFF at (20, 10) only in the second
+    t = np.array([10_000, 50_000, 110_000, 150_000, 210_000, 250_000, 299_999])
+    ev = np.zeros(len(t), dtype=hh.EVENT_DTYPE)
+    ev["t"], ev["x"], ev["y"], ev["p"] = t, 5, 5, 1
+    ev["x"][3], ev["y"][3], ev["p"][3] = 20, 10, -1
+    rec = hh.Recording(events=ev, sensor_size=hh.SensorSize(30, 40))
+    src = write_recording(rec, tmp_path / "r.h5")
+    rc = main(["view", str(src), "--out", str(tmp_path / "c.mp4"), "--fps", "10", "--height", "60", "--still",
+               str(tmp_path / "mid.png"), "--json", "--no-progress", "--playback-fps", "5"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    res = json.loads(out.out)
+    assert res["frames"] == 3 and res["panels"] == ["events"] and res["t_last_us"] == 310_000  # from the first event
+    frames, meta = _decode(tmp_path / "c.mp4")
+    assert len(frames) == 3 and abs(meta["fps"] - 5) < 0.01
+    still = np.asarray(Image.open(tmp_path / "mid.png"))  # frame 2: [110 ms, 210 ms)
+    assert still.shape == (LABEL_HEIGHT + 60 + BAR_HEIGHT, 80, 3)
+    ev_panel = still[LABEL_HEIGHT:LABEL_HEIGHT + 60]
+    assert tuple(ev_panel[11, 11]) == ON_COLOUR and tuple(ev_panel[21, 41]) == OFF_COLOUR  # x2 scale
+    assert tuple(ev_panel[40, 60]) == BACKGROUND
+    assert np.abs(frames[1].astype(int) - still.astype(int)).mean() < 8  # the MP4 holds the same picture
+    # the time bar fills with time
+    fill = [int((f[-4, :, 0] > 150).sum()) for f in frames]
+    assert fill[0] < fill[1] < fill[2]
+
+
+def test_view_on_ecd_with_reconstruction(tmp_path, capsys, shared_data):
+    import json
+
+    from hybridhdr.cli import main
+    ecd = shared_data("ecd_slider_depth")
+    assert main(["reconstruct", str(ecd), "--method", "direct", "--fps", "100", "--out", str(tmp_path / "rec"),
+                 "--no-progress"]) == 0
+    capsys.readouterr()
+    rc = main(["view", str(ecd), "--recon", str(tmp_path / "rec"), "--fps", "100", "--out", str(tmp_path / "v.mp4"),
+               "--json", "--no-progress"])
+    out = capsys.readouterr()
+    assert rc == 0, out.err
+    res = json.loads(out.out)
+    assert res["panels"] == ["events", "frames", "reconstruction"] and res["frames"] == 18
+    assert res["t_last_us"] <= 174_156 + 10_000  # stops with the events, not the frames (3.33 s)
+    frames, _ = _decode(tmp_path / "v.mp4")
+    assert len(frames) == 18 and frames[9].shape[1] == 3 * 480
+    # --until last runs to the last frame; an empty window is an error naming the span
+    rc = main(["view", str(ecd), "--out", str(tmp_path / "w.mp4"), "--start", "10s", "--no-progress"])
+    assert rc == 1 and "3.33382 s" in capsys.readouterr().err and not (tmp_path / "w.mp4").exists()
