@@ -53,12 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
         mod.add_parser(sub)
     from . import _cli_tools
     _cli_tools.add_parsers(sub)
-    try:
-        from . import view
-    except ImportError:  # pragma: no cover - a partial install
-        view = None
-    if view is not None:
-        view.add_parser(sub)
+    from . import view
+    view.add_parser(sub)
     from ._cliargs import finalise
     return finalise(p)
 
