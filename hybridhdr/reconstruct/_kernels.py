@@ -27,7 +27,12 @@ import math
 import numpy as np
 from numba import njit
 
+from .._nbprefetch import prefetch
+
 US = 1e-6  # seconds per microsecond
+#: events ahead whose pixel state the event kernels prefetch (1280x720: 2x the events/s; results
+#: unchanged, a prefetch is only a hint)
+PREFETCH_AHEAD = 8
 ONE = np.uint64(1)  # unsigned index arithmetic: no negative-index wraparound code in the kernels
 
 NOISE_PAPER = 0
@@ -225,6 +230,23 @@ def te_view(te: np.ndarray, height: int, width: int) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _akf_prefetch(S, te, y, x, w, wp, con_px, coff_px, has_px):
+    """Prefetch what :func:`_akf_event` will touch for the event at (``y``, ``x``): the pixel's
+    record and the three rows of its padded 3×3 ``te`` window (and its thresholds)."""
+    yy = np.uint64(y)
+    xx = np.uint64(x)
+    pix = yy * w + xx
+    prefetch(S, pix * np.uint64(AKF_FIELDS))
+    tq = (yy + ONE) * wp + xx + ONE
+    prefetch(te, tq - wp)
+    prefetch(te, tq)
+    prefetch(te, tq + wp)
+    if has_px:
+        prefetch(con_px, pix)
+        prefetch(coff_px, pix)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t, c_on, c_off,
               s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
@@ -233,6 +255,8 @@ def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg
     lo = np.uint64(max(row_lo, 0))
     hi = np.uint64(max(row_hi, 0))
     for i in range(i0, i1):
+        if i + PREFETCH_AHEAD < i1:
+            _akf_prefetch(S, te, y[i + PREFETCH_AHEAD], x[i + PREFETCH_AHEAD], w, wp, con_px, coff_px, has_px)
         yy = np.uint64(y[i])
         xx = np.uint64(x[i])
         tp = (yy + ONE) * wp + xx + ONE
@@ -285,6 +309,9 @@ def _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_st
     lo = np.uint64(max(row_lo, 0))
     hi = np.uint64(max(row_hi, 0))
     for k in range(m):
+        if k + PREFETCH_AHEAD < m:
+            j = i0 + np.int64(idx[k + PREFETCH_AHEAD])
+            _akf_prefetch(S, te, y[j], x[j], w, wp, con_px, coff_px, has_px)
         i = i0 + np.int64(idx[k])
         yy = np.uint64(y[i])
         xx = np.uint64(x[i])
@@ -576,6 +603,8 @@ def cf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_d
 def _cf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, C, c_on, c_off, event_decay, con_px, coff_px, has_px):
     n = 0
     for i in range(i0, i1):
+        if i + PREFETCH_AHEAD < i1:
+            prefetch(C, (np.int64(y[i + PREFETCH_AHEAD]) * width + np.int64(x[i + PREFETCH_AHEAD])) * CF_FIELDS)
         yy = np.int64(y[i])
         if yy < row_lo or yy >= row_hi:
             continue
@@ -598,6 +627,9 @@ def cf_events_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay
 def _cf_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_px, coff_px, has_px):
     n = 0
     for k in range(m):
+        if k + PREFETCH_AHEAD < m:
+            j = i0 + np.int64(idx[k + PREFETCH_AHEAD])
+            prefetch(C, (np.int64(y[j]) * width + np.int64(x[j])) * CF_FIELDS)
         i = i0 + np.int64(idx[k])
         tif = np.float64(t[i])
         pix = np.int64(y[i]) * width + np.int64(x[i])
