@@ -1,5 +1,7 @@
 """Previews users can watch: the robust preview tone map and ``hybridhdr view``."""
 
+import re
+
 import numpy as np
 
 from hybridhdr.reconstruct.output import LogPercentiles, tone_map
@@ -28,11 +30,19 @@ def test_tone_map_ignores_bad_pixels():
 
 
 def _decode(path):
+    """(frames as (H, W, 3) uint8, {"size": (w, h), "fps": playback rate}) through an ffmpeg run of our own
+    (imageio_ffmpeg.read_frames leaves its pipes open when ffmpeg has already exited)."""
+    import subprocess
+
     import imageio_ffmpeg
-    gen = imageio_ffmpeg.read_frames(str(path))
-    meta = next(gen)
-    w, h = meta["size"]
-    return [np.frombuffer(f, np.uint8).reshape(h, w, 3) for f in gen], meta
+    n, secs = imageio_ffmpeg.count_frames_and_secs(str(path))
+    probe = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-i", str(path)], capture_output=True, text=True)
+    w, h = (int(v) for v in re.search(r"Video:.*?, (\d+)x(\d+)", probe.stderr).groups())
+    raw = subprocess.run([imageio_ffmpeg.get_ffmpeg_exe(), "-v", "error", "-i", str(path), "-f", "rawvideo",
+                          "-pix_fmt", "rgb24", "-"], capture_output=True, check=True).stdout
+    frames = list(np.frombuffer(raw, np.uint8).reshape(-1, h, w, 3))
+    assert len(frames) == n
+    return frames, {"size": (w, h), "fps": n / secs}
 
 
 def test_view_colours_panels_and_time_bar(tmp_path, capsys):
