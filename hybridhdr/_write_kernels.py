@@ -187,3 +187,65 @@ def events_ok(rec, t, width, height):
             if x >= width or y >= height:
                 return i
     return -1
+
+
+@njit(cache=True, nogil=True)
+def unshuffle(src, s, C, a, b, out, o):
+    """Undo HDF5's byte shuffle of one chunk: elements ``a..b`` of the chunk image ``src`` (uint8,
+    ``s``-byte elements, byte ``j`` of element ``k`` at ``j * C + k``) into ``out[o*s:(o+b-a)*s]``
+    (uint8 view of the destination). 8-byte elements go 8 at a time through the 8x8 byte
+    transpose of :func:`stage_events` (its own inverse)."""
+    k = a
+    q = o * s
+    if s == 8:
+        src64 = src.view(np.uint64)
+        c8 = C >> 3
+        out64 = out.view(np.uint64)
+        m32 = np.uint64(0x00000000FFFFFFFF)
+        m16 = np.uint64(0x0000FFFF0000FFFF)
+        m8 = np.uint64(0x00FF00FF00FF00FF)
+        while k < b and (k & 7) != 0:
+            for j in range(8):
+                out[q + j] = src[j * C + k]
+            k += 1
+            q += 8
+        ow = q >> 3
+        while k + 8 <= b:
+            w = k >> 3
+            a0 = src64[w]
+            a1 = src64[c8 + w]
+            a2 = src64[2 * c8 + w]
+            a3 = src64[3 * c8 + w]
+            a4 = src64[4 * c8 + w]
+            a5 = src64[5 * c8 + w]
+            a6 = src64[6 * c8 + w]
+            a7 = src64[7 * c8 + w]
+            a0, a4 = _swap(a0, a4, 32, m32)
+            a1, a5 = _swap(a1, a5, 32, m32)
+            a2, a6 = _swap(a2, a6, 32, m32)
+            a3, a7 = _swap(a3, a7, 32, m32)
+            a0, a2 = _swap(a0, a2, 16, m16)
+            a1, a3 = _swap(a1, a3, 16, m16)
+            a4, a6 = _swap(a4, a6, 16, m16)
+            a5, a7 = _swap(a5, a7, 16, m16)
+            a0, a1 = _swap(a0, a1, 8, m8)
+            a2, a3 = _swap(a2, a3, 8, m8)
+            a4, a5 = _swap(a4, a5, 8, m8)
+            a6, a7 = _swap(a6, a7, 8, m8)
+            out64[ow] = a0
+            out64[ow + 1] = a1
+            out64[ow + 2] = a2
+            out64[ow + 3] = a3
+            out64[ow + 4] = a4
+            out64[ow + 5] = a5
+            out64[ow + 6] = a6
+            out64[ow + 7] = a7
+            ow += 8
+            k += 8
+        q = ow * 8
+    while k < b:
+        for j in range(s):
+            out[q + j] = src[j * C + k]
+        k += 1
+        q += s
+    return b - a
