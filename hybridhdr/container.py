@@ -107,9 +107,14 @@ class RecordingWriter(EventFileWriter):
         Event-camera size.
     metadata : Metadata, optional
     compression : {"gzip", "lzf", None}
-        Dataset compression; gzip level 1 with byte shuffle by default (readable by any HDF5 tool).
+        Dataset compression; deflate (ISA-L level 1 when ``isal`` is installed, else zlib level 1)
+        with byte shuffle by default, readable by any HDF5 tool. "gzip" and None chunks are built
+        by this writer and stored with direct chunk writes; "lzf" goes through h5py's filter.
     buffer_events : int
-        Events held in memory before they are written (bounds memory).
+        Bounds the events held in memory: at most ``buffer_events // 131072 + threads`` chunks of
+        131,072 events wait to be deflated and stored.
+    threads : int, optional
+        Deflate threads (default ``min(2, cpu_count)``; 0: deflate in the calling thread).
 
     Examples
     --------
