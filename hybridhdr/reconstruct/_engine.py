@@ -642,88 +642,28 @@ def clamped_output(engine, t_us: int) -> np.ndarray:
 
 def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
           progress: Callable[[int], None] | None = None, prefetch: bool = True,
-          clamp: bool = True, pipeline: bool | None = None) -> Iterator[tuple[int, np.ndarray]]:
+          clamp: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     """Run ``engine`` over event ``chunks`` ((t, x, y, p) contiguous arrays, time-sorted), yielding
     ``(t_us, image)`` at the clock's output times as soon as all events before them are in.
 
     Order at equal times: frame switch, then output, then events (an output at t includes the
     events with timestamps < t). Events before the filter's start are skipped. With
     ``prefetch`` (and an engine that uses events), the next chunk is read in a background
-    thread while the current one is filtered (one chunk ahead, so memory stays bounded). With
-    ``pipeline`` (default: when the engine has more than one worker) the filter runs in its own
-    thread and the consumer's handling of each output (fusion, colour, writing) overlaps the
-    filtering of the events up to the next one (:func:`_pipelined`; bit-identical).
+    thread while the current one is filtered (one chunk ahead, so memory stays bounded).
     """
     pf = None
     if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
         chunks = pf = _Prefetcher(chunks)
-    if pipeline is None:
-        pipeline = engine.uses_events and engine.n_workers > 1
     try:
-        if pipeline:
-            yield from _pipelined(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us,
-                                  progress=progress, clamp=clamp)
-        else:
-            yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
-                              clamp=clamp)
+        yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
+                          clamp=clamp)
     finally:
         if pf is not None:
             pf.close()
 
 
-class _Stopped(Exception):
-    """The consumer of a pipelined drive stopped early."""
-
-
-def _pipelined(engine: Engine, chunks: Iterable, clock: OutputClock, **kw) -> Iterator[tuple[int, np.ndarray]]:
-    """:func:`_drive` in a filter thread, overlapped with what the consumer does with each output.
-
-    The filter thread computes output k only once the consumer has asked for it (so whatever the
-    consumer reads from the engine right after receiving output k - 1, such as the two-sided
-    filter's ``last`` state, is still that of k - 1), then filters the events up to output k + 1
-    while the consumer fuses, converts or writes output k. The engine sees exactly the calls of
-    the serial driver in the same order: results are bit-identical.
-    """
-    want = threading.Semaphore(0)
-    items: queue.SimpleQueue = queue.SimpleQueue()
-    stop = threading.Event()
-
-    def before_output():
-        want.acquire()
-        if stop.is_set():
-            raise _Stopped()
-
-    def run():
-        try:
-            for item in _drive(engine, chunks, clock, before_output=before_output, **kw):
-                items.put(("item", item))
-            items.put(("end", None))
-        except _Stopped:
-            items.put(("end", None))
-        except BaseException as e:  # noqa: BLE001 - handed to the consumer
-            items.put(("error", e))
-
-    th = threading.Thread(target=run, name="hybridhdr-filter", daemon=True)
-    th.start()
-    try:
-        while True:
-            want.release()
-            kind, v = items.get()
-            if kind == "item":
-                yield v
-            elif kind == "end":
-                return
-            else:
-                raise v
-    finally:
-        stop.set()
-        want.release()  # a filter thread waiting to compute an output stops there
-        th.join()
-
-
 def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=None, t_end_us=None,
-           progress: Callable[[int], None] | None = None, clamp: bool = True,
-           before_output: Callable[[], None] | None = None) -> Iterator[tuple[int, np.ndarray]]:
+           progress: Callable[[int], None] | None = None, clamp: bool = True) -> Iterator[tuple[int, np.ndarray]]:
     t_init = engine.start(t_start_us)
     t_first_out = t_init if t_start_us is None else max(t_init, int(t_start_us))
     clock.set_origin(t_first_out)
@@ -766,8 +706,6 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
             if ts is not None and ts <= bp:
                 engine.switch()
             else:
-                if before_output is not None:
-                    before_output()
                 yield to, (clamped_output(engine, to) if clamp else engine.output(to))
                 clock.pop()
         if j_end > 0:
@@ -787,7 +725,5 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
         if ts is not None and ts <= to:
             engine.switch()
             continue
-        if before_output is not None:
-            before_output()
         yield to, (clamped_output(engine, to) if clamp else engine.output(to))
         clock.pop()
