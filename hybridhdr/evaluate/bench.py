@@ -28,7 +28,7 @@ __all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench
            "TIMING_COLUMNS", "METRIC_COLUMNS", "bundled_bench", "BUNDLED"]
 
 TIMING_COLUMNS = ("wall_s", "time_per_data_s", "events_per_s", "peak_rss_mb", "dataset_load_s",
-                  "dataset_time_per_data_s")
+                  "dataset_time_per_data_s", "jod_seconds")
 METRIC_COLUMNS = ("mse", "psnr_db", "ssim", "global_ssim", "log_mse", "log_ssim", "pu_psnr_db", "pu_ssim", "jod", "q")
 BUNDLED = ("demo", "speed_accuracy", "stability", "tiny")
 
