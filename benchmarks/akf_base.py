@@ -94,7 +94,9 @@ _E2E = textwrap.dedent("""
 
 def _e2e(root: Path, path: Path, kw: dict, reps: int) -> float:
     code = _E2E.format(root=str(root), kw=json.dumps(kw), path=str(path), reps=reps)
-    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, cwd=str(root))
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, cwd=str(root))
+    if out.returncode != 0:
+        raise RuntimeError(f"end-to-end run in {root} failed:\n{out.stderr[-3000:]}")
     return json.loads(out.stdout.strip().splitlines()[-1])["s"]
 
 
@@ -106,7 +108,12 @@ def main(argv=None) -> int:
     n = 2_000_000 if args.quick else 10_000_000
     reps = 3 if args.quick else 7
     base = _worktree(args.base)
-    K_old = _load_kernels(base / "hybridhdr" / "reconstruct" / "_kernels.py", "hybridhdr_base_kernels")
+    # a copy of its own (with its own Numba cache): the base tree's cache stays that of its package
+    kdir = Path(tempfile.gettempdir()) / f"hybridhdr-base-kernels-{args.base}"
+    kdir.mkdir(exist_ok=True)
+    kfile = kdir / "hybridhdr_base_kernels.py"
+    kfile.write_bytes((base / "hybridhdr" / "reconstruct" / "_kernels.py").read_bytes())
+    K_old = _load_kernels(kfile, "hybridhdr_base_kernels")
     from hybridhdr.reconstruct import _kernels as K_new
     t, x, y, p, dur = B.synth_events(n)
     res = {"base": args.base, "n_events": n, "loadavg_start": B._loadavg()}

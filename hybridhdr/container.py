@@ -618,7 +618,15 @@ class RecordingFile(EventFileReader):
     def _columns(self, i0: int, i1: int, t_prev: int | None = None) -> dict[str, np.ndarray]:
         """Validated contiguous columns of the records ``[i0, i1)``; ``t_prev`` = last t before."""
         try:
-            cols = {name: np.ascontiguousarray(ds[i0:i1]) for name, ds in self._ev.items()}
+            cols = None
+            if i1 - i0 >= (1 << 16):  # large reads: chunks inflated in two threads (hybridhdr._chunk_read)
+                from ._chunk_read import read_columns
+                if getattr(self, "_inflate_pool", None) is None:
+                    from concurrent.futures import ThreadPoolExecutor
+                    self._inflate_pool = ThreadPoolExecutor(2, thread_name_prefix="hybridhdr-inflate")
+                cols = read_columns(self._ev, i0, i1, self._inflate_pool)
+            if cols is None:  # any other filter pipeline, or a small read: through h5py
+                cols = {name: np.ascontiguousarray(ds[i0:i1]) for name, ds in self._ev.items()}
         except Exception as e:
             raise FormatError(self.path, f"cannot read events {i0}..{i1} ({type(e).__name__}: {e})",
                               record=i0) from None
@@ -793,6 +801,10 @@ class RecordingFile(EventFileReader):
         return Recording(ev, self.sensor_size, frames, trig, hdr, self.metadata)
 
     def close(self):
+        pool = getattr(self, "_inflate_pool", None)
+        if pool is not None:
+            pool.shutdown(wait=True)
+            self._inflate_pool = None
         try:
             self._f.close()
         except Exception:
