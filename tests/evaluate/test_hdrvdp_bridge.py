@@ -64,7 +64,8 @@ def test_bridge_clear_message_when_absent(monkeypatch, tmp_path):
 def test_score_video_with_hdrvdp():
     rng = np.random.default_rng(1)
     ref = rng.random((2, 12, 12)) + 0.1
-    s = M.score_video(ref * 0.5, ref, hdrvdp={"hdrvdp_dir": STANDIN, "engine": "octave"})
+    # a pure gain, removed by the named gain fit: the stand-in then sees identical images
+    s = M.score_video(ref * 0.5, ref, normalise="scale", hdrvdp={"hdrvdp_dir": STANDIN, "engine": "octave"})
     assert s["q"] == pytest.approx(10 + 0.001 * M.pixels_per_degree(), abs=1e-9)
     assert s["q_version"] == "3.0.6-standin" and s["q_luminance_scale_cd_m2"] == 4000.0
 
@@ -88,11 +89,11 @@ def test_bench_rows_carry_q_and_its_settings(tmp_path):
     b = B.parse_bench({"bench": {"warmup": False, "hdrvdp_dir": str(STANDIN), "strips": 0},
                        "datasets": [{"kind": "procedural", "name": "p", "width": 24, "height": 16,
                                      "duration_us": 120_000}],
-                       "methods": [{"method": "frames"}]})
+                       "methods": [{"method": "frames", "normalise": "scale"}]})
     rows = B.run_bench(b, workers=0, progress=False)
     r = rows[0]
     assert r["status"] == "ok" and 9 < r["q"] < 10.1
     assert r["q_version"] == "3.0.6-standin" and r["q_task"] == "side-by-side"
     w = B.write_results(rows, tmp_path, b)
-    line = [ln for ln in w["report_md"].read_text().splitlines() if ln.startswith("| p | frames |")][0]
+    line = [ln for ln in w["report_md"].read_text().splitlines() if ln.startswith("| p | frames (fitted: scale) |")][0]
     assert f"| {r['q']:.2f} |" in line  # the Q column of the results table
