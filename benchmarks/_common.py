@@ -14,6 +14,8 @@ from pathlib import Path
 import numpy as np
 
 DATA_DIR = Path(__file__).resolve().parent / "_data"
+#: The sample data: ``$HYBRIDHDR_SHARED_DATA``, else ``../shared/data`` beside the repository.
+SHARED_DATA = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
 
 def synth_events(n: int, width: int, height: int, seed: int = 0, rate_mev_s: float = 2.0,

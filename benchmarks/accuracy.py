@@ -46,13 +46,13 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SHARED_DATA  # noqa: E402
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 DATA = Path(__file__).resolve().parent / "_data" / "accuracy"
-ECD = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data")) \
-    / "ecd_slider_depth"
-if not ECD.exists():
-    ECD = Path("/work/shared/data/ecd_slider_depth")
+ECD = SHARED_DATA / "ecd_slider_depth"
 
 COLS = (("mse", "MSE", "{:.3e}"), ("ssim", "SSIM", "{:.3f}"), ("pu_ssim", "PU-SSIM", "{:.3f}"),
         ("nonpositive_frac", "non-pos", "{:.1e}"), ("events_per_s", "Mev/s", None),

@@ -39,8 +39,11 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SHARED_DATA  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
-SRC = REPO.parent / "shared" / "data" / "prophesee" / "sparklers_gen3_evt2.raw"
+SRC = SHARED_DATA / "prophesee" / "sparklers_gen3_evt2.raw"
 DATA = Path(__file__).resolve().parent / "_data"
 sys.path.insert(0, str(REPO))
 

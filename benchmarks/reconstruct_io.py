@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/reconstruct_io.py [--quick] [--old-commit REV] [--repeats N]``. Prints
 progress, then ONE JSON object on the last line.
 
-Runs ``hybridhdr reconstruct /work/shared/data/ecd_slider_depth --fps 300 --out ...`` (1,001 outputs
+Runs ``hybridhdr reconstruct ../shared/data/ecd_slider_depth --fps 300 --out ...`` (1,001 outputs
 of 240x180) as a child process:
 
 * **before**: the commit before the streaming writer (default: the parent of the commit that
@@ -33,8 +33,11 @@ import tempfile
 import time
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SHARED_DATA  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[1]
-DATA = REPO.parent / "shared" / "data" / "ecd_slider_depth"
+DATA = SHARED_DATA / "ecd_slider_depth"
 
 
 def _git(*a) -> str:

@@ -36,6 +36,9 @@ from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import SHARED_DATA  # noqa: E402
+
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
@@ -108,7 +111,7 @@ def bench_real_brackets(quick: bool, seed: int = 0):
     from hybridhdr.calibrate.hdr_reference import (RegistrationParams, align_brackets, corner_error,
                                                    merge_brackets, register, surf_backend)
     from hybridhdr.capture.brackets import colour_mask, read_bracket_set
-    folder = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
+    folder = SHARED_DATA
     folder = folder / "brackets" / "memorial"
     if not folder.exists():
         log(f"real brackets: {folder} not found, skipped")
