@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import math
-import queue
 import threading
 from concurrent.futures import ThreadPoolExecutor
 from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
+from .._prefetch import Prefetcher
 from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
@@ -563,73 +563,6 @@ class OutputClock:
         return self.times is not None
 
 
-class _Prefetcher:
-    """Iterate ``chunks`` in a background thread, ``depth`` chunks ahead of the consumer.
-
-    Reading (HDF5 decompression in h5py, which releases the GIL, and the column copies) then
-    overlaps the filter kernels, which release the GIL too. Exceptions raised by the source are
-    re-raised in the consumer, in order. :meth:`close` stops the thread and waits for it, so the
-    source can be closed safely afterwards; it is called when the consumer stops early too.
-    """
-
-    _END = object()
-
-    def __init__(self, chunks: Iterable, depth: int = 1):
-        self._src = iter(chunks)
-        self._q: queue.Queue = queue.Queue(maxsize=max(1, int(depth)))
-        self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name="hybridhdr-prefetch", daemon=True)
-        self._thread.start()
-
-    def _put(self, item) -> bool:
-        while not self._stop.is_set():
-            try:
-                self._q.put(item, timeout=0.05)
-                return True
-            except queue.Full:
-                continue
-        return False
-
-    def _run(self):
-        try:
-            for c in self._src:
-                if not self._put(("chunk", c)):
-                    return
-        except BaseException as e:  # handed to the consumer
-            self._put(("error", e))
-            return
-        self._put(("end", None))
-
-    def __iter__(self):
-        return self
-
-    def __next__(self):
-        if self._thread is None:
-            raise StopIteration
-        kind, v = self._q.get()
-        if kind == "chunk":
-            return v
-        self.close()
-        if kind == "error":
-            raise v
-        raise StopIteration
-
-    def close(self):
-        if self._thread is None:
-            return
-        self._stop.set()
-        while self._thread.is_alive():
-            try:  # unblock a producer waiting on a full queue
-                self._q.get_nowait()
-            except queue.Empty:
-                pass
-            self._thread.join(0.01)
-        self._thread = None
-        close = getattr(self._src, "close", None)
-        if close is not None:  # a generator source: let it release its reader now
-            close()
-
-
 def clamped_output(engine, t_us: int) -> np.ndarray:
     """``engine.output(t_us)`` with every value below ``K.MIN_INTENSITY`` (or NaN) raised to it,
     counted in ``engine.n_clamped`` (of ``engine.n_output_pixels``): no method ever hands out a
@@ -653,7 +586,7 @@ def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=No
     """
     pf = None
     if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
-        chunks = pf = _Prefetcher(chunks)
+        chunks = pf = Prefetcher(chunks)
     try:
         yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
                           clamp=clamp)

@@ -171,7 +171,7 @@ def test_prefetch_order_errors_and_early_stop():
     (and is joined) when the consumer stops early."""
     import threading
 
-    from hybridhdr.reconstruct._engine import _Prefetcher as _prefetch
+    from hybridhdr._prefetch import Prefetcher as _prefetch
 
     assert list(_prefetch(iter(range(50)))) == list(range(50))
 
