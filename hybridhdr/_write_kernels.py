@@ -25,6 +25,33 @@ def _swap(a, b, s, m):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def _transpose8(rec64, r, col, m32, m16, m8):
+    """8x8 byte transpose of the words ``rec64[r:r + 8, col]`` (three swap stages): word j of
+    the result holds byte j of each of the 8 input words (HDF5's shuffle of 8 elements)."""
+    a0 = np.uint64(rec64[r, col])
+    a1 = np.uint64(rec64[r + 1, col])
+    a2 = np.uint64(rec64[r + 2, col])
+    a3 = np.uint64(rec64[r + 3, col])
+    a4 = np.uint64(rec64[r + 4, col])
+    a5 = np.uint64(rec64[r + 5, col])
+    a6 = np.uint64(rec64[r + 6, col])
+    a7 = np.uint64(rec64[r + 7, col])
+    a0, a4 = _swap(a0, a4, 32, m32)
+    a1, a5 = _swap(a1, a5, 32, m32)
+    a2, a6 = _swap(a2, a6, 32, m32)
+    a3, a7 = _swap(a3, a7, 32, m32)
+    a0, a2 = _swap(a0, a2, 16, m16)
+    a1, a3 = _swap(a1, a3, 16, m16)
+    a4, a6 = _swap(a4, a6, 16, m16)
+    a5, a7 = _swap(a5, a7, 16, m16)
+    a0, a1 = _swap(a0, a1, 8, m8)
+    a2, a3 = _swap(a2, a3, 8, m8)
+    a4, a5 = _swap(a4, a5, 8, m8)
+    a6, a7 = _swap(a6, a7, 8, m8)
+    return a0, a1, a2, a3, a4, a5, a6, a7
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _stage_one(rec, r, q, bt, bx, by, bp, C):
     for j in range(8):
         bt[j * C + q] = rec[r, j]
@@ -66,26 +93,7 @@ def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride,
             r = i0 + i
             w = q >> 3
             # 8x8 byte transpose of the 8 time values (rows) in three swap stages
-            a0 = np.uint64(rec64[r, 0])
-            a1 = np.uint64(rec64[r + 1, 0])
-            a2 = np.uint64(rec64[r + 2, 0])
-            a3 = np.uint64(rec64[r + 3, 0])
-            a4 = np.uint64(rec64[r + 4, 0])
-            a5 = np.uint64(rec64[r + 5, 0])
-            a6 = np.uint64(rec64[r + 6, 0])
-            a7 = np.uint64(rec64[r + 7, 0])
-            a0, a4 = _swap(a0, a4, 32, m32)
-            a1, a5 = _swap(a1, a5, 32, m32)
-            a2, a6 = _swap(a2, a6, 32, m32)
-            a3, a7 = _swap(a3, a7, 32, m32)
-            a0, a2 = _swap(a0, a2, 16, m16)
-            a1, a3 = _swap(a1, a3, 16, m16)
-            a4, a6 = _swap(a4, a6, 16, m16)
-            a5, a7 = _swap(a5, a7, 16, m16)
-            a0, a1 = _swap(a0, a1, 8, m8)
-            a2, a3 = _swap(a2, a3, 8, m8)
-            a4, a5 = _swap(a4, a5, 8, m8)
-            a6, a7 = _swap(a6, a7, 8, m8)
+            a0, a1, a2, a3, a4, a5, a6, a7 = _transpose8(rec64, r, 0, m32, m16, m8)
             bt64[w] = a0
             bt64[c8 + w] = a1
             bt64[2 * c8 + w] = a2
@@ -95,25 +103,7 @@ def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride,
             bt64[6 * c8 + w] = a6
             bt64[7 * c8 + w] = a7
             # the second word of each record: x (bytes 0-1), y (2-3), p (4): the same transpose
-            b0 = np.uint64(rec64[r, 1])
-            b1 = np.uint64(rec64[r + 1, 1])
-            b2 = np.uint64(rec64[r + 2, 1])
-            b3 = np.uint64(rec64[r + 3, 1])
-            b4 = np.uint64(rec64[r + 4, 1])
-            b5 = np.uint64(rec64[r + 5, 1])
-            b6 = np.uint64(rec64[r + 6, 1])
-            b7 = np.uint64(rec64[r + 7, 1])
-            b0, b4 = _swap(b0, b4, 32, m32)
-            b1, b5 = _swap(b1, b5, 32, m32)
-            b2, b6 = _swap(b2, b6, 32, m32)
-            b3, b7 = _swap(b3, b7, 32, m32)
-            b0, b2 = _swap(b0, b2, 16, m16)
-            b1, b3 = _swap(b1, b3, 16, m16)
-            b4, b6 = _swap(b4, b6, 16, m16)
-            b5, b7 = _swap(b5, b7, 16, m16)
-            b0, b1 = _swap(b0, b1, 8, m8)
-            b2, b3 = _swap(b2, b3, 8, m8)
-            b4, b5 = _swap(b4, b5, 8, m8)
+            b0, b1, b2, b3, b4, b5, b6, b7 = _transpose8(rec64, r, 1, m32, m16, m8)
             bx64[w] = b0
             bx64[c8 + w] = b1
             by64[w] = b2
