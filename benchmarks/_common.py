@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 DATA_DIR = Path(__file__).resolve().parent / "_data"
+REPO = Path(__file__).resolve().parents[1]
 #: The sample data: ``$HYBRIDHDR_SHARED_DATA``, else ``../shared/data`` beside the repository.
 SHARED_DATA = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", Path(__file__).resolve().parents[2] / "shared" / "data"))
 
@@ -128,3 +129,30 @@ def best_of(fn, repeat: int = 3):
 def peak_rss_mb() -> float:
     """Peak resident set size of this process in MB (Linux ru_maxrss is in KiB)."""
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
+
+
+def loadavg() -> float | None:
+    """1-minute load average (other processes share the cores: read speed-ups against it)."""
+    try:
+        return float(Path("/proc/loadavg").read_text().split()[0])
+    except (OSError, ValueError, IndexError):
+        return None
+
+
+def git(*args) -> str:
+    """``git -C REPO ARGS`` (stdout, stripped)."""
+    import subprocess
+    return subprocess.run(["git", "-C", str(REPO), *args], check=True, capture_output=True, text=True).stdout.strip()
+
+
+def worktree(rev: str) -> Path:
+    """A detached git worktree of ``rev`` under the temporary folder (reused; the main tree is untouched)."""
+    import shutil
+    import tempfile
+    sha = git("rev-parse", rev)
+    wt = Path(tempfile.gettempdir()) / f"hybridhdr-wt-{sha[:12]}"
+    if not (wt / "hybridhdr" / "cli.py").exists():
+        if wt.exists():
+            shutil.rmtree(wt)
+        git("worktree", "add", "--detach", str(wt), sha)
+    return wt

@@ -36,6 +36,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import loadavg  # noqa: E402
 
 H, W = 260, 346
 
@@ -196,13 +198,6 @@ def hd_case(n: int, reps: int, res: dict) -> None:
           f"{res['hd_forward_in_memory_mev_s']} Mev/s ({k} outputs at 30 Hz; 1 worker)", file=sys.stderr)
 
 
-def _loadavg():
-    """1-minute load average (other processes share the cores: read speed-ups against it)."""
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
-
 
 def concurrent_two_sided_iter(events, frames, make_engine, times, *, offset, chunk_events=1 << 20, progress=None,
                               info=None):
@@ -317,7 +312,7 @@ def main(argv=None) -> int:
           file=sys.stderr)
     prof = default_profile()
     res: dict = {"sensor": f"{W}x{H}", "n_events": n, "duration_s": dur / 1e6, "quick": bool(args.quick),
-                 "cpu_count": os.cpu_count(), "loadavg_start": _loadavg()}
+                 "cpu_count": os.cpu_count(), "loadavg_start": loadavg()}
 
     def drive_events(eng, m, barrier=None):
         """Events through ``eng`` between frame switches (the 30 Hz switches, O(pixels) each, are
@@ -396,7 +391,7 @@ def main(argv=None) -> int:
     if hd_n:
         hd_case(hd_n, reps, res)
     if args.hd_only:
-        res["loadavg_end"] = _loadavg()
+        res["loadavg_end"] = loadavg()
         print(json.dumps(res))
         return 0
 
@@ -489,7 +484,7 @@ def main(argv=None) -> int:
                 print(f"two-sided / forward events/s ({nw} worker(s)): {r:.2f} (goal >= 0.45)", file=sys.stderr)
     except ImportError as e:  # container not available
         res["end_to_end_error"] = str(e)
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     res["goals"] = {"akf_kernel_mev_s": 30, "akf_parallel_speedup": 1.7, "end_to_end_mev_s": 10, "cf_kernel_mev_s": 40,
                     "two_sided_over_forward": 0.45, "default_akf_2w_mev_s": 20, "hd_akf_kernel_mev_s": 20}
     print(json.dumps(res))

@@ -34,17 +34,11 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 sys.path.insert(0, str(ROOT / "benchmarks"))
 
-import akf as B  # noqa: E402  (synth_events, synth_frames, _loadavg)
+import akf as B  # noqa: E402  (synth_events, synth_frames)
+from _common import loadavg, worktree  # noqa: E402
 
 DEFAULT_BASE = "a1cab8f"
 
-
-def _worktree(rev: str) -> Path:
-    d = Path(tempfile.gettempdir()) / f"hybridhdr-base-{rev}"
-    if not (d / "hybridhdr").exists():
-        subprocess.run(["git", "-C", str(ROOT), "worktree", "add", "-f", "--detach", str(d), rev], check=True,
-                       capture_output=True)
-    return d
 
 
 def _load_kernels(path: Path, name: str):
@@ -107,7 +101,7 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     n = 2_000_000 if args.quick else 10_000_000
     reps = 3 if args.quick else 7
-    base = _worktree(args.base)
+    base = worktree(args.base)
     # a copy of its own (with its own Numba cache): the base tree's cache stays that of its package
     kdir = Path(tempfile.gettempdir()) / f"hybridhdr-base-kernels-{args.base}"
     kdir.mkdir(exist_ok=True)
@@ -116,7 +110,7 @@ def main(argv=None) -> int:
     K_old = _load_kernels(kfile, "hybridhdr_base_kernels")
     from hybridhdr.reconstruct import _kernels as K_new
     t, x, y, p, dur = B.synth_events(n)
-    res = {"base": args.base, "n_events": n, "loadavg_start": B._loadavg()}
+    res = {"base": args.base, "n_events": n, "loadavg_start": loadavg()}
     _kernel_run(K_old, t, x, y, p, False)  # compile
     _kernel_run(K_new, t, x, y, p, True)
     old, new = [], []
@@ -159,7 +153,7 @@ def main(argv=None) -> int:
     res["end_to_end_ratio"] = round(min(e_old) / min(e_new), 3)
     res["end_to_end_two_sided_mev_s"] = round(n / min(e_two) / 1e6, 2)
     res["two_sided_over_forward"] = round(min(e_new) / min(e_two), 3)
-    res["loadavg_end"] = B._loadavg()
+    res["loadavg_end"] = loadavg()
     print(f"end to end (forward, 300 Hz outputs): {args.base} {res['end_to_end_base_forward_mev_s']} Mev/s, this "
           f"tree {res['end_to_end_forward_mev_s']} Mev/s (ratio {res['end_to_end_ratio']}); two-sided (default) "
           f"{res['end_to_end_two_sided_mev_s']} Mev/s = {res['two_sided_over_forward']} x forward", file=sys.stderr)

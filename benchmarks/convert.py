@@ -40,7 +40,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SHARED_DATA  # noqa: E402
+from _common import SHARED_DATA, git, loadavg, worktree  # noqa: E402,F401
 
 REPO = Path(__file__).resolve().parents[1]
 SRC = SHARED_DATA / "prophesee" / "sparklers_gen3_evt2.raw"
@@ -79,30 +79,12 @@ for line in sys.stdin:
 """
 
 
-def _git(*a) -> str:
-    return subprocess.run(["git", "-C", str(REPO), *a], check=True, capture_output=True, text=True).stdout.strip()
-
 
 def _default_old() -> str:
-    added = _git("log", "--diff-filter=A", "--format=%H", "--", "hybridhdr/_write_kernels.py").split()
+    added = git("log", "--diff-filter=A", "--format=%H", "--", "hybridhdr/_write_kernels.py").split()
     return f"{added[-1]}^" if added else "HEAD"
 
 
-def _worktree(rev: str) -> Path:
-    sha = _git("rev-parse", rev)
-    wt = Path(tempfile.gettempdir()) / f"hybridhdr-wt-{sha[:12]}"
-    if not (wt / "hybridhdr" / "cli.py").exists():
-        if wt.exists():
-            shutil.rmtree(wt)
-        _git("worktree", "add", "--detach", str(wt), sha)
-    return wt
-
-
-def _loadavg():
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def make_input(tiles: int) -> tuple[Path, int]:
@@ -208,13 +190,13 @@ def main(argv=None) -> int:
     src, n = make_input(tiles)
     old_rev = args.old_commit or _default_old()
     res: dict = {"input": f"sparklers_gen3_evt2.raw x{tiles}", "events": n, "input_mb": round(src.stat().st_size / 1e6, 1),
-                 "old_commit": _git("rev-parse", "--short", old_rev), "new": "working tree",
-                 "cpu_count": os.cpu_count(), "loadavg_start": _loadavg(), "repeats": repeats}
+                 "old_commit": git("rev-parse", "--short", old_rev), "new": "working tree",
+                 "cpu_count": os.cpu_count(), "loadavg_start": loadavg(), "repeats": repeats}
     print(f"input {src.name}: {n:,} events, {res['input_mb']} MB; before = {res['old_commit']}", file=sys.stderr)
     tmp = Path(tempfile.mkdtemp(prefix="hh-convert-"))
     children = {}
     try:
-        children["before"] = Child(_worktree(old_rev), src, tmp / "before")
+        children["before"] = Child(worktree(old_rev), src, tmp / "before")
         children["after"] = Child(REPO, src, tmp / "after")
         times = {(v, task): [] for v in children for task in ("reader", "container", "dat")}
         sizes = {}
@@ -260,7 +242,7 @@ def main(argv=None) -> int:
     from hybridhdr.container import DEFLATE_IMPL
     res["deflate_impl"] = DEFLATE_IMPL
     shutil.rmtree(tmp, ignore_errors=True)
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     res["goal_of_reader"] = 0.5
     print(json.dumps(res))
     return 0

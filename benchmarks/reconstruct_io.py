@@ -34,31 +34,13 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SHARED_DATA  # noqa: E402
+from _common import SHARED_DATA, git, loadavg, worktree  # noqa: E402,F401
 
 REPO = Path(__file__).resolve().parents[1]
 DATA = SHARED_DATA / "ecd_slider_depth"
 
 
-def _git(*a) -> str:
-    return subprocess.run(["git", "-C", str(REPO), *a], check=True, capture_output=True, text=True).stdout.strip()
 
-
-def _worktree(rev: str) -> Path:
-    sha = _git("rev-parse", rev)
-    wt = Path(tempfile.gettempdir()) / f"hybridhdr-wt-{sha[:12]}"
-    if not (wt / "hybridhdr" / "cli.py").exists():
-        if wt.exists():
-            shutil.rmtree(wt)
-        _git("worktree", "add", "--detach", str(wt), sha)
-    return wt
-
-
-def _loadavg():
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def run_cli(wt: Path, args: list[str], out: Path) -> tuple[float, int, int]:
@@ -125,12 +107,12 @@ def main(argv=None) -> int:
     repeats = args.repeats or (1 if args.quick else 3)
     old_rev = args.old_commit
     if old_rev is None:
-        intro = _git("log", "--format=%H", "-S", "class VideoWriter", "--", "hybridhdr/reconstruct/output.py")
+        intro = git("log", "--format=%H", "-S", "class VideoWriter", "--", "hybridhdr/reconstruct/output.py")
         old_rev = intro.splitlines()[-1] + "~1"
-    old, new = _worktree(old_rev), _worktree("HEAD")
+    old, new = worktree(old_rev), worktree("HEAD")
     res = {"quick": args.quick, "repeats": repeats, "recording": "ecd_slider_depth", "fps": 300,
-           "old_commit": _git("rev-parse", "--short", old_rev), "new_commit": _git("rev-parse", "--short", "HEAD"),
-           "loadavg_start": _loadavg()}
+           "old_commit": git("rev-parse", "--short", old_rev), "new_commit": git("rev-parse", "--short", "HEAD"),
+           "loadavg_start": loadavg()}
     sys.path.insert(0, str(new))
     from hybridhdr.reconstruct.output import DEFAULT_EXR_COMPRESSION, exr_compressions
     comps = exr_compressions()
@@ -206,7 +188,7 @@ def main(argv=None) -> int:
                 shutil.rmtree(env_out, ignore_errors=True)
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     res["elapsed_s"] = round(time.perf_counter() - t_start, 1)
     print(json.dumps(res))
     return 0

@@ -37,16 +37,10 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from _common import SHARED_DATA  # noqa: E402
+from _common import SHARED_DATA, loadavg  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-
-def _loadavg():
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except OSError:
-        return None
 
 
 def log(*a):
@@ -236,7 +230,7 @@ def main(argv=None) -> int:
                     help="real brackets: 6 frames; synthetic registration skipped (< 60 s)")
     args = ap.parse_args(argv)
     res = {"benchmark": "registration", "quick": args.quick, "cpu_count": os.cpu_count(),
-           "loadavg_start": _loadavg()}
+           "loadavg_start": loadavg()}
     t0 = time.perf_counter()
     import cv2
     res["opencv"] = cv2.__version__
@@ -245,7 +239,7 @@ def main(argv=None) -> int:
         res["registration"] = bench_registration(600, 800, 10)
     res["crf"] = bench_crf()
     res["total_s"] = time.perf_counter() - t0
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     print(json.dumps(res))
     return 0
 

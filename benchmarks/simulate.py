@@ -32,13 +32,9 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import loadavg  # noqa: E402
 
-
-def _loadavg():
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except (OSError, ValueError, IndexError):
-        return None
 
 
 def log(*a):
@@ -163,7 +159,7 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="2 small scenes, no 1 s run (under 60 s)")
     args = ap.parse_args(argv)
     from hybridhdr.simulate import select_variant
-    res: dict = {"quick": bool(args.quick), "cpu_count": os.cpu_count(), "loadavg_start": _loadavg()}
+    res: dict = {"quick": bool(args.quick), "cpu_count": os.cpu_count(), "loadavg_start": loadavg()}
     t_all = time.perf_counter()
     variant = select_variant()
     res["variant"] = variant
@@ -200,7 +196,7 @@ def main(argv=None) -> int:
                             ("dark_room_window", ())):
             res["end_to_end_1s"].append(end_to_end_1s(name, extra))
             log(f"  {res['end_to_end_1s'][-1]}")
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     res["total_s"] = round(time.perf_counter() - t_all, 1)
     print(json.dumps(res))
     return 0

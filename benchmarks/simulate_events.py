@@ -27,6 +27,8 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _common import loadavg  # noqa: E402
 
 H, W = 260, 346
 
@@ -34,12 +36,6 @@ H, W = 260, 346
 def _log(msg):
     print(msg, file=sys.stderr, flush=True)
 
-
-def _loadavg():
-    try:
-        return float(Path("/proc/loadavg").read_text().split()[0])
-    except OSError:
-        return None
 
 
 def make_frames(n_frames: int, seed: int = 0, shift_px: float = 1.5) -> np.ndarray:
@@ -116,7 +112,7 @@ def main(argv=None):
     args = ap.parse_args(argv)
     n_frames = 25 if args.quick else 80
     res = {"benchmark": "simulate_events", "sensor": f"{W}x{H}", "quick": args.quick, "frames": n_frames,
-           "cpu_count": os.cpu_count(), "loadavg_start": _loadavg()}
+           "cpu_count": os.cpu_count(), "loadavg_start": loadavg()}
     _log(f"preparing {n_frames} frames {W}x{H} ...")
     frames = make_frames(n_frames)
     for preset in ("ideal", "clean", "noisy"):
@@ -131,7 +127,7 @@ def main(argv=None):
     res["meets_goal_ideal_wall"] = res["ideal"]["mev_s_wall"] >= 20.0
     res["note"] = ("clean/noisy use a 500 µs refractory period, which suppresses most of the events of "
                    "this 1 ms-step input, so their Mev/s measure per-pixel overhead more than per-event cost")
-    res["loadavg_end"] = _loadavg()
+    res["loadavg_end"] = loadavg()
     print(json.dumps(res))
 
 
