@@ -132,8 +132,9 @@ def make_params(method: str, params=None):
 # -- sources ------------------------------------------------------------------------------------
 
 def _open_source(source):
-    """(sensor_size, frames, chunk iterator factory, closer, declared event count or None) for a
-    Recording, reader or path."""
+    """(sensor_size, frames, chunk iterator factory, closer, declared event count or None, the
+    opened source: the Recording or the reader, whose metadata, time range and stored threshold
+    map are read once) for a Recording, reader or path."""
     if isinstance(source, Recording):
         ev = source.events
         ss = source.sensor_size
@@ -141,7 +142,7 @@ def _open_source(source):
         def chunks(n):
             for i in range(0, ev.shape[0], n):
                 yield events_fields(ev[i:i + n])
-        return ss, source.frames, chunks, (lambda: None), _declared_event_count(source)
+        return ss, source.frames, chunks, (lambda: None), _declared_event_count(source), source
     reader = source
     close = (lambda: None)
     if isinstance(source, (str, os.PathLike)):
@@ -164,7 +165,7 @@ def _open_source(source):
                 ev = c.events if hasattr(c, "events") else c
                 if len(ev):
                     yield events_fields(ev)
-    return ss, frames, chunks, close, _declared_event_count(reader)
+    return ss, frames, chunks, close, _declared_event_count(reader), reader
 
 
 def _declared_event_count(source) -> int | None:
@@ -212,14 +213,7 @@ def _time_span_us(source, frames) -> tuple[int, int] | None:
 
 
 def _stored_thresholds(source):
-    """The threshold map a container source stores (``/thresholds``), or None."""
-    if isinstance(source, (str, os.PathLike)):
-        try:
-            from ..container import RecordingFile
-            with RecordingFile(source) as r:
-                return r.read_thresholds()
-        except Exception:  # noqa: BLE001 - not a container: nothing stored
-            return None
+    """The threshold map an opened container source stores (``/thresholds``), or None."""
     fn = getattr(source, "read_thresholds", None)
     return fn() if callable(fn) else None
 
@@ -363,11 +357,11 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
     thr = _threshold_arrays(thresholds)
     if times_us is not None:
         check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
-    ss, frames, chunk_factory, close, n_declared = _open_source(source)
+    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source)
     events = None
     try:
         if thr is None and thresholds is None and method in ("akf", "cf", "direct", "highpass"):
-            stored = _stored_thresholds(source)  # a map calibrated into the container is used
+            stored = _stored_thresholds(opened)  # a map calibrated into the container is used
             if stored is not None:
                 thr = _threshold_arrays(stored)
                 if info is not None:
@@ -375,7 +369,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
         shape = _sensor_shape(ss, frames)
         check_sensor_size(*shape, what="sensor (per-pixel filter state)")
         if fps is not None and times_us is None:
-            span = _time_span_us(source, frames)
+            span = _time_span_us(opened, frames)
             if span is not None:
                 lo = span[0] if t_start_us is None else max(span[0], int(t_start_us))
                 hi = span[1] + 1 if t_end_us is None else int(t_end_us)
@@ -390,7 +384,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 events = StreamingEventArrays(chunk_factory(int(chunk_events)), shape, n_declared)
             chunk_factory = events.chunks
         if profile is None:
-            profile = _source_profile(source)
+            profile = _source_profile(opened)
         two_sided = (method == "akf" and mode == "offline" and measurements is None
                      and frames is not None and len(frames) > 0)
         if two_sided:

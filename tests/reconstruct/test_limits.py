@@ -69,3 +69,25 @@ def test_threshold_map_stored_in_the_container_is_used(tmp_path):
     with pytest.raises(ValueError, match="shape"):
         store_thresholds(path, ThresholdMap(c_on=np.ones((2, 2)), c_off=np.ones((2, 2)), fallback_on=1.0,
                                             fallback_off=1.0))
+
+
+def test_a_recordings_declared_profile_is_used_from_a_path_too(tmp_path):
+    """A camera profile in the metadata (e.g. an AKF .mat file's f_Q) applies whether the
+    recording is passed in memory or as a file path."""
+    import dataclasses
+    from hybridhdr.camera import default_profile
+    from hybridhdr.container import write_recording
+    from hybridhdr.model import Metadata
+    prof = dataclasses.replace(default_profile(8, encoding="gamma"), extra={}, name="declared")  # a measured one
+    rec = _rec()
+    rec = Recording(rec.events, rec.sensor_size, rec.frames,
+                    metadata=Metadata(provenance={"camera_profile": prof.to_dict()}))
+    path = write_recording(rec, tmp_path / "r.h5")
+    t = [30_000]
+    a = reconstruct(path, "akf", times_us=t, mode="causal")
+    b = reconstruct(rec, "akf", times_us=t, mode="causal")
+    c = reconstruct(rec, "akf", times_us=t, mode="causal", profile=prof)
+    d = reconstruct(rec, "akf", times_us=t, mode="causal", profile=default_profile(8))
+    np.testing.assert_array_equal(a.frames, c.frames)
+    np.testing.assert_array_equal(b.frames, c.frames)
+    assert not np.array_equal(a.frames, d.frames)
