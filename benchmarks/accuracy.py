@@ -15,6 +15,8 @@ level at the frame's exposure), references at the frames' mid-exposures:
 - ``ahdr``: ``build_ahdr`` stills (3:1, 10:1) with codes outside [100, 160] clipped;
 - ``real``: ``ecd_slider_depth`` leave-one-frame-out (each frame with neighbours inside the events'
   span withheld and predicted at its exposure centre, scored on its well-exposed codes 20-235);
+  the recording states no thresholds, so every event method's pooled ON/OFF thresholds are
+  estimated without frame k in the method's own log model (``evaluate.realdata.input_thresholds``);
 - ``real_next``: ``ecd_slider_depth`` next-frame prediction for the causal methods (the same frames,
   each predicted at tau_k - 1 us from the frames and events before it; ``frames_zoh`` is
   hold-previous, ``frames_linear`` the non-causal interpolation shown for reference).

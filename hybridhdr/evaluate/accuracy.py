@@ -362,7 +362,7 @@ REAL_BASELINES = {"frames_zoh": "hold previous frame", "frames_linear": "linear 
 
 
 def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
-                       well_exposed=None, log=None) -> list[dict]:
+                       well_exposed=None, log=None, thresholds: str = "input") -> list[dict]:
     """Leave-one-frame-out on a real recording.
 
     For each held-out frame k (default: every frame with a frame before and after it inside the
@@ -376,33 +376,40 @@ def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_t
 
     Only the frames inside the events' span are kept (the recording's other frames have no events
     around them).
+
+    ``thresholds="input"`` (default; a real recording does not state its thresholds): every event
+    method's pooled ON/OFF thresholds are estimated on its input, in its own log model
+    (:func:`hybridhdr.evaluate.realdata.input_thresholds`); ``"params"``: the methods' own (with
+    ``contrast_threshold`` if given).
     """
     return _real_holdout(rec, "leave_one_out", "real_loo", held, methods, profile, contrast_threshold,
-                         well_exposed, log)
+                         well_exposed, log, thresholds)
 
 
 def real_next_frame(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
-                    well_exposed=None, log=None) -> list[dict]:
+                    well_exposed=None, log=None, thresholds: str = "input") -> list[dict]:
     """Next-frame prediction on a real recording, for the causal methods of ``methods``.
 
     For each predicted frame k (default as :func:`real_leave_one_out`) the input is cut before it
     (frames 0..k-1, events before tau_k - 1 us) and every causal method (``mode == "causal"``)
     reconstructs at tau_k - 1 us; scored as :func:`real_leave_one_out`. ``frames_linear`` (needs
     frame k+1) is kept as the non-causal reference: it interpolates k-1 and k+1 as in the
-    leave-one-out task. Other non-causal methods are left out.
+    leave-one-out task. Other non-causal methods are left out. ``thresholds``: as
+    :func:`real_leave_one_out` (estimated without frame k; the filter itself sees only the data before it).
     """
     causal = [m for m in methods if m.mode == "causal" or m.method == "frames_linear"]
     return _real_holdout(rec, "next_frame", "real_next", held, causal, profile, contrast_threshold,
-                         well_exposed, log)
+                         well_exposed, log, thresholds)
 
 
-def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, well_exposed, log) -> list[dict]:
+def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, well_exposed, log,
+                  thresholds="input") -> list[dict]:
     from . import realdata as RD
     held = RD.default_held_frames(rec) if held is None else [int(k) for k in held]
     ref, valid, _ = RD.reference_frames(rec, held, profile, well_exposed)
     specs = [RD.HoldoutSpec(m.label, m.method, m.mode, method_params(m, contrast_threshold), m.augment)
              for m in methods]
-    recs = RD.holdout_reconstructions(rec, specs, task=task, held=held, profile=profile)
+    recs = RD.holdout_reconstructions(rec, specs, task=task, held=held, profile=profile, thresholds=thresholds)
     rows = []
     for m in methods:
         st = recs[m.label]
@@ -414,6 +421,9 @@ def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, w
             x = np.stack(st["frames"])
             row.update(score_run(x, ref, {"well_exposed": valid}, valid=valid))
             row["wall_s"] = st["wall_s"]
+            used = [u for u in st["thresholds"] if u is not None]
+            if used:
+                row["thresholds"] = used
             # each held-out frame re-reads the event stream (all of it, or up to the cut)
             if task == "next_frame":
                 cuts = [RD.holdout_input(rec, k, "next_frame")[1] for k in held]

@@ -94,6 +94,10 @@ def add_parser(sub) -> None:
                         "events' span)")
     h.add_argument("--params", type=Path, default=None, help="method parameters (TOML)")
     h.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
+    h.add_argument("--thresholds", choices=["params", "input"], default=None,
+                   help="contrast thresholds: 'input' = each event method's pooled ON/OFF thresholds estimated "
+                        "without the held-out frame, in the method's own log model; 'params' = the method's own "
+                        "(default: params when --params or --contrast-threshold is given, else input)")
     h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
     h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
                                                               "else built-in)")
@@ -302,8 +306,12 @@ def run_holdout_cmd(args) -> int:
             raise ValueError(f"--well-exposed must be 'LO,HI' codes, got {args.well_exposed!r}") from None
     held = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
+    thresholds = args.thresholds
+    if thresholds is None:
+        thresholds = "params" if (args.params is not None or args.contrast_threshold is not None) else "input"
     res = evaluate_holdout(rec, specs, tasks=tasks, held=held, profile=args.profile, well_exposed=well,
-                           log=lambda msg: print(msg, file=sys.stderr))
+                           log=lambda msg: print(msg, file=sys.stderr), thresholds=thresholds)
+    res["thresholds"] = thresholds
     res["recording"] = str(args.recording)
     if args.json:
         print(json.dumps(res, default=lambda o: o.item() if hasattr(o, "item") else str(o)))

@@ -23,6 +23,19 @@ and **linear interpolation** (``frames_linear`` between k−1 and k+1, in intens
 next-frame task hold-previous is the causal baseline; linear interpolation needs frame k+1, so
 it is shown as a non-causal reference (the same number as in the leave-one-out task).
 
+Contrast thresholds (``thresholds="input"``): a real recording rarely states its sensor's
+thresholds, and a method's threshold only means something in its own log model (the AKF's
+``log(I + 1e-3)``, CF's ``log(I + 1)``). Each event method's pooled ON and OFF thresholds are then
+estimated **without frame k** (on the leave-one-out input, the recording with frame k withheld:
+in next-frame prediction the filter still sees only the data before τ_k, and its two threshold
+numbers are a camera constant calibrated once, never from the scored frame), in that method's
+log model (its ``intensity_offset``), by
+:func:`hybridhdr.calibrate.thresholds.estimate_thresholds` (least squares of the frames' log
+changes on the event counts, ``docs/calibrate.md``); the same procedure for every method, no
+ground truth, no per-scene setting. Where the input has too little information (fewer than two
+frames inside the events' span), the method keeps its own thresholds; what was used is recorded
+per held-out frame. Methods without a frame model (high-pass) keep their own.
+
 Held-out frames (default): the frames whose neighbours k−1 and k+1 exist among the frames with
 mid-exposure inside the events' span (up to the last event) and whose τ_k is after the first
 event; frames after the last event are dropped from the input (no events around them).
@@ -37,7 +50,8 @@ import time
 import numpy as np
 
 __all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "TASKS", "HoldoutSpec", "BASELINES", "default_held_frames",
-           "holdout_input", "holdout_reconstructions", "score_frame", "evaluate_holdout", "format_holdout"]
+           "holdout_input", "holdout_reconstructions", "input_thresholds", "THRESHOLD_SOURCES", "score_frame",
+           "evaluate_holdout", "format_holdout"]
 
 #: Well-exposed codes of an 8-bit frame (inclusive); scaled to other bit depths.
 WELL_EXPOSED_8BIT = (20, 235)
@@ -118,14 +132,49 @@ def _luminance(frame):
     return x
 
 
-def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None) -> dict:
+#: Methods whose events are scaled by contrast thresholds (``thresholds="input"`` calibrates them).
+THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
+
+#: Values of ``thresholds``: the methods' own (``"params"``) or estimated on each input (``"input"``).
+THRESHOLD_SOURCES = ("params", "input")
+
+
+def input_thresholds(rec_input, method: str, params, profile=None):
+    """``(params, used)``: ``params`` of ``method`` with pooled ON/OFF thresholds estimated on
+    ``rec_input`` in the method's own log model (module docstring), and a record of what was used.
+    Methods without thresholds, and inputs without the information, keep ``params``."""
+    from ..calibrate.thresholds import estimate_thresholds
+    from ..reconstruct.api import make_params, resolve_method
+    m = resolve_method(method)
+    if m not in THRESHOLD_METHODS:
+        return params, None
+    p = make_params(m, params)
+    if not hasattr(p, "intensity_offset"):  # no frame model (high-pass): nothing to calibrate against
+        return params, None
+    try:
+        tm = estimate_thresholds(rec_input, profile=profile, intensity_offset=float(p.intensity_offset))
+    except ValueError as e:  # too little information in this input: the method's own thresholds
+        return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": str(e)[:200]}
+    c_on, c_off = float(tm.fallback_on), float(tm.fallback_off)
+    return (p.replace(contrast_threshold_on=c_on, contrast_threshold_off=c_off),
+            {"source": "input", "c_on": c_on, "c_off": c_off, "intensity_offset": float(p.intensity_offset),
+             "intervals": int(tm.provenance["intervals_used"])})
+
+
+def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params") -> dict:
     """Reconstruct every spec at every held-out frame.
 
+    ``thresholds``: ``"params"`` (each spec's own) or ``"input"`` (estimated on each input in the
+    method's log model, :func:`input_thresholds`).
+
     Returns ``{label: {"frames": [(H, W) float64 or None per held-out frame], "wall_s": float,
-    "error": str or None}}``; the first failure of a spec stops that spec (reported, not hidden).
+    "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
+    of a spec stops that spec (reported, not hidden).
     """
     from ..reconstruct import reconstruct
-    out = {s.label: {"frames": [], "wall_s": 0.0, "error": None} for s in specs}
+    if thresholds not in THRESHOLD_SOURCES:
+        raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES}, got {thresholds!r}")
+    out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
     for k in held:
         for s in specs:
             st = out[s.label]
@@ -134,8 +183,15 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
             tk = "leave_one_out" if (task == "next_frame" and s.method == "frames_linear") else task
             try:
                 r_k, t = holdout_input(rec, k, tk)
+                params = s.params
+                if thresholds == "input":
+                    # next-frame: the filter sees only the data before tau_k; its two threshold
+                    # numbers, a camera constant, come from the recording without frame k
+                    r_c = r_k if tk == "leave_one_out" else holdout_input(rec, k, "leave_one_out")[0]
+                    params, used = input_thresholds(r_c, s.method, params, profile)
+                    st["thresholds"].append(used)
                 t0 = time.perf_counter()
-                v = reconstruct(r_k, s.method, s.params, times_us=np.array([t], np.int64), mode=s.mode,
+                v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
                                 profile=profile, augment=s.augment)
                 st["wall_s"] += time.perf_counter() - t0
                 st["frames"].append(_luminance(v.frames[0]))
@@ -190,7 +246,7 @@ def _is_causal(spec: HoldoutSpec) -> bool:
 
 
 def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well_exposed=None, baselines=True,
-                     log=None) -> dict:
+                     log=None, thresholds: str = "params") -> dict:
     """Score ``methods`` (HoldoutSpec list) and the baselines on held-out frames.
 
     Parameters
@@ -200,6 +256,8 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
     tasks : subset of :data:`TASKS`; ``next_frame`` runs the causal specs only (others are listed
         as skipped) and the baselines.
     held : frame indices (into the frames up to the last event), default :func:`default_held_frames`
+    thresholds : ``"params"`` (each method's own) or ``"input"`` (estimated on each input in the
+        method's own log model; module docstring)
 
     Returns
     -------
@@ -224,7 +282,8 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
         if task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         run = [s for s in specs if task == "leave_one_out" or _is_causal(s) or s in BASELINES]
-        recs = holdout_reconstructions(rec, run, task=task, held=held, profile=profile, log=log)
+        recs = holdout_reconstructions(rec, run, task=task, held=held, profile=profile, log=log,
+                                       thresholds=thresholds)
         rows = {}
         for s in specs:
             role = "baseline" if s in BASELINES else "method"
@@ -247,6 +306,8 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
             row["per_frame"] = pf
             row["mean"] = {key: float(np.mean([p[key] for p in pf])) for key in ("mse", "psnr_db", "ssim")}
             row["wall_s"] = st["wall_s"]
+            if any(u is not None for u in st["thresholds"]):
+                row["thresholds"] = st["thresholds"]
             row["status"] = "ok"
             rows[s.label] = row
         res[task] = {"methods": rows}

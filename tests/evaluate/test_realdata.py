@@ -112,3 +112,45 @@ def test_ecd_slider_depth_akf_beats_hold_previous():
     assert res["held"] == [1, 2, 3]
     assert m["akf"]["mean"]["mse"] < m["hold_previous"]["mean"]["mse"]
     assert m["akf"]["mean"]["ssim"] > m["hold_previous"]["mean"]["ssim"]
+
+
+def test_input_thresholds_recover_the_sensor_and_never_see_frame_k(rec):
+    """Pooled thresholds estimated on the leave-one-out input, in the AKF's log model, recover the
+    simulated sensor's c = 0.15 (the frames are exact, events ideal: error from the residual of
+    each interval, below one threshold, averaged over ~1000 pixel-intervals: 5 %)."""
+    k = RD.default_held_frames(rec)[2]
+    loo, _ = RD.holdout_input(rec, k, "leave_one_out")
+    p, used = RD.input_thresholds(loo, "akf", None)
+    assert used["source"] == "input"
+    assert p.c_on == pytest.approx(0.15, rel=0.05) and p.c_off == pytest.approx(0.15, rel=0.05)
+    # CF's log(I + 1) model gives its own (smaller) numbers: each method in its own model
+    q, used_cf = RD.input_thresholds(loo, "cf", None)
+    assert used_cf["intensity_offset"] == 1.0 and q.c_on < 0.8 * p.c_on
+    # frames-only and high-pass methods keep their parameters
+    assert RD.input_thresholds(loo, "frames_zoh", None) == (None, None)
+    assert RD.input_thresholds(loo, "highpass", None) == (None, None)
+    # one frame: nothing to calibrate against, the method's own thresholds are kept and said so
+    one, _ = RD.holdout_input(rec, 1, "next_frame")
+    p1, u1 = RD.input_thresholds(one, "akf", {"contrast_threshold": 0.3})
+    assert u1["source"] == "params" and p1.c_on == 0.3 and "two frames" in u1["why"]
+    # in next-frame prediction the numbers come from the recording without frame k (never from it)
+    res = RD.holdout_reconstructions(rec, [RD.HoldoutSpec("akf_causal", "akf", "causal")], task="next_frame",
+                                     held=[k], thresholds="input")
+    assert res["akf_causal"]["thresholds"][0] == used
+    with pytest.raises(ValueError, match="thresholds must be one of"):
+        RD.holdout_reconstructions(rec, [], task="next_frame", held=[k], thresholds="auto")
+
+
+def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
+    from hybridhdr.cli import main
+    from hybridhdr.container import write_recording
+    p = tmp_path / "rec.h5"
+    write_recording(rec, p)
+    assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["thresholds"] == "input"
+    assert res["leave_one_out"]["methods"]["akf"]["thresholds"][0]["source"] == "input"
+    assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--contrast-threshold", "0.15",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["thresholds"] == "params" and "thresholds" not in res["leave_one_out"]["methods"]["akf"]
