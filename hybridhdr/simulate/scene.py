@@ -520,7 +520,15 @@ class MeshSpec:
                 p = Path(base_dir) / p
             if not p.exists():
                 raise FileNotFoundError(f"mesh file {str(p)!r} not found")
-            m = trimesh.load(p, force="mesh", process=False)
+            ext = p.suffix.lower().lstrip(".")
+            if ext not in trimesh.available_formats():
+                raise SceneError(f"mesh file {str(p)!r}: format {ext or '(no extension)'!r} is not one trimesh reads; "
+                                 f"expected one of {', '.join(sorted(trimesh.available_formats()))}")
+            try:
+                m = trimesh.load(p, force="mesh", process=False)
+            except Exception as e:  # a malformed file: trimesh's parsers raise anything (KeyError, ValueError...)
+                raise SceneError(f"mesh file {str(p)!r}: not a readable {ext.upper()} mesh "
+                                 f"({type(e).__name__}: {e})") from e
             if not isinstance(m, trimesh.Trimesh) or len(m.faces) == 0:
                 raise SceneError(f"mesh file {str(p)!r}: expected a triangle mesh, found {type(m).__name__}")
             vis_uv = getattr(getattr(m, "visual", None), "uv", None)

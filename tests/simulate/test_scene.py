@@ -278,3 +278,19 @@ def test_docs_example_loads_and_renders(tmp_path):
     from hybridhdr.simulate.render import MitsubaSource
     img = MitsubaSource(sc.with_changes(width=32, height=24, spp=1)).render(250_000)
     assert img.shape == (24, 32) and np.isfinite(img).all() and img.max() > 0
+
+
+def test_mesh_files_trimesh_cannot_read_are_scene_errors(tmp_path):
+    """An unknown extension or a malformed file is a SceneError naming the file, never trimesh's own
+    NotImplementedError / KeyError traceback."""
+    pytest.importorskip("trimesh")
+    from hybridhdr.simulate.scene import MeshSpec
+    (tmp_path / "x.foo").write_text("garbage\n")
+    with pytest.raises(SceneError, match=r"x\.foo.*format 'foo' is not one trimesh reads; expected one of .*ply"):
+        MeshSpec("file", path="x.foo").build(tmp_path)
+    (tmp_path / "z.ply").write_text("ply\nformat ascii 1.0\nelement vertex 99999999999\nend_header\n")
+    with pytest.raises(SceneError, match=r"z\.ply.*not a readable PLY mesh"):
+        MeshSpec("file", path="z.ply").build(tmp_path)
+    (tmp_path / "e.stl").write_text("solid x\nendsolid\n")
+    with pytest.raises(SceneError, match="expected a triangle mesh"):
+        MeshSpec("file", path="e.stl").build(tmp_path)
