@@ -98,8 +98,50 @@ def _set_dotted(d: dict, key: str, value):
     cur[parts[-1]] = value
 
 
-def parse_bench(d: dict, source: str = "") -> Bench:
-    """Validate a bench dict (as loaded from TOML)."""
+#: Dataset keys that name files a bench file reads (confined to its folder, ``docs/security.md``).
+_DATASET_PATH_KEYS = ("path", "profile", "image")
+
+
+def _confine_bench_file(d: dict, base: Path, source: str, allow_outside, out_dir) -> None:
+    """A bench loaded from a file reads and writes only inside its folder (and ``out_dir`` for its
+    cache) unless ``allow_outside`` folders are given; it never names code to run (HDR-VDP's
+    folder, unpickling checkpoints): those come from the command line or the environment."""
+    from .._confine import confine
+    b = d.get("bench", {})
+    if b.get("hdrvdp_dir") is not None:
+        raise ValueError(f"{source}: [bench].hdrvdp_dir is not accepted in a bench file (HDR-VDP runs the .m files of "
+                         f"that folder); give it on the command line (--hdrvdp-dir) or in $HYBRIDHDR_HDRVDP_DIR "
+                         f"(docs/security.md)")
+    for i, m in enumerate(d.get("methods", [])):
+        params = m.get("params") if isinstance(m, dict) else None
+        if isinstance(params, dict) and params.get("allow_pickle"):
+            raise ValueError(f"{source}: methods[{i}].params.allow_pickle is not accepted in a bench file (it lets a "
+                             f"checkpoint run Python code); load such weights from Python yourself (docs/security.md)")
+    for i, x in enumerate(d.get("datasets", [])):
+        if not isinstance(x, dict):
+            continue
+        for key in _DATASET_PATH_KEYS:
+            v = x.get(key)
+            if isinstance(v, str) and not (key == "image" and v.startswith("procedural")):
+                x[key] = str(confine(v, base, allow_outside, what=f"datasets[{i}].{key}", source=source))
+        grid = x.get("grid")
+        if isinstance(grid, dict):
+            for key in _DATASET_PATH_KEYS:
+                if isinstance(grid.get(key), list):
+                    grid[key] = [str(confine(v, base, allow_outside, what=f"datasets[{i}].grid.{key}", source=source))
+                                 if isinstance(v, str) and not v.startswith("procedural") else v for v in grid[key]]
+    if isinstance(b.get("cache_dir"), str):
+        roots = tuple(allow_outside or ()) + ((out_dir,) if out_dir is not None else ())
+        b["cache_dir"] = str(confine(b["cache_dir"], base, roots, what="[bench].cache_dir", source=source))
+
+
+def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) -> Bench:
+    """Validate a bench dict (as loaded from TOML).
+
+    When ``source`` is a bench file on disk, the files it names (dataset ``path``/``profile``/
+    ``image``, checkpoints, ``cache_dir``) resolve relative to its folder and must lie inside it
+    (``cache_dir`` also inside ``out_dir``) or an ``allow_outside`` folder, and it may not set
+    ``hdrvdp_dir`` or ``allow_pickle`` (``docs/security.md``). A dict from Python is trusted."""
     if not isinstance(d, dict):
         raise TypeError(f"a bench must be a dict, got {type(d).__name__}")
     unknown = sorted(set(d) - {"bench", "datasets", "methods", "charts"})
@@ -155,10 +197,15 @@ def parse_bench(d: dict, source: str = "") -> Bench:
     weights = b.get("weights") or {}
     if not isinstance(weights, dict) or not all(k in LEARNED and isinstance(v, str) for k, v in weights.items()):
         raise ValueError(f"[bench].weights must be a table {{ e2vid = PATH, firenet = PATH }}, got {weights!r}")
-    base = Path(source).parent if source and Path(source).is_file() else None
+    base = Path(source).resolve().parent if source and Path(source).is_file() else None
+    if base is not None:
+        _confine_bench_file(d, base, str(source), allow_outside, out_dir)
 
-    def _path(v):  # relative checkpoint paths are relative to the bench file
-        return str(base / v) if base is not None and not Path(v).is_absolute() else v
+    def _path(v):  # relative checkpoint paths are relative to the bench file, and stay inside its folder
+        if base is None:
+            return v
+        from .._confine import confine
+        return str(confine(v, base, allow_outside, what="checkpoint (weights)", source=str(source)))
     weights = {k: _path(v) for k, v in weights.items()}
     for m in ms:
         if resolve_method(m["method"]) in LEARNED:
@@ -192,11 +239,14 @@ def bundled_bench(name: str) -> str:
     return f.read_text(encoding="utf-8")
 
 
-def load_bench(path_or_name) -> Bench:
-    """Load a bench file, or a bundled one by name (``demo``, ``speed_accuracy``, ``stability``, ``tiny``)."""
+def load_bench(path_or_name, *, allow_outside=(), out_dir=None) -> Bench:
+    """Load a bench file, or a bundled one by name (``demo``, ``speed_accuracy``, ``stability``, ``tiny``).
+
+    A bench file is confined to its folder (and ``out_dir`` for its cache) unless
+    ``allow_outside`` folders are given (:func:`parse_bench`)."""
     p = Path(path_or_name)
     if p.is_file():
-        return parse_bench(_load_toml_bytes(p.read_bytes()), str(p))
+        return parse_bench(_load_toml_bytes(p.read_bytes()), str(p), allow_outside=allow_outside, out_dir=out_dir)
     if str(path_or_name) in BUNDLED:
         return parse_bench(_load_toml_bytes(bundled_bench(str(path_or_name)).encode()), f"<bundled {path_or_name}>")
     raise FileNotFoundError(f"bench file {path_or_name} not found (bundled benches: {list(BUNDLED)})")

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -55,6 +56,11 @@ def add_parser(sub) -> None:
                                                      "processes")
     b.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes (0 = in this process; "
                                                              "default min(2, CPUs))")
+    b.add_argument("--hdrvdp-dir", type=Path, default=None,
+                   help="HDR-VDP 3 folder for Q (default $HYBRIDHDR_HDRVDP_DIR; never read from the bench file)")
+    b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
+                   help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
+                        "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
     b.set_defaults(func=run_bench_cmd)
 
     q = esub.add_parser("paper", formatter_class=fmt, help="Table 1 of the paper on simulated HDR and AHDR sets",
@@ -245,7 +251,11 @@ def _print_default(res) -> None:
 
 def run_bench_cmd(args) -> int:
     from .bench import load_bench, run_bench, write_results
-    bench = load_bench(args.bench)
+    import dataclasses
+    bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)
+    hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
+    if hv:
+        bench = dataclasses.replace(bench, hdrvdp_dir=str(hv))
     rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     w = write_results(rows, args.out, bench)
     print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())

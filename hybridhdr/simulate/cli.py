@@ -74,11 +74,14 @@ def add_parser(subparsers) -> None:
     p.add_argument("--preview", type=Path, default=None,
                    help="only render a PNG strip of a few frames (log radiance) to this file and exit")
     p.add_argument("--preview-frames", type=positive_int, default=4, help="frames in the --preview strip")
+    p.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
+                   help="let the scene file read files under PATH too (repeatable); by default its textures, "
+                        "meshes and calibration must lie inside its own folder (docs/security.md)")
     p.set_defaults(func=run)
 
 
 def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=None, render_seed=None,
-                   board_options=None):
+                   board_options=None, allow_outside=()):
     """A :class:`Scene` from ``builtin:NAME`` or a TOML path, with the overrides applied;
     ``board_options`` (``poses``, ``period_us``) go to ``builtin:blinking_checkerboard``."""
     from .builtin import builtin_scene
@@ -89,7 +92,7 @@ def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=N
     if spec.startswith("builtin:"):
         sc = builtin_scene(spec, duration_s=duration_s, **opts)
     else:
-        sc = load_scene(spec)
+        sc = load_scene(spec, allow_outside=allow_outside)
         if duration_s is not None:
             if not duration_s > 0:
                 raise ValueError(f"--duration-s: expected > 0, found {duration_s}")
@@ -165,7 +168,8 @@ def run(args) -> int:
         raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
                            spp=args.spp, render_seed=args.render_seed,
-                           board_options={"poses": args.poses, "period_us": args.blink_period_us})
+                           board_options={"poses": args.poses, "period_us": args.blink_period_us},
+                           allow_outside=args.allow_outside)
     sensor = sensor_params(args)
     from .render import MitsubaSource
     source = MitsubaSource(scene, variant=args.variant)

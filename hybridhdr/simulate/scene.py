@@ -1051,16 +1051,41 @@ def _toml_load(path: Path) -> dict:
         raise SceneError(f"scene file {str(path)!r}: invalid TOML ({e})") from None
 
 
-def load_scene(path) -> Scene:
-    """Read a scene TOML file (format: ``docs/simulate.md``); relative file names resolve against its folder."""
+def scene_files(scene: Scene) -> list[tuple[str, str]]:
+    """``[(key, path as written), ...]``: the files a scene reads when rendered (textures, meshes)."""
+    out = []
+    for i, o in enumerate(scene.objects):
+        if o.mesh.kind == "file" and o.mesh.path:
+            out.append((f"objects[{i}].mesh.path", o.mesh.path))
+        if o.material.reflectance.texture:
+            out.append((f"objects[{i}].material texture", o.material.reflectance.texture))
+        if o.emission is not None and o.emission.radiance.texture:
+            out.append((f"objects[{i}].emission texture", o.emission.radiance.texture))
+    return out
+
+
+def load_scene(path, allow_outside=()) -> Scene:
+    """Read a scene TOML file (format: ``docs/simulate.md``); relative file names resolve against its folder.
+
+    Every file the scene names (camera ``calibration``, mesh files, textures) must resolve inside
+    the scene's folder or one of the ``allow_outside`` folders (``--allow-outside``), else
+    :class:`hybridhdr._confine.OutsideFolderError` (``docs/security.md``)."""
+    from .._confine import confine
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"scene file {str(p)!r} not found")
     d = _toml_load(p)
+    base = p.resolve().parent
+    cam = d.get("camera")
+    if isinstance(cam, dict) and isinstance(cam.get("calibration"), str):  # read while the scene is built
+        confine(cam["calibration"], base, allow_outside, what="camera.calibration", source=str(p))
     try:
-        return Scene.from_dict(d, base_dir=p.resolve().parent)
+        sc = Scene.from_dict(d, base_dir=base)
     except SceneError as e:
         raise SceneError(f"{p}: {e}") from None
+    for key, f in scene_files(sc):
+        confine(f, base, allow_outside, what=key, source=str(p))
+    return sc
 
 
 def _toml_value(v) -> str:

@@ -25,7 +25,9 @@ def test_parse_weights_and_jod_keys(tmp_path):
                     '[[datasets]]\nkind = "procedural"\n[[methods]]\nmethod = "e2vid"\n'
                     '[[methods]]\nmethod = "firenet"\nparams = { weights = "/abs/fire.pth.tar" }\n'
                     '[[methods]]\nmethod = "akf"\n', encoding="utf-8")
-    b = B.load_bench(toml)
+    with pytest.raises(PermissionError, match=r"'/abs/fire.pth.tar'.*outside the file's folder.*--allow-outside '/abs'"):
+        B.load_bench(toml)  # a bench file reads only inside its folder unless the user allows more
+    b = B.load_bench(toml, allow_outside=["/abs"])
     assert b.jod is False and b.jod_frames == 3 and b.weights == {"e2vid": str(tmp_path / "w/e2vid.pth.tar")}
     ms = {m["name"]: m for m in b.methods}
     assert ms["e2vid"]["params"]["weights"] == str(tmp_path / "w/e2vid.pth.tar")   # relative to the bench file
