@@ -597,6 +597,42 @@ def _ros1_bag(path):
     return path
 
 
+def _ros1_chunk_size(path, new_size: int, compression: str = "bz2"):
+    """A compressed ROS 1 bag whose (first) chunk header declares ``new_size`` decompressed bytes."""
+    from rosbags.rosbag1 import Writer
+    from hybridhdr.capture.formats import rosbag as R
+    ts = R.make_typestore(ros2=False)
+    Event, EA = ts.types["dvs_msgs/msg/Event"], ts.types[R.EVENT_ARRAY]
+    Time, Header = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
+    evs = [Event(x=i % 10, y=i % 7, ts=Time(sec=1, nanosec=i), polarity=True) for i in range(200_000)]
+    msg = EA(header=Header(seq=0, stamp=Time(sec=1, nanosec=0), frame_id="cam"), height=48, width=64, events=evs)
+    w = Writer(path)
+    w.set_compression(getattr(Writer.CompressionFormat, compression.upper()))
+    with w:
+        c = w.add_connection("/dvs/events", R.EVENT_ARRAY, typestore=ts)
+        w.write(c, 1_000_000_000, ts.serialize_ros1(msg, R.EVENT_ARRAY))
+    b = bytearray(path.read_bytes())
+    i = b.index(b"size=", b.index(b"op=\x05") - 64)  # the chunk header's size field
+    struct.pack_into("<I", b, i + 5, new_size)
+    path.write_bytes(bytes(b))
+    return path
+
+
+@case("rosbag")
+def ros1_chunk_declares_4gib(d):
+    return _info(_ros1_chunk_size(d / "a.bag", 0xFFFFFFF0))
+
+
+@case("rosbag")
+def ros1_bz2_chunk_expands_beyond_its_declared_size(d):
+    return _info(_ros1_chunk_size(d / "a.bag", 1000))
+
+
+@case("rosbag")
+def ros1_lz4_chunk_expands_beyond_its_declared_size(d):
+    return _info(_ros1_chunk_size(d / "a.bag", 1000, "lz4"))
+
+
 for _ext in (".txt", ".h5", ".zip", ".bin"):
     def _mk(ext):
         def fn(d):

@@ -141,6 +141,9 @@ class RosbagReader(EventFileReader):
         except ImportError as exc:  # pragma: no cover - dependency missing
             raise ImportError("reading ROS bags needs the 'rosbags' package: pip install rosbags") from exc
         self._typestore = make_typestore(ros2=True)
+        if self.path.is_file():  # ROS 1: every chunk's decompressed size bounded before rosbags inflates it
+            from ._ros1_chunks import check_ros1_chunks
+            check_ros1_chunks(self.path)
         with self._reader() as r:
             try:
                 topics = {name: info.msgtype for name, info in r.topics.items()}
