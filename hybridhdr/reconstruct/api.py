@@ -409,7 +409,8 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 engines.append(e)
                 return e
             yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
-                                      chunk_events=int(chunk_events), progress=progress, info=info)
+                                      chunk_events=int(chunk_events), progress=progress, info=info,
+                                      carried_variance=p.carried_variance())
             if info is not None:
                 info["n_events_used"] = len(events)  # each event by each pass
                 stats = [getattr(e.m, "stats", None) for e in engines]

@@ -185,6 +185,13 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         with the events since it (L^A steps by the nominal threshold at each event; eq. 10's
         forward interpolation without deblurring or calibration, causal). False: the paper's
         zero-order hold, which pulls an edge that arrives between frames back to the old frame.
+    fusion_carried_variance : bool
+        Two-sided (offline) mode only, ours: each pass is fused with its P plus the variance its
+        carried frame has accumulated since that frame, σ²_ref (the paper form's per-event value;
+        0.01 with the reference-code noise form) per event and σ²_proc per second
+        (``docs/reconstruct.md``, "Two-sided AKF"). The continuous pull towards L^A keeps P near R
+        whatever the frame's age, so fused on P alone an estimate carried 45 ms weighs as much as
+        one carried 5 ms. False: P alone (the presets, which have no two-sided filter to follow).
     """
 
     _toml_table = "akf"
@@ -207,6 +214,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     censored_initial_covariance: float = 1e3  # ours, log²: unknown beyond the bound
     frame_update: str = "discrete"  # ours; the paper's is "continuous"
     event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
+    fusion_carried_variance: bool = True  # ours (two-sided mode)
 
     def __post_init__(self):
         self._check_thresholds()
@@ -225,6 +233,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         self._choice("saturation", ("bound", "value"))
         self._num("min_weighting", lo=0, lo_open=True, hi=1, allow_none=True)
         self._bool("event_interpolation")
+        self._bool("fusion_carried_variance")
         self._choice("frame_update", ("discrete", "continuous"))
         self._num("censored_initial_covariance", lo=0, lo_open=True)
 
@@ -234,6 +243,13 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         frame-linear units and saturated codes as bounds."""
         return cls(**overrides)
 
+    def carried_variance(self) -> tuple[float, float] | None:
+        """``(q per event, s per second)`` of :attr:`fusion_carried_variance`, or None when off."""
+        if not self.fusion_carried_variance:
+            return None
+        q = self.refractory_noise if self.noise_model == "paper" else 0.01
+        return float(q), float(self.process_noise_per_s)
+
     @classmethod
     def paper(cls, **overrides) -> "AKFParams":
         """The paper's §6 settings, with its reading of the frames: I0 = 1 as in the published
@@ -241,7 +257,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         d = dict(process_noise_per_s=5e-4, intensity_offset=PUBLISHED_INTENSITY_OFFSET, saturation="value",
                  bias_correction=True,
                  event_interpolation=False,
-                 frame_update="continuous")
+                 frame_update="continuous", fusion_carried_variance=False)
         d.update(overrides)
         return cls(**d)
 
@@ -252,7 +268,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         d = dict(process_noise_per_s=5e-3, isolated_noise_per_s=0.03, refractory_noise=0.05,
                  refractory_period_us=10_000, noise_model="reference_code", initial_covariance=0.09,
                  intensity_offset=PUBLISHED_INTENSITY_OFFSET, bias_correction=False, saturation="value",
-                 event_interpolation=False, frame_update="continuous")
+                 event_interpolation=False, frame_update="continuous", fusion_carried_variance=False)
         d.update(overrides)
         return cls(**d)
 

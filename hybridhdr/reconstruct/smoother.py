@@ -171,10 +171,60 @@ class _StateEngine:
         return lg
 
 
+class _CarriedVariance:
+    """The variance a pass's carried frame has accumulated since that frame, per pixel.
+
+    Between frames the AKF pulls L̂ continuously towards L^A, the last frame carried forward by the
+    events since it (eq. 10, event interpolation), as if L^A were a fresh measurement at every
+    instant with the frame's R: P then settles near R whatever the frame's age, while the error of
+    L^A grows with every event it was carried by (threshold mismatch, events lost in the
+    refractory period) and with the time since the frame (changes below the threshold). Fused with
+    P alone, an estimate carried 45 ms from its frame weighs as much as one carried 5 ms
+    (``benchmarks/accuracy.py``, AHDR between frames). Each pass therefore reports
+    ``P + q·n + s·Δt`` at output time t: n the pixel's events in ``[τ_last, t)``, Δt = t − τ_last
+    in s, τ_last the pass's last frame (mid-exposure) at or before t, q the paper's per-event
+    refractory-noise variance σ²_ref (§6, 0.01) and s = σ²_proc. Computed from the pass's own
+    (possibly reversed) events and frames, so a reversed recording gives the reversed numbers.
+    """
+
+    def __init__(self, events: EventArrays, frame_mids_us, q_event: float, s_proc_per_s: float):
+        self.ev = events
+        self.tau = np.unique(np.asarray(frame_mids_us, dtype=np.int64))
+        self.q = float(q_event)
+        self.s = float(s_proc_per_s)
+        self.n_pix = events.shape[0] * events.shape[1]
+        self.cnt = np.zeros(self.n_pix, np.float64)
+        self.j = -1  # the frame the counts run from
+        self.pos = 0  # events counted up to this index
+
+    def add_to(self, t_us: int, var: np.ndarray) -> np.ndarray:
+        """``var + q·n + s·Δt`` (float32) at ``t_us``; calls come in increasing time."""
+        j = int(np.searchsorted(self.tau, t_us, side="right")) - 1
+        if j < 0:
+            return var
+        t_ev = self.ev.t
+        if j != self.j:
+            self.j = j
+            self.cnt[:] = 0.0
+            self.pos = int(np.searchsorted(t_ev, self.tau[j], side="left"))
+        end = int(np.searchsorted(t_ev, t_us, side="left"))
+        if end > self.pos:
+            w = self.ev.shape[1]
+            pix = self.ev.y[self.pos:end].astype(np.int64) * w + self.ev.x[self.pos:end]
+            self.cnt += np.bincount(pix, minlength=self.n_pix)
+            self.pos = end
+        age_s = (int(t_us) - int(self.tau[j])) * 1e-6
+        return (var + (self.q * self.cnt + self.s * age_s)).astype(np.float32)
+
+
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
-              progress: Callable[[int], None] | None):
-    """Drive one pass; yield ``(t, L̂, P)`` at ``times`` (those at or after the pass's start)."""
+              progress: Callable[[int], None] | None, carried: tuple | None = None):
+    """Drive one pass; yield ``(t, L̂, P)`` at ``times`` (those at or after the pass's start).
+
+    ``carried = (frame_mids_us, q_event, s_proc_per_s)``: P plus the variance the carried frame
+    has accumulated (:class:`_CarriedVariance`)."""
     eng = _StateEngine(make_engine())
+    acc = None if carried is None else _CarriedVariance(events, *carried)
     try:
         t_init = int(eng.m.times_us[0])
         times = times[times >= t_init]
@@ -183,20 +233,23 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
         clock = E.OutputClock(times_us=times)
         for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress, clamp=False):
             lg, var = eng.last
-            yield t, lg, var
+            yield t, lg, (var if acc is None else acc.add_to(int(t), var))
     finally:
         eng.close()
 
 
 def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.ndarray, *, offset: float,
                    chunk_events: int = 1 << 20, progress: Callable[[int], None] | None = None,
-                   info: dict | None = None) -> Iterator[tuple[int, np.ndarray]]:
+                   info: dict | None = None, carried_variance: tuple | None = None
+                   ) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
 
     ``make_engine(frames, events, backward)`` builds a forward :class:`~._engine.AKFEngine` for a
     recording; it is called once as given and once on the reversed recording (``backward``
     True), where an event's polarity is negated, so its ON and OFF thresholds must be swapped:
     a forward ON event of threshold c_on is a backward OFF event of the same size.
+    ``carried_variance = (q_event, s_proc_per_s)``: fuse with each pass's P plus the variance its
+    carried frame has accumulated (:class:`_CarriedVariance`); None: P alone.
     """
     shape = events.shape
     n_pix = shape[0] * shape[1]
@@ -212,15 +265,19 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     have_b = np.zeros(times.size, bool)
     index = {int(t): i for i, t in enumerate(times)}
     n_b = 0
+    cv_b = cv_f = None
+    if carried_variance is not None:
+        cv_b = (rev_fr.t_mid_us,) + tuple(carried_variance)
+        cv_f = (frames.t_mid_us,) + tuple(carried_variance)
     for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
-                                 progress):
+                                 progress, cv_b):
         i = index[int(mirror - tr)]
         store.put(i, lg, var)
         have_b[i] = True
         n_b += 1
     n_fused = n_single = n_clamped = n_out = 0
     try:
-        fwd = _run_pass(lambda: make_engine(frames, events, False), events, times, chunk_events, progress)
+        fwd = _run_pass(lambda: make_engine(frames, events, False), events, times, chunk_events, progress, cv_f)
         nxt = next(fwd, None)
         for i, t in enumerate(times):
             t = int(t)

@@ -126,11 +126,13 @@ def test_fused_estimate_equals_the_closed_form_two_filter_solution():
     from hybridhdr.reconstruct.smoother import _run_pass
     ev = EventArrays.from_structured(r.events, (h, w))
     mk = lambda f: _build_engine("akf", p, (h, w), f, "forward", None, 1, None, events=ev)[0]  # noqa: E731
-    fwd = {tt: (lg.item(), var.item()) for tt, lg, var in _run_pass(lambda: mk(fr), ev, t, 1 << 20, None)}
+    q, s = p.carried_variance()  # each pass: P plus what its carried frame accumulated
+    fwd = {tt: (lg.item(), var.item()) for tt, lg, var in
+           _run_pass(lambda: mk(fr), ev, t, 1 << 20, None, (fr.t_mid_us, q, s))}
     m = 0 + 52_000 + 1
     rf = reverse_frames(fr, m)
     bwd = {m - tt: (lg.item(), var.item()) for tt, lg, var in
-           _run_pass(lambda: mk(rf), reverse_events(ev, m), (m - t)[::-1], 1 << 20, None)}
+           _run_pass(lambda: mk(rf), reverse_events(ev, m), (m - t)[::-1], 1 << 20, None, (rf.t_mid_us, q, s))}
     got = reconstruct(r, "akf", p, times_us=t).frames[:, 0, 0]
     for i, tt in enumerate(t):
         (lf, pf), (lb, pb) = fwd[int(tt)], bwd[int(tt)]
@@ -179,3 +181,37 @@ def test_backward_estimates_spilled_to_a_file_give_the_same_frames(monkeypatch):
     b = reconstruct(rec, "akf", fps=500.0)
     assert b.info["two_sided"]["spilled_to_disk"] and not a.info["two_sided"]["spilled_to_disk"]
     np.testing.assert_array_equal(a.frames, b.frames)
+
+
+def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
+    """Closed form of the carried variance: at t, a pass reports P + q·n + s·Δt, n the pixel's
+    events since the pass's last frame and Δt the time since it; the fused output weighs the
+    nearer frame more than P alone does (a frame 45 ms old against one 5 ms away)."""
+    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.smoother import _run_pass
+    h, w = 1, 2
+    ts = np.array([0, 50_000], np.int64)
+    img = np.array([[[60, 60]], [[120, 120]]], np.uint8)
+    fr = Frames(img, ts, ts + 2_000, encoding="linear")
+    ev = np.zeros(8, EVENT_DTYPE)  # pixel 0 fires 8 ON events in the first 30 ms; pixel 1 none
+    ev["t"] = np.arange(8) * 3_000 + 2_000
+    ev["p"] = 1
+    r = Recording(ev, SensorSize(h, w), fr)
+    p = AKFParams(contrast_threshold=0.0866)  # 8 events: log(120/60) = 0.693
+    q, s = p.carried_variance()
+    assert (q, s) == (p.refractory_noise, p.process_noise_per_s)
+    ea = EventArrays.from_structured(r.events, (h, w))
+    t = np.array([1_000, 20_000, 46_000], np.int64)
+    mk = lambda: _build_engine("akf", p, (h, w), fr, "forward", None, 1, None, events=ea)[0]  # noqa: E731
+    raw = {tt: var.copy() for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None)}
+    got = {tt: var for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None, (fr.t_mid_us, q, s))}
+    for tt in t:
+        n0 = int(np.sum((ea.t >= 1_000) & (ea.t < tt)))  # frame 0's mid-exposure is 1 000 µs
+        want = raw[int(tt)].astype(np.float64) + q * np.array([n0, 0]) + s * (tt - 1_000) * 1e-6
+        np.testing.assert_allclose(got[int(tt)], want, rtol=1e-6)
+    # the fused estimate at 46 ms (45 ms after frame 0, 5 ms before frame 1) leans to frame 1
+    # more with the carried variance than with P alone, on the pixel without events too
+    on = reconstruct(r, "akf", p, times_us=[46_000]).frames[0, 0]
+    off = reconstruct(r, "akf", p.replace(fusion_carried_variance=False), times_us=[46_000]).frames[0, 0]
+    assert abs(on[1] - 120 / 255) < abs(off[1] - 120 / 255)
+    assert AKFParams.paper().carried_variance() is None and AKFParams.reference_code().carried_variance() is None
