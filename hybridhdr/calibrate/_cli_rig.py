@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
+from .._cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
@@ -124,6 +124,7 @@ def _write_json(obj, path: Path) -> None:
     os.replace(tmp, path)
 
 
+@json_command
 def run(args) -> int:
     import cv2
     import numpy as np
@@ -251,4 +252,7 @@ def run(args) -> int:
     for z, m in zip(tab["depth_m"], tab["max_px"]):
         print(f"  depth {z:8.3f} m: {m:8.3f} px")
     print(f"wrote {out / 'calibration.json'}, report.json, corners.png, per_view_errors.png, parallax.png")
+    args.emit_json({**report, "out": str(out),
+                    "written": ["calibration.json", "report.json", "per_view_errors.png", "parallax.png"]
+                    + (["corners.png"] if shown else [])})
     return 0

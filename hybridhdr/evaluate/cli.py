@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import HelpFormatter, json_output, nonneg_int, positive_float
+from .._cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
 
 
 def add_parser(sub) -> None:
@@ -284,8 +284,21 @@ def _print_default(res) -> None:
             print(f"  {'ColorVideoVDP JOD':<32} {res.get('jod_note') or 'n/a'}")
 
 
+def _written(w: dict) -> dict:
+    """The files a bench/paper run wrote, by name (paths as strings)."""
+    out = {}
+    for k, v in w.items():
+        if isinstance(v, Path):
+            out[k] = str(v)
+        elif k == "strips":
+            out[k] = [str(p) for p in v]
+    return out
+
+
+@json_command
 def run_bench_cmd(args) -> int:
     from .bench import load_bench, run_bench, write_results
+    from .report import akf_vs_cf, summary_table
     bench = load_bench(args.bench)
     rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
     w = write_results(rows, args.out, bench)
@@ -295,15 +308,24 @@ def run_bench_cmd(args) -> int:
     bad = sum(1 for r in rows if r.get("status") != "ok")
     if bad:
         print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)
+    args.emit_json({"bench": bench.name, "runs": len(rows), "failed": bad, "summary": summary_table(rows),
+                    "akf_vs_cf": akf_vs_cf(rows), "stability_failures": w.get("failures", []),
+                    "errors": [{"dataset": r.get("dataset"), "method": r.get("method_label"),
+                                "status": r.get("status")} for r in rows if r.get("status") != "ok"],
+                    "written": _written(w)})
     return 0
 
 
+@json_command
 def run_paper_cmd(args) -> int:
     from .paper import run_paper
+    details: dict = {}
     text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
                      hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise, progress=not args.no_progress,
-                     weights={"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}, jod=not args.no_jod)
+                     weights={"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}, jod=not args.no_jod,
+                     details=details)
     print(text)
+    args.emit_json({**details, "written": _written(details.pop("written_paths", {}))})
     return 0
 
 
