@@ -165,7 +165,7 @@ class Aedat4Writer(EventFileWriter):
             fi = ti = 0
             n_trig = 0 if trig is None else len(trig)
 
-            def flush_until(t_max):
+            def flush_until(writer, t_max):
                 nonlocal fi, ti
                 # frames and triggers up to t_max, in time order, before the events after them
                 tb = ti
@@ -189,14 +189,14 @@ class Aedat4Writer(EventFileWriter):
                     ev = np.fromfile(f, dtype=EVENT_DTYPE, count=min(step, n_total - start))
                     if len(ev) == 0:
                         break
-                    flush_until(int(ev["t"][0]))
+                    flush_until(writer, int(ev["t"][0]))
                     store = dv.EventStore()
                     push = store.push_back
                     for t, x, y, p in zip(ev["t"].tolist(), ev["x"].tolist(), ev["y"].tolist(),
                                           (ev["p"] > 0).tolist()):
                         push(t, x, y, p)
                     writer.writeEvents(store)
-            flush_until(None)
+            flush_until(writer, None)
         finally:
             del writer  # dv-processing finishes the file (and its data table) when the writer is destroyed
             import gc
