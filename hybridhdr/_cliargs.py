@@ -145,3 +145,81 @@ def cli_wording(msg: str) -> str:
         val = next(g for g in m.groups()[1:] if g is not None)
         return f"{_PY_TO_CLI[m.group(1)]} {val}"
     return _KW.sub(rep, msg)
+
+
+# -- one JSON object on stdout -------------------------------------------------------------------
+
+def to_json(obj) -> str:
+    """``obj`` as strict JSON: NaN/±inf become null; numpy scalars/arrays, paths and tuples are
+    converted (``json.dumps(..., allow_nan=False)`` would fail on them otherwise)."""
+    import json
+    import math
+    from pathlib import PurePath
+
+    def conv(v):
+        if isinstance(v, bool) or v is None or isinstance(v, str):
+            return v
+        if isinstance(v, int):
+            return v
+        if isinstance(v, float):
+            return v if math.isfinite(v) else None
+        if isinstance(v, PurePath):
+            return str(v)
+        if isinstance(v, dict):
+            return {str(k): conv(x) for k, x in v.items()}
+        if isinstance(v, (list, tuple, set, frozenset)):
+            return [conv(x) for x in v]
+        tolist = getattr(v, "tolist", None)  # numpy scalars and arrays
+        if callable(tolist):
+            return conv(tolist())
+        if hasattr(v, "to_dict"):
+            return conv(v.to_dict())
+        return str(v)
+    return json.dumps(conv(obj), allow_nan=False)
+
+
+class json_stdout:
+    """``with json_stdout(args.json) as emit: ...; emit(result)``.
+
+    With ``enabled`` everything printed inside the block goes to stderr (progress notes, library
+    messages), and ``emit(obj)`` writes the one JSON object (:func:`to_json`) to the real stdout;
+    without it the block runs unchanged and ``emit`` does nothing."""
+
+    def __init__(self, enabled: bool):
+        self.enabled = bool(enabled)
+        self._redirect = None
+
+    def __enter__(self):
+        import contextlib
+        import sys
+        self._stdout = sys.stdout
+        if self.enabled:
+            self._redirect = contextlib.redirect_stdout(sys.stderr)
+            self._redirect.__enter__()
+        return self.emit
+
+    def emit(self, obj) -> None:
+        if self.enabled:
+            self._stdout.write(to_json(obj) + "\n")
+            self._stdout.flush()
+
+    def __exit__(self, *exc):
+        if self._redirect is not None:
+            return self._redirect.__exit__(*exc)
+        return False
+
+
+def json_command(func):
+    """A command with a JSON result (:func:`json_output`) that reports it with ``args.emit_json(obj)``.
+
+    While it runs with ``--json``, whatever it (or the library) prints goes to stderr, so stdout
+    holds exactly the one JSON object; without ``--json`` it prints as usual and ``emit_json`` does
+    nothing."""
+    import functools
+
+    @functools.wraps(func)
+    def run(args):
+        with json_stdout(getattr(args, "json", False)) as emit:
+            args.emit_json = emit
+            return func(args)
+    return json_output(run)

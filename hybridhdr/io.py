@@ -64,7 +64,7 @@ FORMAT_DESCRIPTIONS: dict[str, str] = {
 
 #: extension -> default output format for writers.
 _OUTPUT_EXTENSIONS = {".h5": "hybridhdr", ".hdf5": "hybridhdr", ".raw": "evt2", ".dat": "dat",
-                      ".mat": "akf_mat"}
+                      ".mat": "akf_mat", ".aedat4": "aedat4"}
 
 # Order matters: more specific sniffers first.
 _SNIFF_ORDER = ("hybridhdr.container", "hybridhdr.capture.formats.akf_mat",

@@ -7,8 +7,15 @@ Each output frame at time ``t`` shows, side by side and scaled to one height:
 * **frame** (when the recording has frames): the latest frame whose exposure ended by ``t``,
   grey (RGB for colour frames), codes scaled by the dtype's range;
 * **reconstruction** (``--recon DIR``, a ``hybridhdr reconstruct`` output folder): the latest
-  output at or before ``t``, log tone-mapped with the preview tone map (limits from the whole
-  folder, :func:`hybridhdr.reconstruct.output.tone_map`);
+  output at or before ``t``, with one display map for the whole clip (:func:`recon_display_map`,
+  from a sample of up to 64 outputs): shown **linearly like the frame panel** (``v = I / hi``,
+  ``hi = max(1, 99.5th percentile)``: 1.0 is the frame camera's clip level in the frame-linear
+  units of the frame-anchored methods, so equal intensities look alike in both panels; gamma 2.2
+  when the frames are gamma/sRGB-encoded) unless it is an HDR video: brighter than the frame's
+  clip level (99.5th percentile of the finite positive pixels above 1) and spanning more than
+  :data:`LOG_MAP_RATIO` (99.5th over 5th percentile); that gets the preview log map
+  (:func:`hybridhdr.reconstruct.output.tone_map`). The log map on an ordinary scene lifted its
+  dark tail to mid grey and washed the panel out;
 
 above a time bar (elapsed fraction, time from the start and sensor time). Output times are
 ``start + k / fps``; like ``reconstruct --fps`` the clip stops at the last event unless
@@ -31,6 +38,37 @@ ON_COLOUR = (255, 255, 255)
 OFF_COLOUR = (64, 126, 200)
 BAR_HEIGHT = 28
 LABEL_HEIGHT = 20
+#: the reconstruction panel is log-mapped only when the 99.5th percentile of its finite positive
+#: pixels is above the frame's clip level (1) and exceeds the 5th by more than this (an HDR
+#: video); otherwise it is shown linearly
+LOG_MAP_RATIO = 100.0
+
+
+def recon_display_map(sample, *, gamma: float = 1.0) -> dict:
+    """How the reconstruction panel shows intensities (see the module notes): ``{"mode": "linear",
+    "hi": ..., "gamma": ...}`` or ``{"mode": "log", "limits": (lo, hi)}`` (log units, as
+    :func:`~hybridhdr.reconstruct.output.tone_map`), from a sample of outputs."""
+    from .reconstruct.output import tone_map
+    a = np.asarray(sample, dtype=np.float64)
+    v = a[np.isfinite(a) & (a > 1e-6)]
+    if v.size == 0:
+        return {"mode": "linear", "hi": 1.0, "gamma": float(gamma)}
+    p5, p995 = (float(x) for x in np.percentile(v, [5.0, 99.5]))
+    if p995 > 1.0 and p995 > LOG_MAP_RATIO * p5:
+        _, lim = tone_map(a)
+        return {"mode": "log", "limits": (float(lim[0]), float(lim[1]))}
+    return {"mode": "linear", "hi": max(1.0, p995), "gamma": float(gamma)}
+
+
+def apply_display_map(img, m: dict) -> np.ndarray:
+    """uint8 image of linear ``img`` under :func:`recon_display_map`'s map (NaN and -inf black, +inf white)."""
+    from .reconstruct.output import tone_map
+    if m["mode"] == "log":
+        return tone_map(img, limits=m["limits"])[0]
+    f = np.asarray(img, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        v = np.clip(np.nan_to_num(f, nan=0.0, posinf=np.inf, neginf=0.0) / m["hi"], 0.0, 1.0) ** (1.0 / m["gamma"])
+    return np.round(255.0 * v).astype(np.uint8)
 
 
 def add_parser(sub) -> None:
@@ -103,7 +141,7 @@ class _Recon:
 
     def __init__(self, folder: Path):
         from .evaluate.cli import _read_timestamps
-        from .reconstruct.output import read_exr, tone_map
+        from .reconstruct.output import read_exr
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
             raise FileNotFoundError(f"--recon {folder}: expected timestamps.txt written by 'hybridhdr reconstruct'")
@@ -113,10 +151,16 @@ class _Recon:
         if missing:
             raise FileNotFoundError(f"--recon {folder}: {len(missing)} files of timestamps.txt are missing "
                                     f"(e.g. {missing[0].name}; a --no-exr run cannot be viewed)")
-        self._read, self._tone = read_exr, tone_map
+        self._read = read_exr
         pick = np.unique(np.linspace(0, len(self.paths) - 1, min(len(self.paths), 64)).astype(int))
-        sample = np.stack([read_exr(self.paths[i]) for i in pick])
-        _, self.limits = tone_map(sample)
+        self._sample = np.stack([read_exr(self.paths[i]) for i in pick])
+        self.display = recon_display_map(self._sample)
+        self._cache = (None, None)
+
+    def set_frame_encoding(self, encoding) -> None:
+        """Show the linear map with the frames' transfer (gamma 2.2 for gamma/sRGB codes)."""
+        gamma = 2.2 if str(encoding) in ("gamma", "srgb") else 1.0
+        self.display = recon_display_map(self._sample, gamma=gamma)
         self._cache = (None, None)
 
     def at(self, t_us) -> np.ndarray | None:
@@ -124,7 +168,7 @@ class _Recon:
         if i < 0:
             return None
         if self._cache[0] != i:
-            u8, _ = self._tone(self._read(self.paths[i]), limits=self.limits)
+            u8 = apply_display_map(self._read(self.paths[i]), self.display)
             self._cache = (i, np.repeat(u8[..., None], 3, axis=2) if u8.ndim == 2 else u8)
         return self._cache[1]
 
@@ -202,6 +246,8 @@ def run(args) -> int:
         frames = r.read_frames()
         if frames is not None and not len(frames):
             frames = None
+        if recon is not None and frames is not None:
+            recon.set_frame_encoding(frames.encoding)
         height = args.height or shape[0] * 2 ** max(0, int(np.ceil(np.log2(360 / shape[0]))))
         blank_frame = None
         if frames is not None:
@@ -227,7 +273,8 @@ def run(args) -> int:
                 if recon is not None:
                     rimg = recon.at(t)
                     rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
-                    panels.append(_label(rimg, f"reconstruction ({args.recon.name})"))
+                    how = "log map" if recon.display["mode"] == "log" else "linear, as the frame"
+                    panels.append(_label(rimg, f"reconstruction ({args.recon.name}; {how})"))
                 row = np.concatenate(panels, axis=1)
                 rel = (t - span.origin_us) / 1e6
                 img = np.concatenate([row, _time_bar(row.shape[1], (t - start) / (end - start),
@@ -262,6 +309,8 @@ def run(args) -> int:
            "accumulate_us": acc, "t_first_us": int(times[0]), "t_last_us": int(times[-1]),
            "panels": ["events"] + (["frames"] if frames is not None else []) + (["reconstruction"] if recon else []),
            "size": [int(still.shape[1]), int(still.shape[0])] if still is not None else None}
+    if recon is not None:
+        res["recon_display"] = recon.display
     if args.json:
         import json
         print(json.dumps(res))

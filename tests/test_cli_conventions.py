@@ -95,7 +95,7 @@ def test_quiet_and_json(tmp_path, capsys):
     rc, out, err = run_cli(capsys, "info", src, "--json")
     assert json.loads(out)["events"] == len(rec.events)
     with pytest.raises(SystemExit):  # commands without a JSON result do not offer --json
-        build_parser().parse_args(["calibrate", "crf", "b", "--out", "o", "--json"])
+        build_parser().parse_args(["demo", "--out", "o", "--json"])
 
 
 def test_capture_devices_json_prints_empty_list(capsys, monkeypatch):

@@ -3,6 +3,7 @@
 import re
 
 import numpy as np
+import pytest
 
 from hybridhdr.reconstruct.output import LogPercentiles, tone_map
 
@@ -99,3 +100,36 @@ def test_view_on_ecd_with_reconstruction(tmp_path, capsys, shared_data):
     # --until last runs to the last frame; an empty window is an error naming the span
     rc = main(["view", str(ecd), "--out", str(tmp_path / "w.mp4"), "--start", "10s", "--no-progress"])
     assert rc == 1 and "3.33382 s" in capsys.readouterr().err and not (tmp_path / "w.mp4").exists()
+
+
+def test_recon_panel_linear_like_the_frame_unless_hdr():
+    from hybridhdr.view import LOG_MAP_RATIO, apply_display_map, recon_display_map
+    rng = np.random.default_rng(0)
+    # an ordinary scene in frame-linear units (code / 255), with a dark tail (the ECD slider's AKF output)
+    codes = rng.integers(20, 122, (4, 30, 40)).astype(np.float64)
+    recon = codes / 255.0
+    recon[:, :2] = 0.002
+    m = recon_display_map(recon)
+    assert m == {"mode": "linear", "hi": 1.0, "gamma": 1.0}
+    u8 = apply_display_map(recon[0], m)
+    # equal intensities look alike in both panels: the frame panel shows code/255 of the dtype range
+    np.testing.assert_array_equal(u8[2:], codes[0][2:].astype(np.uint8))
+    # the preview log map would have lifted the same picture (washed out): mean code much higher
+    log_u8, _ = tone_map(recon[0])
+    assert log_u8[2:].mean() > u8[2:].mean() + 60
+    # gamma-encoded frames: the linear map applies their transfer
+    mg = recon_display_map(recon, gamma=2.2)
+    assert apply_display_map(np.array([[0.5 ** 2.2]]), mg)[0, 0] == 128
+    # brighter than the frame's clip level: the 99.5th percentile is the white point
+    bright = codes / 255.0 * 3
+    m2 = recon_display_map(bright)
+    assert m2["mode"] == "linear" and m2["hi"] == pytest.approx(np.percentile(bright, 99.5))
+    # an HDR video (a disc 1000x brighter, beyond the frame's clip level) keeps the log map
+    hdr = np.full((2, 20, 20), 0.05)
+    hdr[:, 5:15, 5:15] = 50.0
+    m3 = recon_display_map(hdr)
+    assert 50.0 > LOG_MAP_RATIO * 0.05 and m3["mode"] == "log"
+    # NaN black, +inf white in both maps
+    for mm in (m, m3):
+        out = apply_display_map(np.array([[np.nan, np.inf, -np.inf]]), mm)
+        assert out.tolist() == [[0, 255, 0]]

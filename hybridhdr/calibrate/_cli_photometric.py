@@ -11,7 +11,7 @@ import time
 from pathlib import Path
 
 from .._atomic import write_json_atomic
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
+from .._cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
 
 
 def register(steps) -> None:
@@ -105,6 +105,7 @@ def _mask(bs, colour):
     return ~colour_mask(bs.images, colour)
 
 
+@json_command
 def run_crf(args) -> int:
     import numpy as np
 
@@ -147,9 +148,11 @@ def run_crf(args) -> int:
               "written": ["crf.json", "camera_profile.json", "crf_profile.png", "report.json"]}
     _write_json(out / "report.json", report)
     print(f"crf ({args.method}): sigma2_im {s2:.3g} (precision {prof.frame_precision_scale:.3g}) -> {out}")
+    args.emit_json({**report, "out": str(out)})
     return 0
 
 
+@json_command
 def run_hdr_reference(args) -> int:
     import numpy as np
 
@@ -213,6 +216,7 @@ def run_hdr_reference(args) -> int:
         msg += (f"; {len(report['registration'])} frames registered (mean {report['mean_time_s']:.2f} s/frame) "
                 f"-> {args.out_recording}")
     print(msg)
+    args.emit_json(report)
     return 0
 
 

@@ -11,7 +11,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
+from .._cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
@@ -124,6 +124,7 @@ def _write_json(obj, path: Path) -> None:
     os.replace(tmp, path)
 
 
+@json_command
 def run(args) -> int:
     import cv2
     import numpy as np
@@ -133,6 +134,7 @@ def run(args) -> int:
                       save_calibration)
 
     board = Board.parse(args.board, args.square_mm)
+    names2 = None  # per-view names of camera 2 where they differ from camera 1's (--left/--right)
     if (args.events is None) == (args.left is None and args.right is None):
         raise ValueError("give either --events (with optional --frames) or --left and --right")
     out = Path(args.out)
@@ -194,6 +196,7 @@ def run(args) -> int:
             raise ValueError(f"--left has {len(lp)} images but --right has {len(rp)}; they must pair up")
         images1, images2 = _read_images(lp), _read_images(rp)
         names = [p.stem for p in lp]
+        names2 = [p.stem for p in rp]  # the right camera's panels are titled with its own files
         cam_names = ("left", "right")
     rig, det = calibrate_rig(images1, images2, board, names=names, model=args.model, model2=args.model_events,
                              detector1=args.detector_frames, detector2=args.detector_events,
@@ -229,7 +232,7 @@ def run(args) -> int:
         fig, axes = plt.subplots(2, len(shown), figsize=(3.6 * len(shown), 5.6), squeeze=False)
         for j, i in enumerate(shown):
             plot_corners(images1[i], det["corners1"][i], board, f"{n1} {names[i]}", ax=axes[0, j])
-            plot_corners(images2[i], det["corners2"][i], board, f"{n2} {names[i]}", ax=axes[1, j])
+            plot_corners(images2[i], det["corners2"][i], board, f"{n2} {(names2 or names)[i]}", ax=axes[1, j])
         fig.tight_layout()
         _save_png(fig, out / "corners.png")
     fig, _ = plot_per_view_errors(rig)
@@ -249,4 +252,7 @@ def run(args) -> int:
     for z, m in zip(tab["depth_m"], tab["max_px"]):
         print(f"  depth {z:8.3f} m: {m:8.3f} px")
     print(f"wrote {out / 'calibration.json'}, report.json, corners.png, per_view_errors.png, parallax.png")
+    args.emit_json({**report, "out": str(out),
+                    "written": ["calibration.json", "report.json", "per_view_errors.png", "parallax.png"]
+                    + (["corners.png"] if shown else [])})
     return 0

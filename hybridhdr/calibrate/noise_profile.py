@@ -218,14 +218,19 @@ def plot_profile(crf: CRF, profile: CameraProfile, path) -> None:
     cols = ["k"] if crf.n_channels == 1 else ["r", "g", "b"]
     for c in range(crf.n_channels):
         ax[0].plot(z, crf.log_inverse[c], cols[c], lw=1)
-    ax[0].set(xlabel="code z", ylabel="g(z) = ln CRF⁻¹(z)", title=f"inverse response ({crf.method})")
+    ax[0].set(xlabel="code z", ylabel="g(z) = ln CRF⁻¹(z)")
+    ax[0].set_title(f"inverse response ({crf.method})", fontsize=10)
     ax[1].plot(z, profile.weighting, "k", lw=1)
-    ax[1].axhline(profile.min_weighting, color="0.5", ls="--", lw=0.8, label=f"floor {profile.min_weighting:g}")
-    ax[1].set(xlabel="code z", ylabel="f_w", title="weighting function (eq. 5)", ylim=(0, 1.05))
-    ax[1].legend(loc="upper right", fontsize=8)
+    # the floor is named in the title, not in a legend that would sit on the curve
+    ax[1].axhline(profile.min_weighting, color="0.5", ls="--", lw=0.8)
+    ax[1].set(xlabel="code z", ylabel="f_w", ylim=(0, 1.05))
+    ax[1].set_title(f"weighting f_w (eq. 5)\ndashed: floor {profile.min_weighting:g}", fontsize=10)
     ax[2].semilogy(z, profile.variance(z), "k", lw=1)
-    ax[2].set(xlabel="code z", ylabel="R̄ (intensity²)",
-              title=f"R = σ²_im / max(f_w, floor), σ²_im = {1 / profile.frame_precision_scale:.3g}")
+    ax[2].margins(y=0.08)
+    ax[2].set(xlabel="code z", ylabel="R̄ (intensity²)")
+    # two short lines: one line ran off the figure's right edge
+    ax[2].set_title(f"R(z) = σ²_im / max(f_w, floor)\nσ²_im = {1 / profile.frame_precision_scale:.3g}",
+                    fontsize=10)
     fig.tight_layout()
     fd, tmp = tempfile.mkstemp(prefix="." + path.stem + ".", suffix=".partial.png", dir=path.parent)
     os.close(fd)

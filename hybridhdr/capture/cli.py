@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_output, positive_float, positive_int
+from .._cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_command, json_output, positive_float, positive_int
 
 DESCRIPTION = "record and read hybrid data (devices, brackets, sync, recorder)"
 _FMT = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v) come from COMMON
@@ -169,6 +169,7 @@ def _frame_source(args, t_origin_us=None):
     return ReplayFrameSource(spec, pace=args.pace, speed=args.speed, t_origin_us=t_origin_us)
 
 
+@json_command
 def run_record(args) -> int:
     from .._limits import allow_huge
     with allow_huge(args.allow_huge):
@@ -211,6 +212,7 @@ def _run_record(args) -> int:
         print(f"WARNING: dropped {st.events_dropped:,} events, {st.triggers_dropped:,} triggers, "
               f"{st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
               f"by sequence number", file=sys.stderr)
+    args.emit_json({"out": str(args.out), **st.to_dict(), "dropped_anything": st.dropped_anything})
     return 0
 
 
@@ -242,7 +244,7 @@ def _plot_brackets(images, exposures_s, path):
     plt.close(fig)
 
 
-@json_output
+@json_command
 def run_brackets(args) -> int:
     if args.device == "oak":
         if not args.exposures_us:
@@ -257,18 +259,16 @@ def run_brackets(args) -> int:
             src.close()
         print(f"wrote {args.out}: {len(items)} frames; reported exposures (µs): {rep['reported_us']}; "
               f"frames discarded while exposure changes applied: {rep['frames_discarded']}")
+        args.emit_json({"out": str(args.out), "frames": len(items), **rep})
         return 0
     if args.folder is None:
         raise ValueError("give a bracket FOLDER to read, or --device oak to capture one")
     from .brackets import read_bracket_set, write_bracket_set
     bs = read_bracket_set(args.folder)
     info = _bracket_summary(bs)
-    if args.json:
-        print(json.dumps(info))
-    else:
-        print(f"{args.folder}: {info['images']} images {info['shape']} {info['dtype']}, encoding {info['encoding']}")
-        for f, e in zip(info["files"], info["exposures_s"]):
-            print(f"  {f:<32} {e:.6g} s")
+    print(f"{args.folder}: {info['images']} images {info['shape']} {info['dtype']}, encoding {info['encoding']}")
+    for f, e in zip(info["files"], info["exposures_s"]):
+        print(f"  {f:<32} {e:.6g} s")
     if args.plot is not None:
         _plot_brackets(bs.images, bs.exposures_s, args.plot)
     if args.out is not None:
@@ -279,6 +279,8 @@ def run_brackets(args) -> int:
         write_bracket_set(args.out, bs.images, bs.exposures_s, encoding=bs.encoding, camera=bs.camera,
                           iso=bs.iso, gain=bs.gain, t_us=bs.t_us)
         print(f"wrote {args.out}")
+    args.emit_json({**info, "out": None if args.out is None else str(args.out),
+                    "plot": None if args.plot is None else str(args.plot)})
     return 0
 
 
@@ -301,6 +303,7 @@ def _plot_sync(frames_in, frames_out, report, path):
     plt.close(fig)
 
 
+@json_command
 def run_sync(args) -> int:
     from ..container import read_recording, write_recording
     from .sync import sync_recording
@@ -316,11 +319,15 @@ def run_sync(args) -> int:
     if args.out is not None:
         write_recording(rec2, args.out)
         print(f"wrote {args.out}")
-    print(json.dumps(d))
+    if args.json:
+        args.emit_json({**d, "out": None if args.out is None else str(args.out)})
+    else:
+        print(json.dumps(d))
     return 0
 
 
 # -- recover ----------------------------------------------------------------------------------
+@json_command
 def run_recover(args) -> int:
     from .._limits import allow_huge
     from .recorder import journal_path, recover
@@ -332,10 +339,12 @@ def run_recover(args) -> int:
           f"{res['stop_reason']}")
     if not args.keep_journal:
         journal_path(args.file).unlink()
+    args.emit_json({**res, "journal_kept": bool(args.keep_journal)})
     return 0
 
 
 # -- session ----------------------------------------------------------------------------------
+@json_command
 def run_session(args) -> int:
     from .session import create_session, verify_session
     if args.verify is not None:
@@ -344,10 +353,12 @@ def run_session(args) -> int:
               f"changed: {[c['path'] + ' (' + c['why'] + ')' for c in res['changed']] or 'none'}; "
               f"unlisted: {res['unlisted'] or 'none'}")
         print("OK" if res["ok"] else "FAILED")
+        args.emit_json({"verify": str(args.verify), **res})
         return 0 if res["ok"] else 1
     if args.folder is None or args.recording is None:
         raise ValueError("give the sequence FOLDER and --recording REC.h5 (or --verify DIR)")
     out = create_session(args.folder, args.recording, calibration=args.calibration, camera_profile=args.profile,
                          brackets=args.brackets, reference=args.reference, name=args.name, notes=args.notes)
     print(f"wrote session {out}")
+    args.emit_json({"session": str(out), "manifest": str(Path(out) / "manifest.json")})
     return 0

@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._cliargs import HelpFormatter, json_output, nonneg_int, positive_float
+from .._cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
 
 
 def add_parser(sub) -> None:
@@ -44,6 +44,9 @@ def add_parser(sub) -> None:
     m.add_argument("--display", default=None, metavar="NAME",
                    help="ColorVideoVDP display model (default standard_hdr_linear: 30-inch 4K HDR, 1500 cd/m², "
                         "0.7472 m)")
+    m.add_argument("--csv", type=Path, default=None, metavar="FILE",
+                   help="write the per-frame scores to FILE (one row per matched frame: file, times, every "
+                        "metric); --json includes them under 'frames' (non-finite values as null)")
     m.set_defaults(func=run_metrics)
 
     b = esub.add_parser("bench", formatter_class=fmt, help="run a TOML bench file",
@@ -143,8 +146,12 @@ def _perceptual(metric: str) -> set:
 
 def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, normalise: str | None = None,
                          peak_luminance_cd_m2: float = 4000.0, hdrvdp_dir=None, engine: str = "auto",
-                         protocol: str = "default", metric: str = "jod,q", display: str | None = None) -> dict:
-    """Score an EXR reconstruction folder against a recording's HDR references (see the CLI help)."""
+                         protocol: str = "default", metric: str = "jod,q", display: str | None = None,
+                         per_frame: bool = False) -> dict:
+    """Score an EXR reconstruction folder against a recording's HDR references (see the CLI help).
+
+    With ``per_frame`` the result also holds ``frames``: per matched frame its ``file``, ``t_us``,
+    ``reference_index``, ``reference_t_us`` and scores (:func:`~.metrics.score_video`)."""
     import numpy as np
 
     from ..io import read
@@ -191,11 +198,14 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     else:
         q_note = "not requested (--metric)"
     if protocol == "akf2021":
-        res = score_akf2021(frames, ref_stored, hdrvdp=hv)
+        res = score_akf2021(frames, ref_stored, hdrvdp=hv, per_frame=per_frame)
     else:
         jod = {"display": display} if "jod" in want else None
         res = score_video(frames, ref, normalise=mode, peak_luminance_cd_m2=peak_luminance_cd_m2, hdrvdp=hv,
-                          jod=jod)
+                          jod=jod, per_frame=per_frame)
+    if per_frame:
+        res["frames"] = [{"file": names[int(vi[k])], "t_us": int(t[vi[k]]), "reference_index": int(ri[k]),
+                          "reference_t_us": int(rec.hdr.t_us[ri[k]]), **f} for k, f in enumerate(res["frames"])]
     res.update(method=method, matched=int(len(vi)), references=int(len(rec.hdr)), tolerance_us=int(tolerance_us))
     if q_note:
         res["q"] = None
@@ -203,14 +213,47 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     return res
 
 
+def _json_safe(v):
+    """``v`` with NaN/±inf floats as None (strict JSON), recursively."""
+    import math
+    if isinstance(v, float):
+        return v if math.isfinite(v) else None
+    if isinstance(v, dict):
+        return {k: _json_safe(x) for k, x in v.items()}
+    if isinstance(v, (list, tuple)):
+        return [_json_safe(x) for x in v]
+    return v
+
+
+def write_frames_csv(frames: list[dict], path) -> Path:
+    """Per-frame scores as CSV (csv module, one header of the union of keys in first-seen order)."""
+    import csv
+    import os
+    path = Path(path)
+    cols = list(dict.fromkeys(k for f in frames for k in f))
+    tmp = path.with_name(path.name + ".partial")
+    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+        w = csv.DictWriter(fh, fieldnames=cols, restval="")
+        w.writeheader()
+        for f in frames:
+            w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in f.items()})
+    os.replace(tmp, path)
+    return path
+
+
 @json_output
 def run_metrics(args) -> int:
+    if args.csv is not None and not Path(args.csv).parent.is_dir():
+        raise FileNotFoundError(f"--csv {args.csv}: the folder {Path(args.csv).parent} does not exist")
+    per_frame = bool(args.json or args.csv is not None)
     res = score_reconstruction(args.recon_dir, args.reference, tolerance_us=args.tolerance_us,
                                normalise=args.normalise, peak_luminance_cd_m2=args.peak_luminance_cd_m2,
                                hdrvdp_dir=args.hdrvdp_dir, engine=args.engine, protocol=args.protocol,
-                               metric=args.metric, display=args.display)
+                               metric=args.metric, display=args.display, per_frame=per_frame)
+    if args.csv is not None:
+        write_frames_csv(res["frames"], args.csv)
     if args.json:
-        print(json.dumps(res))
+        print(json.dumps(_json_safe(res), allow_nan=False))
         return 0
     if res.get("protocol") == "akf2021":
         print(f"{res['matched']} of {res['references']} references matched within {res['tolerance_us']} µs; "
@@ -228,6 +271,8 @@ def run_metrics(args) -> int:
         print(f"  {'HDR-VDP Q':<32} {res['q']:.4g} (version {res['q_version']}, {res['q_task']}, "
               f"{res['q_color_encoding']}, {res['q_pixels_per_degree']:.3g} ppd, "
               f"{res['q_luminance_scale_cd_m2']:g} cd/m²)")
+    if args.csv is not None:
+        print(f"wrote {len(res['frames'])} per-frame rows to {args.csv}")
     return 0
 
 
@@ -249,9 +294,22 @@ def _print_default(res) -> None:
             print(f"  {'ColorVideoVDP JOD':<32} {res.get('jod_note') or 'n/a'}")
 
 
+def _written(w: dict) -> dict:
+    """The files a bench/paper run wrote, by name (paths as strings)."""
+    out = {}
+    for k, v in w.items():
+        if isinstance(v, Path):
+            out[k] = str(v)
+        elif k == "strips":
+            out[k] = [str(p) for p in v]
+    return out
+
+
+@json_command
 def run_bench_cmd(args) -> int:
     from .bench import load_bench, run_bench, write_results
     import dataclasses
+    from .report import akf_vs_cf, summary_table
     bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)
     hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
     if hv:
@@ -264,15 +322,24 @@ def run_bench_cmd(args) -> int:
     bad = sum(1 for r in rows if r.get("status") != "ok")
     if bad:
         print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)
+    args.emit_json({"bench": bench.name, "runs": len(rows), "failed": bad, "summary": summary_table(rows),
+                    "akf_vs_cf": akf_vs_cf(rows), "stability_failures": w.get("failures", []),
+                    "errors": [{"dataset": r.get("dataset"), "method": r.get("method_label"),
+                                "status": r.get("status")} for r in rows if r.get("status") != "ok"],
+                    "written": _written(w)})
     return 0
 
 
+@json_command
 def run_paper_cmd(args) -> int:
     from .paper import run_paper
+    details: dict = {}
     text = run_paper(args.out, quick=args.quick, workers=args.workers, scheduler=args.scheduler,
                      hdrvdp_dir=args.hdrvdp_dir, normalise=args.normalise, progress=not args.no_progress,
-                     weights={"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}, jod=not args.no_jod)
+                     weights={"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}, jod=not args.no_jod,
+                     details=details)
     print(text)
+    args.emit_json({**details, "written": _written(details.pop("written_paths", {}))})
     return 0
 
 

@@ -468,7 +468,7 @@ def jod_score(test01, ref01, *, max_frames: int = JOD_MAX_FRAMES, display: str |
 
 def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_luminance_cd_m2: float = 4000.0,
                 pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4,
-                jod: dict | bool | None = None) -> dict:
+                jod: dict | bool | None = None, per_frame: bool = False) -> dict:
     """All metrics on matched sequences (K, H, W) of linear intensity.
 
     Parameters
@@ -491,13 +491,20 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
     jod : dict or bool, optional
         ColorVideoVDP JOD (:func:`jod_score`) on the same [0, 1] pair: ``True`` or keyword
         arguments (``max_frames``, ``display``); ``None``/``False``: not computed.
+    per_frame : bool
+        Also return ``frames``: one dict per frame (``index``, ``n_nonfinite``, ``mse``,
+        ``psnr_db``, ``ssim``, ``log_mse``, ``log_ssim``, ``pu_psnr_db``, ``pu_ssim`` and, with
+        HDR-VDP, ``q``), scored on the same normalised pair as the aggregates (one gain and one
+        log range for the whole sequence): the mean of the per-frame MSE and SSIM is the
+        aggregate MSE and SSIM.
 
     Returns
     -------
     dict with ``mse``, ``psnr_db``, ``ssim``, ``global_ssim`` (EAF variant, on ×255),
     ``log_mse``, ``log_ssim`` (:func:`log_pair`),
     ``pu_psnr_db``, ``pu_ssim``, ``n_frames``, ``n_nonfinite``, ``gain``, ``offset``,
-    ``reference_max``, ``normalise`` and (with ``hdrvdp``) ``q`` plus its settings.
+    ``reference_max``, ``normalise``, (with ``hdrvdp``) ``q`` plus its settings and (with
+    ``per_frame``) ``frames``.
     """
     a, b = _pair(test_frames, reference_frames, "score_video")
     if a.ndim != 3:
@@ -523,16 +530,39 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
     if hdrvdp is not None:
         kw = dict(hdrvdp)
         kw.setdefault("luminance_scale_cd_m2", peak_luminance_cd_m2)
+        hdrvdp_res = None
         if n_bad:
             out["q"] = float("nan")
         else:
-            res = hdrvdp_q(t01, r01, **kw)
+            res = hdrvdp_res = hdrvdp_q(t01, r01, **kw)
             out["q"] = res.q
             out.update({f"q_{k}": v for k, v in asdict(res).items() if k not in ("q", "q_frames")})
     if jod:
         kw = dict(jod) if isinstance(jod, dict) else {}
         out.update(jod_score(t01, r01, **kw))
+    if per_frame:
+        frames = []
+        for k in range(a.shape[0]):
+            bad = int(np.count_nonzero(~np.isfinite(a[k])))
+            m = mse(t01[k], r01[k])
+            f = {"index": k, "n_nonfinite": bad, "mse": m,
+                 "psnr_db": psnr(t01[k], r01[k], 1.0) if np.isfinite(m) else float("nan"),
+                 "ssim": ssim(t01[k], r01[k], 1.0), "log_mse": mse(lt_[k], lr_[k]), "log_ssim": ssim(lt_[k], lr_[k], 1.0)}
+            if pu21:
+                lt, lr = t01[k] * peak_luminance_cd_m2, r01[k] * peak_luminance_cd_m2
+                f["pu_psnr_db"] = pu_psnr(lt, lr) if bad == 0 else float("nan")
+                f["pu_ssim"] = pu_ssim(lt, lr) if bad == 0 else float("nan")
+            if hdrvdp is not None:
+                f["q"] = _frame_q(hdrvdp_res, k)
+            frames.append(f)
+        out["frames"] = frames
     return out
+
+
+def _frame_q(res, k: int) -> float:
+    """Frame ``k``'s HDR-VDP Q from a result's ``q_frames`` (NaN when not reported)."""
+    qf = tuple(getattr(res, "q_frames", ()) or ())
+    return float(qf[k]) if k < len(qf) else float("nan")
 
 
 # -- the AKF authors' protocol ------------------------------------------------------------------
@@ -543,7 +573,7 @@ AKF2021 = {"frame_unit": 255.0, "hdrvdp_task": "side-by-side", "hdrvdp_color_enc
            "luminance_scale_cd_m2": 255.0}
 
 
-def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None) -> dict:
+def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None, per_frame: bool = False) -> dict:
     """Score as the AKF authors' evaluation of their HDR/AHDR sequences (Wang et al., ICCV 2021).
 
     - the **unaltered** reconstruction (frame-linear units: 1.0 = frame code 255, as the AKF
@@ -563,6 +593,9 @@ def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None) 
     ----------
     test_frames : (K, H, W) reconstruction, frame-linear units
     reference_frames : (K, H, W, 3) or (K, H, W) references as stored (``HDR_mat``)
+    per_frame : bool
+        Also return ``frames``: per frame ``index``, ``n_nonfinite``, ``n_valid``, ``mse`` (over
+        that frame's unmasked pixels), ``psnr_db``, ``ssim`` and, with HDR-VDP, ``q``.
     """
     a = np.asarray(test_frames, np.float64)
     r = np.asarray(reference_frames, np.float64)
@@ -587,6 +620,7 @@ def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None) 
     inner[:, rad:mask.shape[1] - rad, rad:mask.shape[2] - rad] = True
     per = [float(smap[k][mask[k] & inner[k]].mean()) for k in range(a.shape[0]) if (mask[k] & inner[k]).any()]
     out["ssim"] = float(np.mean(per)) if per else float("nan")
+    hdrvdp_res = None
     if hdrvdp is not None:
         kw = dict(hdrvdp)
         kw.update(task=AKF2021["hdrvdp_task"], color_encoding=AKF2021["hdrvdp_color_encoding"],
@@ -596,9 +630,24 @@ def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None) 
         if n_bad:
             out["q"] = float("nan")
         else:
-            res = hdrvdp_q(np.where(mask, a, r), r, **kw)
+            res = hdrvdp_res = hdrvdp_q(np.where(mask, a, r), r, **kw)
             out["q"] = res.q
             out.update({f"q_{k}": v for k, v in asdict(res).items() if k not in ("q", "q_frames")})
+    if per_frame:
+        frames = []
+        for k in range(a.shape[0]):
+            mk = mask[k]
+            mf = float(np.mean((a[k][mk] - r[k][mk]) ** 2)) if mk.any() else float("nan")
+            sel = mk & inner[k]
+            f = {"index": k, "n_nonfinite": int(np.count_nonzero(~np.isfinite(a[k]))),
+                 "n_valid": int(np.count_nonzero(mk)), "mse": mf,
+                 "psnr_db": (float("inf") if mf == 0 else
+                             10.0 * math.log10(1.0 / mf) if math.isfinite(mf) else float("nan")),
+                 "ssim": float(smap[k][sel].mean()) if sel.any() else float("nan")}
+            if hdrvdp is not None:
+                f["q"] = _frame_q(hdrvdp_res, k)
+            frames.append(f)
+        out["frames"] = frames
     return out
 
 

@@ -231,11 +231,13 @@ def paper_table(rows) -> tuple[str, dict]:
 
 def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrvdp_dir=None, seed: int = 0,
               progress: bool = True, normalise: str = "none", weights: dict | None = None, jod: bool = True,
-              jod_frames: int = 8) -> str:
+              jod_frames: int = 8, details: dict | None = None) -> str:
     """Build the sets, run every method, write the report and ``table1.md``; return the text.
 
     ``weights``: ``{"e2vid": PATH, "firenet": PATH}`` adds those columns (omitted otherwise, with
-    one line saying why). ``jod=False`` skips ColorVideoVDP."""
+    one line saying why). ``jod=False`` skips ColorVideoVDP. ``details``, a dict, receives the
+    numbers of the table (``table``), ``runs``, ``failed``, ``omitted`` methods and the files
+    written (``written_paths``, as :func:`~.bench.write_results` returns them)."""
     from .bench import parse_bench, run_bench, write_results
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
@@ -244,7 +246,7 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
                                     normalise=normalise, weights=weights, jod=jod, jod_frames=jod_frames), "<paper>")
     rows = run_bench(bench, workers=workers, scheduler=scheduler, progress=progress)
     w = write_results(rows, out, bench)
-    text, _ = paper_table(rows)
+    text, numbers = paper_table(rows)
     sets = "AHDR via hybridhdr.simulate.ahdr" if _has_ahdr() else "AHDR = clipped-code camera [100, 160]"
     from .report import jod_label
     missing = [m["method"] for m in LEARNED_METHODS if m["method"] not in weights]
@@ -264,6 +266,9 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
     tmp = p.with_name("table1.md.partial")
     tmp.write_text(full + "\n", encoding="utf-8")
     tmp.replace(p)
+    if details is not None:
+        details.update(table=numbers, runs=len(rows), failed=len(errors), omitted=missing, quick=bool(quick),
+                       written_paths={**w, "table1_md": p})
     return full
 
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import html
 import re
 import math
 import os
@@ -12,8 +11,8 @@ from pathlib import Path
 
 import numpy as np
 
-__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "scoring_label", "jod_label", "write_report", "write_strip",
-           "format_table"]
+__all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_parts", "akf_vs_cf_text", "scoring_label", "jod_label",
+           "write_report", "write_strip", "format_table", "render_report"]
 
 
 def _f(v) -> float:
@@ -117,39 +116,93 @@ def _lower(pct: float) -> str:
     return f"{pct:.1f}% lower" if pct >= 0 else f"{-pct:.1f}% higher"
 
 
+def akf_vs_cf_parts(c: dict) -> list[dict]:
+    """The AKF vs CF paragraph as text runs (``{"text", "style"}``, style "" or "b" for bold): the
+    report templates render them as Markdown or HTML."""
+    return [
+        _run(f"On {', '.join(c['datasets'])}: linear MSE AKF {c['akf_mse']:.4g} vs CF {c['cf_mse']:.4g} ("),
+        _run(f"AKF MSE {_lower(c['mse_reduction_pct'])}", "b"),
+        _run(f"; paper: 48% lower), linear SSIM AKF {c['akf_ssim']:.3f} vs CF {c['cf_ssim']:.3f} ("),
+        _run(f"{c['ssim_improvement_pct']:+.1f}% SSIM", "b"),
+        _run(f"; paper: +11%). In log intensity: MSE {c['akf_log_mse']:.4g} vs {c['cf_log_mse']:.4g} "
+             f"({_lower(c['log_mse_reduction_pct'])}), SSIM {c['akf_log_ssim']:.3f} vs {c['cf_log_ssim']:.3f} "
+             f"({c['log_ssim_improvement_pct']:+.1f}%)."),
+    ]
+
+
 def akf_vs_cf_text(c: dict) -> str:
-    """One paragraph: the AKF vs CF comparison, with the paper's figures beside ours."""
-    return (f"On {', '.join(c['datasets'])}: linear MSE AKF {c['akf_mse']:.4g} vs CF {c['cf_mse']:.4g} "
-            f"(**AKF MSE {_lower(c['mse_reduction_pct'])}**; paper: 48% lower), linear SSIM AKF {c['akf_ssim']:.3f} "
-            f"vs CF {c['cf_ssim']:.3f} (**{c['ssim_improvement_pct']:+.1f}% SSIM**; paper: +11%). In log intensity: "
-            f"MSE {c['akf_log_mse']:.4g} vs {c['cf_log_mse']:.4g} ({_lower(c['log_mse_reduction_pct'])}), "
-            f"SSIM {c['akf_log_ssim']:.3f} vs {c['cf_log_ssim']:.3f} ({c['log_ssim_improvement_pct']:+.1f}%).")
+    """One Markdown paragraph: the AKF vs CF comparison, with the paper's figures beside ours."""
+    return str(_macro("report.md.j2", "rich")(akf_vs_cf_parts(c)))
 
 
 def format_table(header, body) -> str:
-    """A Markdown table."""
-    lines = ["| " + " | ".join(header) + " |", "|" + "|".join("---" for _ in header) + "|"]
-    lines += ["| " + " | ".join(str(c) for c in row) + " |" for row in body]
-    return "\n".join(lines)
+    """A Markdown table (rendered by the report template's table macro; '|' in a cell is escaped)."""
+    return str(_macro("report.md.j2", "table")({"header": list(header), "rows": [list(r) for r in body]}))
+
+
+# ----------------------------------------------------------------------------------------------
+# templates (hybridhdr/evaluate/templates/*.j2; Jinja2, HTML autoescaped)
+
+
+def _run(text, style: str = "") -> dict:
+    """One run of a paragraph: plain, "b" (bold) or "code"."""
+    return {"text": str(text), "style": style}
+
+
+def _md_runs(text: str) -> list[dict]:
+    """Runs of a paragraph written with Markdown's `code` and **bold** marks (the marks removed)."""
+    runs, pos = [], 0
+    for m in re.finditer(r"`([^`]+)`|\*\*([^*]+)\*\*", str(text)):
+        if m.start() > pos:
+            runs.append(_run(text[pos:m.start()]))
+        runs.append(_run(m.group(1), "code") if m.group(1) is not None else _run(m.group(2), "b"))
+        pos = m.end()
+    if pos < len(str(text)):
+        runs.append(_run(str(text)[pos:]))
+    return runs
+
+
+_ENV = None
+
+
+def _env():
+    """The Jinja2 environment of the report templates (autoescape on for ``*.html.j2``)."""
+    global _ENV
+    if _ENV is None:
+        try:
+            import jinja2
+        except ImportError as e:  # pragma: no cover - jinja2 is in the images extra
+            raise ImportError("the benchmark report needs jinja2: pip install 'hybridhdr[images]'") from e
+        env = jinja2.Environment(
+            loader=jinja2.PackageLoader("hybridhdr.evaluate", "templates"),
+            autoescape=jinja2.select_autoescape(enabled_extensions=("html.j2", "html"), default_for_string=False,
+                                                default=False),
+            trim_blocks=True, lstrip_blocks=True, keep_trailing_newline=True,
+            undefined=jinja2.StrictUndefined)
+        # a '|' would end a Markdown table cell and a newline the row
+        env.filters["md_cell"] = lambda v: str(v).replace("|", "\\|").replace("\r", " ").replace("\n", " ")
+        _ENV = env
+    return _ENV
+
+
+def _macro(template: str, name: str):
+    return getattr(_env().get_template(template).module, name)
+
+
+def render_report(template: str, context: dict) -> str:
+    """``report.md.j2`` or ``report.html.j2`` filled with ``context`` (see :func:`write_report`)."""
+    return _env().get_template(template).render(**context)
 
 
 def _md_inline_html(text: str) -> str:
     """One Markdown paragraph as HTML: escaped, with `code` and **bold** rendered (no literal marks)."""
-    t = html.escape(str(text))
-    t = re.sub(r"`([^`]+)`", r"<code>\1</code>", t)
-    return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", t)
+    return str(_macro("report.html.j2", "rich")(_md_runs(text)))
 
 
 def safe_file_stem(name: str) -> str:
     """``name`` usable as a file name on every OS: characters other than letters, digits, '.', '-'
     and '_' (e.g. the ':' of ``HDR:dark_room_window``) become '_'."""
     return re.sub(r"[^A-Za-z0-9._-]+", "_", str(name)).strip("._") or "unnamed"
-
-
-def _html_table(header, body) -> str:
-    h = "".join(f"<th>{html.escape(str(c))}</th>" for c in header)
-    b = "".join("<tr>" + "".join(f"<td>{html.escape(str(c))}</td>" for c in row) + "</tr>" for row in body)
-    return f"<table><thead><tr>{h}</tr></thead><tbody>{b}</tbody></table>"
 
 
 def write_strip(images: dict, path, title: str = "") -> Path:
@@ -286,68 +339,39 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     cmp_ = akf_vs_cf(rows)
     load = os.getloadavg() if hasattr(os, "getloadavg") else (float("nan"),) * 3
     name = getattr(bench, "name", "bench")
-    md = [f"# Benchmark report: {name}", "",
-          f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')}; load average {load[0]:.2f} {load[1]:.2f} {load[2]:.2f} "
-          f"(timings are noisy on a shared machine). {len(rows)} runs.", "",
-          f"Scoring (see docs/evaluate.md): {scoring_label(rows)}; both divided by the reference "
-          "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
-          f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
-          f"{getattr(bench, 'tolerance_us', 1000)} µs. {jod_label(rows)}. Q (HDR-VDP 3, for comparison with the "
-          "paper's Q) is n/a without an HDR-VDP 3 installation.", "",
-          "## Results", "", format_table(header, body), ""]
-    if cmp_ is not None:
-        md += ["## AKF vs CF", "", akf_vs_cf_text(cmp_), ""]
-    md += ["## Numerical failures (NaN/Inf pixels)", "",
-           format_table(["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"], nf_body), ""]
     errs = [r for r in rows if r.get("status") != "ok"]
-    if errs:
-        md += ["Errors:", ""] + [f"- {r['dataset']} / {r['method_label']}: {r.get('status')}" for r in errs[:20]] + [""]
-    if fails:
-        md += ["## Stability: failure points", "",
-               format_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
-                            [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
-                              f["reason"], f["nonfinite"]] for f in fails]), ""]
-    for k, title in (("speed_accuracy", "Speed–accuracy"), ("sampling", "Simulator sampling: speed–accuracy"),
-                     ("stability", "Stability")):
-        if k in chart_paths:
-            md += [f"## {title}", "", f"![{title}]({chart_paths[k].name})", ""]
-    if strip_paths:
-        md += ["## Image strips (LDR input, each method, reference; log tone-mapped with the reference's range)", ""]
-        md += [f"![{p.stem}](strips/{p.name})" for p in strip_paths] + [""]
-    md_text = "\n".join(md)
-    pmd = out / "report.md"
-    tmp = pmd.with_name("report.md.partial")
-    tmp.write_text(md_text, encoding="utf-8")
-    os.replace(tmp, pmd)
-    written["report_md"] = pmd
-    # HTML
-    parts = [f"<h1>Benchmark report: {html.escape(name)}</h1>", f"<p>{_md_inline_html(md[2])}</p>",
-             f"<p>{_md_inline_html(md[4])}</p>", "<h2>Results</h2>", _html_table(header, body)]
-    if cmp_ is not None:
-        parts += ["<h2>AKF vs CF</h2>", f"<p>{_md_inline_html(md[md.index('## AKF vs CF') + 2])}</p>"]
-    parts += ["<h2>Numerical failures</h2>",
-              _html_table(["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"], nf_body)]
-    if fails:
-        parts += ["<h2>Stability: failure points</h2>",
-                  _html_table(["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
-                              [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
-                                f["reason"], f["nonfinite"]] for f in fails])]
-    for k, title in (("speed_accuracy", "Speed–accuracy"), ("sampling", "Simulator sampling: speed–accuracy"),
-                     ("stability", "Stability")):
-        if k in chart_paths:
-            parts += [f"<h2>{title}</h2>", f'<img src="{chart_paths[k].name}" style="max-width:100%">']
-    if strip_paths:
-        parts += ["<h2>Image strips</h2>"] + [f'<img src="strips/{p.name}" style="max-width:100%"><br>'
-                                             for p in strip_paths]
-    doc = ("<!DOCTYPE html><html><head><meta charset='utf-8'><title>hybridhdr bench</title><style>"
-           "body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
-           "td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}</style></head><body>"
-           + "\n".join(parts) + "</body></html>")
-    ph = out / "report.html"
-    tmp = ph.with_name("report.html.partial")
-    tmp.write_text(doc, encoding="utf-8")
-    os.replace(tmp, ph)
-    written["report_html"] = ph
+    chart_titles = (("speed_accuracy", "Speed–accuracy"), ("sampling", "Simulator sampling: speed–accuracy"),
+                    ("stability", "Stability"))
+    context = {
+        "name": name,
+        "intro": [_run(f"Generated {time.strftime('%Y-%m-%d %H:%M:%S')}; load average {load[0]:.2f} {load[1]:.2f} "
+                       f"{load[2]:.2f} (timings are noisy on a shared machine). {len(rows)} runs.")],
+        "scoring": _md_runs(
+            f"Scoring (see docs/evaluate.md): {scoring_label(rows)}; both divided by the reference "
+            "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
+            f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
+            f"{getattr(bench, 'tolerance_us', 1000)} µs. {jod_label(rows)}. Q (HDR-VDP 3, for comparison with the "
+            "paper's Q) is n/a without an HDR-VDP 3 installation."),
+        "results": {"header": header, "rows": body},
+        "akf_vs_cf": akf_vs_cf_parts(cmp_) if cmp_ is not None else None,
+        "numerical_failures": {"header": ["method", "runs", "runs with NaN/Inf", "NaN/Inf pixels", "errored runs"],
+                               "rows": nf_body},
+        # prose may carry `code` marks (error hints): runs, rendered as code spans in HTML
+        "errors": [_md_runs(f"{r['dataset']} / {r['method_label']}: {r.get('status')}") for r in errs[:20]],
+        "stability": ({"header": ["stress", "method", "failed at", "reason", "NaN/Inf pixels"],
+                       "rows": [[f["stress"], f["method"], "—" if f["failed_at"] is None else f"{f['failed_at']:g}",
+                                 _md_runs(f["reason"]), f["nonfinite"]] for f in fails]} if fails else None),
+        "charts": [{"title": title, "src": chart_paths[k].name} for k, title in chart_titles if k in chart_paths],
+        "strips": [{"alt": p.stem, "src": f"strips/{p.name}"} for p in strip_paths],
+    }
+    for template, fname, key in (("report.md.j2", "report.md", "report_md"),
+                                 ("report.html.j2", "report.html", "report_html")):
+        text = render_report(template, context).rstrip("\n") + "\n"
+        path = out / fname
+        tmp = path.with_name(fname + ".partial")
+        tmp.write_text(text, encoding="utf-8")
+        os.replace(tmp, path)
+        written[key] = path
     written["strips"] = strip_paths
     written["failures"] = fails
     written["akf_vs_cf"] = cmp_

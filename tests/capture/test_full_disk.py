@@ -90,7 +90,7 @@ def big_input(tmp_path_factory):
 
 
 _WRITERS = [("hybridhdr", "out.h5"), ("akf_mat", "out.mat"), ("evt2", "out.raw"), ("evt3", "out3.raw"),
-            ("dat", "out.dat"), ("ecd", "out_ecd")]
+            ("dat", "out.dat"), ("ecd", "out_ecd"), ("aedat4", "out.aedat4")]
 
 
 @needs_tmpfs
@@ -191,3 +191,14 @@ def test_convert_cli_enospc_one_line(tmp_path, enospc_after, capsys):
     assert rc == 1
     assert err.count("error:") == 1 and "No space left on device" in err
     assert sorted(p.name for p in tmp_path.iterdir()) == ["in.h5"]
+
+
+@needs_tmpfs
+def test_aedat4_output_too_big_for_the_disk(tmp_path, big_input):
+    # the event spool fits on the 5 MB tmpfs, the AEDAT4 file would not: dv-processing would stop
+    # the process on a full disk, so the writer refuses before it starts
+    pytest.importorskip("dv_processing")
+    mnt = tmp_path / "mnt"
+    rc, err, files = run_on_tmpfs(mnt, "5m", [sys.executable, "-m", "hybridhdr", "convert", str(big_input),
+                                              str(mnt / "out.aedat4"), "--no-progress"])
+    _assert_clean(rc, err, files, "convert to aedat4 (output too big)")

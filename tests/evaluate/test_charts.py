@@ -145,3 +145,33 @@ def test_results_csv_unique_columns_and_safe_strip_names(tmp_path):
     html_text = (tmp_path / "report.html").read_text()
     assert "`" not in html_text
     assert _md_inline_html("use `x < y` and **b**") == "use <code>x &lt; y</code> and <b>b</b>"
+
+
+@pytest.mark.parametrize("span", [1.1, 1.6, 3.0])
+def test_speed_accuracy_tick_labels_do_not_collide(span):
+    """Log time axes spanning about a decade: matplotlib's minor labels (2, 3, 4, 6) ran together
+    on the quarter-width panels of speed_accuracy.png."""
+    plt = C._plt()
+    rows = []
+    for i, (label, base) in enumerate((("akf", 0.9), ("cf", 0.8), ("hpf", 0.7), ("frames", 0.6))):
+        rows.append(_row(label, label, 0.0125 * 10 ** (span * i / 3), 0.01 * (i + 1), base))
+    fig, axes = plt.subplots(1, 4, figsize=(22.4, 4.4), squeeze=False)
+    try:
+        for ax, m in zip(axes[0], ("mse", "ssim", "mse", "ssim")):
+            C.plot_speed_accuracy(rows, m, ax=ax)
+        fig.canvas.draw()
+        r = fig.canvas.get_renderer()
+        for ax in axes[0]:
+            for axis in (ax.xaxis, ax.yaxis):
+                ticks = [t for t in axis.get_majorticklabels() + axis.get_minorticklabels()
+                         if t.get_visible() and t.get_text()]
+                lo, hi = sorted(axis.get_view_interval())
+                inside = [t for t in ticks if lo <= (t.get_position()[0] if axis is ax.xaxis
+                                                     else t.get_position()[1]) <= hi]
+                assert inside, "no tick label at all"
+                boxes = [t.get_window_extent(r) for t in inside]
+                for i in range(len(boxes)):
+                    for j in range(i + 1, len(boxes)):
+                        assert not boxes[i].overlaps(boxes[j]), (inside[i].get_text(), inside[j].get_text())
+    finally:
+        plt.close(fig)

@@ -56,7 +56,7 @@ from ...events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empt
 from ...io import EventChunk, EventFileReader
 from ...model import CameraInfo, Frames, Metadata
 
-__all__ = ["Aedat4Reader", "READERS", "WRITERS", "sniff", "MAGIC", "TRIGGER_TYPE_MAP"]
+__all__ = ["Aedat4Reader", "Aedat4Writer", "READERS", "WRITERS", "sniff", "MAGIC", "TRIGGER_TYPE_MAP"]
 
 MAGIC = b"#!AER-DAT4.0\r\n"
 
@@ -567,4 +567,7 @@ class Aedat4Reader(EventFileReader):
 
 
 READERS = {"aedat4": Aedat4Reader}
-WRITERS: dict = {}
+# the writer goes through dv-processing (imported when a file is written): aedat4_writer.py
+from .aedat4_writer import Aedat4Writer  # noqa: E402
+
+WRITERS = {"aedat4": Aedat4Writer}

@@ -1,4 +1,10 @@
-"""ROS bag reader (format ``rosbag``): ROS1 ``.bag`` files and ROS2 bag folders, without ROS.
+"""ROS bag reader (format ``rosbag``): ROS1 ``.bag`` files and ROS2 bags, without ROS.
+
+Detected by magic, never by the file name: ``#ROSBAG V2.0`` (ROS 1), a ROS 2 SQLite storage file
+(``SQLite format 3\0`` with rosbag2's ``topics`` and ``messages`` tables, usually ``.db3``), an MCAP
+file (``\x89MCAP0\r\n``), or a ROS 2 bag folder (``metadata.yaml``; one whose
+``storage_identifier`` is empty is read by the storage its files' magic names). A lone storage file
+is read without its ``metadata.yaml``.
 
 Reads, through the ``rosbags`` package (``rosbags.highlevel.AnyReader``), one topic of
 
@@ -19,6 +25,12 @@ ROS1 ``EventArray`` messages are decoded straight from their serialized bytes wi
 per event); ROS2 ones go through ``rosbags`` deserialization (slower, one Python object per event).
 
 Options: ``topic=`` chooses the topic (default: the first topic, by name, of a supported type).
+
+Limits (:mod:`hybridhdr._limits`, lifted by ``--allow-huge``), the same for ROS 1 and ROS 2: the
+sensor height/width of the messages (``max_side``) and the size of every message
+(``max_packet_bytes``), checked before it is decoded; for ROS 2 storage also before the bag is
+opened, from what the file declares (SQLite: the largest stored message; MCAP: every record's
+length and every chunk's uncompressed size, which must also lie within the file).
 """
 
 from __future__ import annotations
@@ -30,13 +42,14 @@ from typing import Iterator
 
 import numpy as np
 
+from ..._limits import check_packet_size, check_sensor_size
 from ...errors import FormatError
 from ...events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
 from ...io import EventChunk, EventFileReader
 from ...model import CameraInfo, Metadata
 
 __all__ = ["RosbagReader", "READERS", "WRITERS", "sniff", "MSG_DEFINITIONS", "make_typestore",
-           "EVENT_ARRAY", "EVENT_PACKET"]
+           "EVENT_ARRAY", "EVENT_PACKET", "storage_kind", "check_mcap", "check_sqlite"]
 
 EVENT_ARRAY = "dvs_msgs/msg/EventArray"
 EVENT_PACKET = "event_camera_msgs/msg/EventPacket"
@@ -65,21 +78,136 @@ def make_typestore(ros2: bool = True):
     return store
 
 
+ROS1_MAGIC = b"#ROSBAG V2.0"
+SQLITE_MAGIC = b"SQLite format 3\x00"
+MCAP_MAGIC = b"\x89MCAP0\r\n"
+#: storage id (rosbag2's ``storage_identifier``) -> the suffix ``rosbags`` opens it by
+STORAGE_SUFFIX = {"sqlite3": ".db3", "mcap": ".mcap"}
+
+
+def _is_rosbag2_sqlite(path: Path) -> bool:
+    """True for an SQLite file with rosbag2's ``topics`` and ``messages`` tables (opened read-only)."""
+    import sqlite3
+    try:
+        con = sqlite3.connect(Path(path).resolve().as_uri() + "?mode=ro", uri=True)
+    except (sqlite3.Error, ValueError):
+        return False
+    try:
+        names = {r[0] for r in con.execute("SELECT name FROM sqlite_master WHERE type = 'table'")}
+        return {"topics", "messages"} <= names
+    except sqlite3.Error:
+        return False
+    finally:
+        con.close()
+
+
+def storage_kind(path, head: bytes | None = None) -> str | None:
+    """What a bag file is by its magic: ``"ros1"``, ``"sqlite3"`` (a rosbag2 SQLite file), ``"mcap"``
+    or None (also for folders)."""
+    path = Path(path)
+    if not path.is_file():
+        return None
+    if head is None:
+        with open(path, "rb") as f:
+            head = f.read(64)
+    if head.startswith(ROS1_MAGIC):
+        return "ros1"
+    if head.startswith(MCAP_MAGIC):
+        return "mcap"
+    if head.startswith(SQLITE_MAGIC) and _is_rosbag2_sqlite(path):
+        return "sqlite3"
+    return None
+
+
+def _folder_storage_files(folder: Path) -> list[tuple[Path, str]]:
+    """The ROS 2 storage files of a folder, by magic: ``[(path, "sqlite3" | "mcap"), ...]`` sorted."""
+    out = []
+    for q in sorted(folder.iterdir()):
+        if q.name == "metadata.yaml" or not q.is_file():
+            continue
+        try:
+            kind = storage_kind(q)
+        except OSError:
+            continue
+        if kind in STORAGE_SUFFIX:
+            out.append((q, kind))
+    return out
+
+
 def sniff(path: Path, head: bytes) -> str | None:
-    """``"rosbag"`` for a ROS1 bag (``#ROSBAG V2.0`` magic) or a ROS2 bag folder (``metadata.yaml``)."""
+    """``"rosbag"`` for a ROS1 bag (``#ROSBAG V2.0``), a ROS 2 SQLite or MCAP storage file (by magic),
+    a ROS2 bag folder (``metadata.yaml``) or a folder holding exactly one ROS 2 storage file."""
     try:
         path = Path(path)
-        if head.startswith(b"#ROSBAG V2.0"):
+        if head.startswith((ROS1_MAGIC, MCAP_MAGIC)):
             return "rosbag"
+        if path.is_file():
+            return "rosbag" if storage_kind(path, head) else None
         if path.is_dir():
             meta = path / "metadata.yaml"
             if meta.is_file():
                 with open(meta, "rb") as f:
                     if b"rosbag2_bagfile_information" in f.read(4096):
                         return "rosbag"
+                return None
+            if len(_folder_storage_files(path)) == 1:
+                return "rosbag"
         return None
     except OSError:
         return None
+
+
+def check_mcap(path) -> None:
+    """Walk an MCAP file's records before ``rosbags`` reads it: every record's length within the
+    file, every message within ``max_packet_bytes`` and every chunk's declared uncompressed size
+    too (a chunk that inflates to gigabytes is refused, not allocated)."""
+    path = Path(path)
+    size = path.stat().st_size
+    with open(path, "rb") as f:
+        if f.read(8) != MCAP_MAGIC:
+            raise FormatError(path, "not an MCAP file (no \\x89MCAP0\\r\\n magic)", offset=0)
+        pos = 8
+        while pos < size:
+            f.seek(pos)
+            if size - pos == 8:
+                if f.read(8) != MCAP_MAGIC:
+                    raise FormatError(path, "the MCAP file does not end with its magic", offset=pos)
+                return
+            hdr = f.read(9)
+            if len(hdr) < 9:
+                raise FormatError(path, f"MCAP record header at byte {pos} is truncated", offset=pos)
+            op, n = hdr[0], int.from_bytes(hdr[1:], "little")
+            if n > size - pos - 9:
+                raise FormatError(path, f"MCAP record 0x{op:02x} at byte {pos} declares {n:,} bytes, past the end "
+                                        f"of the {size:,}-byte file (truncated?)", offset=pos)
+            if op == 0x06:  # Chunk: start u64, end u64, uncompressed_size u64, crc u32, compression ...
+                body = f.read(min(n, 24))
+                if len(body) < 24:
+                    raise FormatError(path, f"MCAP chunk at byte {pos} is too short ({n} bytes)", offset=pos)
+                check_packet_size(int.from_bytes(body[16:24], "little"), path,
+                                  what=f"MCAP chunk at byte {pos} (uncompressed)", offset=pos)
+            elif op == 0x05:  # Message outside a chunk
+                check_packet_size(n, path, what=f"MCAP message at byte {pos}", offset=pos)
+            elif op == 0x02:  # Footer: the end
+                return
+            pos += 9 + n
+        raise FormatError(path, "the MCAP file ends without a footer (truncated?)", offset=size)
+
+
+def check_sqlite(path) -> None:
+    """The largest message a rosbag2 SQLite file stores, within ``max_packet_bytes`` (read-only)."""
+    import sqlite3
+    path = Path(path)
+    try:
+        con = sqlite3.connect(path.resolve().as_uri() + "?mode=ro", uri=True)
+        try:
+            (big,) = con.execute("SELECT max(length(data)) FROM messages").fetchone()
+        finally:
+            con.close()
+    except sqlite3.Error as exc:
+        raise FormatError(path, f"cannot read the SQLite bag: {type(exc).__name__}: {exc}") from None
+    if big is not None:
+        check_packet_size(int(big), path, what="the largest message in the bag")
 
 
 def _ns_to_us(sec, nsec) -> np.ndarray:
@@ -123,7 +251,7 @@ class RosbagReader(EventFileReader):
     Parameters
     ----------
     path : str or os.PathLike
-        A ROS1 ``.bag`` file or a ROS2 bag folder.
+        A ROS1 ``.bag`` file, a ROS2 bag folder or a lone ROS2 storage file (SQLite ``.db3`` or ``.mcap``, found by magic).
     topic : str, optional
         The event topic; default the first (by name) of type ``dvs_msgs/msg/EventArray`` or
         ``event_camera_msgs/msg/EventPacket``.
@@ -141,7 +269,7 @@ class RosbagReader(EventFileReader):
         except ImportError as exc:  # pragma: no cover - dependency missing
             raise ImportError("reading ROS bags needs the 'rosbags' package: pip install rosbags") from exc
         self._typestore = make_typestore(ros2=True)
-        if self.path.is_file():  # ROS 1: every chunk's decompressed size bounded before rosbags inflates it
+        if storage_kind(self.path) == "ros1":  # every chunk's decompressed size bounded, once, before rosbags
             from ._ros1_chunks import check_ros1_chunks
             check_ros1_chunks(self.path)
         with self._reader() as r:
@@ -172,8 +300,11 @@ class RosbagReader(EventFileReader):
         self.encoding = first["encoding"] if first else None
         stored = None
         if first and first["height"] and first["width"]:
+            # the limit first (its own error, naming the override); then the type's own checks
+            hw = check_sensor_size(first["height"], first["width"], self.path,
+                                   what=f"sensor size of the messages on {self.topic}")
             try:
-                stored = SensorSize(first["height"], first["width"])
+                stored = SensorSize(*hw)
             except ValueError as exc:
                 raise FormatError(self.path, f"invalid height/width in the first message: {exc}", record=0) from None
         src, note = "option", None
@@ -197,14 +328,10 @@ class RosbagReader(EventFileReader):
     def _reader(self):
         from rosbags.highlevel import AnyReader
         tmpdir = None
-        bag = self.path
-        if bag.is_file() and bag.suffix != ".bag":
-            # rosbags tells ROS 1 from ROS 2 by the '.bag' suffix; we detected the ROS 1 magic, so
-            # hand it the file under a '.bag' name (a symlink, nothing copied)
-            import tempfile
-            tmpdir = tempfile.mkdtemp(prefix="hybridhdr-bag-")
-            bag = Path(tmpdir) / "recording.bag"
-            os.symlink(self.path.resolve(), bag)
+        try:
+            bag, tmpdir = self._bag_for_rosbags()
+        except OSError as exc:
+            raise FormatError(self.path, f"cannot open the bag: {type(exc).__name__}: {exc}") from None
         try:
             try:
                 reader = AnyReader([bag], default_typestore=self._typestore)
@@ -224,6 +351,58 @@ class RosbagReader(EventFileReader):
                 import shutil
                 shutil.rmtree(tmpdir, ignore_errors=True)
 
+    def _bag_for_rosbags(self) -> tuple[Path, str | None]:
+        """The path to hand ``rosbags`` (which tells storages apart by suffix: '.bag', '.db3',
+        '.mcap', a folder) and the temporary folder holding symlinks under those names, if any.
+
+        Files are checked against the limits first (module notes); nothing is copied."""
+        import tempfile
+        path = self.path
+        if path.is_dir():
+            meta = path / "metadata.yaml"
+            if not meta.is_file():
+                files = _folder_storage_files(path)
+                if len(files) != 1:
+                    raise FormatError(path, f"a ROS 2 bag folder needs metadata.yaml or exactly one storage file "
+                                            f"(.db3/.mcap), found {len(files)}")
+                path = files[0][0]
+            else:
+                files = _folder_storage_files(path)
+                for q, kind in files:
+                    (check_mcap if kind == "mcap" else check_sqlite)(q)
+                text = meta.read_text(encoding="utf-8", errors="replace")
+                import re
+                empty = re.compile(r"^(\s*storage_identifier:)[ \t]*(''|\"\")?[ \t]*$", re.M)
+                if not empty.search(text):
+                    return path, None
+                kinds = {k for _, k in files}
+                if len(kinds) != 1:
+                    raise FormatError(path, f"metadata.yaml names no storage and the folder's files are "
+                                            f"{sorted(kinds) or 'none'} (need one kind: sqlite3 or mcap)")
+                kind = kinds.pop()
+                # rosbags refuses an empty storage id: the same folder, by symlinks, with the id filled in
+                tmpdir = tempfile.mkdtemp(prefix="hybridhdr-bag-")
+                for q in path.iterdir():
+                    if q.name != "metadata.yaml":
+                        os.symlink(q.resolve(), Path(tmpdir) / q.name)
+                (Path(tmpdir) / "metadata.yaml").write_text(empty.sub(rf"\1 {kind}", text), encoding="utf-8")
+                return Path(tmpdir), tmpdir
+        kind = storage_kind(path)
+        if kind is None:
+            raise FormatError(path, "not a ROS bag: no ROS 1, SQLite (rosbag2) or MCAP magic")
+        if kind == "mcap":
+            check_mcap(path)
+        elif kind == "sqlite3":
+            check_sqlite(path)
+        suffix = ".bag" if kind == "ros1" else STORAGE_SUFFIX[kind]
+        if path.suffix == suffix:
+            return path, None
+        # detected by magic under another name: hand rosbags a symlink with the suffix it expects
+        tmpdir = tempfile.mkdtemp(prefix="hybridhdr-bag-")
+        link = Path(tmpdir) / ("recording" + suffix)
+        os.symlink(path.resolve(), link)
+        return link, tmpdir
+
     def _messages(self, r) -> Iterator[tuple[int, tuple]]:
         conns = [c for c in r.connections if c.topic == self.topic]
         it = r.messages(connections=conns)
@@ -238,6 +417,7 @@ class RosbagReader(EventFileReader):
             except Exception as exc:
                 raise FormatError(self.path, f"cannot read message {i} of {self.topic}: {type(exc).__name__}: {exc}",
                                   record=i) from None
+            check_packet_size(len(item[2]), self.path, what=f"message {i} of {self.topic}")
             yield i, item
             i += 1
 
