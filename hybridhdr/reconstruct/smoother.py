@@ -193,7 +193,7 @@ class _CarriedVariance:
         self.q = float(q_event)
         self.s = float(s_proc_per_s)
         self.n_pix = events.shape[0] * events.shape[1]
-        self.cnt = np.zeros(self.n_pix, np.float64)
+        self.cnt = np.zeros(self.n_pix, np.float32)  # exact up to 2**24 events per pixel and frame
         self.j = -1  # the frame the counts run from
         self.pos = 0  # events counted up to this index
 
@@ -214,7 +214,10 @@ class _CarriedVariance:
             self.cnt += np.bincount(pix, minlength=self.n_pix)
             self.pos = end
         age_s = (int(t_us) - int(self.tau[j])) * 1e-6
-        return (var + (self.q * self.cnt + self.s * age_s)).astype(np.float32)
+        out = np.multiply(self.cnt, np.float32(self.q))
+        out += np.float32(self.s * age_s)
+        out += var
+        return out
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
