@@ -49,6 +49,11 @@ def add_parsers(sub) -> None:
                                    "simulated HDR/AHDR sets (about 2 minutes on 2 cores).")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument("--seed", type=int, default=0, help="random seed")
+    p.add_argument("--weights-e2vid", type=Path, default=None, metavar="PATH",
+                   help="E2VID checkpoint (E2VID_lightweight.pth.tar): adds the E2VID column to Table 1 "
+                        "(never downloaded; omitted without it)")
+    p.add_argument("--weights-firenet", type=Path, default=None, metavar="PATH",
+                   help="FireNet checkpoint (firenet_1000.pth.tar): adds the FireNet column to Table 1")
     p.set_defaults(func=run_demo)
 
 
@@ -233,6 +238,10 @@ def run_demo(args) -> int:
     from .io import DataDropWarning, FORMAT_MODULES, read, write, _module
     from .synthetic import procedural_recording
 
+    for name, w in (("e2vid", args.weights_e2vid), ("firenet", args.weights_firenet)):
+        if w is not None and not Path(w).is_file():  # before any work
+            raise FileNotFoundError(f"--weights-{name}: {w} is not a file (hybridhdr never downloads weights; "
+                                    f"see docs/reconstruct.md, 'Learned events-only baselines')")
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     print("hybridhdr demo: procedural hybrid recording (bright disc 1000x brighter than a textured "
@@ -291,6 +300,7 @@ def run_demo(args) -> int:
             select_variant()
         except ImportError:
             pass
-        print(demo_evaluate(out / "evaluate", seed=args.seed, progress=not args.no_progress))
+        weights = {"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}
+        print(demo_evaluate(out / "evaluate", seed=args.seed, progress=not args.no_progress, weights=weights))
     print(f"\noutputs in {out.resolve()}")
     return 1 if bad else 0

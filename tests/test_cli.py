@@ -96,3 +96,21 @@ def test_demo_runs(tmp_path, capsys):
     assert rc == 0, err
     assert "identical events" in out and "EVENTS DIFFER" not in out
     assert (tmp_path / "demo" / "procedural.h5").exists()
+
+
+def test_demo_passes_learned_weights_to_table_1(tmp_path, capsys, monkeypatch):
+    """demo --weights-e2vid/--weights-firenet: a missing file fails before any work; given files
+    reach the paper table (run_paper's ``weights``), where they add the learned columns."""
+    rc, out, err = run_cli(capsys, "demo", "--out", str(tmp_path / "d"), "--weights-e2vid", str(tmp_path / "no.pth"))
+    assert rc == 1 and "--weights-e2vid" in err and "never downloads" in err
+    assert not (tmp_path / "d").exists()
+    from hybridhdr.evaluate import bench as B
+    from hybridhdr.evaluate import paper as P
+    seen = {}
+    monkeypatch.setattr(P, "run_paper", lambda out, **kw: seen.update(kw) or "table 1")
+    real_load = B.load_bench
+    monkeypatch.setattr(B, "load_bench", lambda name, **kw: real_load("tiny"))  # the bench step, small
+    w = tmp_path / "e2vid.pth.tar"
+    w.write_bytes(b"x")
+    text = P.demo_evaluate(tmp_path / "ev", progress=False, weights={"e2vid": w, "firenet": None})
+    assert text.rstrip().endswith("table 1") and seen["weights"] == {"e2vid": w, "firenet": None}

@@ -272,9 +272,11 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
     return full
 
 
-def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True) -> str:
+def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True, weights: dict | None = None) -> str:
     """``hybridhdr demo``'s evaluation: the bundled ``demo`` bench (speed–accuracy chart, three
     stability sweeps) and the quick paper table (simulated HDR and AHDR sets); returns the text.
+    ``weights`` (``{"e2vid": PATH, "firenet": PATH}``, from ``demo --weights-e2vid/--weights-firenet``)
+    adds the learned columns to the table.
 
     About 1–2 minutes on 2 cores, no downloads (the simulated sets are cached under
     ``OUT/paper/cache``).
@@ -302,5 +304,6 @@ def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True
     lines.append(f"numerical failures (NaN/Inf pixels) over {len(rows)} runs: {nonfinite}")
     lines.append(f"report {w['report_md']}, charts {w.get('speed_accuracy')}, {w.get('stability')}")
     lines.append("")
-    lines.append(run_paper(out / "paper", quick=True, workers=workers, seed=seed, progress=progress))
+    lines.append(run_paper(out / "paper", quick=True, workers=workers, seed=seed, progress=progress,
+                           weights=weights))
     return "\n".join(lines)
