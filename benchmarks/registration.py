@@ -104,7 +104,7 @@ def bench_real_brackets(quick: bool, seed: int = 0):
     from hybridhdr.calibrate.crf import debevec
     from hybridhdr.calibrate.hdr_reference import (RegistrationParams, align_brackets, corner_error,
                                                    merge_brackets, register, surf_backend)
-    from hybridhdr.capture.brackets import colour_mask, read_bracket_set
+    from hybridhdr.formats.brackets import colour_mask, read_bracket_set
     folder = SHARED_DATA
     folder = folder / "brackets" / "memorial"
     if not folder.exists():

@@ -55,7 +55,7 @@ def add_parsers(sub) -> None:
 # -- info -------------------------------------------------------------------------------------
 def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
     """Stream a file once and return its summary (format, sizes, counts, span, rate, polarity)."""
-    from .io import open_reader
+    from .formats import open_reader
     with open_reader(path, format) as r:
         n = n_on = 0
         n_trig = 0
@@ -128,7 +128,7 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
     from ._prefetch import Prefetcher
     from .camera.encoding import parse_frame_encoding, with_encoding
     from .events import slice_time
-    from .io import open_reader, open_writer, unsupported_parts
+    from .formats import open_reader, open_writer, unsupported_parts
     from .model import Recording
     if start_us is not None and end_us is not None and end_us <= start_us:
         raise ValueError(f"--end-us ({end_us}) must be greater than --start-us ({start_us})")
@@ -192,7 +192,8 @@ def run_convert(args) -> int:
     import shutil
 
     from ._limits import allow_huge
-    from ._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    from ._timearg import check_window, empty_window_error, resolve_window, window_given
+    from .formats.span import recording_span
     windowed = window_given(args)
     check_window(args)
     with allow_huge(args.allow_huge):
@@ -229,8 +230,8 @@ def run_convert(args) -> int:
 def run_demo(args) -> int:
     import warnings
 
-    from .container import write_recording
-    from .io import DataDropWarning, FORMAT_MODULES, read, write, _module
+    from .formats.container import write_recording
+    from .formats import DataDropWarning, formats, read, write
     from .synthetic import procedural_recording
 
     out = Path(args.out)
@@ -243,13 +244,8 @@ def run_demo(args) -> int:
     print(format_info(summarise(main_path)))
     print("\nround trip through every writer:")
     rows = []
-    for fmt, modname in FORMAT_MODULES.items():
-        try:
-            mod = _module(modname)
-        except ImportError as e:
-            rows.append((fmt, "unavailable", str(e)))
-            continue
-        if fmt not in getattr(mod, "WRITERS", {}):
+    for fmt, spec in formats().items():
+        if spec.writer is None:
             continue
         ext = {"hybridhdr": ".h5", "evt2": ".raw", "evt3": ".raw", "dat": ".dat", "akf_mat": ".mat",
                "ecd": ""}.get(fmt, "." + fmt)

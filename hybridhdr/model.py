@@ -13,6 +13,34 @@ from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty
 
 __all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS"]
 
+#: The four Bayer layouts, named by the 2×2 tile read from the top-left pixel.
+CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+#: Command-line choices (``--cfa``): the patterns and ``none`` (monochrome).
+CFA_CHOICES = CFA_PATTERNS + ("none",)
+
+
+def parse_cfa(name) -> str | None:
+    """The canonical pattern name (``"RGGB"``, ...) of ``name``, or None for monochrome.
+
+    Accepts any case and surrounding blanks; ``None``, ``""``, ``"none"`` and ``"mono"`` mean no
+    colour filter array. Raises ValueError for anything else.
+
+    >>> parse_cfa("rggb"), parse_cfa("none"), parse_cfa(None)
+    ('RGGB', None, None)
+    """
+    if name is None:
+        return None
+    if not isinstance(name, str):
+        raise ValueError(f"CFA must be a string, one of {', '.join(CFA_CHOICES)}; got {type(name).__name__} {name!r}")
+    key = name.strip().upper()
+    if key in ("", "NONE", "MONO", "MONOCHROME"):
+        return None
+    if key not in CFA_PATTERNS:
+        raise ValueError(f"unknown colour filter array {name!r}; expected one of {', '.join(CFA_CHOICES)} "
+                         f"(the 2x2 Bayer tile read from the top-left pixel)")
+    return key
+
+
 #: How frame pixel values relate to irradiance (after colour's domain-range tables): "raw" sensor
 #: numbers and "linear" codes are proportional to it; "gamma" is display gamma 2.2
 #: (code = max·I^(1/2.2)); "srgb" is the IEC 61966-2-1 transfer function; "unknown" states
@@ -159,7 +187,6 @@ class CameraInfo:
 
     def __post_init__(self):
         if self.cfa is not None:
-            from .camera.cfa import parse_cfa
             object.__setattr__(self, "cfa", parse_cfa(self.cfa))
 
     def to_dict(self) -> dict:

@@ -166,8 +166,9 @@ def _event_canvases(reader, shape, times, acc_us, chunk_events=1 << 20):
 @json_output
 def run(args) -> int:
     from ._limits import check_fps_outputs
-    from ._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
-    from .io import open_reader
+    from ._timearg import check_window, empty_window_error, resolve_window, window_given
+    from .formats.span import recording_span
+    from .formats import open_reader
     from .reconstruct.output import _MP4Stream, _atomic_target, _cleanup, _finish, _write_png
 
     check_window(args)

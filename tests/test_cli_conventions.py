@@ -76,7 +76,7 @@ def test_hints_in_cli_wording(tmp_path, capsys):
         "needs frames (use --method highpass for events only)"
     assert cli_wording("x=3, fps=30") == "x=3, --fps 30"
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.synthetic import procedural_recording
     rec, _ = procedural_recording((20, 30), 50_000, seed=0)
     write_recording(hh.Recording(events=rec.events, sensor_size=rec.sensor_size), tmp_path / "ev.h5")
@@ -86,7 +86,7 @@ def test_hints_in_cli_wording(tmp_path, capsys):
 
 
 def test_quiet_and_json(tmp_path, capsys):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.synthetic import procedural_recording
     rec, _ = procedural_recording((20, 30), 50_000, seed=0)
     src = write_recording(rec, tmp_path / "s.h5")

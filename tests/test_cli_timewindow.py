@@ -8,7 +8,7 @@ import pytest
 
 from hybridhdr._timearg import parse_time_us
 from hybridhdr.cli import main
-from hybridhdr.container import RecordingFile, write_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
 from hybridhdr.synthetic import procedural_recording
 
 

@@ -99,7 +99,7 @@ def _colour(text):
 def _mask(bs, colour):
     if colour is None:
         return None
-    from ..capture.brackets import colour_mask
+    from ..formats.brackets import colour_mask
     if bs.n_channels != 3:
         raise ValueError("--ignore-colour needs RGB brackets")
     return ~colour_mask(bs.images, colour)
@@ -109,7 +109,7 @@ def run_crf(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from ..capture.brackets import read_bracket_set
+    from ..formats.brackets import read_bracket_set
     from .crf import DebevecParams, RobertsonParams, estimate_crf
     from .noise_profile import estimate_sigma2_im, noise_profile, plot_profile
 
@@ -154,7 +154,7 @@ def run_hdr_reference(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from ..capture.brackets import read_bracket_set
+    from ..formats.brackets import read_bracket_set
     from .crf import CRF, debevec
     from .hdr_reference import RegistrationParams, align_brackets, merge_brackets, register_recording, write_exr
 
@@ -199,7 +199,7 @@ def run_hdr_reference(args) -> int:
                       features=args.features, ecc=args.ecc,
                       mean_time_s=float(np.mean([f["time_s"] for f in frames])),
                       mean_reprojection_px=float(np.mean([f["reprojection_px"] for f in frames])))
-        from ..container import RecordingFile
+        from ..formats.container import RecordingFile
         with RecordingFile(args.register) as r:
             fr = r.read_frames()
         frame = fr.images[frames[0]["frame"]]

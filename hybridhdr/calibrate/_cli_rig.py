@@ -140,7 +140,7 @@ def run(args) -> int:
     report: dict = {"command": " ".join(sys.argv), "board": board.to_dict()}
     progress = not args.no_progress
     if args.events is not None:
-        from ..io import read as read_any
+        from ..formats import read as read_any
         rec = read_any(args.events)
         if rec.sensor_size is None:
             raise ValueError(f"{args.events}: the event-camera size is unknown (no geometry in the file)")

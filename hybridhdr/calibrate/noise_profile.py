@@ -13,7 +13,7 @@ the form the AKF filters in, since its state is log intensity)::
 (from the log inverse response of :mod:`hybridhdr.calibrate.crf`; ``g'`` by central
 differences of ``g`` smoothed with a Gaussian of ``smooth_codes`` codes, default 2 for 8 bits). The linear-irradiance
 form of eq. 4, ``dz/dX = 1 / (X g'(z))``, differs by a factor ``X``; it is available as
-``domain="linear"`` (:func:`hybridhdr.reconstruct.profile.weighting_from_inverse_crf`). ``f_w`` is
+``domain="linear"`` (:func:`hybridhdr.camera.profile.weighting_from_inverse_crf`). ``f_w`` is
 forced to 0 at the end codes (0 and max_code: clipped) and at codes that never occurred in the
 brackets below the first / above the last observed code (the curve is extrapolated there).
 
@@ -37,7 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..reconstruct.profile import CameraProfile, weighting_from_inverse_crf
+from ..camera.profile import CameraProfile, weighting_from_inverse_crf
 from .crf import CRF
 
 __all__ = ["certainty", "estimate_sigma2_im", "noise_profile", "plot_profile", "DOMAINS"]

@@ -32,9 +32,11 @@ Pure NumPy; nothing here depends on the reconstruction.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
+__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
            "encode", "inverse_crf_table", "to_luminance", "luminance_frames", "with_encoding"]
 
 #: Command-line names of the declarable encodings (``--frame-encoding``).
@@ -276,3 +278,13 @@ def with_encoding(frames, name):
     if enc == frames.encoding:
         return frames
     return Frames(frames.images, frames.t_start_us, frames.t_end_us, frames.gain, frames.iso, enc)
+
+
+#: Well-exposed codes of an 8-bit frame (inclusive); scaled to other bit depths.
+WELL_EXPOSED_8BIT = (20, 235)
+
+def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int, int]:
+    """Well-exposed codes ``(lo, hi)`` (inclusive) for frames with top code ``max_code``: the 8-bit
+    range scaled by ``max_code / 255`` (lo rounded up, hi rounded down)."""
+    s = int(max_code) / 255.0
+    return int(math.ceil(codes_8bit[0] * s - 1e-9)), int(math.floor(codes_8bit[1] * s + 1e-9))

@@ -1,7 +1,7 @@
-"""Capture: read and write hybrid recordings in every supported event format; record live data.
+"""Capture: live data in, recordings out — event/frame sources (file replay, OAK, Prophesee),
+USB discovery, trigger synchronisation, the crash-safe recorder, dataset sessions.
 
-Readers and writers are reached through :func:`hybridhdr.read`, :func:`hybridhdr.open_reader`
-and :func:`hybridhdr.open_writer`; the formats live in :mod:`hybridhdr.capture.formats`.
+File formats (reading, writing, detection) are :mod:`hybridhdr.formats`.
 
 Live capture (``docs/capture.md``): sources (:mod:`.sources`), the crash-safe :class:`Recorder` and
 :func:`recover` (:mod:`.recorder`), trigger synchronisation :func:`sync_frames` (:mod:`.sync`),
@@ -9,8 +9,6 @@ USB device listing :func:`list_devices` (:mod:`.devices`), the OAK backend
 (:mod:`.depthai_backend`), the Prophesee backend (:mod:`.prophesee_backend`) and dataset sessions
 (:mod:`.session`). These names are imported lazily, so ``import hybridhdr`` stays light.
 """
-
-from ..io import FORMAT_DESCRIPTIONS, detect_format, open_reader, open_writer, read, write
 
 _LAZY = {
     "EventSource": "sources", "FrameSource": "sources", "FrameItem": "sources",
@@ -22,7 +20,7 @@ _LAZY = {
     "create_session": "session", "verify_session": "session",
 }
 
-__all__ = ["FORMAT_DESCRIPTIONS", "detect_format", "open_reader", "open_writer", "read", "write", *_LAZY]
+__all__ = [*_LAZY]
 
 
 def __getattr__(name):

@@ -260,7 +260,7 @@ def run_brackets(args) -> int:
         return 0
     if args.folder is None:
         raise ValueError("give a bracket FOLDER to read, or --device oak to capture one")
-    from .brackets import read_bracket_set, write_bracket_set
+    from ..formats.brackets import read_bracket_set, write_bracket_set
     bs = read_bracket_set(args.folder)
     info = _bracket_summary(bs)
     if args.json:
@@ -302,7 +302,7 @@ def _plot_sync(frames_in, frames_out, report, path):
 
 
 def run_sync(args) -> int:
-    from ..container import read_recording, write_recording
+    from ..formats.container import read_recording, write_recording
     from .sync import sync_recording
     rec = read_recording(args.recording)
     rec2, rep = sync_recording(rec, channel=args.trigger_channel, edge_mode=args.edge_mode, use=args.use,

@@ -16,7 +16,7 @@ Design (see ``docs/capture.md``):
   handing the bytes to the OS (``fsync=True`` also forces them to the disk, for power loss).
   HDF5 files killed mid-write are often unreadable, so the HDF5 container is not written while
   recording; :meth:`Recorder.finish` replays the journal into a container ``REC.h5.partial`` with
-  :class:`~hybridhdr.container.RecordingWriter`, renames it to ``REC.h5`` and deletes the journal.
+  :class:`~hybridhdr.formats.container.RecordingWriter`, renames it to ``REC.h5`` and deletes the journal.
 * After ``kill -9`` (or a power cut with ``fsync=True``) :func:`recover` performs the same replay
   on whatever the journal holds: every record whose length and checksum are intact, which includes
   everything up to the last flush. ``hybridhdr capture recover REC.h5`` runs it.
@@ -360,7 +360,7 @@ class Recorder:
         Queue-full policy (module docstring). ``"block"`` on a source that cannot be back-pressured
         is refused.
     compression : {"gzip", "lzf", None}
-        Compression of the final container (:class:`~hybridhdr.container.RecordingWriter`).
+        Compression of the final container (:class:`~hybridhdr.formats.container.RecordingWriter`).
     journal_compression : {"lz4", None}
         LZ4 block compression of journal records (default when ``lz4`` is installed).
     fsync : bool
@@ -660,7 +660,7 @@ class Recorder:
 def _convert(jpath: Path, out: Path, *, compression="gzip", progress=False, final_stats=None,
              recovered=False) -> tuple[dict, JournalContents]:
     """Replay a journal into a container written atomically (``out.partial`` then rename)."""
-    from ..container import RecordingWriter
+    from ..formats.container import RecordingWriter
     from .sources import FrameItem
 
     # the metadata needs the final stats: after a crash they come from the last intact FLUSH

@@ -47,7 +47,7 @@ def _entry(root: Path, path: Path, role: str, copied: bool) -> dict:
 
 
 def _summary(rec_path: Path) -> dict:
-    from ..container import RecordingFile
+    from ..formats.container import RecordingFile
     with RecordingFile(rec_path) as r:
         fr = r.read_frames()
         tr = r.time_range_us

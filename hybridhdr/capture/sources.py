@@ -1,6 +1,6 @@
 """Live and replayed data sources: iterators of timestamped event chunks and frames.
 
-An :class:`EventSource` yields :class:`~hybridhdr.io.EventChunk` objects (sorted events plus the
+An :class:`EventSource` yields :class:`~hybridhdr.formats.EventChunk` objects (sorted events plus the
 trigger edges that arrived with them); a :class:`FrameSource` yields :class:`FrameItem` objects (one
 image with its exposure interval, exposure, ISO/gain and the camera's sequence number). Both are
 context managers (``open``/``close``), describe their device with :meth:`device_info`, and stop
@@ -24,7 +24,7 @@ from typing import Iterator
 import numpy as np
 
 from ..events import EVENT_DTYPE, SensorSize, empty_triggers
-from ..io import EventChunk
+from ..formats import EventChunk
 from ..model import Frames
 
 __all__ = ["FrameItem", "EventSource", "FrameSource", "ReplayEventSource", "ReplayFrameSource",
@@ -134,7 +134,7 @@ class _Source:
 
 
 class EventSource(_Source):
-    """Interface: iterate to get :class:`~hybridhdr.io.EventChunk` objects in time order.
+    """Interface: iterate to get :class:`~hybridhdr.formats.EventChunk` objects in time order.
 
     Subclasses set :attr:`sensor_size` and implement :meth:`_iter`.
     """
@@ -218,7 +218,7 @@ class ReplayEventSource(EventSource):
         self._reader = None
 
     def open(self):
-        from ..io import open_reader
+        from ..formats import open_reader
         if self._reader is None:
             self._reader = open_reader(self.path, self.format, **self._reader_options)
             self.sensor_size = self._reader.sensor_size
@@ -312,7 +312,7 @@ class ReplayFrameSource(FrameSource):
 
     def open(self):
         if self._frames is None:
-            from ..io import open_reader
+            from ..formats import open_reader
             with open_reader(self.path, self.format) as r:
                 fr = r.read_frames()
             if fr is None or not len(fr):

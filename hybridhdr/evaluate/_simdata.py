@@ -95,7 +95,7 @@ def camera_profile(camera):
 
     The inverse CRF is the simulator's own table (:func:`hybridhdr.simulate.camera.crf_inverse_table`,
     flat beyond the clip); the weighting is eqs. 4-5 of that table
-    (:func:`hybridhdr.reconstruct.profile.weighting_from_inverse_crf`) with the clip codes
+    (:func:`hybridhdr.camera.profile.weighting_from_inverse_crf`) with the clip codes
     themselves set to 0 (a clipped code only bounds the intensity). ``None`` when the camera does
     not clip (the built-in profile of the frames' encoding then applies).
     """

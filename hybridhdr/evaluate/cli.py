@@ -137,7 +137,7 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     """Score an EXR reconstruction folder against a recording's HDR references (see the CLI help)."""
     import numpy as np
 
-    from ..io import read
+    from ..formats import read
     from ..reconstruct.output import read_exr
     from .metrics import HDRVDPNotFound, default_normalise, find_hdrvdp, match_frames, score_akf2021, score_video
     if protocol not in ("default", "akf2021"):
@@ -277,7 +277,7 @@ def _holdout_params(method: str, params_path, contrast_threshold):
 
 @json_output
 def run_holdout_cmd(args) -> int:
-    from ..io import read
+    from ..formats import read
     from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
     methods = [m.strip() for m in args.method.split(",") if m.strip()]
     if not methods:

@@ -213,9 +213,9 @@ def _procedural(spec: dict, seed: int) -> Dataset:
 
 
 def _file(spec: dict, seed: int) -> Dataset:
-    from ..io import read
+    from ..formats import read
     from ..model import HDRReferences
-    from ..reconstruct.profile import load_profile, profile_for_frames
+    from ..camera.profile import load_profile, profile_for_frames
     _check_keys(spec, {"path", "format", "contrast_threshold", "holdout_frames", "profile"}, "file")
     if "path" not in spec:
         raise ValueError("a 'file' dataset needs 'path'")
@@ -267,7 +267,7 @@ def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
     import json
     from pathlib import Path
 
-    from ..container import read_recording, write_recording
+    from ..formats.container import read_recording, write_recording
     # "gt_units": references in frame-linear units (older caches held radiance: a new key)
     key = json.dumps({"spec": {k: v for k, v in spec.items() if k != "name"}, "seed": seed,
                       "gt_units": "frame_linear"}, sort_keys=True, default=str)

@@ -16,7 +16,7 @@ from .measurement import FrameMeasurements
 from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
 from .augment import AugmentedMeasurements, AugmentParams
 from .edi import EDIEngine, EDIParams, EventArrays, StreamingEventArrays
-from .profile import load_profile
+from ..camera.profile import load_profile
 from .learned.params import E2VIDParams, FireNetParams
 from .smoother import output_times, two_sided_iter
 
@@ -146,7 +146,7 @@ def _open_source(source):
     reader = source
     close = (lambda: None)
     if isinstance(source, (str, os.PathLike)):
-        from ..io import open_reader
+        from ..formats import open_reader
         reader = open_reader(source)
         close = reader.close
     if not hasattr(reader, "iter_chunks"):
@@ -220,12 +220,12 @@ def _stored_thresholds(source):
 
 def _threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
-    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.calibrate.thresholds.load_thresholds`
+    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.formats.thresholds.load_thresholds`
     reads), or None."""
     if thresholds is None:
         return None
     if isinstance(thresholds, (str, os.PathLike)):
-        from ..calibrate.thresholds import load_thresholds
+        from ..formats.thresholds import load_thresholds
         thresholds = load_thresholds(thresholds)
     if hasattr(thresholds, "filled"):  # a ThresholdMap: pixels it could not estimate take its fallbacks
         c_on, c_off = thresholds.filled()
@@ -321,7 +321,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
-    :func:`hybridhdr.open_reader`, a :class:`hybridhdr.container.RecordingFile` or a path, whose
+    :func:`hybridhdr.open_reader`, a :class:`hybridhdr.formats.container.RecordingFile` or a path, whose
     events are read chunk by chunk. ``info``, if given, is filled with run statistics. Images
     are (H, W), or (H, W, 3) linear RGB for a colour event camera (``cfa``).
     """

@@ -183,7 +183,8 @@ def _toml_fields(cls, path) -> dict:
 def output_window(args, method: str):
     """The absolute [start, end) µs of the outputs, and a note when --fps outputs were cut at the end
     of the events (or frames), from --start/--end/--absolute and --until (see the --help)."""
-    from .._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    from .._timearg import check_window, empty_window_error, resolve_window, window_given
+    from ..formats.span import recording_span
     check_window(args)
     windowed = window_given(args)
     relative = windowed and args.start_us is None and args.end_us is None and not args.absolute
@@ -264,7 +265,7 @@ def run(args) -> int:
             info: dict = {}
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None:
-                from ..io import open_reader
+                from ..formats import open_reader
                 source = open_reader(args.recording, frame_encoding=args.frame_encoding)
             try:
                 for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,

@@ -99,7 +99,7 @@ class ColourSource:
             return
         reader = source
         if isinstance(source, (str, os.PathLike)):
-            from ..io import open_reader
+            from ..formats import open_reader
             reader = open_reader(source)
             self._close = reader.close
         try:
@@ -156,7 +156,7 @@ def colour_source(source, cfa=None, demosaic_method: str = "log_bilinear") -> Co
     if demosaic_method not in DEMOSAIC_METHODS:
         raise ValueError(f"demosaic must be one of {DEMOSAIC_METHODS}, got {demosaic_method!r}")
     if cfa is None and isinstance(source, (str, os.PathLike)):
-        from ..io import open_reader
+        from ..formats import open_reader
         reader = open_reader(source)
         try:
             pattern, frame_pattern = source_cfa(reader)

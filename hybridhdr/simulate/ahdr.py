@@ -32,6 +32,7 @@ import numpy as np
 
 from ..errors import FormatError
 from ..events import SensorSize
+from ..formats.rgbe import read_rgbe as read_rgbe_repairing
 
 __all__ = ["MotionParams", "ImageMotionSource", "ImageSequenceSource", "build_ahdr", "load_linear_image",
            "read_rgbe", "to_luminance", "AHDR_SATURATION"]
@@ -76,8 +77,7 @@ def read_rgbe(path) -> np.ndarray:
     r = K.decode_rgbe(data, nl + 1, h, w, out)
     if r == -2 and raw.count(b"\r\n") and raw.count(b"\r") == raw.count(b"\r\n"):
         # damaged by a text-mode copy (every CR/LF became CR LF, like shared/data's memorial.hdr):
-        # the calibrate part's reader searches for the consistent decoding (slower, pure Python)
-        from ..calibrate.hdr_reference import read_rgbe as read_rgbe_repairing
+        # the pure-Python reader searches for the consistent decoding (slower)
         return read_rgbe_repairing(path, repair_newlines=True)
     if r < 0:
         raise FormatError(path, f"{'truncated' if r == -1 else 'corrupt run-length'} RGBE pixel data")

@@ -183,7 +183,7 @@ class FrameCameraParams:
     @classmethod
     def from_profile(cls, path, **changes) -> "FrameCameraParams":
         """Use the measured inverse CRF of a camera profile JSON (``docs/camera-profile.md``)."""
-        from ..reconstruct.profile import CameraProfile
+        from ..camera.profile import CameraProfile
         prof = CameraProfile.load(path)
         if prof.inverse_crf is None:
             inv = np.arange(prof.max_code + 1, dtype=np.float64) / prof.max_code
@@ -474,7 +474,7 @@ class FrameCamera:
                 "inverse_crf": [float(v) for v in crf_inverse_table(self.params)]}
 
     def camera_profile(self, frame_precision_scale: float = 7e5):
-        """A :class:`~hybridhdr.reconstruct.profile.CameraProfile` for the simulated frames
+        """A :class:`~hybridhdr.camera.profile.CameraProfile` for the simulated frames
         (inverse CRF from :func:`crf_inverse_table`; weighting from eqs. 4-5)."""
         from ..camera import profile_from_inverse_crf
         return profile_from_inverse_crf(crf_inverse_table(self.params), clip_codes=self.params.code_clip,

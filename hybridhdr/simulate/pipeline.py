@@ -8,7 +8,7 @@ linear radiance (float32) at every frame's mid-exposure ``t_start + (t_end - t_s
 (``Frames.t_mid_us``) and at the requested ``gt_times_us``; these times, and the exposure bounds,
 are mandatory render times, so they are exact renders, not interpolations.
 
-:func:`simulate_to_file` streams the same output into a :class:`~hybridhdr.container.RecordingWriter`
+:func:`simulate_to_file` streams the same output into a :class:`~hybridhdr.formats.container.RecordingWriter`
 (events written after every step, frames and references as they complete; bounded memory;
 ``NAME.partial`` renamed when complete).
 
@@ -288,7 +288,7 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
     renamed when complete, or removed on error. The provenance (renders, stats) is written at
     the end. Returns a :class:`SimulationResult` with ``recording=None`` and ``path`` set.
     """
-    from ..container import RecordingWriter
+    from ..formats.container import RecordingWriter
 
     class _Writer(RecordingWriter):
         final_metadata = None

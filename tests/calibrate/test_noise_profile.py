@@ -7,7 +7,7 @@ import pytest
 
 from hybridhdr.calibrate.crf import CRF, debevec, gamma_crf
 from hybridhdr.calibrate.noise_profile import certainty, estimate_sigma2_im, noise_profile, plot_profile
-from hybridhdr.reconstruct.profile import CameraProfile
+from hybridhdr.camera.profile import CameraProfile
 
 
 def test_certainty_log_domain_of_gamma():

@@ -6,7 +6,7 @@ import dataclasses
 
 import pytest
 
-from hybridhdr.container import RecordingFile, write_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
 from hybridhdr.model import CameraInfo, Metadata
 from hybridhdr.synthetic import procedural_recording
 

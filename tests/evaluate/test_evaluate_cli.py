@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from hybridhdr.cli import main
-from hybridhdr.container import write_recording
+from hybridhdr.formats.container import write_recording
 from hybridhdr.evaluate import metrics as M
 from hybridhdr.evaluate.paper import paper_table
 from hybridhdr.synthetic import procedural_recording

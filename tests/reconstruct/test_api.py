@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hybridhdr import Recording, make_events
-from hybridhdr.reconstruct import (AKFParams, CameraProfile, CFParams, HighPassParams, default_profile,
-                                   reconstruct, reconstruct_iter)
+from hybridhdr.camera import CameraProfile, default_profile
+from hybridhdr.reconstruct import AKFParams, CFParams, HighPassParams, reconstruct, reconstruct_iter
 
 from .conftest import ideal_recording
 
@@ -111,7 +111,7 @@ def test_profile_roundtrip_and_errors(tmp_path):
 
 
 def test_streaming_from_container_equals_in_memory(tmp_path):
-    container = pytest.importorskip("hybridhdr.container")
+    container = pytest.importorskip("hybridhdr.formats.container")
     rec, _ = ideal_recording()
     path = tmp_path / "rec.h5"
     container.write_recording(rec, path)
@@ -147,7 +147,7 @@ def test_outputs(tmp_path):
 
 
 def test_cli_run(tmp_path):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.reconstruct import cli
     rec, _ = ideal_recording()
     write_recording(rec, tmp_path / "rec.h5")

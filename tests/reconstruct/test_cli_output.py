@@ -25,7 +25,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def rec_path(tmp_path_factory):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     d = tmp_path_factory.mktemp("rec")
     rec, _ = ideal_recording(height=18, width=23)  # odd width: MP4 padding
     write_recording(rec, d / "rec.h5")

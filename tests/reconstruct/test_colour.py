@@ -38,7 +38,7 @@ def test_monochrome_outputs_unchanged(mono_recordings, frames_kind, method, mode
 import dataclasses  # noqa: E402
 
 from hybridhdr.camera.cfa import CFA_PATTERNS, channel_masks, mosaic  # noqa: E402
-from hybridhdr.container import write_recording  # noqa: E402
+from hybridhdr.formats.container import write_recording  # noqa: E402
 from hybridhdr.model import Frames  # noqa: E402
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import hybridhdr as hh
-from hybridhdr.capture.formats import hdf5_layouts as L
+from hybridhdr.formats import hdf5_layouts as L
 from hybridhdr.errors import FormatError
 
 h5py = pytest.importorskip("h5py")

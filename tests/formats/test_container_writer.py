@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 
 import hybridhdr as hh
-from hybridhdr import _write_kernels as WK
-from hybridhdr.container import _CHUNK_ELEMS, INDEX_STRIDE, RecordingFile, RecordingWriter
+from hybridhdr.formats import _write_kernels as WK
+from hybridhdr.formats.container import _CHUNK_ELEMS, INDEX_STRIDE, RecordingFile, RecordingWriter
 
 
 def _events(n, seed=0, t0=10**9, ss=(480, 640)):
@@ -123,7 +123,7 @@ def test_invalid_events_still_name_the_record(tmp_path):
 
 
 def test_dat_writer_packs_as_before(tmp_path):
-    from hybridhdr.capture.formats import prophesee as P
+    from hybridhdr.formats import prophesee as P
     ev = _events(3000, seed=7, t0=2**32 - 500)  # crosses the 32-bit wrap
     with P.DatWriter(tmp_path / "a.dat", sensor_size=(480, 640)) as w:
         w.write_events(ev[:1000])
@@ -144,7 +144,7 @@ def test_dat_writer_packs_as_before(tmp_path):
 def test_zlib_fallback_and_strided_input(tmp_path, monkeypatch):
     import zlib
 
-    import hybridhdr.container as container
+    import hybridhdr.formats.container as container
     monkeypatch.setattr(container, "_DEFLATE", zlib.compress)  # what runs without isal
     ev = _events(_CHUNK_ELEMS + 999, seed=11)
     p = tmp_path / "z.h5"
@@ -157,7 +157,7 @@ def test_zlib_fallback_and_strided_input(tmp_path, monkeypatch):
 def test_parallel_chunk_read_equals_h5py(tmp_path):
     from concurrent.futures import ThreadPoolExecutor
 
-    from hybridhdr._chunk_read import read_columns
+    from hybridhdr.formats._chunk_read import read_columns
     ev = _events(3 * _CHUNK_ELEMS + 777, seed=13)
     p = tmp_path / "r.h5"
     with RecordingWriter(p, (480, 640)) as w:

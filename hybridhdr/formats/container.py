@@ -35,12 +35,15 @@ from typing import Iterator
 
 import numpy as np
 
-from ._limits import check_finite, check_h5_stored, check_sensor_size
-from .errors import FormatError
-from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
-                     validate_events)
-from .io import EventChunk, EventFileReader, EventFileWriter
-from .model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
+from .._limits import check_finite, check_frame_bytes, check_frame_shape, check_h5_stored, check_sensor_size
+from .._version import __version__
+from ..errors import FormatError
+from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers, slice_time,
+                      validate_events, validate_triggers)
+from ..model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
+from ._safe_h5 import close_and_remove, open_h5_for_writing
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
+from .thresholds import ThresholdMap
 
 __all__ = ["FORMAT_VERSION", "RecordingWriter", "RecordingFile", "write_recording", "read_recording",
            "READERS", "WRITERS", "sniff"]
@@ -148,7 +151,6 @@ class RecordingWriter(EventFileWriter):
     # -- EventFileWriter hooks ----------------------------------------------------------------
     def _open(self):
         _h5py()
-        from ._safe_h5 import open_h5_for_writing
         self._f = self._guard = None
         self._pool = None
         self._f, self._guard = open_h5_for_writing(self.tmp_path)
@@ -156,7 +158,6 @@ class RecordingWriter(EventFileWriter):
         f.attrs["hybridhdr_format_version"] = FORMAT_VERSION
         f.attrs["sensor_height"] = self.sensor_size.height
         f.attrs["sensor_width"] = self.sensor_size.width
-        from . import __version__
         md = self.metadata.to_dict()
         md["event_camera"]["height"], md["event_camera"]["width"] = self.sensor_size.shape
         f.attrs["metadata_json"] = json.dumps(md)
@@ -200,7 +201,7 @@ class RecordingWriter(EventFileWriter):
         return tuple(np.empty(_CHUNK_ELEMS * np.dtype(dt).itemsize, np.uint8) for _, dt in _EVENT_FIELDS)
 
     def _write_events(self, events):
-        from . import _write_kernels as WK
+        from . import _write_kernels as WK  # numba: loaded with the first write
         if not events.flags.c_contiguous:
             events = np.ascontiguousarray(events)
         rec = events.view(np.uint8).reshape(len(events), events.dtype.itemsize)
@@ -312,7 +313,6 @@ class RecordingWriter(EventFileWriter):
             g[name][m0:] = v
 
     def _write_triggers(self, triggers):
-        from .events import validate_triggers
         validate_triggers(triggers)
         if self._trig_last is not None and triggers["t"][0] < self._trig_last:
             raise ValueError(f"{self.path}: triggers must be appended in time order; chunk starts at "
@@ -405,7 +405,6 @@ class RecordingWriter(EventFileWriter):
             pool.shutdown(wait=True, cancel_futures=True)
 
     def _cleanup(self):
-        from ._safe_h5 import close_and_remove
         self._shutdown_pool()
         close_and_remove(getattr(self, "_f", None), getattr(self, "_guard", None), self.tmp_path)
 
@@ -439,7 +438,6 @@ def _guarded(method):
 
 def _check_image_dataset(ds, path, name):
     """Size limits and stored chunks of an image stack before it is read."""
-    from ._limits import check_frame_bytes, check_frame_shape
     if ds.ndim not in (3, 4):
         raise FormatError(path, f"{name} has shape {ds.shape}; expected (K, H, W) or (K, H, W, 3)")
     check_frame_shape(ds.shape, path, name)
@@ -694,7 +692,6 @@ class RecordingFile(EventFileReader):
             if d.shape != (n,):
                 raise FormatError(self.path, f"triggers/{name} has shape {d.shape}; expected ({n},)")
             out[name] = d[:]
-        from .events import validate_triggers
         try:
             return validate_triggers(out)
         except ValueError as e:
@@ -766,7 +763,6 @@ class RecordingFile(EventFileReader):
         """The stored per-pixel ON/OFF threshold map (``ThresholdMap``), or None."""
         if "thresholds" not in self._f:
             return None
-        from .calibrate.thresholds import ThresholdMap
         g = self._f["thresholds"]
         try:
             c_on, c_off = _require(g, "c_on", self.path), _require(g, "c_off", self.path)
@@ -787,7 +783,6 @@ class RecordingFile(EventFileReader):
     def read(self, t_start_us=None, t_end_us=None) -> Recording:
         ev = self.events(t_start_us, t_end_us)
         trig = self.read_triggers()
-        from .events import slice_time
         trig = slice_time(trig, t_start_us, t_end_us)
         frames = self.read_frames()
         hdr = self.read_hdr()
@@ -795,7 +790,7 @@ class RecordingFile(EventFileReader):
             if frames is not None:
                 frames = frames.slice_time(t_start_us, t_end_us)
             if hdr is not None:
-                from .events import time_window_indices
+                from ..events import time_window_indices
                 a, b = time_window_indices(hdr.t_us, t_start_us, t_end_us)
                 hdr = HDRReferences(hdr.images[a:b], hdr.t_us[a:b])
         return Recording(ev, self.sensor_size, frames, trig, hdr, self.metadata)
@@ -812,7 +807,7 @@ class RecordingFile(EventFileReader):
 
 
 def store_thresholds(path, threshold_map) -> None:
-    """Store a per-pixel ON/OFF threshold map (``hybridhdr.calibrate.thresholds.ThresholdMap``) in an
+    """Store a per-pixel ON/OFF threshold map (``hybridhdr.formats.thresholds.ThresholdMap``) in an
     existing container, replacing any stored one.
 
     The group is written under a temporary name and then linked as ``/thresholds`` (one metadata
@@ -878,3 +873,7 @@ def sniff(path: Path, head: bytes) -> str | None:
 
 READERS = {"hybridhdr": RecordingFile}
 WRITERS = {"hybridhdr": RecordingWriter}
+
+register_formats(__name__, {
+    "hybridhdr": "hybridhdr HDF5 recording container (.h5)",
+}, READERS, WRITERS)

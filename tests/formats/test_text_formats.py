@@ -10,7 +10,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hybridhdr as hh
-from hybridhdr.capture.formats import text as T
+from hybridhdr.formats import text as T
 from hybridhdr.errors import FormatError
 
 SS = hh.SensorSize(180, 240)

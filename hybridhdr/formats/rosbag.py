@@ -7,7 +7,7 @@ Reads, through the ``rosbags`` package (``rosbags.highlevel.AnyReader``), one to
 * ``event_camera_msgs/msg/EventPacket``: ``{header, height, width, seq, time_base, encoding,
   is_bigendian, uint8[] events}``. With ``encoding == "evt3"`` the payloads of all packets are
   concatenated and decoded as one Prophesee EVT 3.0 stream (``time_base`` is undefined for evt3)
-  by :class:`hybridhdr.capture.formats.prophesee.Evt3Decoder`, which also yields the external
+  by :class:`hybridhdr.formats.prophesee.Evt3Decoder`, which also yields the external
   triggers. Other encodings (``mono``, ``trigger`` ...) raise a clear :class:`FormatError`.
 
 The custom message types are registered with the ``rosbags`` typestore from the definitions in
@@ -30,10 +30,10 @@ from typing import Iterator
 
 import numpy as np
 
-from ...errors import FormatError
-from ...events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
-from ...io import EventChunk, EventFileReader
-from ...model import CameraInfo, Metadata
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
+from .base import EventChunk, EventFileReader, register_formats
+from ..model import CameraInfo, Metadata
 
 __all__ = ["RosbagReader", "READERS", "WRITERS", "sniff", "MSG_DEFINITIONS", "make_typestore",
            "EVENT_ARRAY", "EVENT_PACKET"]
@@ -309,11 +309,7 @@ class RosbagReader(EventFileReader):
         return enc, payload
 
     def _evt3_decoder(self):
-        try:
-            from .prophesee import Evt3Decoder
-        except ImportError as exc:
-            raise FormatError(self.path, "EventPacket encoding 'evt3' needs hybridhdr.capture.formats.prophesee."
-                                         f"Evt3Decoder, which is not available: {exc}") from None
+        from .prophesee import Evt3Decoder  # numba: loaded for EVT 3 packets only
         return Evt3Decoder(self.sensor_size)
 
     def _check(self, ev: np.ndarray, rec: int, n_before: int, last_t: int | None) -> None:
@@ -408,3 +404,7 @@ class RosbagReader(EventFileReader):
 
 READERS = {"rosbag": RosbagReader}
 WRITERS: dict = {}
+
+register_formats(__name__, {
+    "rosbag": "ROS bag with dvs_msgs/EventArray or event_camera_msgs/EventPacket",
+}, READERS, WRITERS)

@@ -49,12 +49,12 @@ from typing import Iterator
 
 import numpy as np
 
-from ...errors import FormatError
-from ..._limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
+from ..errors import FormatError
+from .._limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
                         huge_allowed)
-from ...events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
-from ...io import EventChunk, EventFileReader
-from ...model import CameraInfo, Frames, Metadata
+from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
+from .base import EventChunk, EventFileReader, register_formats
+from ..model import CameraInfo, Frames, Metadata
 
 __all__ = ["Aedat4Reader", "READERS", "WRITERS", "sniff", "MAGIC", "TRIGGER_TYPE_MAP"]
 
@@ -568,3 +568,7 @@ class Aedat4Reader(EventFileReader):
 
 READERS = {"aedat4": Aedat4Reader}
 WRITERS: dict = {}
+
+register_formats(__name__, {
+    "aedat4": "iniVation AEDAT 4 (.aedat4)",
+}, READERS, WRITERS)

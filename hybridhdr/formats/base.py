@@ -1,76 +1,60 @@
-"""Format registry, detection, and the reader/writer base classes every format implements.
+"""The reader/writer base classes every format implements, and the registration of formats.
 
 Readers stream: :meth:`EventFileReader.iter_chunks` yields :class:`EventChunk` objects of roughly
 ``chunk_events`` events with the triggers decoded from the same stretch of the file, so memory does
 not grow with file size. Writers are atomic: they write ``NAME.partial`` and rename it to ``NAME``
 on :meth:`EventFileWriter.close`; on error (or :meth:`abort`) the partial file is removed.
 
-Format modules are imported lazily, so ``import hybridhdr`` does not import h5py or numba.
+Each format module registers its readers and writers here (:func:`register_formats`) when it is
+imported; :mod:`hybridhdr.formats.registry` imports them and detects, opens, reads and writes.
 """
 
 from __future__ import annotations
 
-import importlib
 import os
+import shutil
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Iterator
 
 import numpy as np
 
-from .errors import FormatError, UnknownFormatError
-from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
-                     empty_triggers, slice_time)
-from .model import Frames, Metadata, Recording
+from ..camera.encoding import parse_frame_encoding
+from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
+                      empty_triggers, slice_time, validate_events)
+from ..model import Frames, Metadata, Recording
 
 __all__ = [
-    "EventChunk", "EventFileReader", "EventFileWriter", "FORMAT_MODULES", "FORMAT_DESCRIPTIONS",
-    "detect_format", "open_reader", "open_writer", "read", "write", "format_for_output",
+    "EventChunk", "EventFileReader", "EventFileWriter", "FormatSpec", "register_formats",
     "DEFAULT_CHUNK_EVENTS", "DataDropWarning", "unsupported_parts",
 ]
 
 DEFAULT_CHUNK_EVENTS = 1 << 20
 
-#: format name -> module that implements it (module attributes READERS, WRITERS, sniff).
-FORMAT_MODULES: dict[str, str] = {
-    "hybridhdr": "hybridhdr.container",
-    "evt2": "hybridhdr.capture.formats.prophesee",
-    "evt21": "hybridhdr.capture.formats.prophesee",
-    "evt3": "hybridhdr.capture.formats.prophesee",
-    "dat": "hybridhdr.capture.formats.prophesee",
-    "aedat4": "hybridhdr.capture.formats.aedat4",
-    "ecd": "hybridhdr.capture.formats.text",
-    "e2vid": "hybridhdr.capture.formats.text",
-    "dsec": "hybridhdr.capture.formats.hdf5_layouts",
-    "monash": "hybridhdr.capture.formats.hdf5_layouts",
-    "akf_mat": "hybridhdr.capture.formats.akf_mat",
-    "rosbag": "hybridhdr.capture.formats.rosbag",
-}
 
-FORMAT_DESCRIPTIONS: dict[str, str] = {
-    "hybridhdr": "hybridhdr HDF5 recording container (.h5)",
-    "evt2": "Prophesee RAW EVT 2.0 (.raw)",
-    "evt21": "Prophesee RAW EVT 2.1, standard or legacy byte order (.raw)",
-    "evt3": "Prophesee RAW EVT 3.0 (.raw)",
-    "dat": "Prophesee DAT CD events (.dat)",
-    "aedat4": "iniVation AEDAT 4 (.aedat4)",
-    "ecd": "Event Camera Dataset text folder (events.txt, images.txt, images/)",
-    "e2vid": "E2VID text (.txt or .zip, first line 'width height')",
-    "dsec": "DSEC events HDF5 (/events/{x,y,t,p}, /ms_to_idx, /t_offset)",
-    "monash": "Monash / event_cnn HDF5 (events/xs, ys, ts, ps; images/)",
-    "akf_mat": "AKF MATLAB .mat (v7.3 HDF5 or v5)",
-    "rosbag": "ROS bag with dvs_msgs/EventArray or event_camera_msgs/EventPacket",
-}
+@dataclass(frozen=True)
+class FormatSpec:
+    """One registered format: its name, a one-line description, its reader and writer classes
+    (None when it cannot be read or written) and the module that implements it."""
 
-#: extension -> default output format for writers.
-_OUTPUT_EXTENSIONS = {".h5": "hybridhdr", ".hdf5": "hybridhdr", ".raw": "evt2", ".dat": "dat",
-                      ".mat": "akf_mat"}
+    name: str
+    description: str
+    reader: type | None
+    writer: type | None
+    module: str
 
-# Order matters: more specific sniffers first.
-_SNIFF_ORDER = ("hybridhdr.container", "hybridhdr.capture.formats.akf_mat",
-                "hybridhdr.capture.formats.hdf5_layouts", "hybridhdr.capture.formats.prophesee",
-                "hybridhdr.capture.formats.aedat4", "hybridhdr.capture.formats.rosbag",
-                "hybridhdr.capture.formats.text")
+
+#: format name -> FormatSpec, filled by the format modules as they are imported.
+REGISTERED: dict[str, FormatSpec] = {}
+
+
+def register_formats(module: str, descriptions: dict[str, str], readers: dict, writers: dict) -> None:
+    """Register the formats of ``module`` (its ``__name__``): each name in ``descriptions`` with
+    its reader (``readers[name]``) and writer (``writers[name]``), either possibly absent."""
+    for name, description in descriptions.items():
+        if name not in readers and name not in writers:
+            raise ValueError(f"format {name!r} of {module} has neither a reader nor a writer")
+        REGISTERED[name] = FormatSpec(name, description, readers.get(name), writers.get(name), module)
 
 
 @dataclass
@@ -106,7 +90,6 @@ class EventFileReader:
         self.metadata: Metadata = Metadata()
         enc = options.get("frame_encoding")
         if enc is not None:
-            from .camera.encoding import parse_frame_encoding
             enc = parse_frame_encoding(enc)
         #: The declared frame encoding (a ``Frames.encoding`` value), or None.
         self.frame_encoding: str | None = enc
@@ -254,10 +237,9 @@ class EventFileWriter:
             raise TypeError(f"events must be an ndarray of dtype EVENT_DTYPE, got {getattr(events, 'dtype', type(events))}")
         if len(events) == 0:
             return
-        from .events import validate_events
         if events.flags.c_contiguous and events.ndim == 1:
             # one fused pass (time order, polarity, coordinates); the full check names the error
-            from ._write_kernels import events_ok
+            from ._write_kernels import events_ok  # numba: loaded with the first write
             ss = self.sensor_size
             w, h = (0, 0) if ss is None else (ss.width, ss.height)
             if events_ok(events.view(np.uint8).reshape(len(events), events.dtype.itemsize), events["t"], w, h) >= 0:
@@ -306,7 +288,6 @@ class EventFileWriter:
             self._cleanup()
         finally:
             if self.tmp_path.is_dir():
-                import shutil
                 shutil.rmtree(self.tmp_path, ignore_errors=True)
             elif self.tmp_path.exists():
                 self.tmp_path.unlink()
@@ -319,97 +300,6 @@ class EventFileWriter:
             self.close()
         else:
             self.abort()
-
-
-def _module(name: str):
-    return importlib.import_module(name)
-
-
-def _check_format(fmt: str) -> str:
-    key = fmt.lower().replace(".", "").replace("-", "_")
-    aliases = {"evt20": "evt2", "evt30": "evt3", "evt2_1": "evt21", "h5": "hybridhdr", "hdf5": "hybridhdr",
-               "mat": "akf_mat", "akf": "akf_mat", "bag": "rosbag", "txt": "e2vid"}
-    key = aliases.get(key, key)
-    if key not in FORMAT_MODULES:
-        raise UnknownFormatError(None, f"unknown format {fmt!r}; expected one of {sorted(FORMAT_MODULES)}")
-    return key
-
-
-def detect_format(path) -> str:
-    """Detect the format of ``path`` from its header/magic bytes (not its extension)."""
-    path = Path(path)
-    if not path.exists():
-        raise FileNotFoundError(f"{path}: no such file or directory")
-    head = b""
-    if path.is_file():
-        with open(path, "rb") as f:
-            head = f.read(4096)
-    for modname in _SNIFF_ORDER:
-        try:
-            mod = _module(modname)
-        except ImportError:
-            continue
-        sniff = getattr(mod, "sniff", None)
-        if sniff is None:
-            continue
-        name = sniff(path, head)
-        if name:
-            return name
-    what = "directory" if path.is_dir() else f"{path.stat().st_size}-byte file starting with {head[:16]!r}"
-    raise UnknownFormatError(path, f"could not detect the event format of this {what}; expected one of "
-                                   f"{sorted(FORMAT_MODULES)} (give the format explicitly to override)")
-
-
-def open_reader(path, format: str | None = None, **options) -> EventFileReader:
-    """Open a streaming reader; ``format`` overrides detection."""
-    fmt = detect_format(path) if format is None else _check_format(format)
-    mod = _module(FORMAT_MODULES[fmt])
-    cls = mod.READERS.get(fmt)
-    if cls is None:
-        raise UnknownFormatError(path, f"no reader for format {fmt!r}")
-    return cls(path, **options)
-
-
-def format_for_output(path, format: str | None = None) -> str:
-    if format is not None:
-        return _check_format(format)
-    p = Path(path)
-    ext = p.suffix.lower()
-    if ext in _OUTPUT_EXTENSIONS:
-        return _OUTPUT_EXTENSIONS[ext]
-    if ext == "" or p.is_dir():
-        return "ecd"
-    raise UnknownFormatError(p, f"cannot choose an output format from extension {ext!r}; give one of "
-                                f"{sorted(_writable_formats())}")
-
-
-def _writable_formats():
-    out = []
-    for fmt, modname in FORMAT_MODULES.items():
-        try:
-            if fmt in _module(modname).WRITERS:
-                out.append(fmt)
-        except ImportError:
-            pass
-    return out
-
-
-def open_writer(path, format: str | None = None, *, sensor_size=None, metadata: Metadata | None = None,
-                **options) -> EventFileWriter:
-    """Open an atomic writer; the format comes from ``format`` or the extension."""
-    fmt = format_for_output(path, format)
-    mod = _module(FORMAT_MODULES[fmt])
-    cls = mod.WRITERS.get(fmt)
-    if cls is None:
-        raise UnknownFormatError(path, f"format {fmt!r} can be read but not written; writable formats: "
-                                       f"{sorted(_writable_formats())}")
-    return cls(path, sensor_size=sensor_size, metadata=metadata, **options)
-
-
-def read(path, format: str | None = None, *, t_start_us=None, t_end_us=None, **options) -> Recording:
-    """Read a file of any supported format into a :class:`~hybridhdr.Recording`."""
-    with open_reader(path, format, **options) as r:
-        return r.read(t_start_us, t_end_us)
 
 
 class DataDropWarning(UserWarning):
@@ -426,34 +316,3 @@ def unsupported_parts(recording: Recording, supports) -> list[str]:
     if recording.hdr is not None and len(recording.hdr) and "hdr" not in supports:
         parts.append(f"{len(recording.hdr)} HDR references")
     return parts
-
-
-def write(recording: Recording, path, format: str | None = None, *, on_unsupported: str = "warn",
-          **options) -> Path:
-    """Write a :class:`~hybridhdr.Recording` atomically; returns the path written.
-
-    Parameters
-    ----------
-    on_unsupported : {"warn", "error", "ignore"}
-        What to do when the format cannot hold the recording's frames, triggers or HDR references:
-        warn with :class:`DataDropWarning` (default), raise ``ValueError``, or drop them quietly.
-    """
-    if on_unsupported not in ("warn", "error", "ignore"):
-        raise ValueError(f"on_unsupported must be 'warn', 'error' or 'ignore', got {on_unsupported!r}")
-    with open_writer(path, format, sensor_size=recording.sensor_size, metadata=recording.metadata,
-                     **options) as w:
-        dropped = unsupported_parts(recording, w.supports)
-        if dropped and on_unsupported != "ignore":
-            msg = f"{path}: the {w.format_name} format cannot hold {', '.join(dropped)}"
-            if on_unsupported == "error":
-                raise ValueError(msg)
-            import warnings
-            warnings.warn(msg + "; they are not written", DataDropWarning, stacklevel=2)
-        w.write_events(recording.events)
-        if "triggers" in w.supports:
-            w.write_triggers(recording.triggers)
-        if "frames" in w.supports:
-            w.write_frames(recording.frames)
-        if recording.hdr is not None and len(recording.hdr) and "hdr" in w.supports:
-            w.write_hdr(recording.hdr)
-    return Path(path)

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from hybridhdr import FormatError, make_events, make_triggers
-from hybridhdr.capture.formats import prophesee as P
+from hybridhdr.formats import prophesee as P
 
 N_MUTANTS = 2000
 

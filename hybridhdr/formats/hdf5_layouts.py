@@ -31,12 +31,12 @@ from typing import Iterator
 
 import numpy as np
 
-from ..._limits import (LimitExceeded, check_finite, check_frame_bytes, check_frame_shape, check_h5_stored,
+from .._limits import (LimitExceeded, check_finite, check_frame_bytes, check_frame_shape, check_h5_stored,
                         check_sensor_size)
-from ...errors import FormatError
-from ...events import EVENT_DTYPE, SensorSize
-from ...io import EventChunk, EventFileReader
-from ...model import CameraInfo, Frames, Metadata
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, SensorSize
+from .base import EventChunk, EventFileReader, register_formats
+from ..model import CameraInfo, Frames, Metadata
 
 __all__ = ["DsecReader", "MonashReader", "READERS", "WRITERS", "sniff", "HDF5_MAGIC", "DSEC_SENSOR_SIZE"]
 
@@ -467,3 +467,8 @@ class MonashReader(EventFileReader):
 
 READERS = {"dsec": DsecReader, "monash": MonashReader}
 WRITERS: dict = {}
+
+register_formats(__name__, {
+    "dsec": "DSEC events HDF5 (/events/{x,y,t,p}, /ms_to_idx, /t_offset)",
+    "monash": "Monash / event_cnn HDF5 (events/xs, ys, ts, ps; images/)",
+}, READERS, WRITERS)

@@ -16,7 +16,7 @@ CHILD = textwrap.dedent(r'''
     import io, json, os, sys, tempfile
     import numpy as np
     import hybridhdr as hh
-    from hybridhdr.container import RecordingFile, write_recording
+    from hybridhdr.formats.container import RecordingFile, write_recording
     from hybridhdr.errors import FormatError
 
     n_inputs = int(sys.argv[1])

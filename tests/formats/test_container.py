@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hybridhdr as hh
-from hybridhdr.container import RecordingFile, RecordingWriter, read_recording, write_recording
+from hybridhdr.formats.container import RecordingFile, RecordingWriter, read_recording, write_recording
 from hybridhdr.errors import FormatError
 
 
@@ -44,7 +44,7 @@ def test_round_trip_everything(tmp_path):
 
 
 def test_time_index_matches_definition(tmp_path, monkeypatch):
-    import hybridhdr.container as container
+    import hybridhdr.formats.container as container
     monkeypatch.setattr(container, "INDEX_STRIDE", 50)
     rec = random_recording(1, n=5000)
     p = write_recording(rec, tmp_path / "r.h5", buffer_events=777)
@@ -176,7 +176,7 @@ def test_bad_files(tmp_path):
 def test_iter_event_columns_matches_events_and_checks_order(tmp_path):
     """Column chunks concatenate to the stored events; a decrease across a chunk boundary is caught."""
     from hybridhdr import Recording, SensorSize, make_events
-    from hybridhdr.container import RecordingFile, write_recording
+    from hybridhdr.formats.container import RecordingFile, write_recording
     from hybridhdr.errors import FormatError
     rng = np.random.default_rng(3)
     n = 10_007
@@ -199,10 +199,10 @@ def test_iter_event_columns_matches_events_and_checks_order(tmp_path):
 
 
 def test_large_reads_through_the_parallel_inflater_equal_the_events(tmp_path):
-    """Reads of >= 65536 records go through hybridhdr._chunk_read (raw chunks inflated in two
+    """Reads of >= 65536 records go through hybridhdr.formats._chunk_read (raw chunks inflated in two
     threads): the same records as written, also across chunk boundaries and windows."""
     from hybridhdr import Recording, SensorSize, make_events
-    from hybridhdr.container import RecordingFile, write_recording
+    from hybridhdr.formats.container import RecordingFile, write_recording
     rng = np.random.default_rng(7)
     n = 300_001
     t = np.sort(rng.integers(0, 2_000_000, n)).astype(np.int64)

@@ -9,9 +9,9 @@ import pytest
 import hybridhdr as hh
 from hybridhdr.camera import CameraProfile
 from hybridhdr.camera import encoding as E
-from hybridhdr.capture.formats import akf_mat as M
+from hybridhdr.formats import akf_mat as M
 from hybridhdr.cli import main
-from hybridhdr.container import RecordingFile, write_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
 from hybridhdr.errors import FormatError
 
 h5py = pytest.importorskip("h5py")
@@ -154,7 +154,7 @@ def test_mat_gamma_f_q_path(tmp_path, version):
     if version == "7.3":
         hh.write(hh.Recording(_events(), SS, fr), path, f_Q=f_q)
     else:
-        from tests.capture.test_akf_mat import write_v5
+        from tests.formats.test_akf_mat import write_v5
         write_v5(path, _events(), fr, extra={"f_Q": f_q.reshape(-1, 1)})
     with hh.open_reader(path, frame_encoding="gamma2.2") as r:
         assert r.version == version
@@ -229,12 +229,12 @@ def _mat(tmp_path):
 
 
 def _monash(tmp_path):
-    from tests.capture.test_hdf5_layouts import _cols, write_monash
+    from tests.formats.test_hdf5_layouts import _cols, write_monash
     return write_monash(tmp_path / "mo.h5", *_cols(500)), "unknown"
 
 
 def _aedat4(tmp_path):
-    from tests.capture.test_aedat4 import make_aedat4
+    from tests.formats.test_aedat4 import make_aedat4
     img = np.arange(24 * 32, dtype=np.uint8).reshape(24, 32)
     ev = hh.make_events([5, 9], [1, 2], [1, 3], [1, -1])
     return make_aedat4(tmp_path / "a.aedat4", ev, frames=[(10, 4, img), (40, 4, img)]), "raw"

@@ -7,9 +7,9 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hybridhdr as hh
-import hybridhdr.container as container
+import hybridhdr.formats.container as container
 from hybridhdr._limits import LimitExceeded, allow_huge
-from hybridhdr.container import RecordingFile, read_recording, write_recording
+from hybridhdr.formats.container import RecordingFile, read_recording, write_recording
 from hybridhdr.errors import FormatError
 
 

@@ -8,7 +8,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 
 import hybridhdr as hh
-from hybridhdr.capture.formats import akf_mat as M
+from hybridhdr.formats import akf_mat as M
 from hybridhdr.errors import FormatError
 
 h5py = pytest.importorskip("h5py")
@@ -286,7 +286,7 @@ def test_authors_hdr_layout_reads_as_recording_with_references(tmp_path, matlab_
     hdr = np.random.default_rng(3).random((3, SS.height, SS.width, 3)) * 400.0
     hdr[:, :2] = 0.0                                            # unregistered rows
     p = write_authors_hdr_mat(tmp_path / "seq.mat", ev, fr, hdr, matlab_header=matlab_header)
-    from hybridhdr.io import detect_format
+    from hybridhdr.formats import detect_format
     assert detect_format(p) == "akf_mat"
     rec = hh.read(p)
     assert rec.hdr is not None and rec.hdr.images.shape == (3, SS.height, SS.width, 3)

@@ -60,11 +60,11 @@ from typing import Iterator
 
 import numpy as np
 
-from ..._limits import check_sensor_size
-from ...errors import FormatError
-from ...events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
-from ...io import EventChunk, EventFileReader, EventFileWriter
-from ...model import CameraInfo, Metadata, Recording
+from .._limits import check_sensor_size
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
+from ..model import CameraInfo, Metadata, Recording
 from . import _kernels as K
 
 __all__ = [
@@ -75,7 +75,7 @@ __all__ = [
 ]
 
 if sys.byteorder != "little":  # pragma: no cover - the packed-record kernels assume it
-    raise ImportError("hybridhdr.capture.formats.prophesee needs a little-endian host")
+    raise ImportError("hybridhdr.formats.prophesee needs a little-endian host")
 
 #: Longest header accepted (bytes); a file without a newline in it cannot hang the parser.
 HEADER_MAX_BYTES = 1 << 20
@@ -1149,6 +1149,13 @@ class DatWriter(EventFileWriter):
 
 
 WRITERS = {"evt2": Evt2Writer, "evt3": Evt3Writer, "dat": DatWriter}
+
+register_formats(__name__, {
+    "evt2": "Prophesee RAW EVT 2.0 (.raw)",
+    "evt21": "Prophesee RAW EVT 2.1, standard or legacy byte order (.raw)",
+    "evt3": "Prophesee RAW EVT 3.0 (.raw)",
+    "dat": "Prophesee DAT CD events (.dat)",
+}, READERS, WRITERS)
 
 
 # =============================================================================================

@@ -12,9 +12,9 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hybridhdr import EVENT_DTYPE, TRIGGER_DTYPE, FormatError, SensorSize, make_events, make_triggers
-from hybridhdr.capture.formats import _kernels as K
-from hybridhdr.capture.formats import prophesee as P
-from hybridhdr.io import detect_format
+from hybridhdr.formats import _kernels as K
+from hybridhdr.formats import prophesee as P
+from hybridhdr.formats import detect_format
 
 SAMPLES = {
     # file: (format, events, first t, last t, sensor)

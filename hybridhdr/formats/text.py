@@ -35,11 +35,11 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from ..._limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
-from ...errors import FormatError
-from ...events import EVENT_DTYPE, SensorSize, empty_events
-from ...io import EventChunk, EventFileReader, EventFileWriter
-from ...model import CameraInfo, Frames, Metadata
+from .._limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, SensorSize, empty_events
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
+from ..model import CameraInfo, Frames, Metadata
 
 __all__ = ["EcdReader", "E2vidReader", "EcdWriter", "READERS", "WRITERS", "sniff", "parse_seconds_exact"]
 
@@ -741,3 +741,8 @@ class _ZipMember(io.RawIOBase):
 
 READERS = {"ecd": EcdReader, "e2vid": E2vidReader}
 WRITERS = {"ecd": EcdWriter}
+
+register_formats(__name__, {
+    "ecd": "Event Camera Dataset text folder (events.txt, images.txt, images/)",
+    "e2vid": "E2VID text (.txt or .zip, first line 'width height')",
+}, READERS, WRITERS)

@@ -12,7 +12,7 @@ pytest.importorskip("rosbags")
 from rosbags.rosbag1 import Writer as Writer1  # noqa: E402
 from rosbags.rosbag2 import Writer as Writer2  # noqa: E402
 
-from hybridhdr.capture.formats import rosbag as R  # noqa: E402
+from hybridhdr.formats import rosbag as R  # noqa: E402
 
 SS = hh.SensorSize(260, 346)
 
@@ -101,8 +101,8 @@ def test_ns_rounding(tmp_path):
 
 @pytest.mark.parametrize("ros2", [False, True])
 def test_event_packet_evt3(tmp_path, ros2):
-    pytest.importorskip("hybridhdr.capture.formats.prophesee")
-    from hybridhdr.capture.formats.prophesee import Evt3Decoder  # noqa: F401  (must exist)
+    pytest.importorskip("hybridhdr.formats.prophesee")
+    from hybridhdr.formats.prophesee import Evt3Decoder  # noqa: F401  (must exist)
     rng = np.random.default_rng(3)
     n = 3000
     ev = hh.make_events(10_000 + np.sort(rng.integers(0, 200_000, n)), rng.integers(0, SS.width, n),

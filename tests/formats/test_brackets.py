@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from hybridhdr.capture.brackets import (BracketSet, colour_mask, exif_exposure_s, parse_exposure,
+from hybridhdr.formats.brackets import (BracketSet, colour_mask, exif_exposure_s, parse_exposure,
                                         read_bracket_set, write_bracket_set)
 from hybridhdr.errors import FormatError
 

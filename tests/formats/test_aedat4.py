@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 import hybridhdr as hh
-from hybridhdr.capture.formats import aedat4 as A
+from hybridhdr.formats import aedat4 as A
 from hybridhdr.errors import FormatError
 
 

@@ -55,11 +55,11 @@ from typing import Iterator
 
 import numpy as np
 
-from ..._limits import LimitExceeded, check_finite, check_frame_bytes, check_sensor_size
-from ...errors import FormatError
-from ...events import EVENT_DTYPE, SensorSize
-from ...io import EventChunk, EventFileReader, EventFileWriter
-from ...model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+from .._limits import LimitExceeded, check_finite, check_frame_bytes, check_sensor_size
+from ..errors import FormatError
+from ..events import EVENT_DTYPE, SensorSize
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
+from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
 __all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5",
            "profile_from_f_q", "f_q_from_profile"]
@@ -230,7 +230,7 @@ def read_mat5(path, names=None) -> dict:
             break  # zero padding at the end
         typ, n, p, nxt = _mat5_tag(path, buf, pos, len(buf), e, f"element at byte {pos}")
         if typ == _MI_COMPRESSED:
-            from ..._limits import LIMITS, OVERRIDE_HINT, LimitExceeded, huge_allowed
+            from .._limits import LIMITS, OVERRIDE_HINT, LimitExceeded, huge_allowed
             limit = _MAX_MAT5_BYTES if huge_allowed() else min(_MAX_MAT5_BYTES, LIMITS["max_packet_bytes"])
             d = zlib.decompressobj()
             try:
@@ -288,8 +288,8 @@ def profile_from_f_q(f_q, encoding: str = "unknown", source: str = ""):
         When ``f_Q`` is not a finite, non-negative table of at least 2 entries with a positive
         maximum.
     """
-    from ...camera import CameraProfile
-    from ...camera.encoding import inverse_crf_table, parse_frame_encoding
+    from ..camera import CameraProfile
+    from ..camera.encoding import inverse_crf_table, parse_frame_encoding
     fq = np.asarray(f_q, dtype=np.float64).reshape(-1)
     if fq.size < 2 or not np.isfinite(fq).all() or (fq < 0).any() or not fq.max() > 0:
         raise ValueError(f"f_Q must be a finite, non-negative table of at least 2 entries with a positive "
@@ -314,7 +314,7 @@ def f_q_from_profile(profile) -> np.ndarray:
     ``f_Q[code] = frame_precision_scale * max(weighting[code], min_weighting)`` (eq. 6), the
     inverse of :func:`profile_from_f_q`. The profile's inverse CRF has no place in the file.
     """
-    from ...camera import CameraProfile
+    from ..camera import CameraProfile
     prof = profile if isinstance(profile, CameraProfile) else CameraProfile.from_dict(profile)
     return prof.frame_precision_scale * np.maximum(prof.weighting, prof.min_weighting)
 
@@ -766,7 +766,7 @@ class AkfMatWriter(EventFileWriter):
     supports = frozenset({"frames"})
 
     def _open(self) -> None:
-        from ..._safe_h5 import open_h5_for_writing
+        from ._safe_h5 import open_h5_for_writing
         self._f = self._guard = self._ev = self._img = None
         self._f, self._guard = open_h5_for_writing(self.tmp_path, userblock_size=512, libver="earliest")
         self._ev = self._f.create_dataset("events", shape=(4, 0), maxshape=(4, None), dtype="<f8",
@@ -860,10 +860,14 @@ class AkfMatWriter(EventFileWriter):
         self._guard.check()
 
     def _cleanup(self) -> None:
-        from ..._safe_h5 import close_and_remove
+        from ._safe_h5 import close_and_remove
         self._ev = self._img = self._ti = self._ex = None
         close_and_remove(getattr(self, "_f", None), getattr(self, "_guard", None), self.tmp_path)
 
 
 READERS = {"akf_mat": AkfMatReader}
 WRITERS = {"akf_mat": AkfMatWriter}
+
+register_formats(__name__, {
+    "akf_mat": "AKF MATLAB .mat (v7.3 HDF5 or v5)",
+}, READERS, WRITERS)
