@@ -8,7 +8,7 @@ Each output frame at time ``t`` shows, side by side and scaled to one height:
   grey (RGB for colour frames), codes scaled by the dtype's range;
 * **reconstruction** (``--recon DIR``, a ``hybridhdr reconstruct`` output folder): the latest
   output at or before ``t``, log tone-mapped with the preview tone map (limits from the whole
-  folder, :func:`hybridhdr.reconstruct.output.tone_map`);
+  folder, :func:`hybridhdr.formats.images.tone_map`);
 
 above a time bar (elapsed fraction, time from the start and sensor time). Output times are
 ``start + k / fps``; like ``reconstruct --fps`` the clip stops at the last event unless
@@ -23,8 +23,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
-from ._timearg import add_time_window, time_arg
+from ._util.atomic import atomic_path
+from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
+from ._util.timearg import add_time_window, time_arg
 
 BACKGROUND = (30, 37, 52)  # RGB
 ON_COLOUR = (255, 255, 255)
@@ -103,7 +104,7 @@ class _Recon:
 
     def __init__(self, folder: Path):
         from .evaluate.cli import _read_timestamps
-        from .reconstruct.output import read_exr, tone_map
+        from .formats.images import read_exr, tone_map
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
             raise FileNotFoundError(f"--recon {folder}: expected timestamps.txt written by 'hybridhdr reconstruct'")
@@ -165,11 +166,11 @@ def _event_canvases(reader, shape, times, acc_us, chunk_events=1 << 20):
 
 @json_output
 def run(args) -> int:
-    from ._limits import check_fps_outputs
-    from ._timearg import check_window, empty_window_error, resolve_window, window_given
+    from ._util.limits import check_fps_outputs
+    from ._util.timearg import check_window, empty_window_error, resolve_window
     from .formats.span import recording_span
     from .formats import open_reader
-    from .reconstruct.output import _MP4Stream, _atomic_target, _cleanup, _finish, _write_png
+    from .formats.images import _MP4Stream, _write_png
 
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
@@ -209,53 +210,51 @@ def run(args) -> int:
             blank_frame = np.zeros(_fit(_grey_frame(frames.images[0]), height).shape, np.uint8)
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _atomic_target(out, ".mp4")
-        still_at = len(times) // 2
-        still = None
-        bar = None
-        if not args.no_progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(times), unit="frame", desc=f"view {Path(args.recording).name}", file=sys.stderr)
-        stream = None
-        try:
-            for k, canvas in enumerate(_event_canvases(r, shape, times, acc)):
-                t = int(times[k])
-                panels = [_label(_fit(canvas, height), f"events, last {acc / 1e3:g} ms (ON white, OFF blue)")]
-                if frames is not None:
-                    i = int(np.searchsorted(frames.t_end_us, t, side="right")) - 1
-                    img = blank_frame if i < 0 else _fit(_grey_frame(frames.images[i]), height)
-                    panels.append(_label(img, "frame" if i < 0 else f"frame {i} ({(int(frames.t_end_us[i]) - span.origin_us) / 1e6:.3f} s)"))
-                if recon is not None:
-                    rimg = recon.at(t)
-                    rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
-                    panels.append(_label(rimg, f"reconstruction ({args.recon.name})"))
-                row = np.concatenate(panels, axis=1)
-                rel = (t - span.origin_us) / 1e6
-                img = np.concatenate([row, _time_bar(row.shape[1], (t - start) / (end - start),
-                                                     f"t = {rel:.4f} s   (sensor {t:,} us)   frame {k + 1}/{len(times)}")],
-                                     axis=0)
-                if stream is None:
-                    stream = _MP4Stream(tmp, img.shape, args.playback_fps)
-                stream.write(img)
-                if k == still_at:
-                    still = img
-                if bar is not None:
-                    bar.update(1)
-            if stream is not None:
-                stream.close()
-                stream = None
-            _finish(tmp, out)
-        except BaseException:
-            if stream is not None:
-                try:
+        with atomic_path(out, ".mp4") as tmp:
+            still_at = len(times) // 2
+            still = None
+            bar = None
+            if not args.no_progress:
+                from tqdm import tqdm
+                bar = tqdm(total=len(times), unit="frame", desc=f"view {Path(args.recording).name}", file=sys.stderr)
+            stream = None
+            try:
+                for k, canvas in enumerate(_event_canvases(r, shape, times, acc)):
+                    t = int(times[k])
+                    panels = [_label(_fit(canvas, height), f"events, last {acc / 1e3:g} ms (ON white, OFF blue)")]
+                    if frames is not None:
+                        i = int(np.searchsorted(frames.t_end_us, t, side="right")) - 1
+                        img = blank_frame if i < 0 else _fit(_grey_frame(frames.images[i]), height)
+                        panels.append(_label(img, "frame" if i < 0 else f"frame {i} ({(int(frames.t_end_us[i]) - span.origin_us) / 1e6:.3f} s)"))
+                    if recon is not None:
+                        rimg = recon.at(t)
+                        rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
+                        panels.append(_label(rimg, f"reconstruction ({args.recon.name})"))
+                    row = np.concatenate(panels, axis=1)
+                    rel = (t - span.origin_us) / 1e6
+                    img = np.concatenate([row, _time_bar(row.shape[1], (t - start) / (end - start),
+                                                         f"t = {rel:.4f} s   (sensor {t:,} us)   frame {k + 1}/{len(times)}")],
+                                         axis=0)
+                    if stream is None:
+                        stream = _MP4Stream(tmp, img.shape, args.playback_fps)
+                    stream.write(img)
+                    if k == still_at:
+                        still = img
+                    if bar is not None:
+                        bar.update(1)
+                if stream is not None:
                     stream.close()
-                except OSError:
-                    pass
-            _cleanup(tmp)
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
+                    stream = None
+            except BaseException:
+                if stream is not None:
+                    try:
+                        stream.close()
+                    except OSError:
+                        pass
+                raise
+            finally:
+                if bar is not None:
+                    bar.close()
     if args.still is not None and still is not None:
         args.still.parent.mkdir(parents=True, exist_ok=True)
         _write_png(args.still, still)

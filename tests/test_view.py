@@ -4,7 +4,7 @@ import re
 
 import numpy as np
 
-from hybridhdr.reconstruct.output import LogPercentiles, tone_map
+from hybridhdr.formats.images import LogPercentiles, tone_map
 
 
 def test_tone_map_ignores_bad_pixels():

@@ -10,8 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from .._atomic import write_json_atomic
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
+from .._util.atomic import atomic_path, write_json_atomic
+from .._util.cliargs import COMMON_NO_JSON, HelpFormatter, nonneg_float, positive_float, positive_int
 
 
 def register(steps) -> None:
@@ -223,7 +223,7 @@ def _plot_reference(E, frame, H, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..reconstruct.output import _atomic_target, _cleanup, _finish, tone_map
+    from ..formats.images import tone_map
     from .hdr_reference import to_grey, warp_reference
 
     ref_t, lim = tone_map(to_grey(E)[None])
@@ -242,12 +242,8 @@ def _plot_reference(E, frame, H, path: Path) -> None:
         a.set_title(title, fontsize=9)
         a.axis("off")
     fig.tight_layout()
-    tmp = _atomic_target(path, ".png")
     try:
-        fig.savefig(tmp, dpi=100, format="png")
-        _finish(tmp, path)
-    except BaseException:
-        _cleanup(tmp)
-        raise
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
     finally:
         plt.close(fig)

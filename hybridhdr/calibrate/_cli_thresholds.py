@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from .._cliargs import COMMON, HelpFormatter, json_output, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
 
 
 def register(steps) -> None:
@@ -53,7 +53,7 @@ def _pair(s, name, cast):
 
 @json_output
 def run_thresholds(args) -> int:
-    from .._atomic import write_json_atomic
+    from .._util.atomic import write_json_atomic
     from .._version import __version__
     from ..formats import read
     from .thresholds import estimate_thresholds, plot_thresholds

@@ -36,6 +36,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path
+from ..formats.brackets import BracketSet
+from ..formats.container import read_recording, write_recording
+from ..model import HDRReferences
 from .crf import CRF, check_brackets, hat_weight
 
 __all__ = ["merge_brackets", "write_exr", "read_exr_rgb", "corner_error", "register", "Registration", "RegistrationParams",
@@ -139,7 +143,6 @@ def write_exr(path, image) -> Path:
         import OpenEXR
     except ImportError as e:  # pragma: no cover
         raise ImportError("writing EXR needs the OpenEXR package (pip install OpenEXR)") from e
-    from ..reconstruct.output import _atomic_target, _cleanup, _finish
     im = np.ascontiguousarray(image, dtype=np.float32)
     if im.ndim == 2:
         ch = {"Y": im}
@@ -148,15 +151,9 @@ def write_exr(path, image) -> Path:
     else:
         raise ValueError(f"EXR image must be (H, W) or (H, W, 3), got {im.shape}")
     path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
     header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
-    tmp = _atomic_target(path, ".exr")
-    try:
-        OpenEXR.File(header, ch).write(tmp)
-        _finish(tmp, path)
-    except BaseException:
-        _cleanup(tmp)
-        raise
+    with atomic_path(path, ".exr") as tmp:
+        OpenEXR.File(header, ch).write(str(tmp))
     return path
 
 
@@ -524,8 +521,6 @@ def register_recording(reference: np.ndarray, recording_path, out_path, params: 
 
     from tqdm import tqdm
 
-    from ..formats.container import read_recording, write_recording
-    from ..model import HDRReferences
     src, dst = Path(recording_path), Path(out_path)
     if src.resolve() == dst.resolve():
         raise ValueError(f"--out-recording must differ from the input recording {src}; it is never modified in place")
@@ -617,7 +612,6 @@ def align_brackets(images, exposures_s=None, *, anchor: int | None = None, featu
     """
     import cv2
 
-    from ..formats.brackets import BracketSet
     bs = images if isinstance(images, BracketSet) else None
     imgs = [np.asarray(im) for im in (bs.images if bs is not None else images)]
     ex = np.asarray(bs.exposures_s if bs is not None else exposures_s, np.float64)

@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from .._util.atomic import atomic_path
 from ..camera.profile import CameraProfile, weighting_from_inverse_crf
 from .crf import CRF
 
@@ -204,8 +205,6 @@ def noise_profile(crf: CRF, *, sigma2_im: float, floor: float = 0.09, domain: st
 
 def plot_profile(crf: CRF, profile: CameraProfile, path) -> None:
     """PNG with three panels: log inverse CRF per channel, f_w, and R(code) (log scale)."""
-    import os
-    import tempfile
     from pathlib import Path
 
     import matplotlib
@@ -227,14 +226,8 @@ def plot_profile(crf: CRF, profile: CameraProfile, path) -> None:
     ax[2].set(xlabel="code z", ylabel="R̄ (intensity²)",
               title=f"R = σ²_im / max(f_w, floor), σ²_im = {1 / profile.frame_precision_scale:.3g}")
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix="." + path.stem + ".", suffix=".partial.png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=110)
     finally:
         plt.close(fig)

@@ -44,7 +44,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path
+from ..camera import load_profile, profile_for_frames
+from ..camera.encoding import well_exposed_range
 from ..formats.thresholds import METHOD, ThresholdMap
+from ..reconstruct.measurement import frames_to_codes
+from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
 
 __all__ = ["estimate_thresholds", "plot_thresholds"]
 
@@ -99,10 +104,6 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
     require_event_coverage : bool
         Use only intervals inside the events' time span (first to last event).
     """
-    from ..camera import load_profile, profile_for_frames
-    from ..camera.encoding import well_exposed_range
-    from ..reconstruct.measurement import frames_to_codes
-    from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
 
     rec = recording
     if isinstance(rec, (str, Path)):
@@ -256,7 +257,6 @@ def plot_thresholds(tm: ThresholdMap, path, title: str | None = None) -> Path:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    from .._atomic import atomic_path
     v = tm.valid
     on, off = tm.c_on[v], tm.c_off[v]
     s = tm.summary()

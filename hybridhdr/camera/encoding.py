@@ -36,6 +36,8 @@ import math
 
 import numpy as np
 
+from ..model import Frames
+
 __all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
            "encode", "inverse_crf_table", "to_luminance", "luminance_frames", "with_encoding"]
 
@@ -248,7 +250,6 @@ def luminance_frames(frames, dtype=None):
     is done per encoding); ``dtype`` defaults to the input dtype, so 8-bit frames stay 8-bit
     codes (rounded to the nearest code); pass ``np.float64`` to keep the unrounded codes.
     """
-    from ..model import Frames
     if frames.images.ndim != 4:
         return frames
     dt = frames.images.dtype if dtype is None else np.dtype(dtype)
@@ -273,7 +274,6 @@ def with_encoding(frames, name):
     """
     if name is None or frames is None:
         return frames
-    from ..model import Frames
     enc = parse_frame_encoding(name)
     if enc == frames.encoding:
         return frames

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_output, positive_float, positive_int
+from .._util.cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_output, positive_float, positive_int
 
 DESCRIPTION = "record and read hybrid data (devices, brackets, sync, recorder)"
 _FMT = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v) come from COMMON
@@ -170,7 +170,7 @@ def _frame_source(args, t_origin_us=None):
 
 
 def run_record(args) -> int:
-    from .._limits import allow_huge
+    from .._util.limits import allow_huge
     with allow_huge(args.allow_huge):
         return _run_record(args)
 
@@ -322,7 +322,7 @@ def run_sync(args) -> int:
 
 # -- recover ----------------------------------------------------------------------------------
 def run_recover(args) -> int:
-    from .._limits import allow_huge
+    from .._util.limits import allow_huge
     from .recorder import journal_path, recover
     with allow_huge(args.allow_huge):
         res = recover(args.file, args.out, compression=_comp(args.compression), progress=not args.no_progress)

@@ -24,6 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path
+from .._util.toml import load_toml, loads_toml
+from ..reconstruct.api import reconstruct, resolve_method
+from ..simulate.procedural import procedural_recording
+from .datasets import DATASET_KINDS, load_dataset
+from .metrics import default_normalise, match_frames, score_video
+from .report import write_report
+
 __all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench", "run_task", "write_results",
            "TIMING_COLUMNS", "METRIC_COLUMNS", "bundled_bench", "BUNDLED"]
 
@@ -115,8 +123,6 @@ def parse_bench(d: dict, source: str = "") -> Bench:
         raise ValueError(f"{source or 'bench'}: needs at least one [[datasets]] entry")
     if not isinstance(ms, list) or not ms:
         raise ValueError(f"{source or 'bench'}: needs at least one [[methods]] entry")
-    from .datasets import DATASET_KINDS
-    from ..reconstruct.api import resolve_method
     names = set()
     for i, x in enumerate(ds):
         if not isinstance(x, dict) or x.get("kind") not in DATASET_KINDS:
@@ -175,14 +181,6 @@ def parse_bench(d: dict, source: str = "") -> Bench:
                  weights=weights)
 
 
-def _load_toml_bytes(data: bytes) -> dict:
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python < 3.11
-        import tomli as tomllib
-    return tomllib.loads(data.decode("utf-8"))
-
-
 def bundled_bench(name: str) -> str:
     """Text of a bench file bundled in ``hybridhdr/evaluate/benches/NAME.toml``."""
     from importlib import resources
@@ -196,16 +194,14 @@ def load_bench(path_or_name) -> Bench:
     """Load a bench file, or a bundled one by name (``demo``, ``speed_accuracy``, ``stability``, ``tiny``)."""
     p = Path(path_or_name)
     if p.is_file():
-        return parse_bench(_load_toml_bytes(p.read_bytes()), str(p))
+        return parse_bench(load_toml(p), str(p))
     if str(path_or_name) in BUNDLED:
-        return parse_bench(_load_toml_bytes(bundled_bench(str(path_or_name)).encode()), f"<bundled {path_or_name}>")
+        return parse_bench(loads_toml(bundled_bench(str(path_or_name))), f"<bundled {path_or_name}>")
     raise FileNotFoundError(f"bench file {path_or_name} not found (bundled benches: {list(BUNDLED)})")
 
 
 def expand(bench: Bench):
     """The task list: ``[(dataset_name, dataset_spec, dataset_grid_values, [RunSpec ...]), ...]``."""
-    from .metrics import default_normalise
-    from ..reconstruct.api import resolve_method
     runs = []
     for m in bench.methods:
         for gv in _grid(m.get("grid"), f"methods[{m['name']}]"):
@@ -293,8 +289,6 @@ def _warmup(run: RunSpec):
     key = (run.method, json.dumps(run.augment, sort_keys=True, default=str), run.mode)
     if key in _WARM:
         return
-    from ..reconstruct.api import reconstruct
-    from ..synthetic import procedural_recording
     rec, _ = procedural_recording((16, 16), 120_000, seed=0, frame_rate_hz=20.0)
     try:
         reconstruct(rec, run.method, _method_params(run, 0.2), mode=run.mode, augment=run.augment)
@@ -317,9 +311,6 @@ def _strip_frame(video_frames, vi, ri, ref_images, frames, ref_t):
 
 def run_task(task, bench_opts: dict) -> list[dict]:
     """Run every method variant of one dataset variant; returns one row dict per run."""
-    from ..reconstruct.api import reconstruct
-    from .datasets import load_dataset
-    from .metrics import match_frames, score_video
     ds_name, spec, ds_gv, runs = task
     seed = int(bench_opts["seed"])
     rows = []
@@ -504,18 +495,15 @@ def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = T
 
     Returns the paths written (name -> Path).
     """
-    from .report import write_report
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cols = _columns(rows)
     path = out / "results.csv"
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(cols)
         for r in rows:
             w.writerow([_fmt(r.get(c)) for c in cols])
-    os.replace(tmp, path)
     written = {"csv": path}
     written.update(write_report(rows, out, bench, charts=charts))
     return written

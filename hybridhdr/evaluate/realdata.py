@@ -31,12 +31,17 @@ event; frames after the last event are dropped from the input (no events around 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
 import numpy as np
 
+from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
+from ..events import slice_time
+from ..model import Recording
+from ..reconstruct import reconstruct
+from ..reconstruct.measurement import frames_to_codes
+from .metrics import ssim_map
 
 __all__ = ["TASKS", "HoldoutSpec", "BASELINES", "default_held_frames",
            "holdout_input", "holdout_reconstructions", "score_frame", "evaluate_holdout", "format_holdout"]
@@ -82,8 +87,6 @@ def default_held_frames(rec) -> list[int]:
 def holdout_input(rec, k: int, task: str):
     """``(recording, t_us)``: the input without frame k (``leave_one_out``) or cut before it
     (``next_frame``), and the output time (τ_k, or τ_k − 1 µs)."""
-    from ..model import Recording
-    from ..events import slice_time
     fr = _trimmed_frames(rec)
     if not 0 <= k < len(fr):
         raise ValueError(f"held-out frame {k} is not among the {len(fr)} frames inside the events' span")
@@ -116,7 +119,6 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     Returns ``{label: {"frames": [(H, W) float64 or None per held-out frame], "wall_s": float,
     "error": str or None}}``; the first failure of a spec stops that spec (reported, not hidden).
     """
-    from ..reconstruct import reconstruct
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None} for s in specs}
     for k in held:
         for s in specs:
@@ -141,8 +143,6 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
 def reference_frames(rec, held, profile=None, well_exposed=None):
     """``(references (n, H, W) float64 frame-linear, valid (n, H, W) bool, (lo, hi))`` of the
     held-out frames: the profile's ``CRF⁻¹(code)`` and the well-exposed codes."""
-    from ..camera import load_profile, profile_for_frames
-    from ..reconstruct.measurement import frames_to_codes
     fr = _trimmed_frames(rec)
     if profile is None:
         from ..reconstruct.api import _source_profile
@@ -158,7 +158,6 @@ def reference_frames(rec, held, profile=None, well_exposed=None):
 
 def score_frame(recon, reference, valid) -> dict:
     """MSE, PSNR (dB) and SSIM of one reconstruction on the ``valid`` pixels (module docstring)."""
-    from .metrics import ssim_map
     x = np.asarray(recon, np.float64)
     r = np.asarray(reference, np.float64)
     v = np.asarray(valid, bool)

@@ -12,6 +12,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path, write_text_atomic
+from ..formats.images import tone_map
+from .charts import _plt, numerical_failures, plot_speed_accuracy, plot_stability, stability_curves
+from .metrics import JOD_NA
+
 __all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_text", "scoring_label", "jod_label", "write_report", "write_strip",
            "format_table"]
 
@@ -97,7 +102,6 @@ def scoring_label(rows) -> str:
 def jod_label(rows) -> str:
     """What the JOD column means: the display model and viewing distance of every score (one
     line per distinct display), the frames scored, or why there is no JOD."""
-    from .metrics import JOD_NA
     lines = sorted({str(r.get("jod_display_line")) for r in rows if r.get("jod_display_line")})
     frames = [_f(r.get("jod_frames")) for r in rows if r.get("jod_display_line")]
     frames = [int(v) for v in frames if math.isfinite(v)]
@@ -154,8 +158,6 @@ def _html_table(header, body) -> str:
 
 def write_strip(images: dict, path, title: str = "") -> Path:
     """One row of images: LDR input, each method, reference (tone-mapped with the reference's range)."""
-    from .charts import _plt
-    from ..reconstruct.output import tone_map
     plt = _plt()
     ref = images.get("__reference__")
     ldr = images.get("__ldr__")
@@ -181,25 +183,25 @@ def write_strip(images: dict, path, title: str = "") -> Path:
         fig.suptitle(title, fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
 def _save(fig, path: Path):
-    from .charts import _plt
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    _plt().close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    finally:
+        _plt().close(fig)
     return path
 
 
 def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
     """Speed–accuracy and stability PNGs; returns (paths, stability failure rows)."""
-    from .charts import plot_speed_accuracy, plot_stability, stability_curves
     plt = __import__("hybridhdr.evaluate.charts", fromlist=["_plt"])._plt()
     paths, fails = {}, []
     sa = charts_cfg.get("speed_accuracy", {})
@@ -248,7 +250,6 @@ def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
 
 def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     """Write strips, charts, ``report.md`` and ``report.html``; returns name -> Path."""
-    from .charts import numerical_failures
     out = Path(out)
     written = {}
     # strips: first and last variant of each dataset, capped by bench.strips
@@ -315,10 +316,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
         md += ["## Image strips (LDR input, each method, reference; log tone-mapped with the reference's range)", ""]
         md += [f"![{p.stem}](strips/{p.name})" for p in strip_paths] + [""]
     md_text = "\n".join(md)
-    pmd = out / "report.md"
-    tmp = pmd.with_name("report.md.partial")
-    tmp.write_text(md_text, encoding="utf-8")
-    os.replace(tmp, pmd)
+    pmd = write_text_atomic(out / "report.md", md_text)
     written["report_md"] = pmd
     # HTML
     parts = [f"<h1>Benchmark report: {html.escape(name)}</h1>", f"<p>{_md_inline_html(md[2])}</p>",
@@ -343,10 +341,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
            "body{font-family:sans-serif;max-width:1200px;margin:auto}table{border-collapse:collapse}"
            "td,th{border:1px solid #ccc;padding:2px 6px;font-size:13px}</style></head><body>"
            + "\n".join(parts) + "</body></html>")
-    ph = out / "report.html"
-    tmp = ph.with_name("report.html.partial")
-    tmp.write_text(doc, encoding="utf-8")
-    os.replace(tmp, ph)
+    ph = write_text_atomic(out / "report.html", doc)
     written["report_html"] = ph
     written["strips"] = strip_paths
     written["failures"] = fails

@@ -1,6 +1,6 @@
 """Parallel reading of the container's event columns (private; not yet used by the reader).
 
-The columns the writer stores (``hybridhdr.container``) are 1-D chunked datasets with HDF5's
+The columns the writer stores (``hybridhdr.formats.container``) are 1-D chunked datasets with HDF5's
 shuffle and deflate filters. h5py inflates them with zlib in one thread, under its global lock:
 about 24 Mev/s on this project's 2-core machines, a fifth of a two-sided reconstruction's time.
 Here the compressed chunks are read as bytes (``read_direct_chunk``), inflated with ISA-L (or

@@ -49,12 +49,12 @@ from typing import Iterator
 
 import numpy as np
 
-from ..errors import FormatError
-from .._limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
+from .._util.limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
                         huge_allowed)
+from ..errors import FormatError
 from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
-from .base import EventChunk, EventFileReader, register_formats
 from ..model import CameraInfo, Frames, Metadata
+from .base import EventChunk, EventFileReader, register_formats
 
 __all__ = ["Aedat4Reader", "READERS", "WRITERS", "sniff", "MAGIC", "TRIGGER_TYPE_MAP"]
 

@@ -35,7 +35,7 @@ written without MATLAB's header, HDF5 holding ``events`` together with ``time_im
 ``image`` or ``HDR_mat`` (the keys of the authors' files).
 
 Frame encoding and ``f_Q``: the files state no transfer function for ``image``, and the authors'
-code (``akf_reconstruction.m``; ``../shared/reference/akf.md`` §2) reads the codes as linear
+code (``ziweiWWANG/AKF:akf_reconstruction.m``) reads the codes as linear
 intensity, ``I = I^F / 255``, with no inverse CRF: the CRF enters only through ``f_Q``. So the
 frames are ``encoding="unknown"`` unless the ``frame_encoding`` option declares one. ``f_Q`` is
 the inverse of eq. 6's R̄ per code (README; ``f_Q = 7e5 * max(f_w, 0.09)``), and is honoured as a
@@ -55,11 +55,14 @@ from typing import Iterator
 
 import numpy as np
 
-from .._limits import LimitExceeded, check_finite, check_frame_bytes, check_sensor_size
+from .._util.limits import LimitExceeded, check_finite, check_frame_bytes, check_sensor_size
+from ..camera import CameraProfile
+from ..camera.encoding import inverse_crf_table, parse_frame_encoding
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize
-from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+from ._safe_h5 import close_and_remove, open_h5_for_writing
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 
 __all__ = ["AkfMatReader", "AkfMatWriter", "READERS", "WRITERS", "sniff", "matlab_v73_header", "read_mat5",
            "profile_from_f_q", "f_q_from_profile"]
@@ -230,7 +233,7 @@ def read_mat5(path, names=None) -> dict:
             break  # zero padding at the end
         typ, n, p, nxt = _mat5_tag(path, buf, pos, len(buf), e, f"element at byte {pos}")
         if typ == _MI_COMPRESSED:
-            from .._limits import LIMITS, OVERRIDE_HINT, LimitExceeded, huge_allowed
+            from .._util.limits import LIMITS, OVERRIDE_HINT, LimitExceeded, huge_allowed
             limit = _MAX_MAT5_BYTES if huge_allowed() else min(_MAX_MAT5_BYTES, LIMITS["max_packet_bytes"])
             d = zlib.decompressobj()
             try:
@@ -288,8 +291,6 @@ def profile_from_f_q(f_q, encoding: str = "unknown", source: str = ""):
         When ``f_Q`` is not a finite, non-negative table of at least 2 entries with a positive
         maximum.
     """
-    from ..camera import CameraProfile
-    from ..camera.encoding import inverse_crf_table, parse_frame_encoding
     fq = np.asarray(f_q, dtype=np.float64).reshape(-1)
     if fq.size < 2 or not np.isfinite(fq).all() or (fq < 0).any() or not fq.max() > 0:
         raise ValueError(f"f_Q must be a finite, non-negative table of at least 2 entries with a positive "
@@ -314,7 +315,6 @@ def f_q_from_profile(profile) -> np.ndarray:
     ``f_Q[code] = frame_precision_scale * max(weighting[code], min_weighting)`` (eq. 6), the
     inverse of :func:`profile_from_f_q`. The profile's inverse CRF has no place in the file.
     """
-    from ..camera import CameraProfile
     prof = profile if isinstance(profile, CameraProfile) else CameraProfile.from_dict(profile)
     return prof.frame_precision_scale * np.maximum(prof.weighting, prof.min_weighting)
 
@@ -766,7 +766,6 @@ class AkfMatWriter(EventFileWriter):
     supports = frozenset({"frames"})
 
     def _open(self) -> None:
-        from ._safe_h5 import open_h5_for_writing
         self._f = self._guard = self._ev = self._img = None
         self._f, self._guard = open_h5_for_writing(self.tmp_path, userblock_size=512, libver="earliest")
         self._ev = self._f.create_dataset("events", shape=(4, 0), maxshape=(4, None), dtype="<f8",
@@ -860,7 +859,6 @@ class AkfMatWriter(EventFileWriter):
         self._guard.check()
 
     def _cleanup(self) -> None:
-        from ._safe_h5 import close_and_remove
         self._ev = self._img = self._ti = self._ex = None
         close_and_remove(getattr(self, "_f", None), getattr(self, "_guard", None), self.tmp_path)
 

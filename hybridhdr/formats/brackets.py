@@ -31,8 +31,6 @@ exposure by construction and a cell with any value at or above 0.98 x white leve
 from __future__ import annotations
 
 import json
-import os
-import shutil
 import struct
 from dataclasses import dataclass, field
 from fractions import Fraction
@@ -40,6 +38,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_folder
+from .._util.checks import check_shape
 from ..errors import FormatError
 from ..model import FRAME_ENCODINGS
 
@@ -99,8 +99,7 @@ class BracketSet:
         if k == 0:
             raise ValueError("a bracket set needs at least one image, got none")
         for i, im in enumerate(imgs):
-            if im.ndim not in (2, 3) or (im.ndim == 3 and im.shape[2] != 3):
-                raise ValueError(f"bracket image {i} must have shape (H, W) or (H, W, 3), got {im.shape}")
+            check_shape(im, "H W | H W 3", f"bracket image {i}")
         shapes = {im.shape for im in imgs}
         if len(shapes) != 1:
             detail = ", ".join(f"{self._name(i)}: {im.shape}" for i, im in enumerate(imgs))
@@ -109,8 +108,7 @@ class BracketSet:
         if len(dtypes) != 1:
             raise ValueError(f"all bracket images must have one dtype, found {sorted(map(str, dtypes))}")
         ex = np.asarray(self.exposures_s, dtype=np.float64)
-        if ex.shape != (k,):
-            raise ValueError(f"exposures_s must have shape ({k},) (one per image), got {ex.shape}")
+        check_shape(ex, "K", "exposures_s (one per image)", sizes={"K": k})
         if not np.all(np.isfinite(ex)) or np.any(ex <= 0):
             i = int(np.flatnonzero(~(np.isfinite(ex) & (ex > 0)))[0])
             raise ValueError(f"exposure times must be finite and > 0 s; {self._name(i)} has {ex[i]}")
@@ -123,13 +121,11 @@ class BracketSet:
             v = getattr(self, name)
             if v is not None:
                 v = np.asarray(v, dtype=np.float64)
-                if v.shape != (k,):
-                    raise ValueError(f"{name} must have shape ({k},), got {v.shape}")
+                check_shape(v, "K", name, sizes={"K": k})
                 object.__setattr__(self, name, v)
         if self.t_us is not None:
             t = np.asarray(self.t_us, dtype=np.int64)
-            if t.shape != (k,):
-                raise ValueError(f"t_us must have shape ({k},), got {t.shape}")
+            check_shape(t, "K", "t_us", sizes={"K": k})
             object.__setattr__(self, "t_us", t)
         object.__setattr__(self, "images", imgs)
         object.__setattr__(self, "exposures_s", ex)
@@ -339,8 +335,7 @@ def _read_image(path: Path) -> np.ndarray:
         im = im[..., :3]
     if im.ndim == 3 and im.shape[2] == 1:
         im = im[..., 0]
-    if im.ndim not in (2, 3) or (im.ndim == 3 and im.shape[2] != 3):
-        raise FormatError(path, f"expected a grey or RGB image, got shape {im.shape}")
+    check_shape(im, "H W | H W 3", "a grey or RGB image", error=lambda m: FormatError(path, m))
     if im.dtype not in (np.uint8, np.uint16):
         raise FormatError(path, f"expected 8- or 16-bit codes, got dtype {im.dtype}")
     return im
@@ -463,12 +458,8 @@ def write_bracket_set(folder, images, exposures_s, *, encoding, camera=None, iso
     cam.setdefault("bit_depth", 8 if imgs[0].dtype == np.uint8 else 16)
     if folder.exists() and any(folder.iterdir()):
         raise FileExistsError(f"bracket set folder {folder} already exists and is not empty")
-    tmp = folder.with_name(folder.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
-    try:
-        import imageio.v3 as iio
+    import imageio.v3 as iio
+    with atomic_folder(folder) as tmp:
         entries = []
         for i, (im, name) in enumerate(zip(bs.images, bs.files)):
             iio.imwrite(tmp / name, im, extension=".png")
@@ -479,12 +470,6 @@ def write_bracket_set(folder, images, exposures_s, *, encoding, camera=None, iso
         doc = {"format": BRACKETS_FORMAT, "version": BRACKETS_VERSION, "encoding": encoding,
                "camera": cam, "images": entries}
         (tmp / "brackets.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
-        if folder.exists():
-            folder.rmdir()
-        os.replace(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 

@@ -35,7 +35,8 @@ from typing import Iterator
 
 import numpy as np
 
-from .._limits import check_finite, check_frame_bytes, check_frame_shape, check_h5_stored, check_sensor_size
+from .._util.checks import check_shape
+from .._util.limits import check_finite, check_frame_bytes, check_frame_shape, check_h5_stored, check_sensor_size
 from .._version import __version__
 from ..errors import FormatError
 from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers, slice_time,
@@ -122,7 +123,7 @@ class RecordingWriter(EventFileWriter):
     Examples
     --------
     >>> import tempfile, os, hybridhdr
-    >>> from hybridhdr.container import RecordingWriter, RecordingFile
+    >>> from hybridhdr.formats.container import RecordingWriter, RecordingFile
     >>> path = os.path.join(tempfile.mkdtemp(), "rec.h5")
     >>> with RecordingWriter(path, sensor_size=(4, 5)) as w:
     ...     w.write_events(hybridhdr.make_events([0, 10, 2000], [0, 1, 4], [0, 2, 3], [1, -1, 1]))
@@ -438,8 +439,7 @@ def _guarded(method):
 
 def _check_image_dataset(ds, path, name):
     """Size limits and stored chunks of an image stack before it is read."""
-    if ds.ndim not in (3, 4):
-        raise FormatError(path, f"{name} has shape {ds.shape}; expected (K, H, W) or (K, H, W, 3)")
+    check_shape(ds.shape, "K H W | K H W C", name, error=lambda m: FormatError(path, m))
     check_frame_shape(ds.shape, path, name)
     check_frame_bytes(float(np.prod(ds.shape, dtype=np.float64)) * ds.dtype.itemsize, path, name)
     check_h5_stored(ds, path, name)
@@ -617,7 +617,7 @@ class RecordingFile(EventFileReader):
         """Validated contiguous columns of the records ``[i0, i1)``; ``t_prev`` = last t before."""
         try:
             cols = None
-            if i1 - i0 >= (1 << 16):  # large reads: chunks inflated in two threads (hybridhdr._chunk_read)
+            if i1 - i0 >= (1 << 16):  # large reads: chunks inflated in two threads (formats._chunk_read)
                 from ._chunk_read import read_columns
                 if getattr(self, "_inflate_pool", None) is None:
                     from concurrent.futures import ThreadPoolExecutor
@@ -689,8 +689,7 @@ class RecordingFile(EventFileReader):
         out = np.empty(n, dtype=TRIGGER_DTYPE)
         for name, _ in _TRIGGER_FIELDS:
             d = _require(g, name, self.path)
-            if d.shape != (n,):
-                raise FormatError(self.path, f"triggers/{name} has shape {d.shape}; expected ({n},)")
+            check_shape(d.shape, "N", f"triggers/{name}", sizes={"N": n}, error=lambda m: FormatError(self.path, m))
             out[name] = d[:]
         try:
             return validate_triggers(out)

@@ -31,12 +31,12 @@ from typing import Iterator
 
 import numpy as np
 
-from .._limits import (LimitExceeded, check_finite, check_frame_bytes, check_frame_shape, check_h5_stored,
+from .._util.limits import (LimitExceeded, check_finite, check_frame_bytes, check_frame_shape, check_h5_stored,
                         check_sensor_size)
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize
-from .base import EventChunk, EventFileReader, register_formats
 from ..model import CameraInfo, Frames, Metadata
+from .base import EventChunk, EventFileReader, register_formats
 
 __all__ = ["DsecReader", "MonashReader", "READERS", "WRITERS", "sniff", "HDF5_MAGIC", "DSEC_SENSOR_SIZE"]
 
@@ -150,8 +150,7 @@ def _check_columns(path, cols: dict, n: int) -> None:
         check_h5_stored(ds, path, ds.name)  # a declared count with no data behind it
 
 
-def _build_events(path, i0: int, t_us: np.ndarray, x, y, p, ss: SensorSize, last_t: int | None,
-                  p_zero_is_off: bool = True) -> np.ndarray:
+def _build_events(path, i0: int, t_us: np.ndarray, x, y, p, ss: SensorSize, last_t: int | None) -> np.ndarray:
     """Validate one slice of columns and pack it into EVENT_DTYPE (record = global event index)."""
     n = t_us.shape[0]
     for name, v in (("x", x), ("y", y)):

@@ -1,6 +1,6 @@
 """Prophesee RAW (EVT 2.0, EVT 2.1, EVT 3.0) and DAT readers, writers and streaming decoders.
 
-Layouts follow the project reference notes (``../shared/reference/formats.md``) (Prophesee's "EVT 2.0/2.1/3.0 Format" pages
+Layouts follow ``docs/formats.md`` (Prophesee's "EVT 2.0/2.1/3.0 Format" pages
 and the DAT layout of openeb's ``dat_tools.py``); the code is written from those specifications.
 
 Reading
@@ -60,12 +60,12 @@ from typing import Iterator
 
 import numpy as np
 
-from .._limits import check_sensor_size
+from .._util.limits import check_sensor_size
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
-from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 from ..model import CameraInfo, Metadata, Recording
 from . import _kernels as K
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 
 __all__ = [
     "READERS", "WRITERS", "sniff", "Evt2Reader", "Evt21Reader", "Evt3Reader", "DatReader",

@@ -35,11 +35,11 @@ from typing import BinaryIO, Iterator
 
 import numpy as np
 
-from .._limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
+from .._util.limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize, empty_events
-from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 from ..model import CameraInfo, Frames, Metadata
+from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 
 __all__ = ["EcdReader", "E2vidReader", "EcdWriter", "READERS", "WRITERS", "sniff", "parse_seconds_exact"]
 

@@ -17,7 +17,8 @@ from pathlib import Path
 
 import numpy as np
 
-from .._atomic import atomic_path
+from .._util.atomic import atomic_path
+from .._util.checks import check_shape
 
 __all__ = ["ThresholdMap", "load_thresholds", "THRESHOLDS_FORMAT", "THRESHOLDS_VERSION", "METHOD"]
 
@@ -68,22 +69,19 @@ class ThresholdMap:
         arrs = {}
         for name in ("c_on", "c_off"):
             a = np.array(getattr(self, name), dtype=np.float64)
-            if a.ndim != 2:
-                raise ValueError(f"ThresholdMap.{name} must be 2-D (H, W), got shape {a.shape}")
+            check_shape(a, "H W", f"ThresholdMap.{name}")
             if np.isinf(a).any():
                 raise ValueError(f"ThresholdMap.{name} has infinite entries; use NaN for 'not estimable'")
             fin = np.isfinite(a)
             if np.any(a[fin] <= 0):
                 raise ValueError(f"ThresholdMap.{name} must be > 0 where finite, got min {a[fin].min()}")
             arrs[name] = a
-        if arrs["c_on"].shape != arrs["c_off"].shape:
-            raise ValueError(f"ThresholdMap.c_on {arrs['c_on'].shape} and c_off {arrs['c_off'].shape} differ in shape")
         shape = arrs["c_on"].shape
+        check_shape(arrs["c_off"], "H W", "ThresholdMap.c_off (like c_on)", sizes=dict(zip("HW", shape)))
         for name in ("n_on", "n_off", "n_intervals"):
             v = getattr(self, name)
             a = np.zeros(shape, np.int64) if v is None else np.asarray(v)
-            if a.shape != shape:
-                raise ValueError(f"ThresholdMap.{name} must have shape {shape}, got {a.shape}")
+            check_shape(a, "H W", f"ThresholdMap.{name}", sizes=dict(zip("HW", shape)))
             if a.size and (a.dtype.kind not in "iu" or a.min() < 0):
                 raise ValueError(f"ThresholdMap.{name} must hold non-negative integers")
             arrs[name] = a.astype(np.int64)

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridhdr.calibrate._photometric_synth import hdr_scene, random_homography, render_frame
+from hybridhdr.simulate.procedural import hdr_scene, random_homography, render_frame
 from hybridhdr.calibrate.crf import CRF, gamma_crf
 from hybridhdr.calibrate.hdr_reference import (RegistrationParams, corner_error, merge_brackets, read_exr_rgb,
                                                refine_ecc, register, register_recording, surf_backend,
@@ -142,7 +142,7 @@ def test_warp_reference_marks_outside_nan():
 
 def test_register_recording_writes_new_file(tmp_path):
     from hybridhdr.formats.container import read_recording, write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, scene = procedural_recording((120, 160), 200_000, frame_rate_hz=10.0, seed=0)
     src = write_recording(rec, tmp_path / "rec.h5")
     before = src.read_bytes()

@@ -94,7 +94,7 @@ def test_threshold_map_validation(tmp_path):
         ThresholdMap(np.full((2, 3), np.inf), ok, 0.2, 0.2)
     with pytest.raises(ValueError, match="shape"):
         ThresholdMap(ok, np.full((3, 2), 0.2), 0.2, 0.2)
-    with pytest.raises(ValueError, match="2-D"):
+    with pytest.raises(ValueError, match=r"c_on must have shape \(H, W\)"):
         ThresholdMap(np.full(3, 0.2), np.full(3, 0.2), 0.2, 0.2)
     with pytest.raises(ValueError, match="fallback_off"):
         ThresholdMap(ok, ok, 0.2, float("nan"))

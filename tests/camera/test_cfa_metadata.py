@@ -8,7 +8,7 @@ import pytest
 
 from hybridhdr.formats.container import RecordingFile, write_recording
 from hybridhdr.model import CameraInfo, Metadata
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 def test_camera_info_cfa():

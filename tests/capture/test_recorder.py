@@ -21,7 +21,7 @@ from hybridhdr.capture.sources import ReplayEventSource, ReplayFrameSource, Synt
 from hybridhdr.formats.container import RecordingFile, read_recording, write_recording
 from hybridhdr.errors import FormatError
 from hybridhdr.model import Recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -10,7 +10,7 @@ import pytest
 from hybridhdr.formats.brackets import write_bracket_set
 from hybridhdr.capture.session import create_session, sha256_file, verify_session
 from hybridhdr.formats.container import write_recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture

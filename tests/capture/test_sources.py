@@ -13,7 +13,7 @@ from hybridhdr.capture.sources import (FrameItem, ReplayEventSource, ReplayFrame
 from hybridhdr.formats.container import write_recording
 from hybridhdr.events import concatenate_events
 from hybridhdr.model import Recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture(scope="module")

@@ -16,7 +16,7 @@ ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_dept
 
 @pytest.fixture(scope="module")
 def rec():
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     r, _ = procedural_recording((30, 40), 300_000, contrast_threshold=0.15, frame_rate_hz=25.0, step_us=500)
     return r
 

@@ -8,7 +8,7 @@ from hypothesis import strategies as st
 
 import hybridhdr as hh
 import hybridhdr.formats.container as container
-from hybridhdr._limits import LimitExceeded, allow_huge
+from hybridhdr._util.limits import LimitExceeded, allow_huge
 from hybridhdr.formats.container import RecordingFile, read_recording, write_recording
 from hybridhdr.errors import FormatError
 

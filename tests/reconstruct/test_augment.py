@@ -12,7 +12,7 @@ from hybridhdr.reconstruct import AKFParams, reconstruct
 from hybridhdr.reconstruct import _augment_kernels as AK
 from hybridhdr.reconstruct.augment import (CALIBRATION_CATEGORIES, AugmentedMeasurements, AugmentParams,
                                            calibrate_thresholds)
-from hybridhdr.reconstruct.edi import EventArrays
+from hybridhdr.reconstruct.event_arrays import EventArrays
 from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
 from hybridhdr.camera.profile import CameraProfile, default_profile
 

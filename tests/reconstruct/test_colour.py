@@ -103,7 +103,7 @@ def test_colour_edge_sweep_accuracy_and_no_bleeding():
     their true level (no red leaks into them)."""
     from scipy.ndimage import binary_erosion
 
-    from hybridhdr.synthetic import colour_edge_sweep_recording
+    from hybridhdr.simulate.procedural import colour_edge_sweep_recording
 
     def lr(x, t):
         e = np.log(np.maximum(x, 1e-6)) - np.log(t)

@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from hybridhdr._limits import LimitExceeded, allow_huge
+from hybridhdr._util.limits import LimitExceeded, allow_huge
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
 from hybridhdr.reconstruct import reconstruct

@@ -14,7 +14,7 @@ import math
 import re
 import sys
 
-from ._cliargs import UsageError
+from .cliargs import UsageError
 
 _UNITS = {"s": 1_000_000, "ms": 1_000, "us": 1, "µs": 1, "μs": 1, "min": 60_000_000}
 _TIME = re.compile(r"^\s*([+-]?(?:\d+(?:\.\d*)?|\.\d+)(?:[eE][+-]?\d+)?)\s*([a-zµμ]*)\s*$")

@@ -1,9 +1,10 @@
-"""Simulator-backed benchmark datasets (issue 5's :mod:`hybridhdr.simulate`); imported lazily.
+"""Simulated datasets from a benchmark's dataset table: a :class:`SimulatedData` (a Recording with
+its nominal threshold, description and camera profile) for :mod:`hybridhdr.evaluate.datasets`.
 
 Kinds (keys besides ``kind``/``name``):
 
 ``sim_procedural``
-    The analytic :class:`hybridhdr.synthetic.ProceduralScene` (bright disc over a textured
+    The analytic :class:`hybridhdr.simulate.procedural.ProceduralScene` (bright disc over a textured
     background) rendered through the simulator pipeline (no Mitsuba: cheap), so the sensor
     models, the frame camera and the **adaptive time sampling** apply. Scene keys:
     ``bright_ratio``, ``speed_px_per_s`` (or ``motion.speed_px_per_s``), ``disc_radius_px``.
@@ -23,18 +24,32 @@ or a table of ``EventSensorParams`` fields), ``camera`` (table of ``FrameCameraP
 ``sensor.X``, ``camera.X``, ``sampling.X`` (as the stability sweeps produce).
 
 The HDR references of every kind are returned in the reconstruction's **frame-linear units**
-(1.0 = the frame camera's clip level at the frame's exposure; :mod:`hybridhdr.evaluate.units`),
+(1.0 = the frame camera's clip level at the frame's exposure; :mod:`hybridhdr.simulate.units`),
 each converted with the exposure of its nearest frame.
 """
 
 from __future__ import annotations
 
 import dataclasses
+from dataclasses import dataclass
 
 import numpy as np
 
+from ..camera import CameraProfile, profile_from_inverse_crf
 from ..events import SensorSize
-from .datasets import Dataset
+from ..model import HDRReferences, Recording
+from . import builtin
+from .ahdr import MotionParams, build_ahdr
+from .camera import FrameCameraParams, crf_inverse_table
+from .pipeline import simulate
+from .procedural import ProceduralScene
+from .render import MitsubaSource
+from .sampling import SamplingParams
+from .sensor import EventSensorParams, sensor_preset
+from .units import reference_to_frame_units
+
+__all__ = ["SimulatedData", "simulated_dataset", "camera_profile", "profile_from_provenance", "to_frame_units",
+           "ProceduralSource"]
 
 _COMMON = {"width", "height", "duration_us", "hdr_rate_hz", "sensor", "camera", "sampling", "exposure_scale",
            "contrast_threshold", "seed_offset"}
@@ -42,8 +57,22 @@ _KIND_KEYS = {"sim_procedural": {"bright_ratio", "speed_px_per_s", "disc_radius_
               "builtin": {"scene", "spp"}, "ahdr": {"image", "motion"}}
 
 
+@dataclass
+class SimulatedData:
+    """A simulated dataset: the recording (HDR references in frame-linear units), the sensor's
+    nominal contrast threshold (log units, None if unknown), its length in µs, a description (the
+    resolved spec and the simulator's statistics) and the camera profile of its frames (None: the
+    built-in profile of the frames' encoding)."""
+
+    recording: Recording
+    contrast_threshold: float | None
+    duration_us: int
+    description: dict
+    profile: CameraProfile | None = None
+
+
 class ProceduralSource:
-    """:class:`hybridhdr.synthetic.ProceduralScene` as a ``RadianceSource`` (simulate/source.py)."""
+    """:class:`hybridhdr.simulate.procedural.ProceduralScene` as a ``RadianceSource`` (simulate/source.py)."""
 
     def __init__(self, scene, duration_us: int):
         self.scene = scene
@@ -62,7 +91,7 @@ class ProceduralSource:
 
     def describe(self) -> dict:
         s = self.scene
-        return {"source": "hybridhdr.synthetic.ProceduralScene", "bright_ratio": s.bright_ratio,
+        return {"source": "hybridhdr.simulate.procedural.ProceduralScene", "bright_ratio": s.bright_ratio,
                 "speed_px_per_s": s.speed_px_per_s, "disc_radius_px": s.disc_radius_px,
                 "background": s.background}
 
@@ -101,12 +130,10 @@ def camera_profile(camera):
     """
     if camera is None or getattr(camera, "code_clip", None) is None:
         return None
-    from ..camera import profile_from_inverse_crf
-    from ..simulate.camera import crf_inverse_table
     lo, hi = camera.code_clip
     return profile_from_inverse_crf(crf_inverse_table(camera), clip_codes=(lo, hi),
                                     name=f"simulated {camera.crf} camera, codes clipped to [{lo}, {hi}]",
-                                    source="hybridhdr.evaluate._simdata")
+                                    source="hybridhdr.simulate.datasets")
 
 
 def profile_from_provenance(prov):
@@ -114,7 +141,6 @@ def profile_from_provenance(prov):
     cam = prov.get("camera") if isinstance(prov, dict) else None
     if not isinstance(cam, dict) or cam.get("code_clip") is None:
         return None
-    from ..simulate.camera import FrameCameraParams
     names = {f.name for f in dataclasses.fields(FrameCameraParams)}
     kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items() if k in names}
     try:
@@ -125,10 +151,8 @@ def profile_from_provenance(prov):
 
 def to_frame_units(rec, camera=None):
     """``rec`` with its HDR references converted from radiance to frame-linear units
-    (:func:`hybridhdr.evaluate.units.reference_to_frame_units`; the camera from the provenance
+    (:func:`hybridhdr.simulate.units.reference_to_frame_units`; the camera from the provenance
     when not given). Returns ``(recording, info)``; unchanged (info None) without references."""
-    from ..model import HDRReferences, Recording
-    from .units import reference_to_frame_units
     if rec.hdr is None or len(rec.hdr) == 0 or rec.frames is None or len(rec.frames) == 0:
         return rec, None
     cam = camera if camera is not None else rec.metadata.provenance
@@ -160,11 +184,9 @@ def _provenance_threshold(prov) -> float | None:
     return None
 
 
-def simulated_dataset(spec: dict, seed: int) -> Dataset:
-    from ..simulate.camera import FrameCameraParams
-    from ..simulate.pipeline import simulate
-    from ..simulate.sampling import SamplingParams
-    from ..simulate.sensor import EventSensorParams, sensor_preset
+def simulated_dataset(spec: dict, seed: int) -> SimulatedData:
+    """The dataset a ``sim_procedural``, ``builtin`` or ``ahdr`` table describes (keys: the module
+    docstring), simulated with ``seed``."""
     kind = spec["kind"]
     if kind not in _KIND_KEYS:
         raise ValueError(f"unknown simulated dataset kind {kind!r}")
@@ -198,34 +220,25 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
     if flat.get("hdr_rate_hz"):
         gt = np.unique(np.round(np.arange(0, dur + 1, 1e6 / float(flat["hdr_rate_hz"]))).astype(np.int64))
     if kind == "sim_procedural":
-        from ..synthetic import ProceduralScene
         speed = dotted["motion"].get("speed_px_per_s", flat.get("speed_px_per_s", 150.0))
         scene = ProceduralScene(SensorSize(h, w), bright_ratio=float(flat.get("bright_ratio", 1e3)),
                                 disc_radius_px=float(flat.get("disc_radius_px", 8.0)), speed_px_per_s=float(speed))
         source = ProceduralSource(scene, dur)
     elif kind == "builtin":
-        from ..simulate.builtin import builtin_scene
-        from ..simulate.render import MitsubaSource
         if "scene" not in flat:
             raise ValueError("a 'builtin' dataset needs 'scene' (a built-in scene name)")
-        sc = builtin_scene(str(flat["scene"]), width=w, height=h, duration_s=dur / 1e6,
+        sc = builtin.builtin_scene(str(flat["scene"]), width=w, height=h, duration_s=dur / 1e6,
                            spp=flat.get("spp"))
         source = MitsubaSource(sc)
     else:
-        try:
-            from ..simulate.ahdr import build_ahdr
-        except ImportError as e:
-            raise ImportError(f"dataset kind 'ahdr' needs hybridhdr.simulate.ahdr (issue 5), not available: {e}") from e
         if "image" not in flat:
             raise ValueError("an 'ahdr' dataset needs 'image' (an image path or 'procedural:RATIO')")
         image = flat["image"]
         if isinstance(image, str) and image.startswith("procedural"):
             # a still of the procedural scene, twice the sensor size, disc RATIO x the background
-            from ..synthetic import ProceduralScene
             ratio = float(image.split(":", 1)[1]) if ":" in image else 10.0
             image = ProceduralScene(SensorSize(2 * h, 2 * w), bright_ratio=ratio,
                                     disc_radius_px=float(min(h, w)) / 3).intensity(0).astype(np.float32)
-        from ..simulate.ahdr import MotionParams
         mot = flat.get("motion")
         mot = MotionParams(**{**dict(mot), **dotted["motion"]}) if (mot or dotted["motion"]) else None
         akw = {}
@@ -241,7 +254,7 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
         if c is None:
             c = _provenance_threshold(rec.metadata.provenance)
         rec, uinfo = to_frame_units(rec)
-        return Dataset(rec, None if c is None else float(c), dur,
+        return SimulatedData(rec, None if c is None else float(c), dur,
                        {"kind": kind, "seed": seed, **{k2: v for k2, v in spec.items() if k2 != "kind"},
                         "events": int(len(rec.events)), **_units_desc(uinfo)},
                        profile_from_provenance(rec.metadata.provenance))
@@ -256,4 +269,4 @@ def simulated_dataset(spec: dict, seed: int) -> Dataset:
     if frames is not None and len(frames):
         top = np.iinfo(frames.images.dtype).max if frames.images.dtype.kind == "u" else 1.0
         desc["saturated_fraction"] = float(np.mean(frames.images >= top))
-    return Dataset(rec, float(c_nominal), dur, desc, camera_profile(camera))
+    return SimulatedData(rec, float(c_nominal), dur, desc, camera_profile(camera))

@@ -3,7 +3,7 @@
 import numpy as np
 from numba import njit
 
-from hybridhdr._nbprefetch import prefetch
+from hybridhdr._util.nbprefetch import prefetch
 
 
 @njit(cache=False)

@@ -11,7 +11,7 @@ Conventions (docs in README.md, "Command-line conventions"):
 * errors start with the full command (``hybridhdr calibrate crf: error: ...``);
 * rates of image streams are ``--fps`` (outputs, frames, previews); physical and sampling rates
   end in ``-hz`` (``--cutoff-hz``, ``--leak-rate-hz``); times are ``--start``/``--end`` with a
-  unit (:mod:`hybridhdr._timearg`); durations and periods carry their unit in the name
+  unit (:mod:`hybridhdr._util.timearg`); durations and periods carry their unit in the name
   (``--duration-s``, ``--exposure-us``).
 """
 

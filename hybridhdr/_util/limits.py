@@ -29,7 +29,7 @@ import threading
 
 import numpy as np
 
-from .errors import FormatError
+from ..errors import FormatError
 
 __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_sensor_size", "check_frame_shape",
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",

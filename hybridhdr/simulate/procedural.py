@@ -1,11 +1,19 @@
-"""A small procedural hybrid recording with known ground truth (no rendering, no downloads).
+"""The procedural generator: analytic scenes with known ground truth (no rendering, no downloads).
 
-The scene is analytic: a dim textured background (a sum of two gratings) and a bright disc,
-``bright_ratio`` times brighter, that moves across it. Events are ideal log-intensity crossings
-of a contrast threshold with linearly interpolated timestamps; frames integrate linear intensity
-over their exposure, pass a gamma-2.2 response, clip and quantise to 8 bits, so the disc saturates
-the frames while the events keep its detail: the situation the AKF is built for. It feeds
-``hybridhdr demo`` and tests; the physically based simulator is :mod:`hybridhdr.simulate`.
+* :func:`procedural_recording`: a dim textured background (a sum of two gratings) and a bright
+  disc, ``bright_ratio`` times brighter, that moves across it. Events are ideal log-intensity
+  crossings of a contrast threshold with linearly interpolated timestamps; frames integrate
+  linear intensity over their exposure, pass a gamma-2.2 response, clip and quantise to 8 bits,
+  so the disc saturates the frames while the events keep its detail: the situation the AKF is
+  built for. It feeds ``hybridhdr demo``, the benchmarks' ``sim_procedural`` datasets
+  (:class:`hybridhdr.simulate.datasets.ProceduralSource` runs it through the simulator's sensor
+  and camera models) and the tests.
+* :func:`edge_sweep_recording`, :func:`colour_edge_sweep_recording`: a bright edge sweeping a
+  textured background (monochrome or through a Bayer mosaic), for the accuracy suites.
+* :func:`hdr_scene`, :func:`random_homography`, :func:`render_frame`: a textured HDR scene seen
+  by 8-bit gamma frames through random homographies, for the photometric calibration.
+
+The physically based scenes (Mitsuba 3) are :mod:`hybridhdr.simulate.scene`.
 """
 
 from __future__ import annotations
@@ -14,11 +22,13 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
-from .model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+from ..camera.cfa import mosaic, parse_cfa
+from ..camera.encoding import LUMINANCE_WEIGHTS
+from ..events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
+from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
 __all__ = ["ProceduralScene", "procedural_recording", "EdgeSweepScene", "edge_sweep_recording", "ideal_events",
-           "ColourEdgeSweepScene", "colour_edge_sweep_recording"]
+           "ColourEdgeSweepScene", "colour_edge_sweep_recording", "hdr_scene", "random_homography", "render_frame"]
 
 
 @dataclass(frozen=True)
@@ -168,7 +178,7 @@ def procedural_recording(sensor_size=SensorSize(90, 120), duration_us: int = 500
     hdr = HDRReferences(hdr_images, t_hdr)
     md = Metadata(event_camera=CameraInfo(ss, "procedural ideal DVS"),
                   frame_camera=CameraInfo(ss, "procedural 8-bit gamma-2.2 camera"),
-                  provenance={"generator": "hybridhdr.synthetic.procedural_recording", "seed": seed,
+                  provenance={"generator": "hybridhdr.simulate.procedural.procedural_recording", "seed": seed,
                               "contrast_threshold": c, "frame_rate_hz": frame_rate_hz,
                               "exposure_us": int(exposure_us), "step_us": int(step_us),
                               "frame_gain": gain, "crf": "gamma 1/2.2, 8-bit"})
@@ -334,7 +344,7 @@ def edge_sweep_recording(seed: int = 0, *, sensor_size=SensorSize(48, 64), durat
     hdr = HDRReferences(np.stack([scene.intensity(t, tex) for t in t_hdr]).astype(np.float32), t_hdr)
     md = Metadata(event_camera=CameraInfo(ss, "ideal DVS (edge sweep)"),
                   frame_camera=CameraInfo(ss, "8-bit gamma-2.2 camera (edge sweep)"),
-                  provenance={"generator": "hybridhdr.synthetic.edge_sweep_recording", "seed": int(seed),
+                  provenance={"generator": "hybridhdr.simulate.procedural.edge_sweep_recording", "seed": int(seed),
                               "contrast_threshold": float(contrast_threshold), "frame_rate_hz": float(frame_rate_hz),
                               "exposure_us": int(exposure_us), "step_us": int(step_us),
                               "object_range": list(scene.object_range), "speed_px_per_s": float(speed_px_per_s),
@@ -382,7 +392,6 @@ class ColourEdgeSweepScene:
 
     def luminance(self, t_us, tex=None) -> np.ndarray:
         """Rec. 709 luminance of :meth:`rgb`, float64 (H, W)."""
-        from .camera.encoding import LUMINANCE_WEIGHTS
         return self.rgb(t_us, tex) @ np.asarray(LUMINANCE_WEIGHTS)
 
     def object_mask(self, t_us) -> np.ndarray:
@@ -415,7 +424,6 @@ def colour_edge_sweep_recording(seed: int = 0, *, cfa: str | None = "RGGB", fram
     recording : Recording
     scene : ColourEdgeSweepScene
     """
-    from .camera.cfa import mosaic, parse_cfa
     pattern = parse_cfa(cfa)
     if frames not in ("mosaic", "rgb"):
         raise ValueError(f"frames must be 'mosaic' or 'rgb', got {frames!r}")
@@ -455,8 +463,8 @@ def colour_edge_sweep_recording(seed: int = 0, *, cfa: str | None = "RGGB", fram
     md = Metadata(event_camera=CameraInfo(ss, f"ideal {kind} DVS (colour edge sweep)", cfa=pattern),
                   frame_camera=CameraInfo(ss, f"8-bit gamma-2.2 {kind} camera (colour edge sweep)",
                                           cfa=pattern),
-                  provenance={"generator": "hybridhdr.synthetic.colour_edge_sweep_recording", "seed": int(seed),
-                              "cfa": pattern, "frames": frames if pattern else "luminance",
+                  provenance={"generator": "hybridhdr.simulate.procedural.colour_edge_sweep_recording",
+                              "seed": int(seed), "cfa": pattern, "frames": frames if pattern else "luminance",
                               "contrast_threshold": float(contrast_threshold), "frame_rate_hz": float(frame_rate_hz),
                               "exposure_us": int(exposure_us), "step_us": int(step_us),
                               "object_range": list(base.object_range), "object_rgb": list(scene.object_rgb),
@@ -464,3 +472,47 @@ def colour_edge_sweep_recording(seed: int = 0, *, cfa: str | None = "RGGB", fram
                               "speed_px_per_s": float(speed_px_per_s),
                               "crf": "gamma 1/2.2, 8-bit", "gt_units": "frame_linear"})
     return Recording(events, ss, fr, empty_triggers(), hdr, md), scene
+
+
+# -- photometric calibration: a textured HDR scene seen through random homographies ------------------------
+
+def hdr_scene(height: int, width: int, seed: int = 0, log_std: float = 1.2) -> np.ndarray:
+    """float32 radiance ``exp(L)`` with ``L`` a sum of smooth random fields at 3, 8 and 24 px
+    scales, standardised to ``log_std`` natural-log units (about 2 decades from the 1st to the
+    99th percentile)."""
+    import cv2
+    rng = np.random.default_rng(seed)
+    L = np.zeros((height, width))
+    for s in (3, 8, 24):
+        n = rng.normal(0.0, 1.0, (height // s + 2, width // s + 2))
+        L += cv2.resize(n, (width, height), interpolation=cv2.INTER_CUBIC)
+    L = (L - L.mean()) / L.std() * log_std
+    return np.exp(L).astype(np.float32)
+
+
+def random_homography(height: int, width: int, rng, shift_px: float = 8.0, rot_deg: float = 3.0,
+                      scale: float = 0.03, persp: float = 2e-5) -> np.ndarray:
+    """Small rotation about the centre, scale, perspective and translation (normalised H)."""
+    a = np.deg2rad(rng.uniform(-rot_deg, rot_deg))
+    c, s = np.cos(a), np.sin(a)
+    cx, cy = width / 2.0, height / 2.0
+    T1 = np.array([[1, 0, -cx], [0, 1, -cy], [0, 0, 1.0]])
+    T2 = np.array([[1, 0, cx], [0, 1, cy], [0, 0, 1.0]])
+    R = np.array([[c, -s, 0], [s, c, 0], [0, 0, 1.0]])
+    k = rng.uniform(1 - scale, 1 + scale)
+    S = np.diag([k, k, 1.0])
+    P = np.array([[1, 0, 0], [0, 1, 0], [rng.uniform(-persp, persp), rng.uniform(-persp, persp), 1.0]])
+    Tr = np.array([[1, 0, rng.uniform(-shift_px, shift_px)], [0, 1, rng.uniform(-shift_px, shift_px)], [0, 0, 1.0]])
+    H = Tr @ T2 @ P @ R @ S @ T1
+    return H / H[2, 2]
+
+
+def render_frame(radiance: np.ndarray, H: np.ndarray, exposure: float, rng, *, gamma: float = 2.2,
+                 noise_dn: float = 0.5) -> np.ndarray:
+    """8-bit frame of ``radiance`` warped by ``H`` (reference -> frame), times ``exposure``,
+    through ``z = 255 clip(X)^(1/gamma)`` with Gaussian read noise of ``noise_dn`` codes."""
+    import cv2
+    h, w = radiance.shape[:2]
+    warped = cv2.warpPerspective(radiance, H, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
+    z = 255.0 * np.clip(warped * exposure, 0, 1) ** (1.0 / gamma) + rng.normal(0.0, noise_dn, warped.shape)
+    return np.clip(np.round(z), 0, 255).astype(np.uint8)

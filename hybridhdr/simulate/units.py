@@ -23,6 +23,8 @@ import dataclasses
 
 import numpy as np
 
+from .camera import FrameCameraParams, crf_inverse_table
+
 __all__ = ["reference_to_frame_units", "frame_units_scale", "camera_from_provenance"]
 
 
@@ -32,7 +34,6 @@ def camera_from_provenance(prov):
     cam = prov.get("camera") if isinstance(prov, dict) else None
     if not isinstance(cam, dict):
         return None
-    from ..simulate.camera import FrameCameraParams
     names = {f.name for f in dataclasses.fields(FrameCameraParams)}
     kw = {k: (tuple(v) if isinstance(v, list) else v) for k, v in cam.items() if k in names}
     return FrameCameraParams(**kw)
@@ -41,7 +42,6 @@ def camera_from_provenance(prov):
 def frame_units_scale(camera, exposure_us) -> np.ndarray:
     """Frame-linear units per unit radiance at exposure(s) ``exposure_us`` (µs) for ``camera``
     (a ``FrameCameraParams``): ``T · electrons_per_radiance_s · gain / full_well_e / v_clip``."""
-    from ..simulate.camera import crf_inverse_table
     v_clip = float(np.asarray(crf_inverse_table(camera), dtype=np.float64)[-1])
     if not v_clip > 0:
         raise ValueError(f"the camera's clip level must be > 0, got v_clip = {v_clip}")
@@ -79,7 +79,6 @@ def reference_to_frame_units(images, t_us, camera, frames) -> tuple[np.ndarray, 
         raise ValueError("reference_to_frame_units needs the simulated frame camera's parameters")
     if frames is None or len(frames) == 0:
         raise ValueError("reference_to_frame_units needs the frames (their exposures set the unit)")
-    from ..simulate.camera import crf_inverse_table
     t = np.asarray(t_us, dtype=np.int64)
     mid = np.asarray(frames.t_mid_us, dtype=np.int64)
     exp_all = np.asarray(frames.t_end_us, dtype=np.int64) - np.asarray(frames.t_start_us, dtype=np.int64)
