@@ -75,12 +75,15 @@ def check_dtype(a, kinds: str, name: str, *, error: Callable[[str], Exception] =
 
 
 def check_range(value, name: str, *, lo=None, hi=None, lo_open: bool = False, hi_open: bool = False,
-                error: Callable[[str], Exception] = ValueError) -> float:
-    """Check that the number ``value`` is finite and inside the given bounds; returns it as float."""
-    try:
-        v = float(value)
-    except (TypeError, ValueError):
-        raise error(f"{name} must be a number, got {value!r}") from None
+                error: Callable[[str], Exception] = ValueError, unit: str = "") -> float:
+    """Check that the number ``value`` is finite and inside the given bounds; returns it as float.
+
+    Anything but a real number (a bool, a string, None) raises TypeError; a number out of range,
+    NaN or infinite raises ``error`` (ValueError). ``unit`` is named in the message.
+    """
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise TypeError(f"{name} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
     ok = math.isfinite(v)
     if ok and lo is not None:
         ok = v > lo if lo_open else v >= lo
@@ -92,6 +95,6 @@ def check_range(value, name: str, *, lo=None, hi=None, lo_open: bool = False, hi
             bounds.append(f"{'>' if lo_open else '>='} {lo:g}")
         if hi is not None:
             bounds.append(f"{'<' if hi_open else '<='} {hi:g}")
-        want = " and ".join(bounds) if bounds else "finite"
+        want = "finite" + "".join(f" and {b}" for b in bounds) + (f" ({unit})" if unit else "")
         raise error(f"{name} must be {want}, got {value}")
     return v

@@ -36,6 +36,7 @@ import math
 
 import numpy as np
 
+from .._util.checks import check_range
 from ..model import Frames
 
 __all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
@@ -98,12 +99,7 @@ def parse_frame_encoding(name) -> str:
 
 
 def _check_max_code(max_code) -> float:
-    if isinstance(max_code, bool) or not isinstance(max_code, (int, float, np.integer, np.floating)):
-        raise TypeError(f"max_code must be a number, got {type(max_code).__name__}")
-    m = float(max_code)
-    if not (np.isfinite(m) and m > 0):
-        raise ValueError(f"max_code must be a positive finite number, got {max_code!r}")
-    return m
+    return check_range(max_code, "max_code", lo=0, lo_open=True)
 
 
 def _transfer(encoding: str, what: str) -> str:

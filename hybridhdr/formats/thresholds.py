@@ -12,13 +12,12 @@ from __future__ import annotations
 
 import dataclasses
 import json
-import math
 from pathlib import Path
 
 import numpy as np
 
 from .._util.atomic import atomic_path
-from .._util.checks import check_shape
+from .._util.checks import check_range, check_shape
 
 __all__ = ["ThresholdMap", "load_thresholds", "THRESHOLDS_FORMAT", "THRESHOLDS_VERSION", "METHOD"]
 
@@ -29,12 +28,7 @@ METHOD = "frame_event_nnls"
 
 
 def _num(v, name) -> float:
-    if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)):
-        raise TypeError(f"ThresholdMap.{name} must be a number, got {type(v).__name__}")
-    v = float(v)
-    if not (math.isfinite(v) and v > 0):
-        raise ValueError(f"ThresholdMap.{name} must be finite and > 0 (log units), got {v}")
-    return v
+    return check_range(v, f"ThresholdMap.{name}", lo=0, lo_open=True, unit="log units")
 
 
 @dataclasses.dataclass(frozen=True, eq=False)

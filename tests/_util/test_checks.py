@@ -33,8 +33,11 @@ def test_check_dtype_and_range():
     with pytest.raises(TypeError, match="codes must have a unsigned integer or signed integer dtype, got float32"):
         check_dtype(np.zeros(2, np.float32), "ui", "codes")
     assert check_range(2, "fps", lo=0, lo_open=True) == 2.0
-    for bad in (0, float("nan"), float("inf"), "x"):
-        with pytest.raises(ValueError, match="fps must be"):
+    for bad in (0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="fps must be finite and > 0, got"):
             check_range(bad, "fps", lo=0, lo_open=True)
-    with pytest.raises(ValueError, match=r"gamma must be >= 0.5 and <= 3, got 4"):
-        check_range(4, "gamma", lo=0.5, hi=3)
+    for bad in ("1", None, True):
+        with pytest.raises(TypeError, match="fps must be a number"):
+            check_range(bad, "fps", lo=0, lo_open=True)
+    with pytest.raises(ValueError, match=r"^gamma must be finite and >= 0.5 and <= 3 \(exponent\), got 4$"):
+        check_range(4, "gamma", lo=0.5, hi=3, unit="exponent")
