@@ -75,13 +75,13 @@ def synth_events(n: int, width: int, height: int, seed: int = 0, rate_mev_s: flo
 
 def encode_evt21(events: np.ndarray, legacy: bool = False) -> bytes:
     """EVT 2.1 words for ``events`` (test/benchmark encoder, no 2^34 µs loop bridging)."""
-    from hybridhdr.capture.formats.prophesee import _encode_evt21
+    from hybridhdr.formats.prophesee import _encode_evt21
     return _encode_evt21(events, legacy=legacy)
 
 
 def make_file(fmt: str, n: int, seed: int = 0, chunk: int = 5_000_000, log=print) -> Path:
     """Write (or reuse) a synthetic ``fmt`` file of ``n`` events under :data:`DATA_DIR`."""
-    from hybridhdr.capture.formats import prophesee as P
+    from hybridhdr.formats import prophesee as P
     from hybridhdr.events import SensorSize
 
     DATA_DIR.mkdir(parents=True, exist_ok=True)

@@ -7,7 +7,7 @@ Suites (same method settings everywhere; the sensor's nominal threshold is passe
 states one, nothing is tuned per scene), all in frame-linear units (1.0 = the frame camera's clip
 level at the frame's exposure), references at the frames' mid-exposures:
 
-- ``edge_sweep``: :func:`hybridhdr.synthetic.edge_sweep_recording` (64x48, a bright textured
+- ``edge_sweep``: :func:`hybridhdr.simulate.procedural.edge_sweep_recording` (64x48, a bright textured
   object 3-12x the clip level sweeping across a textured background, ideal events c = 0.1,
   20 Hz gamma-2.2 8-bit frames clipping the whole object); seed 0 (``--quick``) or 0, 1, 2;
 - ``hdr``: the built-in Mitsuba scenes of the paper reproduction (dark_room_window,

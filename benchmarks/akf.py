@@ -11,7 +11,7 @@ one core, parallel ≥ 1.7× on 2 cores and bit-identical, end to end (container
 Issue 21 adds: the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
 loop (goal: >= 20 Mev/s with 2 workers and above 1 worker), two PROTOTYPES of proposed hooks in
 files this benchmark does not own (the backward and forward passes run concurrently, and the
-container's columns read with ``hybridhdr._chunk_read``), each checked bit for bit against the
+container's columns read with ``hybridhdr.formats._chunk_read``), each checked bit for bit against the
 package; and a 1280x720 case (``synth_events_hd``: 20 M events, 3 M with --quick; blobs, moving
 edges, background) with the forward AKF and CF kernels on one core (30 Hz frame switches
 included, as above; goal AKF >= 20 Mev/s per core) and the two-sided and forward AKF in memory.
@@ -126,7 +126,8 @@ def hd_case(n: int, reps: int, res: dict) -> None:
     """1280x720: forward AKF and CF kernels on one core, the two-sided and forward AKF in memory
     (both passes, 30 Hz outputs), per-core figures; the AKF state's size against the caches."""
     from hybridhdr import Recording, SensorSize, make_events
-    from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, default_profile, reconstruct
+    from hybridhdr.camera import default_profile
+    from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, reconstruct
     from hybridhdr.reconstruct._engine import AKFEngine, CFEngine
     t0 = time.perf_counter()
     t, x, y, p, dur = synth_events_hd(n)
@@ -263,7 +264,7 @@ def concurrent_two_sided_iter(events, frames, make_engine, times, *, offset, chu
 
 class _FastColumn:
     """PROTOTYPE of the proposed container-reader hook: slices of an event column read through
-    :func:`hybridhdr._chunk_read.read_columns` (ISA-L inflate in 2 threads), h5py otherwise."""
+    :func:`hybridhdr.formats._chunk_read.read_columns` (ISA-L inflate in 2 threads), h5py otherwise."""
 
     def __init__(self, ds, pool):
         self._ds = ds
@@ -274,7 +275,7 @@ class _FastColumn:
 
     def __getitem__(self, key):
         if isinstance(key, slice) and key.step in (None, 1):
-            from hybridhdr._chunk_read import read_columns
+            from hybridhdr.formats._chunk_read import read_columns
             i0, i1, _ = key.indices(self._ds.shape[0])
             got = read_columns({"c": self._ds}, i0, i1, self._pool)
             if got is not None:
@@ -302,7 +303,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     n = args.events or (3_000_000 if args.quick else 20_000_000)
     reps = 2 if args.quick else 4
-    from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, default_profile, reconstruct
+    from hybridhdr.camera import default_profile
+    from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, reconstruct
     from hybridhdr.reconstruct._engine import AKFEngine, CFEngine
 
     t0 = time.perf_counter()
@@ -408,7 +410,7 @@ def main(argv=None) -> int:
     # end to end: container -> AKF -> 300 Hz frames in memory
     try:
         from hybridhdr import Recording, SensorSize, make_events
-        from hybridhdr.container import RecordingFile, write_recording
+        from hybridhdr.formats.container import RecordingFile, write_recording
         with tempfile.TemporaryDirectory() as d:
             path = Path(d) / "bench.h5"
             write_recording(Recording(make_events(t, x, y, p), SensorSize(H, W), frames), path)
@@ -443,7 +445,7 @@ def main(argv=None) -> int:
                     api_mod.two_sided_iter = concurrent_two_sided_iter
                 try:
                     with RecordingFile(path) as f:
-                        if fast_read:  # PROTOTYPE of the proposed reader hook (hybridhdr._chunk_read)
+                        if fast_read:  # PROTOTYPE of the proposed reader hook (hybridhdr.formats._chunk_read)
                             f._ev = {k: _FastColumn(d, read_pool) for k, d in f._ev.items()}
                         return reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21)
                 finally:

@@ -71,7 +71,7 @@ def _kernel_run(K, t, x, y, p, new: bool):
 _E2E = textwrap.dedent("""
     import sys, time, json
     sys.path.insert(0, {root!r})
-    from hybridhdr.container import RecordingFile
+    from hybridhdr.formats.container import RecordingFile
     from hybridhdr.reconstruct import reconstruct
     kw = json.loads({kw!r})
     with RecordingFile({path!r}) as f:
@@ -124,7 +124,7 @@ def main(argv=None) -> int:
           f"(ratio {res['kernel_ratio']}, best of {reps})", file=sys.stderr)
 
     from hybridhdr import Recording, SensorSize, make_events
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     frames = B.synth_frames(dur)
     with tempfile.TemporaryDirectory() as d:
         # the older container format is written by the older tree; each tree reads its own file
@@ -136,7 +136,7 @@ def main(argv=None) -> int:
             import sys; sys.path.insert(0, {str(base)!r})
             import numpy as np
             from hybridhdr import Recording, SensorSize, make_events, Frames
-            from hybridhdr.container import write_recording
+            from hybridhdr.formats.container import write_recording
             z = np.load({str(Path(d) / 'ev.npz')!r})
             fr = Frames(z['im'], z['ft'], z['fe'], encoding='raw')
             write_recording(Recording(make_events(z['t'], z['x'], z['y'], z['p']), SensorSize({B.H}, {B.W}), fr),

@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/colour.py [--quick]``. Prints a table, then ONE JSON object on the
 last line.
 
-Scene: :func:`hybridhdr.synthetic.colour_edge_sweep_recording` (64x48, 0.8 s): a saturated red
+Scene: :func:`hybridhdr.simulate.procedural.colour_edge_sweep_recording` (64x48, 0.8 s): a saturated red
 object (G = B = R/50), 3-12x the frames' clip level, sweeping at 80 px/s across a background
 textured in luminance and in colour; ideal events c = 0.1; 20 Hz 8-bit gamma-2.2 frames. Two
 cameras see it:
@@ -40,7 +40,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from hybridhdr.camera.cfa import demosaic, mosaic  # noqa: E402
 from hybridhdr.reconstruct import reconstruct  # noqa: E402
-from hybridhdr.synthetic import colour_edge_sweep_recording  # noqa: E402
+from hybridhdr.simulate.procedural import colour_edge_sweep_recording  # noqa: E402
 
 FLOOR = 1e-6
 METHODS = ("akf", "cf", "frames_zoh")

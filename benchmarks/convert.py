@@ -51,7 +51,7 @@ _CHILD = r"""
 import os, sys, time
 sys.path.insert(0, os.environ["WT"])
 from hybridhdr._cli_tools import convert
-from hybridhdr.capture.formats import prophesee as P
+from hybridhdr.formats import prophesee as P
 src, small, out = sys.argv[1], sys.argv[2], sys.argv[3]
 for ext in (".h5", ".dat"):  # warm up: imports, JIT caches, thread pools
     convert(small, out + ext)
@@ -89,7 +89,7 @@ def _default_old() -> str:
 
 def make_input(tiles: int) -> tuple[Path, int]:
     """The sparklers recording laid end to end ``tiles`` times (cached)."""
-    from hybridhdr.capture.formats import prophesee as P
+    from hybridhdr.formats import prophesee as P
     DATA.mkdir(parents=True, exist_ok=True)
     path = DATA / f"sparklers_x{tiles}_evt2.raw"
     r = P.Evt2Reader(SRC)
@@ -135,9 +135,9 @@ def compression_table(src: Path, n_events: int) -> list[dict]:
     """One thread's deflate speed and size per event of staged chunks, per codec and level."""
     import zlib
 
-    from hybridhdr import _write_kernels as WK
-    from hybridhdr.capture.formats import prophesee as P
-    from hybridhdr.container import _CHUNK_ELEMS as C
+    from hybridhdr.formats import _write_kernels as WK
+    from hybridhdr.formats import prophesee as P
+    from hybridhdr.formats.container import _CHUNK_ELEMS as C
     ev = None
     for c in P.Evt2Reader(src).iter_chunks(n_events):
         ev = c.events
@@ -209,7 +209,7 @@ def main(argv=None) -> int:
                     times[v, task].append(dt)
                     sizes[v, task] = size
         import hybridhdr as hh
-        from hybridhdr.container import RecordingFile
+        from hybridhdr.formats.container import RecordingFile
         with RecordingFile(tmp / "before.h5") as a, RecordingFile(tmp / "after.h5") as b:
             res["containers_equal"] = bool(np.array_equal(a.events(), b.events())
                                            and np.array_equal(a._idx_ms, b._idx_ms)
@@ -239,7 +239,7 @@ def main(argv=None) -> int:
     for row in res["compression"]:
         print(f"  {row['codec']:<10} level {row['level']}: {row['deflate_mev_s']} Mev/s (1 thread), "
               f"{row['bytes_per_event']} B/event", file=sys.stderr)
-    from hybridhdr.container import DEFLATE_IMPL
+    from hybridhdr.formats.container import DEFLATE_IMPL
     res["deflate_impl"] = DEFLATE_IMPL
     shutil.rmtree(tmp, ignore_errors=True)
     res["loadavg_end"] = loadavg()

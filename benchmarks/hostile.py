@@ -30,7 +30,7 @@ def _full_disk(quick: bool) -> dict:
     import numpy as np
 
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from tests.capture.test_full_disk import _NO_NS, _WRITERS, _events, _recording, run_on_tmpfs
     if _NO_NS is not None:
         return {"skipped": _NO_NS}
@@ -77,7 +77,7 @@ def main() -> int:
     import numpy as np
 
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     with tempfile.TemporaryDirectory() as d:
         ev = hh.make_events([0, int(1.16 * 86400e6)], [0, 1], [0, 1], [1, -1])
         size = write_recording(hh.Recording(ev, (480, 640)), Path(d) / "two.h5").stat().st_size

@@ -62,7 +62,7 @@ def _pretouch(n_bytes):
 
 
 def _ours(fmt, path):
-    from hybridhdr.capture.formats import prophesee as P
+    from hybridhdr.formats import prophesee as P
 
     def run():
         return len(P.READERS[fmt](path).read_all().events)
@@ -96,7 +96,7 @@ def _version(dist):
 def _stream_rss(fmt, path, warm_path, chunk_events=1 << 20):
     code = (
         "import resource, sys, time\n"
-        "from hybridhdr.capture.formats import prophesee as P\n"
+        "from hybridhdr.formats import prophesee as P\n"
         f"for c in P.READERS[{fmt!r}]({str(warm_path)!r}).iter_chunks(1000): pass\n"
         f"r = P.READERS[{fmt!r}]({str(path)!r})\n"
         "t0 = time.perf_counter(); n = 0\n"

@@ -75,7 +75,7 @@ def _bytes(d: Path, pattern: str) -> int:
 
 def encode_speeds(frames, compressions, n: int) -> dict:
     """ms per frame and kB per frame of write_exr alone (in this process, best of 2), lossless or not."""
-    from hybridhdr.reconstruct.output import read_exr, write_exr
+    from hybridhdr.formats.images import read_exr, write_exr
     res = {}
     with tempfile.TemporaryDirectory() as td:
         for c in compressions:
@@ -114,7 +114,7 @@ def main(argv=None) -> int:
            "old_commit": git("rev-parse", "--short", old_rev), "new_commit": git("rev-parse", "--short", "HEAD"),
            "loadavg_start": loadavg()}
     sys.path.insert(0, str(new))
-    from hybridhdr.reconstruct.output import DEFAULT_EXR_COMPRESSION, exr_compressions
+    from hybridhdr.formats.images import DEFAULT_EXR_COMPRESSION, exr_compressions
     comps = exr_compressions()
     res["default_compression"] = DEFAULT_EXR_COMPRESSION
     tmp = Path(tempfile.mkdtemp(prefix="hybridhdr-bench-io-"))
@@ -159,7 +159,7 @@ def main(argv=None) -> int:
                                                                                            "frame_*.exr")
         res["bit_identical"] = same
         # per-frame encode cost of each compression on these very frames
-        from hybridhdr.reconstruct.output import read_exr
+        from hybridhdr.formats.images import read_exr
         import numpy as np
         names = sorted((tmp / "after_exr").glob("frame_*.exr"))[:: max(1, 1001 // (60 if args.quick else 300))]
         frames = np.stack([read_exr(p) for p in names])

@@ -77,7 +77,7 @@ def soak(folder: Path, rate: float, duration_s: float, chunk_us: int, queue_chun
 
     from hybridhdr.capture.recorder import Recorder
     from hybridhdr.capture.sources import SyntheticEventSource
-    from hybridhdr.container import RecordingFile
+    from hybridhdr.formats.container import RecordingFile
 
     class LiveSynthetic(SyntheticEventSource):
         can_backpressure = False  # behave like a camera: the recorder drops instead of blocking

@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/registration.py [--quick]``. Prints progress to stderr, then ONE JSON
 object on the last stdout line.
 
-Registration: a seeded textured HDR scene (``hybridhdr.calibrate._photometric_synth``), random
+Registration: a seeded textured HDR scene (``hybridhdr.simulate.procedural.hdr_scene``), random
 homographies (±3° rotation, ±3 % scale, ±8 px shift, small perspective) and frames rendered
 through a gamma-2.2 response at exposures 4x below to 4x above the reference (0.5 DN noise).
 For each method: mean time per frame (the whole :func:`register` call: photometric matching,
@@ -48,7 +48,7 @@ def log(*a):
 
 
 def bench_registration(h, w, n_frames, seed=1):
-    from hybridhdr.calibrate._photometric_synth import hdr_scene, random_homography, render_frame
+    from hybridhdr.simulate.procedural import hdr_scene, random_homography, render_frame
     from hybridhdr.calibrate.hdr_reference import (RegistrationParams, corner_error, register,
                                                    surf_backend)
     rng = np.random.default_rng(seed)
@@ -104,7 +104,7 @@ def bench_real_brackets(quick: bool, seed: int = 0):
     from hybridhdr.calibrate.crf import debevec
     from hybridhdr.calibrate.hdr_reference import (RegistrationParams, align_brackets, corner_error,
                                                    merge_brackets, register, surf_backend)
-    from hybridhdr.capture.brackets import colour_mask, read_bracket_set
+    from hybridhdr.formats.brackets import colour_mask, read_bracket_set
     folder = SHARED_DATA
     folder = folder / "brackets" / "memorial"
     if not folder.exists():

@@ -11,8 +11,8 @@ from .errors import EventValidationError, FormatError, UnknownFormatError
 from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
                      empty_triggers, make_events, make_triggers, slice_time, validate_events,
                      validate_triggers)
-from .io import (DataDropWarning, EventChunk, EventFileReader, EventFileWriter, detect_format,
-                 open_reader, open_writer, read, write)
+from .formats import (DataDropWarning, EventChunk, EventFileReader, EventFileWriter, detect_format,
+                      open_reader, open_writer, read, write)
 from .model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
 __all__ = [

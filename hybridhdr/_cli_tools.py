@@ -8,12 +8,12 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cliargs import HelpFormatter, json_output, positive_int
-from ._timearg import add_time_window
+from ._util.cliargs import HelpFormatter, json_output, positive_int
+from ._util.timearg import add_time_window
 
 
 def add_parsers(sub) -> None:
-    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._cliargs.finalise
+    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._util.cliargs.finalise
     p = sub.add_parser("info", help="summarise an event file (format, size, counts, span, rate)",
                        formatter_class=fmt, description="Summarise an event file of any supported format.")
     p.add_argument("file", type=Path, help="event file or folder")
@@ -60,7 +60,7 @@ def add_parsers(sub) -> None:
 # -- info -------------------------------------------------------------------------------------
 def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
     """Stream a file once and return its summary (format, sizes, counts, span, rate, polarity)."""
-    from .io import open_reader
+    from .formats import open_reader
     with open_reader(path, format) as r:
         n = n_on = 0
         n_trig = 0
@@ -113,7 +113,7 @@ def format_info(info: dict) -> str:
 
 @json_output
 def run_info(args) -> int:
-    from ._limits import allow_huge
+    from ._util.limits import allow_huge
     with allow_huge(args.allow_huge):
         info = summarise(args.file, args.format)
     print(json.dumps(info) if args.json else format_info(info))
@@ -130,10 +130,10 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
     camera profile, agrees) and the frames written carry it. The result's ``frame_encoding`` is
     the encoding of the frames written (None without frames).
     """
-    from ._prefetch import Prefetcher
+    from ._util.prefetch import Prefetcher
     from .camera.encoding import parse_frame_encoding, with_encoding
     from .events import slice_time
-    from .io import open_reader, open_writer, unsupported_parts
+    from .formats import open_reader, open_writer, unsupported_parts
     from .model import Recording
     if start_us is not None and end_us is not None and end_us <= start_us:
         raise ValueError(f"--end-us ({end_us}) must be greater than --start-us ({start_us})")
@@ -196,8 +196,9 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
 def run_convert(args) -> int:
     import shutil
 
-    from ._limits import allow_huge
-    from ._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    from ._util.limits import allow_huge
+    from ._util.timearg import check_window, empty_window_error, resolve_window, window_given
+    from .formats.span import recording_span
     windowed = window_given(args)
     check_window(args)
     with allow_huge(args.allow_huge):
@@ -234,9 +235,12 @@ def run_convert(args) -> int:
 def run_demo(args) -> int:
     import warnings
 
-    from .container import write_recording
-    from .io import DataDropWarning, FORMAT_MODULES, read, write, _module
-    from .synthetic import procedural_recording
+    from .evaluate.demo import demo_step
+    from .evaluate.paper import demo_evaluate
+    from .formats import DataDropWarning, formats, read, write
+    from .formats.container import write_recording
+    from .simulate.procedural import procedural_recording
+    from .simulate.render import select_variant
 
     for name, w in (("e2vid", args.weights_e2vid), ("firenet", args.weights_firenet)):
         if w is not None and not Path(w).is_file():  # before any work
@@ -252,13 +256,8 @@ def run_demo(args) -> int:
     print(format_info(summarise(main_path)))
     print("\nround trip through every writer:")
     rows = []
-    for fmt, modname in FORMAT_MODULES.items():
-        try:
-            mod = _module(modname)
-        except ImportError as e:
-            rows.append((fmt, "unavailable", str(e)))
-            continue
-        if fmt not in getattr(mod, "WRITERS", {}):
+    for fmt, spec in formats().items():
+        if spec.writer is None:
             continue
         ext = {"hybridhdr": ".h5", "evt2": ".raw", "evt3": ".raw", "dat": ".dat", "akf_mat": ".mat",
                "ecd": ""}.get(fmt, "." + fmt)
@@ -282,25 +281,14 @@ def run_demo(args) -> int:
     for fmt, status, extra in rows:
         print(f"  {fmt:<{w}}  {status:<18} {extra}")
     bad = [r for r in rows if r[1] == "EVENTS DIFFER"]
-    try:
-        from .reconstruct.cli import demo_step
-    except ImportError:
-        demo_step = None
-    if demo_step is not None:
-        print("\nreconstruction:")
-        print(demo_step(rec, out))
-    try:
-        from .evaluate.paper import demo_evaluate
-    except ImportError:
-        demo_evaluate = None
-    if demo_evaluate is not None:
-        print("\nevaluation (simulate, reconstruct, score):", flush=True)
-        try:  # the renderer is chosen here, once: its one-line note (if any) is not repeated by the workers
-            from .simulate.render import select_variant
-            select_variant()
-        except ImportError:
-            pass
-        weights = {"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}
-        print(demo_evaluate(out / "evaluate", seed=args.seed, progress=not args.no_progress, weights=weights))
+    print("\nreconstruction:")
+    print(demo_step(rec, out))
+    print("\nevaluation (simulate, reconstruct, score):", flush=True)
+    try:  # the renderer is chosen here, once: its one-line note (if any) is not repeated by the workers
+        select_variant()
+    except ImportError:  # no Mitsuba: demo_evaluate says so
+        pass
+    weights = {"e2vid": args.weights_e2vid, "firenet": args.weights_firenet}
+    print(demo_evaluate(out / "evaluate", seed=args.seed, progress=not args.no_progress, weights=weights))
     print(f"\noutputs in {out.resolve()}")
     return 1 if bad else 0

@@ -1,61 +1,39 @@
 """The ``hybridhdr`` command line: one entry point, the five parts as subcommands.
 
-Each part may provide ``hybridhdr/<part>/cli.py`` with ``add_parser(subparsers)``; the command
-functions import their heavy dependencies only when they run.
+Each part's ``hybridhdr/<part>/cli.py`` has ``add_parser(subparsers)``; the command functions
+import their heavy dependencies only when they run.
 """
 
 from __future__ import annotations
 
 import argparse
-import importlib
+import contextlib
+import logging
 import sys
 
-PARTS = {
-    "capture": "record and read hybrid data (devices, brackets, sync, recorder)",
-    "calibrate": "stereo rig, camera response and noise profile, HDR references",
-    "simulate": "render scenes to events, LDR frames and HDR ground truth",
-    "reconstruct": "HDR video from events and frames (AKF and baselines)",
-    "evaluate": "metrics and benchmarks",
-}
+from . import _cli_tools, view
+from ._util.cliargs import HelpFormatter, UsageError, cli_wording, finalise
+from ._version import __version__
+from .calibrate import cli as calibrate_cli
+from .capture import cli as capture_cli
+from .evaluate import cli as evaluate_cli
+from .reconstruct import cli as reconstruct_cli
+from .simulate import cli as simulate_cli
 
-_PLANNED = {"capture": 8, "calibrate": 6, "simulate": 5, "reconstruct": 3, "evaluate": 7}
-
-
-def _fmt():
-    from ._cliargs import HelpFormatter
-    return HelpFormatter
-
-
-def _unavailable(part):
-    def run(args) -> int:
-        print(f"hybridhdr {part}: not available in this version yet (planned in issue #{_PLANNED[part]}); "
-              f"'hybridhdr info', 'convert' and 'demo' work now", file=sys.stderr)
-        return 2
-    return run
+#: The five parts' subcommands, in the order ``--help`` lists them.
+PART_CLIS = (capture_cli, calibrate_cli, simulate_cli, reconstruct_cli, evaluate_cli)
 
 
 def build_parser() -> argparse.ArgumentParser:
-    from . import __version__
-    p = argparse.ArgumentParser(prog="hybridhdr", formatter_class=_fmt(), allow_abbrev=False,
+    p = argparse.ArgumentParser(prog="hybridhdr", formatter_class=HelpFormatter, allow_abbrev=False,
                                 description="HDR video from hybrid event/frame cameras "
                                             "(Wang et al., ICCV 2021, Asynchronous Kalman Filter).")
     p.add_argument("--version", action="version", version=f"hybridhdr {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
-    for part, helptext in PARTS.items():
-        try:
-            mod = importlib.import_module(f"hybridhdr.{part}.cli")
-        except ModuleNotFoundError as e:
-            if e.name != f"hybridhdr.{part}.cli":
-                raise
-            sp = sub.add_parser(part, help=helptext, formatter_class=_fmt(), description=helptext)
-            sp.set_defaults(func=_unavailable(part))
-            continue
-        mod.add_parser(sub)
-    from . import _cli_tools
+    for part_cli in PART_CLIS:
+        part_cli.add_parser(sub)
     _cli_tools.add_parsers(sub)
-    from . import view
     view.add_parser(sub)
-    from ._cliargs import finalise
     return finalise(p)
 
 
@@ -73,10 +51,6 @@ class _NullWriter:
 
 
 def main(argv=None) -> int:
-    import contextlib
-    import logging
-
-    from ._cliargs import UsageError, cli_wording
     parser = build_parser()
     try:  # usage errors return 2 (argparse prints them); --help and --version still exit 0
         args, extra = parser.parse_known_args(argv)

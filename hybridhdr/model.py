@@ -8,10 +8,39 @@ from typing import Any
 
 import numpy as np
 
+from ._util.checks import check_shape
 from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
                      slice_time, time_window_indices, validate_events, validate_triggers)
 
 __all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS"]
+
+#: The four Bayer layouts, named by the 2×2 tile read from the top-left pixel.
+CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
+#: Command-line choices (``--cfa``): the patterns and ``none`` (monochrome).
+CFA_CHOICES = CFA_PATTERNS + ("none",)
+
+
+def parse_cfa(name) -> str | None:
+    """The canonical pattern name (``"RGGB"``, ...) of ``name``, or None for monochrome.
+
+    Accepts any case and surrounding blanks; ``None``, ``""``, ``"none"`` and ``"mono"`` mean no
+    colour filter array. Raises ValueError for anything else.
+
+    >>> parse_cfa("rggb"), parse_cfa("none"), parse_cfa(None)
+    ('RGGB', None, None)
+    """
+    if name is None:
+        return None
+    if not isinstance(name, str):
+        raise ValueError(f"CFA must be a string, one of {', '.join(CFA_CHOICES)}; got {type(name).__name__} {name!r}")
+    key = name.strip().upper()
+    if key in ("", "NONE", "MONO", "MONOCHROME"):
+        return None
+    if key not in CFA_PATTERNS:
+        raise ValueError(f"unknown colour filter array {name!r}; expected one of {', '.join(CFA_CHOICES)} "
+                         f"(the 2x2 Bayer tile read from the top-left pixel)")
+    return key
+
 
 #: How frame pixel values relate to irradiance (after colour's domain-range tables): "raw" sensor
 #: numbers and "linear" codes are proportional to it; "gamma" is display gamma 2.2
@@ -22,10 +51,7 @@ FRAME_ENCODINGS = ("raw", "linear", "gamma", "srgb", "unknown")
 
 def _as_i64(a, name: str, n: int | None = None) -> np.ndarray:
     arr = np.asarray(a)
-    if arr.ndim != 1:
-        raise ValueError(f"{name} must be 1-D, got shape {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise ValueError(f"{name} must have length {n} (one per frame), got {arr.shape[0]}")
+    check_shape(arr, "N", name if n is None else f"{name} (one per frame)", sizes=None if n is None else {"N": n})
     if arr.size and not np.issubdtype(arr.dtype, np.integer):
         if not np.all(np.isfinite(arr)) or not np.all(arr == np.round(arr)):
             raise ValueError(f"{name} must hold whole microseconds (int64), got non-integral values")
@@ -59,9 +85,7 @@ class Frames:
 
     def __post_init__(self):
         im = np.asarray(self.images)
-        if im.ndim not in (3, 4) or (im.ndim == 4 and im.shape[3] != 3):
-            raise ValueError(f"frames.images must have shape (K, H, W) or (K, H, W, 3), got {im.shape}")
-        k = im.shape[0]
+        k = check_shape(im, "K H W | K H W 3", "frames.images")["K"]
         ts = _as_i64(self.t_start_us, "frames.t_start_us", k)
         te = _as_i64(self.t_end_us, "frames.t_end_us", k)
         bad = te < ts
@@ -76,8 +100,7 @@ class Frames:
             v = getattr(self, name)
             if v is not None:
                 v = np.asarray(v, dtype=np.float64)
-                if v.shape != (k,):
-                    raise ValueError(f"frames.{name} must have shape ({k},), got {v.shape}")
+                check_shape(v, "K", f"frames.{name}", sizes={"K": k})
                 object.__setattr__(self, name, v)
         if self.encoding not in FRAME_ENCODINGS:
             raise ValueError(f"frames.encoding must be one of {FRAME_ENCODINGS}, got {self.encoding!r}")
@@ -132,8 +155,7 @@ class HDRReferences:
 
     def __post_init__(self):
         im = np.asarray(self.images)
-        if im.ndim not in (3, 4) or (im.ndim == 4 and im.shape[3] != 3):
-            raise ValueError(f"hdr.images must have shape (K, H, W) or (K, H, W, 3), got {im.shape}")
+        check_shape(im, "K H W | K H W 3", "hdr.images")
         object.__setattr__(self, "images", np.ascontiguousarray(im, dtype=np.float32))
         object.__setattr__(self, "t_us", _as_i64(self.t_us, "hdr.t_us", im.shape[0]))
 
@@ -159,7 +181,6 @@ class CameraInfo:
 
     def __post_init__(self):
         if self.cfa is not None:
-            from .camera.cfa import parse_cfa
             object.__setattr__(self, "cfa", parse_cfa(self.cfa))
 
     def to_dict(self) -> dict:

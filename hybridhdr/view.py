@@ -14,7 +14,7 @@ Each output frame at time ``t`` shows, side by side and scaled to one height:
   when the frames are gamma/sRGB-encoded) unless it is an HDR video: brighter than the frame's
   clip level (99.5th percentile of the finite positive pixels above 1) and spanning more than
   :data:`LOG_MAP_RATIO` (99.5th over 5th percentile); that gets the preview log map
-  (:func:`hybridhdr.reconstruct.output.tone_map`). The log map on an ordinary scene lifted its
+  (:func:`hybridhdr.formats.images.tone_map`). The log map on an ordinary scene lifted its
   dark tail to mid grey and washed the panel out;
 
 above a time bar (elapsed fraction, time from the start and sensor time). Output times are
@@ -30,8 +30,9 @@ from pathlib import Path
 
 import numpy as np
 
-from ._cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
-from ._timearg import add_time_window, time_arg
+from ._util.atomic import atomic_path
+from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
+from ._util.timearg import add_time_window, time_arg
 
 BACKGROUND = (30, 37, 52)  # RGB
 ON_COLOUR = (255, 255, 255)
@@ -47,8 +48,8 @@ LOG_MAP_RATIO = 100.0
 def recon_display_map(sample, *, gamma: float = 1.0) -> dict:
     """How the reconstruction panel shows intensities (see the module notes): ``{"mode": "linear",
     "hi": ..., "gamma": ...}`` or ``{"mode": "log", "limits": (lo, hi)}`` (log units, as
-    :func:`~hybridhdr.reconstruct.output.tone_map`), from a sample of outputs."""
-    from .reconstruct.output import tone_map
+    :func:`~hybridhdr.formats.images.tone_map`), from a sample of outputs."""
+    from .formats.images import tone_map
     a = np.asarray(sample, dtype=np.float64)
     v = a[np.isfinite(a) & (a > 1e-6)]
     if v.size == 0:
@@ -62,7 +63,7 @@ def recon_display_map(sample, *, gamma: float = 1.0) -> dict:
 
 def apply_display_map(img, m: dict) -> np.ndarray:
     """uint8 image of linear ``img`` under :func:`recon_display_map`'s map (NaN and -inf black, +inf white)."""
-    from .reconstruct.output import tone_map
+    from .formats.images import tone_map
     if m["mode"] == "log":
         return tone_map(img, limits=m["limits"])[0]
     f = np.asarray(img, dtype=np.float64)
@@ -141,7 +142,7 @@ class _Recon:
 
     def __init__(self, folder: Path):
         from .evaluate.cli import _read_timestamps
-        from .reconstruct.output import read_exr
+        from .formats.images import read_exr, tone_map
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
             raise FileNotFoundError(f"--recon {folder}: expected timestamps.txt written by 'hybridhdr reconstruct'")
@@ -209,10 +210,11 @@ def _event_canvases(reader, shape, times, acc_us, chunk_events=1 << 20):
 
 @json_output
 def run(args) -> int:
-    from ._limits import check_fps_outputs
-    from ._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
-    from .io import open_reader
-    from .reconstruct.output import _MP4Stream, _atomic_target, _cleanup, _finish, _write_png
+    from ._util.limits import check_fps_outputs
+    from ._util.timearg import check_window, empty_window_error, resolve_window
+    from .formats.span import recording_span
+    from .formats import open_reader
+    from .formats.images import _MP4Stream, _write_png
 
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
@@ -254,54 +256,52 @@ def run(args) -> int:
             blank_frame = np.zeros(_fit(_grey_frame(frames.images[0]), height).shape, np.uint8)
         out = Path(args.out)
         out.parent.mkdir(parents=True, exist_ok=True)
-        tmp = _atomic_target(out, ".mp4")
-        still_at = len(times) // 2
-        still = None
-        bar = None
-        if not args.no_progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(times), unit="frame", desc=f"view {Path(args.recording).name}", file=sys.stderr)
-        stream = None
-        try:
-            for k, canvas in enumerate(_event_canvases(r, shape, times, acc)):
-                t = int(times[k])
-                panels = [_label(_fit(canvas, height), f"events, last {acc / 1e3:g} ms (ON white, OFF blue)")]
-                if frames is not None:
-                    i = int(np.searchsorted(frames.t_end_us, t, side="right")) - 1
-                    img = blank_frame if i < 0 else _fit(_grey_frame(frames.images[i]), height)
-                    panels.append(_label(img, "frame" if i < 0 else f"frame {i} ({(int(frames.t_end_us[i]) - span.origin_us) / 1e6:.3f} s)"))
-                if recon is not None:
-                    rimg = recon.at(t)
-                    rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
-                    how = "log map" if recon.display["mode"] == "log" else "linear, as the frame"
-                    panels.append(_label(rimg, f"reconstruction ({args.recon.name}; {how})"))
-                row = np.concatenate(panels, axis=1)
-                rel = (t - span.origin_us) / 1e6
-                img = np.concatenate([row, _time_bar(row.shape[1], (t - start) / (end - start),
-                                                     f"t = {rel:.4f} s   (sensor {t:,} us)   frame {k + 1}/{len(times)}")],
-                                     axis=0)
-                if stream is None:
-                    stream = _MP4Stream(tmp, img.shape, args.playback_fps)
-                stream.write(img)
-                if k == still_at:
-                    still = img
-                if bar is not None:
-                    bar.update(1)
-            if stream is not None:
-                stream.close()
-                stream = None
-            _finish(tmp, out)
-        except BaseException:
-            if stream is not None:
-                try:
+        with atomic_path(out, ".mp4") as tmp:
+            still_at = len(times) // 2
+            still = None
+            bar = None
+            if not args.no_progress:
+                from tqdm import tqdm
+                bar = tqdm(total=len(times), unit="frame", desc=f"view {Path(args.recording).name}", file=sys.stderr)
+            stream = None
+            try:
+                for k, canvas in enumerate(_event_canvases(r, shape, times, acc)):
+                    t = int(times[k])
+                    panels = [_label(_fit(canvas, height), f"events, last {acc / 1e3:g} ms (ON white, OFF blue)")]
+                    if frames is not None:
+                        i = int(np.searchsorted(frames.t_end_us, t, side="right")) - 1
+                        img = blank_frame if i < 0 else _fit(_grey_frame(frames.images[i]), height)
+                        panels.append(_label(img, "frame" if i < 0 else f"frame {i} ({(int(frames.t_end_us[i]) - span.origin_us) / 1e6:.3f} s)"))
+                    if recon is not None:
+                        rimg = recon.at(t)
+                        rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
+                        how = "log map" if recon.display["mode"] == "log" else "linear, as the frame"
+                        panels.append(_label(rimg, f"reconstruction ({args.recon.name}; {how})"))
+                    row = np.concatenate(panels, axis=1)
+                    rel = (t - span.origin_us) / 1e6
+                    img = np.concatenate([row, _time_bar(row.shape[1], (t - start) / (end - start),
+                                                         f"t = {rel:.4f} s   (sensor {t:,} us)   frame {k + 1}/{len(times)}")],
+                                         axis=0)
+                    if stream is None:
+                        stream = _MP4Stream(tmp, img.shape, args.playback_fps)
+                    stream.write(img)
+                    if k == still_at:
+                        still = img
+                    if bar is not None:
+                        bar.update(1)
+                if stream is not None:
                     stream.close()
-                except OSError:
-                    pass
-            _cleanup(tmp)
-            raise
-        finally:
-            if bar is not None:
-                bar.close()
+                    stream = None
+            except BaseException:
+                if stream is not None:
+                    try:
+                        stream.close()
+                    except OSError:
+                        pass
+                raise
+            finally:
+                if bar is not None:
+                    bar.close()
     if args.still is not None and still is not None:
         args.still.parent.mkdir(parents=True, exist_ok=True)
         _write_png(args.still, still)

@@ -7,8 +7,8 @@ import pytest
 
 import hybridhdr as hh
 from hybridhdr.cli import main
-from hybridhdr.container import RecordingFile, write_recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 def run_cli(capsys, *argv):

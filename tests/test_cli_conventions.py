@@ -1,4 +1,4 @@
-"""One CLI style across the verbs (issue 18 item 4; conventions in hybridhdr/_cliargs.py)."""
+"""One CLI style across the verbs (issue 18 item 4; conventions in hybridhdr/_util/cliargs.py)."""
 
 import argparse
 import json
@@ -71,13 +71,13 @@ def test_no_abbreviation_and_full_error_prefix(tmp_path, capsys):
 
 
 def test_hints_in_cli_wording(tmp_path, capsys):
-    from hybridhdr._cliargs import cli_wording
+    from hybridhdr._util.cliargs import cli_wording
     assert cli_wording("needs frames (use method='highpass' for events only)") == \
         "needs frames (use --method highpass for events only)"
     assert cli_wording("x=3, fps=30") == "x=3, --fps 30"
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.formats.container import write_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, _ = procedural_recording((20, 30), 50_000, seed=0)
     write_recording(hh.Recording(events=rec.events, sensor_size=rec.sensor_size), tmp_path / "ev.h5")
     rc, _, err = run_cli(capsys, "reconstruct", tmp_path / "ev.h5", "--method", "akf", "--out", tmp_path / "o",
@@ -86,8 +86,8 @@ def test_hints_in_cli_wording(tmp_path, capsys):
 
 
 def test_quiet_and_json(tmp_path, capsys):
-    from hybridhdr.container import write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.formats.container import write_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, _ = procedural_recording((20, 30), 50_000, seed=0)
     src = write_recording(rec, tmp_path / "s.h5")
     rc, out, err = run_cli(capsys, "convert", src, tmp_path / "o.dat", "-q")

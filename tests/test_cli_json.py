@@ -48,7 +48,7 @@ def _run_json(capsys, *argv, rc=0):
 @pytest.fixture(scope="module")
 def rec_file(tmp_path_factory):
     from hybridhdr.container import write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, _ = procedural_recording(duration_us=100_000, seed=4)
     p = tmp_path_factory.mktemp("json") / "src.h5"
     write_recording(rec, p)
@@ -118,8 +118,8 @@ def test_capture_brackets_json_with_out(tmp_path, capsys):
 # -- calibrate ----------------------------------------------------------------------------------
 
 def test_calibrate_crf_and_hdr_reference_json(tmp_path, capsys):
-    from hybridhdr.calibrate._photometric_synth import hdr_scene, render_frame
-    from hybridhdr.capture.brackets import write_bracket_set
+    from hybridhdr.simulate.procedural import hdr_scene, render_frame
+    from hybridhdr.formats.brackets import write_bracket_set
     rng = np.random.default_rng(4)
     E = hdr_scene(60, 80, seed=2)
     ex = [0.05, 0.2, 0.8, 3.2]

@@ -1,4 +1,4 @@
-"""Time windows on the command line (hybridhdr._timearg): units, relative to the recording's first
+"""Time windows on the command line (hybridhdr._util.timearg): units, relative to the recording's first
 timestamp, --absolute, deprecated --start-us/--end-us, empty windows are errors naming the span."""
 
 import json
@@ -6,10 +6,10 @@ import json
 import numpy as np
 import pytest
 
-from hybridhdr._timearg import parse_time_us
+from hybridhdr._util.timearg import parse_time_us
 from hybridhdr.cli import main
-from hybridhdr.container import RecordingFile, write_recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 def run_cli(capsys, *argv):

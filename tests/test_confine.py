@@ -6,7 +6,7 @@ import os
 
 import pytest
 
-from hybridhdr._confine import OutsideFolderError, confine
+from hybridhdr._util.confine import OutsideFolderError, confine
 
 
 def test_confine_resolves_relative_dotdot_and_symlinks(tmp_path):

@@ -97,7 +97,7 @@ def test_frames_validation_and_properties():
     assert len(f.slice_time(10, 20)) == 1
     with pytest.raises(ValueError, match=r"frame 1: exposure end 5 µs is before its start 10 µs"):
         hh.Frames(im, [0, 10, 20], [4, 5, 25])
-    with pytest.raises(ValueError, match=r"length 3"):
+    with pytest.raises(ValueError, match=r"t_start_us \(one per frame\) must have shape \(3,\)"):
         hh.Frames(im, [0, 10], [4, 14])
     with pytest.raises(ValueError, match=r"\(K, H, W\)"):
         hh.Frames(np.zeros((4, 5)), [0], [1])

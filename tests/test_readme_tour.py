@@ -48,7 +48,7 @@ def test_readme_tour_runs_verbatim(tmp_path, capsys, monkeypatch):
         out = capsys.readouterr()
         assert rc == 0, f"{line}\n{out.err}"
         if argv[0] == "convert" and "--start" in argv:
-            from hybridhdr.container import RecordingFile
+            from hybridhdr.formats.container import RecordingFile
             with RecordingFile(repo / argv[2]) as r:
                 assert len(r.events()) == 521_252, "convert --start 0 --end 1s keeps the whole 96 ms file"
             assert "521,252 events" in out.out

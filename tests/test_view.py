@@ -5,7 +5,7 @@ import re
 import numpy as np
 import pytest
 
-from hybridhdr.reconstruct.output import LogPercentiles, tone_map
+from hybridhdr.formats.images import LogPercentiles, tone_map
 
 
 def test_tone_map_ignores_bad_pixels():
@@ -51,7 +51,7 @@ def test_view_colours_panels_and_time_bar(tmp_path, capsys):
 
     import hybridhdr as hh
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.view import BAR_HEIGHT, BACKGROUND, LABEL_HEIGHT, OFF_COLOUR, ON_COLOUR
     from PIL import Image
     # 40x30 sensor; ON events at (5, 5) in every 100 ms window, OFF at (20, 10) only in the second

@@ -10,8 +10,8 @@ import sys
 import time
 from pathlib import Path
 
-from .._atomic import write_json_atomic
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
+from .._util.atomic import atomic_path, write_json_atomic
+from .._util.cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
 
 
 def register(steps) -> None:
@@ -99,7 +99,7 @@ def _colour(text):
 def _mask(bs, colour):
     if colour is None:
         return None
-    from ..capture.brackets import colour_mask
+    from ..formats.brackets import colour_mask
     if bs.n_channels != 3:
         raise ValueError("--ignore-colour needs RGB brackets")
     return ~colour_mask(bs.images, colour)
@@ -110,7 +110,7 @@ def run_crf(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from ..capture.brackets import read_bracket_set
+    from ..formats.brackets import read_bracket_set
     from .crf import DebevecParams, RobertsonParams, estimate_crf
     from .noise_profile import estimate_sigma2_im, noise_profile, plot_profile
 
@@ -157,7 +157,7 @@ def run_hdr_reference(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from ..capture.brackets import read_bracket_set
+    from ..formats.brackets import read_bracket_set
     from .crf import CRF, debevec
     from .hdr_reference import RegistrationParams, align_brackets, merge_brackets, register_recording, write_exr
 
@@ -202,7 +202,7 @@ def run_hdr_reference(args) -> int:
                       features=args.features, ecc=args.ecc,
                       mean_time_s=float(np.mean([f["time_s"] for f in frames])),
                       mean_reprojection_px=float(np.mean([f["reprojection_px"] for f in frames])))
-        from ..container import RecordingFile
+        from ..formats.container import RecordingFile
         with RecordingFile(args.register) as r:
             fr = r.read_frames()
         frame = fr.images[frames[0]["frame"]]
@@ -227,7 +227,7 @@ def _plot_reference(E, frame, H, path: Path) -> None:
     import matplotlib.pyplot as plt
     import numpy as np
 
-    from ..reconstruct.output import _atomic_target, _cleanup, _finish, tone_map
+    from ..formats.images import tone_map
     from .hdr_reference import to_grey, warp_reference
 
     ref_t, lim = tone_map(to_grey(E)[None])
@@ -246,12 +246,8 @@ def _plot_reference(E, frame, H, path: Path) -> None:
         a.set_title(title, fontsize=9)
         a.axis("off")
     fig.tight_layout()
-    tmp = _atomic_target(path, ".png")
     try:
-        fig.savefig(tmp, dpi=100, format="png")
-        _finish(tmp, path)
-    except BaseException:
-        _cleanup(tmp)
-        raise
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
     finally:
         plt.close(fig)

@@ -6,12 +6,12 @@ Heavy imports (cv2, matplotlib, the readers) happen inside :func:`run`.
 from __future__ import annotations
 
 import glob
-import json
-import os
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
+from .._util.atomic import atomic_path, write_json_atomic
+from .._util.cliargs import COMMON_NO_JSON, HelpFormatter, json_command, nonneg_float, positive_float, positive_int
+from .._version import __version__
 
 IMAGE_EXTENSIONS = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm")
 
@@ -110,18 +110,11 @@ def _frames_for_poses(frames, poses):
 
 def _save_png(fig, path: Path) -> None:
     import matplotlib.pyplot as plt
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
-
-
-def _write_json(obj, path: Path) -> None:
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w") as f:
-        json.dump(obj, f, indent=1)
-        f.write("\n")
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
 
 
 @json_command
@@ -142,7 +135,7 @@ def run(args) -> int:
     report: dict = {"command": " ".join(sys.argv), "board": board.to_dict()}
     progress = not args.no_progress
     if args.events is not None:
-        from ..io import read as read_any
+        from ..formats import read as read_any
         rec = read_any(args.events)
         if rec.sensor_size is None:
             raise ValueError(f"{args.events}: the event-camera size is unknown (no geometry in the file)")
@@ -164,9 +157,8 @@ def run(args) -> int:
         evdir = out / "event_images"
         evdir.mkdir(exist_ok=True)
         for i, pose in enumerate(res.poses):
-            tmp = evdir / f"pose_{i:03d}.partial.png"
-            cv2.imwrite(str(tmp), pose.image)
-            os.replace(tmp, evdir / f"pose_{i:03d}.png")
+            with atomic_path(evdir / f"pose_{i:03d}.png", ".png") as tmp:
+                cv2.imwrite(str(tmp), pose.image)
         # frame views
         if args.frames is not None and Path(args.frames).is_dir():
             paths = _expand([args.frames])
@@ -203,7 +195,6 @@ def run(args) -> int:
                              depth_m=args.depth_m, prune_factor=args.prune_factor or None,
                              min_views=args.min_views, camera_names=cam_names,
                              max_sharpness_px=args.max_sharpness_px or None, progress=progress)
-    from .. import __version__
     rig = type(rig)(rig.camera1, rig.camera2, rig.stereo, rig.board, rig.depth_m, rig.names,
                     {**rig.provenance, "command": " ".join(sys.argv), "hybridhdr_version": __version__})
     save_calibration(rig, out / "calibration.json")
@@ -222,7 +213,7 @@ def run(args) -> int:
         "homography_depth_m": rig.depth_m, "parallax": rig.parallax_table(),
         "hybridhdr_version": __version__,
     })
-    _write_json(report, out / "report.json")
+    write_json_atomic(out / "report.json", report)
     # plots
     import matplotlib
     matplotlib.use("Agg")

@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from .._cliargs import COMMON, HelpFormatter, json_output, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
 
 
 def register(steps) -> None:
@@ -18,7 +18,7 @@ def register(steps) -> None:
                     "least squares of the frames' log-intensity changes on the ON/OFF event counts between "
                     "consecutive frames (well-exposed pixel pairs only), with a pooled global estimate as the "
                     "fallback for pixels with too little information. Prints a summary and writes "
-                    "OUT/thresholds.npz (read by hybridhdr.calibrate.thresholds.load_thresholds), "
+                    "OUT/thresholds.npz (read by hybridhdr.formats.thresholds.load_thresholds), "
                     "OUT/thresholds.png (ON and OFF histograms) and OUT/report.json. See docs/calibrate.md.")
     p.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and frames (any "
                                                                      "readable format)")
@@ -53,9 +53,9 @@ def _pair(s, name, cast):
 
 @json_output
 def run_thresholds(args) -> int:
-    from .._atomic import write_json_atomic
+    from .._util.atomic import write_json_atomic
     from .._version import __version__
-    from ..io import read
+    from ..formats import read
     from .thresholds import estimate_thresholds, plot_thresholds
 
     t0 = time.perf_counter()
@@ -70,7 +70,7 @@ def run_thresholds(args) -> int:
     tm.provenance.update(command=sys.argv, hybridhdr_version=__version__, input=str(args.recording))
     tm.save(out / "thresholds.npz")
     if args.store:
-        from ..container import store_thresholds
+        from ..formats.container import store_thresholds
         store_thresholds(args.recording, tm)
     plot_thresholds(tm, out / "thresholds.png",
                     title=f"{args.recording.name}: {int(tm.valid.sum())} of {tm.valid.size} pixels estimated "

@@ -2,17 +2,15 @@
 ``hdr-reference`` (merged, registered HDR references), ``thresholds`` (per-pixel ON/OFF contrast
 thresholds).
 
-Each step lives in its own module with ``register(subparsers)``; a step whose module is not
-present in this version is simply not listed.
+Each step lives in its own module with ``register(subparsers)``.
 """
 
 from __future__ import annotations
 
-import importlib
+from .._util.cliargs import HelpFormatter
+from . import _cli_photometric, _cli_rig, _cli_thresholds
 
-from .._cliargs import HelpFormatter
-
-_STEP_MODULES = ("_cli_rig", "_cli_photometric", "_cli_thresholds")
+_STEP_MODULES = (_cli_rig, _cli_photometric, _cli_thresholds)
 
 
 def add_parser(sub) -> None:
@@ -22,13 +20,7 @@ def add_parser(sub) -> None:
                                    "writes a JSON report and PNG plots.",
                        formatter_class=HelpFormatter)
     steps = p.add_subparsers(dest="calibrate_step", metavar="STEP")
-    for name in _STEP_MODULES:
-        try:
-            mod = importlib.import_module(f"{__package__}.{name}")
-        except ModuleNotFoundError as e:
-            if e.name != f"{__package__}.{name}":
-                raise
-            continue
+    for mod in _STEP_MODULES:
         mod.register(steps)
 
     def _no_step(args) -> int:

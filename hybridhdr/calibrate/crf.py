@@ -39,6 +39,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import write_json_atomic
+from .._util.checks import check_shape
+
 __all__ = ["CRF", "DebevecParams", "RobertsonParams", "estimate_crf", "debevec", "robertson",
            "hat_weight", "check_brackets", "gamma_crf", "CRF_FORMAT", "METHODS"]
 
@@ -208,7 +211,6 @@ class CRF:
 
     def save(self, path) -> Path:
         """Write JSON atomically (temporary file in the same folder, then rename)."""
-        from .._atomic import write_json_atomic
         return write_json_atomic(path, self.to_dict(), default=_json_default)
 
     @classmethod
@@ -249,14 +251,12 @@ def check_brackets(images, exposures_s, *, max_codes: int | None = MAX_CODES):
     shapes = [im.shape for im in imgs]
     if len(set(shapes)) != 1:
         raise ValueError(f"all bracket images must have the same shape; found {shapes}")
-    if imgs[0].ndim not in (2, 3) or (imgs[0].ndim == 3 and imgs[0].shape[2] not in (1, 3)):
-        raise ValueError(f"bracket images must be (H, W) or (H, W, 3), got {imgs[0].shape}")
+    check_shape(imgs[0], "H W | H W 3 | H W 1", "bracket images")
     if any(im.dtype.kind not in "ui" for im in imgs):
         raise TypeError(f"the response is estimated from integer codes (uint8/uint16), got "
                         f"{sorted({str(im.dtype) for im in imgs})}; float/linear data need no CRF")
     ex = np.asarray(exposures_s, dtype=np.float64)
-    if ex.shape != (k,):
-        raise ValueError(f"need one exposure time per image: {k} images, exposures of shape {ex.shape}")
+    check_shape(ex, "K", "exposures_s (one exposure time per image)", sizes={"K": k})
     if not np.all(np.isfinite(ex) & (ex > 0)):
         raise ValueError(f"exposure times must be finite and > 0 s, got {ex.tolist()}")
     distinct = np.unique(ex)

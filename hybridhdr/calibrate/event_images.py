@@ -1,4 +1,4 @@
-"""Event images of a blinking checkerboard, for calibrating an event camera (issue 6, item 1).
+"""Event images of a blinking checkerboard, for calibrating an event camera.
 
 A checkerboard shown on a monitor that blinks on and off makes every pixel on a white square fire
 a burst of ON events when the board appears and a burst of OFF events when it disappears, while
@@ -55,7 +55,7 @@ class BlinkParams:
 
     Defaults follow Prophesee's ``BlinkingFrameGenerator`` (Metavision SDK documentation,
     "Calibration configs") where it has an equivalent, and the setup advice in
-    ``../shared/reference/calibration.md`` (blink at 5-20 Hz, hold each pose 0.5-1 s).
+    ``docs/calibrate.md`` (blink at 5-20 Hz, hold each pose 0.5-1 s).
     """
 
     #: a window needs at least this many *both* pixels (Prophesee ``min_num_blinking_pixels``)

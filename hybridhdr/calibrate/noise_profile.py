@@ -13,7 +13,7 @@ the form the AKF filters in, since its state is log intensity)::
 (from the log inverse response of :mod:`hybridhdr.calibrate.crf`; ``g'`` by central
 differences of ``g`` smoothed with a Gaussian of ``smooth_codes`` codes, default 2 for 8 bits). The linear-irradiance
 form of eq. 4, ``dz/dX = 1 / (X g'(z))``, differs by a factor ``X``; it is available as
-``domain="linear"`` (:func:`hybridhdr.reconstruct.profile.weighting_from_inverse_crf`). ``f_w`` is
+``domain="linear"`` (:func:`hybridhdr.camera.profile.weighting_from_inverse_crf`). ``f_w`` is
 forced to 0 at the end codes (0 and max_code: clipped) and at codes that never occurred in the
 brackets below the first / above the last observed code (the curve is extrapolated there).
 
@@ -37,7 +37,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from ..reconstruct.profile import CameraProfile, weighting_from_inverse_crf
+from .._util.atomic import atomic_path
+from ..camera.profile import CameraProfile, weighting_from_inverse_crf
 from .crf import CRF
 
 __all__ = ["certainty", "estimate_sigma2_im", "noise_profile", "plot_profile", "DOMAINS"]
@@ -204,8 +205,6 @@ def noise_profile(crf: CRF, *, sigma2_im: float, floor: float = 0.09, domain: st
 
 def plot_profile(crf: CRF, profile: CameraProfile, path) -> None:
     """PNG with three panels: log inverse CRF per channel, f_w, and R(code) (log scale)."""
-    import os
-    import tempfile
     from pathlib import Path
 
     import matplotlib
@@ -232,14 +231,8 @@ def plot_profile(crf: CRF, profile: CameraProfile, path) -> None:
     ax[2].set_title(f"R(z) = σ²_im / max(f_w, floor)\nσ²_im = {1 / profile.frame_precision_scale:.3g}",
                     fontsize=10)
     fig.tight_layout()
-    fd, tmp = tempfile.mkstemp(prefix="." + path.stem + ".", suffix=".partial.png", dir=path.parent)
-    os.close(fd)
     try:
-        fig.savefig(tmp, dpi=110)
-        os.replace(tmp, path)
-    except BaseException:
-        if os.path.exists(tmp):
-            os.unlink(tmp)
-        raise
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=110)
     finally:
         plt.close(fig)

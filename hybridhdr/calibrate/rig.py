@@ -1,6 +1,6 @@
-"""Stereo calibration of a hybrid event/frame rig with a checkerboard (issue 6, item 2).
+"""Stereo calibration of a hybrid event/frame rig with a checkerboard.
 
-Pipeline (see ``../shared/reference/calibration.md`` for the sources of the choices):
+Pipeline (``docs/calibrate.md`` gives the sources of the choices):
 
 1. **Corners** (:func:`find_corners`): ``cv2.findChessboardCornersSB`` with ``CALIB_CB_EXHAUSTIVE
    | CALIB_CB_ACCURACY`` (``CALIB_CB_NORMALIZE_IMAGE`` optional, see there; already sub-pixel; views whose
@@ -40,12 +40,14 @@ from __future__ import annotations
 
 import json
 import math
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import write_json_atomic
+from .._util.checks import check_shape
+from .._version import __version__
 from ..events import SensorSize
 
 __all__ = ["Board", "DISTORTION_MODELS", "CameraCalibration", "StereoCalibration", "RigCalibration",
@@ -153,10 +155,9 @@ class Board:
 
 def _as_gray8(image) -> np.ndarray:
     im = np.asarray(image)
-    if im.ndim == 3 and im.shape[2] in (3, 4):
+    check_shape(im, "H W | H W 3 | H W 4", "image")
+    if im.ndim == 3:
         im = im[..., :3].astype(np.float64) @ np.array([0.114, 0.587, 0.299])  # BGR order as cv2 reads
-    if im.ndim != 2:
-        raise ValueError(f"image must be (H, W) or (H, W, 3), got shape {im.shape}")
     if im.dtype == np.uint8:
         return np.ascontiguousarray(im)
     im = im.astype(np.float64)
@@ -292,8 +293,7 @@ class CameraCalibration:
                 size = SensorSize(int(h), int(w))
         except KeyError as e:
             raise ValueError(f"calibration of {name}: missing key {e.args[0]!r}") from None
-        if K.shape != (3, 3):
-            raise ValueError(f"calibration of {name}: K must be 3x3, got shape {K.shape}")
+        check_shape(K, "3 3", f"calibration of {name}: K")
         if dist.size not in (0, 4, 5, 8, 12, 14):
             raise ValueError(f"calibration of {name}: dist must have 4, 5, 8, 12 or 14 coefficients, "
                              f"got {dist.size}")
@@ -436,8 +436,8 @@ class StereoCalibration:
     def from_dict(cls, d: dict) -> "StereoCalibration":
         R = np.asarray(d["R"], np.float64)
         T = np.asarray(d["T_m"], np.float64).ravel()
-        if R.shape != (3, 3) or T.shape != (3,):
-            raise ValueError(f"stereo: R must be 3x3 and T_m 3 values, got {R.shape} and {T.shape}")
+        check_shape(R, "3 3", "stereo: R")
+        check_shape(T, "3", "stereo: T_m")
         return cls(R, T, np.asarray(d.get("E", np.zeros((3, 3))), np.float64),
                    np.asarray(d.get("F", np.zeros((3, 3))), np.float64), float(d.get("rms_px", float("nan"))),
                    np.asarray(d.get("per_view_errors_px", []), np.float64), tuple(d.get("views", [])),
@@ -695,18 +695,8 @@ class RigCalibration:
 
 
 def save_calibration(rig: RigCalibration, path) -> Path:
-    """Write ``calibration.json`` atomically (``NAME.partial``, then rename)."""
-    path = Path(path)
-    tmp = path.with_name(path.name + ".partial")
-    try:
-        with open(tmp, "w") as f:
-            json.dump(rig.to_dict(), f, indent=1)
-            f.write("\n")
-        os.replace(tmp, path)
-    finally:
-        if tmp.exists():
-            tmp.unlink()
-    return path
+    """Write ``calibration.json`` atomically (a temporary name, then rename)."""
+    return write_json_atomic(path, rig.to_dict())
 
 
 def load_calibration(path_or_dict) -> RigCalibration:
@@ -800,7 +790,6 @@ def calibrate_rig(images1, images2, board: Board, *, names=None, model: str = "p
                          f"least 3 for the extrinsics")
     st = calibrate_stereo([obj] * len(both), [c1[i] for i in both], [c2[i] for i in both], cals[0], cals[1],
                           names=[names[i] for i in both], prune_factor=prune_factor)
-    from .. import __version__
     rig = RigCalibration(cals[0], cals[1], st, board, depth_m, tuple(camera_names),
                          {"hybridhdr_version": __version__, "detectors": [detector1, detector2]})
     return rig, {"corners1": c1, "corners2": c2, "names": names}

@@ -45,38 +45,14 @@ from __future__ import annotations
 
 import numpy as np
 
+from ..model import CFA_CHOICES, CFA_PATTERNS, Frames, parse_cfa  # CFA names: with CameraInfo, which validates its cfa
+
 __all__ = ["CFA_PATTERNS", "CFA_CHOICES", "DEMOSAIC_METHODS", "parse_cfa", "channel_index", "channel_masks",
            "mosaic", "demosaic", "crop_pattern", "mosaic_frames"]
 
-#: The four Bayer layouts, named by the 2×2 tile read from the top-left pixel.
-CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
-#: Command-line choices (``--cfa``): the patterns and ``none`` (monochrome).
-CFA_CHOICES = CFA_PATTERNS + ("none",)
 #: :func:`demosaic` methods.
 DEMOSAIC_METHODS = ("bilinear", "log_bilinear", "edge_aware")
 _CHANNEL = {"R": 0, "G": 1, "B": 2}
-
-
-def parse_cfa(name) -> str | None:
-    """The canonical pattern name (``"RGGB"``, ...) of ``name``, or None for monochrome.
-
-    Accepts any case and surrounding blanks; ``None``, ``""``, ``"none"`` and ``"mono"`` mean no
-    colour filter array. Raises ValueError for anything else.
-
-    >>> parse_cfa("rggb"), parse_cfa("none"), parse_cfa(None)
-    ('RGGB', None, None)
-    """
-    if name is None:
-        return None
-    if not isinstance(name, str):
-        raise ValueError(f"CFA must be a string, one of {', '.join(CFA_CHOICES)}; got {type(name).__name__} {name!r}")
-    key = name.strip().upper()
-    if key in ("", "NONE", "MONO", "MONOCHROME"):
-        return None
-    if key not in CFA_PATTERNS:
-        raise ValueError(f"unknown colour filter array {name!r}; expected one of {', '.join(CFA_CHOICES)} "
-                         f"(the 2x2 Bayer tile read from the top-left pixel)")
-    return key
 
 
 def _pattern(pattern) -> str:
@@ -222,7 +198,6 @@ def mosaic_frames(frames, pattern, frame_pattern=None):
     * Grey frames with no frame pattern: ValueError (a monochrome frame camera does not measure
       the colour of each event pixel; declare the frames' CFA, e.g. ``--cfa``).
     """
-    from ..model import Frames
     p = _pattern(pattern)
     im = frames.images
     if im.ndim == 4:

@@ -32,9 +32,14 @@ Pure NumPy; nothing here depends on the reconstruction.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
-__all__ = ["ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
+from .._util.checks import check_range
+from ..model import Frames
+
+__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
            "encode", "inverse_crf_table", "to_luminance", "luminance_frames", "with_encoding"]
 
 #: Command-line names of the declarable encodings (``--frame-encoding``).
@@ -94,12 +99,7 @@ def parse_frame_encoding(name) -> str:
 
 
 def _check_max_code(max_code) -> float:
-    if isinstance(max_code, bool) or not isinstance(max_code, (int, float, np.integer, np.floating)):
-        raise TypeError(f"max_code must be a number, got {type(max_code).__name__}")
-    m = float(max_code)
-    if not (np.isfinite(m) and m > 0):
-        raise ValueError(f"max_code must be a positive finite number, got {max_code!r}")
-    return m
+    return check_range(max_code, "max_code", lo=0, lo_open=True)
 
 
 def _transfer(encoding: str, what: str) -> str:
@@ -246,7 +246,6 @@ def luminance_frames(frames, dtype=None):
     is done per encoding); ``dtype`` defaults to the input dtype, so 8-bit frames stay 8-bit
     codes (rounded to the nearest code); pass ``np.float64`` to keep the unrounded codes.
     """
-    from ..model import Frames
     if frames.images.ndim != 4:
         return frames
     dt = frames.images.dtype if dtype is None else np.dtype(dtype)
@@ -271,8 +270,17 @@ def with_encoding(frames, name):
     """
     if name is None or frames is None:
         return frames
-    from ..model import Frames
     enc = parse_frame_encoding(name)
     if enc == frames.encoding:
         return frames
     return Frames(frames.images, frames.t_start_us, frames.t_end_us, frames.gain, frames.iso, enc)
+
+
+#: Well-exposed codes of an 8-bit frame (inclusive); scaled to other bit depths.
+WELL_EXPOSED_8BIT = (20, 235)
+
+def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int, int]:
+    """Well-exposed codes ``(lo, hi)`` (inclusive) for frames with top code ``max_code``: the 8-bit
+    range scaled by ``max_code / 255`` (lo rounded up, hi rounded down)."""
+    s = int(max_code) / 255.0
+    return int(math.ceil(codes_8bit[0] * s - 1e-9)), int(math.floor(codes_8bit[1] * s + 1e-9))

@@ -8,7 +8,7 @@ A :class:`CameraProfile` maps raw pixel codes ``I^F`` of a frame camera to
   (eq. 6, with the saturation of eq. 6 expressed as a floor on ``f_w``).
 
 ``frame_precision_scale`` is the paper's "σ²_im" read as a *precision* (1/variance), which is how
-the authors' implementation uses it (see ``../shared/reference/akf.md`` §2): 7e5 for the DAVIS240C
+the authors' implementation uses it (``ziweiWWANG/AKF:akf_reconstruction.m``): 7e5 for the DAVIS240C
 and 7e7 for the FLIR camera (paper §6).
 
 The file format is JSON; it is documented in ``docs/camera-profile.md``.
@@ -29,6 +29,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import write_json_atomic
+from .._util.checks import check_shape
+
 __all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames", "profile_from_inverse_crf",
            "weighting_from_inverse_crf", "PROFILE_FORMAT", "PROFILE_VERSION"]
 
@@ -38,10 +41,7 @@ PROFILE_VERSION = 1
 
 def _as_lut(values, name: str, n: int | None) -> np.ndarray:
     arr = np.asarray(values, dtype=np.float64)
-    if arr.ndim != 1:
-        raise ValueError(f"CameraProfile.{name} must be 1-D, got shape {arr.shape}")
-    if n is not None and arr.shape[0] != n:
-        raise ValueError(f"CameraProfile.{name} must have max_code + 1 = {n} entries, got {arr.shape[0]}")
+    check_shape(arr, "N", f"CameraProfile.{name} (max_code + 1 entries)", sizes=None if n is None else {"N": n})
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"CameraProfile.{name} must be finite, got non-finite entries")
     arr = arr.copy()
@@ -204,7 +204,6 @@ class CameraProfile:
 
     def save(self, path) -> Path:
         """Write the profile as JSON, atomically (temporary file, then rename)."""
-        from .._atomic import write_json_atomic
         return write_json_atomic(path, self.to_dict())
 
     @classmethod
@@ -279,7 +278,7 @@ def default_profile(bit_depth: int = 8, frame_precision_scale: float = 7e5, *, e
         other value is read as a linear response.
     gamma : float
         Display gamma of a "gamma" encoding (2.2: the sRGB-like curve of
-        :func:`hybridhdr.synthetic.procedural_recording`).
+        :func:`hybridhdr.simulate.procedural.procedural_recording`).
 
     Notes
     -----

@@ -6,7 +6,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_command, json_output, positive_float, positive_int
+from .._util.cliargs import COMMON, COMMON_NO_JSON, HelpFormatter, json_command, json_output, positive_float, positive_int
 
 DESCRIPTION = "record and read hybrid data (devices, brackets, sync, recorder)"
 _FMT = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v) come from COMMON
@@ -171,7 +171,7 @@ def _frame_source(args, t_origin_us=None):
 
 @json_command
 def run_record(args) -> int:
-    from .._limits import allow_huge
+    from .._util.limits import allow_huge
     with allow_huge(args.allow_huge):
         return _run_record(args)
 
@@ -263,7 +263,7 @@ def run_brackets(args) -> int:
         return 0
     if args.folder is None:
         raise ValueError("give a bracket FOLDER to read, or --device oak to capture one")
-    from .brackets import read_bracket_set, write_bracket_set
+    from ..formats.brackets import read_bracket_set, write_bracket_set
     bs = read_bracket_set(args.folder)
     info = _bracket_summary(bs)
     print(f"{args.folder}: {info['images']} images {info['shape']} {info['dtype']}, encoding {info['encoding']}")
@@ -305,7 +305,7 @@ def _plot_sync(frames_in, frames_out, report, path):
 
 @json_command
 def run_sync(args) -> int:
-    from ..container import read_recording, write_recording
+    from ..formats.container import read_recording, write_recording
     from .sync import sync_recording
     rec = read_recording(args.recording)
     rec2, rep = sync_recording(rec, channel=args.trigger_channel, edge_mode=args.edge_mode, use=args.use,
@@ -329,7 +329,7 @@ def run_sync(args) -> int:
 # -- recover ----------------------------------------------------------------------------------
 @json_command
 def run_recover(args) -> int:
-    from .._limits import allow_huge
+    from .._util.limits import allow_huge
     from .recorder import journal_path, recover
     with allow_huge(args.allow_huge):
         res = recover(args.file, args.out, compression=_comp(args.compression), progress=not args.no_progress)

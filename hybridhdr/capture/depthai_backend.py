@@ -308,7 +308,7 @@ class DepthaiFrameSource(FrameSource):
         frames_per_step : int
             Frames kept per exposure (each one is written, tagged with its own exposure).
         folder : path-like, optional
-            Write a bracket set there (:func:`hybridhdr.capture.brackets.write_bracket_set`).
+            Write a bracket set there (:func:`hybridhdr.formats.brackets.write_bracket_set`).
         max_wait_frames : int
             Frames to wait for a change to show in the metadata before giving up.
         tolerance : float
@@ -354,7 +354,7 @@ class DepthaiFrameSource(FrameSource):
                   "frames_discarded": discarded, "iso": [it.iso for it in items],
                   "sequence": [it.sequence for it in items]}
         if folder is not None:
-            from .brackets import write_bracket_set
+            from ..formats.brackets import write_bracket_set
             cam = dict(self.device.info())
             cam.update(camera or {})
             cam.setdefault("name", cam.get("name") or "Luxonis OAK")

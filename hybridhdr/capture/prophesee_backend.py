@@ -17,7 +17,7 @@ from __future__ import annotations
 import numpy as np
 
 from ..events import EVENT_DTYPE, SensorSize, empty_triggers, make_triggers
-from ..io import EventChunk
+from ..formats import EventChunk
 from .devices import NoDeviceFound
 from .sources import EventSource
 

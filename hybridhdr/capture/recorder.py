@@ -16,7 +16,7 @@ Design (see ``docs/capture.md``):
   handing the bytes to the OS (``fsync=True`` also forces them to the disk, for power loss).
   HDF5 files killed mid-write are often unreadable, so the HDF5 container is not written while
   recording; :meth:`Recorder.finish` replays the journal into a container ``REC.h5.partial`` with
-  :class:`~hybridhdr.container.RecordingWriter`, renames it to ``REC.h5`` and deletes the journal.
+  :class:`~hybridhdr.formats.container.RecordingWriter`, renames it to ``REC.h5`` and deletes the journal.
 * After ``kill -9`` (or a power cut with ``fsync=True``) :func:`recover` performs the same replay
   on whatever the journal holds: every record whose length and checksum are intact, which includes
   everything up to the last flush. ``hybridhdr capture recover REC.h5`` runs it.
@@ -45,9 +45,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._version import __version__
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize
+from ..formats.container import RecordingWriter
 from ..model import Frames, Metadata
+from .sources import FrameItem
 
 __all__ = ["Recorder", "RecorderStats", "recover", "journal_path", "JournalWriter", "read_journal",
            "ON_FULL_POLICIES"]
@@ -200,7 +203,7 @@ def _decode(rtype: int, payload: bytes):
         if (not isinstance(shape, list) or len(shape) not in (2, 3)
                 or not all(isinstance(v, int) and 0 < v <= 1 << 16 for v in shape)):
             raise ValueError(f"FRAME record shape {shape!r} is not a valid image shape")
-        from .._limits import check_finite, check_sensor_size
+        from .._util.limits import check_finite, check_sensor_size
         check_sensor_size(shape[0], shape[1], None, "journal frame")
         for k in ("t_start_us", "t_end_us", "exposure_us", "sequence"):
             v = meta.get(k)
@@ -263,7 +266,7 @@ def read_journal(path, on_record=None) -> JournalContents:
                     # LZ4 expands at most ~255x; a larger declared size is a forged header
                     if raw_len > 255 * stored + 64:
                         raise ValueError(f"declared raw length {raw_len} is impossible for {stored} LZ4 bytes")
-                    from .._limits import check_packet_size
+                    from .._util.limits import check_packet_size
                     check_packet_size(raw_len, path, "journal record", offset=pos)
                     payload = lz4.decompress(payload, uncompressed_size=raw_len)
                 elif raw_len != stored:
@@ -281,7 +284,7 @@ def read_journal(path, on_record=None) -> JournalContents:
             if contents is None:
                 if rtype != T_HEADER or not isinstance(obj, dict):
                     raise FormatError(path, "journal does not start with a HEADER record", offset=pos)
-                from .._limits import check_sensor_size
+                from .._util.limits import check_sensor_size
                 try:
                     check_sensor_size(obj.get("sensor_height"), obj.get("sensor_width"), path, "journal sensor")
                 except FormatError as e:
@@ -360,7 +363,7 @@ class Recorder:
         Queue-full policy (module docstring). ``"block"`` on a source that cannot be back-pressured
         is refused.
     compression : {"gzip", "lzf", None}
-        Compression of the final container (:class:`~hybridhdr.container.RecordingWriter`).
+        Compression of the final container (:class:`~hybridhdr.formats.container.RecordingWriter`).
     journal_compression : {"lz4", None}
         LZ4 block compression of journal records (default when ``lz4`` is installed).
     fsync : bool
@@ -553,7 +556,6 @@ class Recorder:
         ss = getattr(self.event_source, "sensor_size", None)
         if ss is None:
             raise ValueError(f"{type(self.event_source).__name__} does not report its sensor size")
-        from .. import __version__
         header = {"format": "hybridhdr-journal", "version": 1, "sensor_height": ss.height,
                   "sensor_width": ss.width, "metadata": self.metadata.to_dict(),
                   "event_source": self.event_source.device_info(),
@@ -660,8 +662,6 @@ class Recorder:
 def _convert(jpath: Path, out: Path, *, compression="gzip", progress=False, final_stats=None,
              recovered=False) -> tuple[dict, JournalContents]:
     """Replay a journal into a container written atomically (``out.partial`` then rename)."""
-    from ..container import RecordingWriter
-    from .sources import FrameItem
 
     # the metadata needs the final stats: after a crash they come from the last intact FLUSH
     # record, found by a first pass over the journal

@@ -23,6 +23,10 @@ import shutil
 import time
 from pathlib import Path
 
+from .._util.atomic import atomic_folder
+from .._version import __version__
+from ..formats.container import RecordingFile
+
 __all__ = ["create_session", "verify_session", "sha256_file", "MANIFEST", "SESSION_FORMAT"]
 
 MANIFEST = "manifest.json"
@@ -47,7 +51,6 @@ def _entry(root: Path, path: Path, role: str, copied: bool) -> dict:
 
 
 def _summary(rec_path: Path) -> dict:
-    from ..container import RecordingFile
     with RecordingFile(rec_path) as r:
         fr = r.read_frames()
         tr = r.time_range_us
@@ -91,11 +94,7 @@ def create_session(folder, recording, *, calibration=None, camera_profile=None, 
         if not (Path(b) / "brackets.json").is_file():
             raise ValueError(f"{b}: not a bracket-set folder (expected a brackets.json inside; write one with "
                              f"'hybridhdr capture brackets --out')")
-    tmp = folder.with_name(folder.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
-    try:
+    with atomic_folder(folder) as tmp:
         files = []
         shutil.copy2(rec, tmp / "recording.h5")
         files.append(_entry(tmp, tmp / "recording.h5", "recording", True))
@@ -126,7 +125,6 @@ def create_session(folder, recording, *, calibration=None, camera_profile=None, 
             for f in sorted(dst.rglob("*")):
                 if f.is_file():
                     files.append(_entry(tmp, f, "brackets", True))
-        from .. import __version__
         manifest = {"format": SESSION_FORMAT, "version": 1, "name": name or folder.name,
                     "created_by": f"hybridhdr {__version__}",
                     "created_utc": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()), "notes": notes,
@@ -134,10 +132,6 @@ def create_session(folder, recording, *, calibration=None, camera_profile=None, 
                     "camera_profile": refs.get("camera_profile"), "brackets": bnames,
                     "summary": _summary(tmp / "recording.h5"), "files": files}
         (tmp / MANIFEST).write_text(json.dumps(manifest, indent=1) + "\n", encoding="utf-8")
-        os.replace(tmp, folder)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
     return folder
 
 

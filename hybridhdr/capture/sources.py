@@ -1,6 +1,6 @@
 """Live and replayed data sources: iterators of timestamped event chunks and frames.
 
-An :class:`EventSource` yields :class:`~hybridhdr.io.EventChunk` objects (sorted events plus the
+An :class:`EventSource` yields :class:`~hybridhdr.formats.EventChunk` objects (sorted events plus the
 trigger edges that arrived with them); a :class:`FrameSource` yields :class:`FrameItem` objects (one
 image with its exposure interval, exposure, ISO/gain and the camera's sequence number). Both are
 context managers (``open``/``close``), describe their device with :meth:`device_info`, and stop
@@ -23,8 +23,10 @@ from typing import Iterator
 
 import numpy as np
 
+from .._util.checks import check_shape
 from ..events import EVENT_DTYPE, SensorSize, empty_triggers
-from ..io import EventChunk
+from ..formats import EventChunk
+from ..formats import open_reader
 from ..model import Frames
 
 __all__ = ["FrameItem", "EventSource", "FrameSource", "ReplayEventSource", "ReplayFrameSource",
@@ -63,8 +65,7 @@ class FrameItem:
 
     def __post_init__(self):
         im = np.asarray(self.image)
-        if im.ndim not in (2, 3) or (im.ndim == 3 and im.shape[2] != 3):
-            raise ValueError(f"FrameItem.image must have shape (H, W) or (H, W, 3), got {im.shape}")
+        check_shape(im, "H W | H W 3", "FrameItem.image")
         if int(self.t_end_us) < int(self.t_start_us):
             raise ValueError(f"FrameItem: exposure end {self.t_end_us} µs is before its start {self.t_start_us} µs")
         if int(self.exposure_us) < 0:
@@ -134,7 +135,7 @@ class _Source:
 
 
 class EventSource(_Source):
-    """Interface: iterate to get :class:`~hybridhdr.io.EventChunk` objects in time order.
+    """Interface: iterate to get :class:`~hybridhdr.formats.EventChunk` objects in time order.
 
     Subclasses set :attr:`sensor_size` and implement :meth:`_iter`.
     """
@@ -218,7 +219,6 @@ class ReplayEventSource(EventSource):
         self._reader = None
 
     def open(self):
-        from ..io import open_reader
         if self._reader is None:
             self._reader = open_reader(self.path, self.format, **self._reader_options)
             self.sensor_size = self._reader.sensor_size
@@ -312,7 +312,6 @@ class ReplayFrameSource(FrameSource):
 
     def open(self):
         if self._frames is None:
-            from ..io import open_reader
             with open_reader(self.path, self.format) as r:
                 fr = r.read_frames()
             if fr is None or not len(fr):

@@ -31,6 +31,7 @@ import numpy as np
 
 from ..events import TRIGGER_DTYPE, validate_triggers
 from ..model import Frames
+from ..model import Metadata, Recording
 
 __all__ = ["SyncReport", "sync_frames", "robust_line_fit", "trigger_pulses", "sync_recording", "EDGE_MODES"]
 
@@ -287,7 +288,6 @@ def sync_frames(frames: Frames, triggers: np.ndarray, *, channel: int = 0, edge_
 
 def sync_recording(recording, *, channel: int = 0, **kwargs):
     """:func:`sync_frames` on a :class:`~hybridhdr.model.Recording`; the report goes to provenance."""
-    from ..model import Metadata, Recording
     if recording.frames is None or not len(recording.frames):
         raise ValueError("the recording holds no frames to synchronise")
     frames, report = sync_frames(recording.frames, recording.triggers, channel=channel, **kwargs)

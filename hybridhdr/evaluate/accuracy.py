@@ -24,7 +24,7 @@ Scoring (:func:`score_run`), per method and suite:
   whose reference is 0 (black in a rendered scene) have no log and are left out of these RMSEs.
   Every method is scored at the same reference times, those at or after the first event.
 
-Suites: :func:`edge_sweep_suite` (:func:`hybridhdr.synthetic.edge_sweep_recording`),
+Suites: :func:`edge_sweep_suite` (:func:`hybridhdr.simulate.procedural.edge_sweep_recording`),
 :func:`hdr_suite` (built-in Mitsuba scenes), :func:`ahdr_suite` (``build_ahdr``, codes outside
 [100, 160] clipped), :func:`real_leave_one_out` (a real recording, each frame in turn withheld
 and predicted at its exposure centre, scored against it on its well-exposed pixels) and
@@ -39,7 +39,13 @@ import time
 
 import numpy as np
 
+from ..reconstruct import AKFParams, reconstruct
+from ..simulate.procedural import edge_sweep_recording
+from . import realdata as RD
+from .datasets import load_dataset
 from .metrics import normalise_pair, pu_ssim, ssim_map
+from .metrics import pu21_encode
+from .paper import paper_bench
 
 __all__ = ["METHODS", "MethodSpec", "clip_masks", "recoverable_masks", "fit_log_affine", "log_errors",
            "score_run", "SuiteData", "edge_sweep_suite", "hdr_suite", "ahdr_suite", "run_suite",
@@ -80,7 +86,6 @@ METHODS = (
 
 def method_params(spec: MethodSpec, contrast_threshold: float | None):
     """The parameters of ``spec``: its preset (if any) with the sensor's nominal threshold."""
-    from ..reconstruct import AKFParams
     if spec.preset is not None:
         kw = {} if contrast_threshold is None else {"contrast_threshold": float(contrast_threshold)}
         return getattr(AKFParams, spec.preset)(**kw)
@@ -216,7 +221,6 @@ def score_run(recon, reference, masks: dict, *, valid=None, peak_luminance_cd_m2
 
 
 def _pu(lum):
-    from .metrics import pu21_encode
     return pu21_encode(lum)
 
 
@@ -248,8 +252,7 @@ def _clip_codes(rec) -> tuple:
 
 
 def edge_sweep_suite(seeds=(0,), **kw) -> list[SuiteData]:
-    """The edge sweep (:func:`hybridhdr.synthetic.edge_sweep_recording`) for each seed."""
-    from ..synthetic import edge_sweep_recording
+    """The edge sweep (:func:`hybridhdr.simulate.procedural.edge_sweep_recording`) for each seed."""
     out = []
     for s in seeds:
         rec, scene = edge_sweep_recording(int(s), **kw)
@@ -263,7 +266,6 @@ def edge_sweep_suite(seeds=(0,), **kw) -> list[SuiteData]:
 
 
 def _sim_suite(specs, cache_dir, seed=0) -> list[SuiteData]:
-    from .datasets import load_dataset
     out = []
     for spec in specs:
         d = load_dataset(spec, seed=seed, cache_dir=cache_dir)
@@ -284,7 +286,6 @@ def hdr_specs(quick: bool = True, refractory_period_us: int | None = None) -> li
     period loses the change a pixel sees while it is blind, so a sharp edge of ~10 log units
     sweeping across a pixel in a few ms reports only a fraction of it: the bright parts' level is
     then in no input, and no method can recover it."""
-    from .paper import paper_bench
     ds = [dict(d) for d in paper_bench(quick)["datasets"] if d["name"].startswith("HDR:")]
     for d in ds:
         d.pop("hdr_rate_hz", None)
@@ -296,7 +297,6 @@ def hdr_specs(quick: bool = True, refractory_period_us: int | None = None) -> li
 
 def ahdr_specs(quick: bool = True) -> list[dict]:
     """The AHDR set: ``build_ahdr`` of the paper reproduction (codes outside [100, 160] clipped)."""
-    from .paper import paper_bench
     ds = [dict(d) for d in paper_bench(quick)["datasets"] if d["name"].startswith("AHDR:")]
     for d in ds:
         d.pop("hdr_rate_hz", None)
@@ -321,7 +321,6 @@ def _current_frames(frames, t_us) -> np.ndarray:
 
 
 def _reconstruct(rec, spec: MethodSpec, c, profile, times):
-    from ..reconstruct import reconstruct
     t0 = time.perf_counter()
     v = reconstruct(rec, spec.method, method_params(spec, c), times_us=times, mode=spec.mode, profile=profile,
                     augment=spec.augment)
@@ -414,7 +413,6 @@ def real_next_frame(rec, held=None, methods=METHODS, profile=None, contrast_thre
 
 def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, well_exposed, log,
                   thresholds="input") -> list[dict]:
-    from . import realdata as RD
     held = RD.default_held_frames(rec) if held is None else [int(k) for k in held]
     ref, valid, _ = RD.reference_frames(rec, held, profile, well_exposed)
     specs = [RD.HoldoutSpec(m.label, m.method, m.mode, method_params(m, contrast_threshold), m.augment)

@@ -24,6 +24,14 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path
+from .._util.toml import load_toml, loads_toml
+from ..reconstruct.api import reconstruct, resolve_method
+from ..simulate.procedural import procedural_recording
+from .datasets import DATASET_KINDS, load_dataset
+from .metrics import default_normalise, match_frames, score_video
+from .report import write_report
+
 __all__ = ["Bench", "RunSpec", "load_bench", "parse_bench", "expand", "run_bench", "run_task", "write_results",
            "TIMING_COLUMNS", "METRIC_COLUMNS", "bundled_bench", "BUNDLED"]
 
@@ -106,7 +114,7 @@ def _confine_bench_file(d: dict, base: Path, source: str, allow_outside, out_dir
     """A bench loaded from a file reads and writes only inside its folder (and ``out_dir`` for its
     cache) unless ``allow_outside`` folders are given; it never names code to run (HDR-VDP's
     folder, unpickling checkpoints): those come from the command line or the environment."""
-    from .._confine import confine
+    from .._util.confine import confine
     b = d.get("bench", {})
     if b.get("hdrvdp_dir") is not None:
         raise ValueError(f"{source}: [bench].hdrvdp_dir is not accepted in a bench file (HDR-VDP runs the .m files of "
@@ -157,8 +165,6 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
         raise ValueError(f"{source or 'bench'}: needs at least one [[datasets]] entry")
     if not isinstance(ms, list) or not ms:
         raise ValueError(f"{source or 'bench'}: needs at least one [[methods]] entry")
-    from .datasets import DATASET_KINDS
-    from ..reconstruct.api import resolve_method
     names = set()
     for i, x in enumerate(ds):
         if not isinstance(x, dict) or x.get("kind") not in DATASET_KINDS:
@@ -204,7 +210,7 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
     def _path(v):  # relative checkpoint paths are relative to the bench file, and stay inside its folder
         if base is None:
             return v
-        from .._confine import confine
+        from .._util.confine import confine
         return str(confine(v, base, allow_outside, what="checkpoint (weights)", source=str(source)))
     weights = {k: _path(v) for k, v in weights.items()}
     for m in ms:
@@ -220,14 +226,6 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
                  strips=int(b.get("strips", 4)), warmup=bool(b.get("warmup", True)),
                  source=str(source), cache_dir=b.get("cache_dir"), jod=jod, jod_frames=jf, jod_display=jd,
                  weights=weights)
-
-
-def _load_toml_bytes(data: bytes) -> dict:
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python < 3.11
-        import tomli as tomllib
-    return tomllib.loads(data.decode("utf-8"))
 
 
 def bundled_bench(name: str) -> str:
@@ -246,16 +244,14 @@ def load_bench(path_or_name, *, allow_outside=(), out_dir=None) -> Bench:
     ``allow_outside`` folders are given (:func:`parse_bench`)."""
     p = Path(path_or_name)
     if p.is_file():
-        return parse_bench(_load_toml_bytes(p.read_bytes()), str(p), allow_outside=allow_outside, out_dir=out_dir)
+        return parse_bench(load_toml(p), str(p), allow_outside=allow_outside, out_dir=out_dir)
     if str(path_or_name) in BUNDLED:
-        return parse_bench(_load_toml_bytes(bundled_bench(str(path_or_name)).encode()), f"<bundled {path_or_name}>")
+        return parse_bench(loads_toml(bundled_bench(str(path_or_name))), f"<bundled {path_or_name}>")
     raise FileNotFoundError(f"bench file {path_or_name} not found (bundled benches: {list(BUNDLED)})")
 
 
 def expand(bench: Bench):
     """The task list: ``[(dataset_name, dataset_spec, dataset_grid_values, [RunSpec ...]), ...]``."""
-    from .metrics import default_normalise
-    from ..reconstruct.api import resolve_method
     runs = []
     for m in bench.methods:
         for gv in _grid(m.get("grid"), f"methods[{m['name']}]"):
@@ -343,8 +339,6 @@ def _warmup(run: RunSpec):
     key = (run.method, json.dumps(run.augment, sort_keys=True, default=str), run.mode)
     if key in _WARM:
         return
-    from ..reconstruct.api import reconstruct
-    from ..synthetic import procedural_recording
     rec, _ = procedural_recording((16, 16), 120_000, seed=0, frame_rate_hz=20.0)
     try:
         reconstruct(rec, run.method, _method_params(run, 0.2), mode=run.mode, augment=run.augment)
@@ -367,9 +361,6 @@ def _strip_frame(video_frames, vi, ri, ref_images, frames, ref_t):
 
 def run_task(task, bench_opts: dict) -> list[dict]:
     """Run every method variant of one dataset variant; returns one row dict per run."""
-    from ..reconstruct.api import reconstruct
-    from .datasets import load_dataset
-    from .metrics import match_frames, score_video
     ds_name, spec, ds_gv, runs = task
     seed = int(bench_opts["seed"])
     rows = []
@@ -554,18 +545,15 @@ def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = T
 
     Returns the paths written (name -> Path).
     """
-    from .report import write_report
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     cols = _columns(rows)
     path = out / "results.csv"
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", newline="", encoding="utf-8") as f:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
         w = csv.writer(f)
         w.writerow(cols)
         for r in rows:
             w.writerow([_fmt(r.get(c)) for c in cols])
-    os.replace(tmp, path)
     written = {"csv": path}
     written.update(write_report(rows, out, bench, charts=charts))
     return written

@@ -1,4 +1,4 @@
-"""Speed–accuracy and stability charts from benchmark rows (issue 7, items 3 and 4).
+"""Speed–accuracy and stability charts from benchmark rows.
 
 Rows are the dicts of :func:`hybridhdr.evaluate.bench.run_bench` (or the rows of
 ``results.csv`` read back with :func:`hybridhdr.evaluate.bench.read_results`).

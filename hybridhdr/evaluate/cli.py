@@ -7,11 +7,11 @@ import os
 import sys
 from pathlib import Path
 
-from .._cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
+from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
 
 
 def add_parser(sub) -> None:
-    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._cliargs.finalise
+    fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._util.cliargs.finalise
     p = sub.add_parser("evaluate", help="metrics and benchmarks", formatter_class=fmt,
                        description="Score reconstructions (MSE, SSIM, PU21, HDR-VDP Q), run benchmarks, "
                                    "reproduce the paper's Table 1. See docs/evaluate.md.")
@@ -154,8 +154,8 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     ``reference_index``, ``reference_t_us`` and scores (:func:`~.metrics.score_video`)."""
     import numpy as np
 
-    from ..io import read
-    from ..reconstruct.output import read_exr
+    from ..formats import read
+    from ..formats.images import read_exr
     from .metrics import HDRVDPNotFound, default_normalise, find_hdrvdp, match_frames, score_akf2021, score_video
     if protocol not in ("default", "akf2021"):
         raise ValueError(f"protocol must be 'default' or 'akf2021', got {protocol!r}")
@@ -358,7 +358,7 @@ def _holdout_params(method: str, params_path, contrast_threshold):
 
 @json_output
 def run_holdout_cmd(args) -> int:
-    from ..io import read
+    from ..formats import read
     from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
     methods = [m.strip() for m in args.method.split(",") if m.strip()]
     if not methods:

@@ -33,6 +33,8 @@ from dataclasses import asdict, dataclass
 
 import numpy as np
 
+from .._util.checks import check_shape
+
 __all__ = ["CVVDPResult", "CVVDPNotAvailable", "cvvdp_jod", "cvvdp_available", "DEFAULT_DISPLAY", "display_model",
            "SCALE"]
 
@@ -222,8 +224,7 @@ def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPL
         raise ValueError(f"test and reference shapes differ: {t.shape} vs {r.shape}")
     if t.ndim == 2:
         t, r = t[None], r[None]
-    if t.ndim not in (3, 4) or (t.ndim == 4 and t.shape[3] != 3):
-        raise ValueError(f"expected (H, W), (K, H, W) or (K, H, W, 3) frames, got {np.asarray(test).shape}")
+    check_shape(np.shape(test), "H W | K H W | K H W 3", "frames")
     if not (np.isfinite(t).all() and np.isfinite(r).all()):
         raise ValueError("test and reference must be finite")
     if anchor not in ("max", "p99.9"):

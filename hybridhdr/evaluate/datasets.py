@@ -4,7 +4,7 @@ with HDR references.
 ``spec = {"kind": ..., **params}``; every kind is deterministic given ``seed``.
 
 ``procedural``
-    :func:`hybridhdr.synthetic.procedural_recording` (bright disc ``bright_ratio`` × brighter than a
+    :func:`hybridhdr.simulate.procedural.procedural_recording` (bright disc ``bright_ratio`` × brighter than a
     textured background, ideal events, 8-bit gamma frames, HDR references in frame-linear units:
     the scene intensity times the frames' gain, 1.0 = code 255) plus the sensor and
     camera stresses of the stability sweeps, applied here:
@@ -27,13 +27,12 @@ with HDR references.
     the references (a frame-prediction test); ``contrast_threshold`` (log units) states the
     sensor's threshold for the methods.
 ``sim_procedural`` / ``builtin`` / ``ahdr``
-    The simulator (:mod:`hybridhdr.simulate`, issue 5): the procedural scene through the
-    simulator's sensor, camera and adaptive sampling; a built-in Mitsuba scene; an AHDR-style
-    recording from an image. Keys in :mod:`hybridhdr.evaluate._simdata`. A clear ImportError
-    names what is missing when the simulator is not installed.
+    The simulator (:mod:`hybridhdr.simulate`): the procedural scene through the simulator's
+    sensor, camera and adaptive sampling; a built-in Mitsuba scene; an AHDR-style recording from
+    an image. Keys in :mod:`hybridhdr.simulate.datasets`.
 
 HDR references of the simulated kinds are in the reconstruction's frame-linear units (1.0 = the
-frame camera's clip level at the frame's exposure, :mod:`hybridhdr.evaluate.units`); a ``file``
+frame camera's clip level at the frame's exposure, :mod:`hybridhdr.simulate.units`); a ``file``
 dataset's references are whatever the file holds (``holdout_frames``: the camera profile's
 frame-linear units).
 
@@ -44,13 +43,22 @@ seed, and read back afterwards.
 
 from __future__ import annotations
 
+import hashlib
+import json
 import math
 from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import write_text_atomic
+from ..camera.profile import load_profile, profile_for_frames
 from ..events import EVENT_DTYPE, SensorSize
-from ..model import Frames, Recording
+from ..formats import read
+from ..formats.container import read_recording, write_recording
+from ..model import Frames, HDRReferences, Recording
+from ..simulate.datasets import profile_from_provenance, simulated_dataset
+from ..simulate.procedural import ProceduralScene, procedural_recording
 
 __all__ = ["DATASET_KINDS", "Dataset", "load_dataset", "requantise", "add_noise_events", "PROCEDURAL_KEYS"]
 
@@ -161,7 +169,6 @@ def add_noise_events(events: np.ndarray, sensor_size, rate_hz: float, t0_us: int
 
 
 def _procedural(spec: dict, seed: int) -> Dataset:
-    from ..synthetic import ProceduralScene, procedural_recording
     _check_keys(spec, PROCEDURAL_KEYS, "procedural")
     s = dict(PROCEDURAL_KEYS)
     s.update({k: v for k, v in spec.items() if k not in ("kind", "name")})
@@ -204,7 +211,6 @@ def _procedural(spec: dict, seed: int) -> Dataset:
     stats["saturated_fraction"] = float(np.mean(frames.images == 255))
     stats["black_fraction"] = float(np.mean(frames.images == 0))
     # references in frame-linear units: the frames encode clip(I·gain, 0, 1) (1.0 = code 255)
-    from ..model import HDRReferences
     unit = float(rec.metadata.provenance["frame_gain"]) * k
     hdr = HDRReferences(rec.hdr.images * np.float32(unit), rec.hdr.t_us)
     stats.update(gt_units="frame_linear", gt_scale=unit)
@@ -213,9 +219,6 @@ def _procedural(spec: dict, seed: int) -> Dataset:
 
 
 def _file(spec: dict, seed: int) -> Dataset:
-    from ..io import read
-    from ..model import HDRReferences
-    from ..reconstruct.profile import load_profile, profile_for_frames
     _check_keys(spec, {"path", "format", "contrast_threshold", "holdout_frames", "profile"}, "file")
     if "path" not in spec:
         raise ValueError("a 'file' dataset needs 'path'")
@@ -252,22 +255,11 @@ def _file(spec: dict, seed: int) -> Dataset:
 
 
 def _simulated(spec: dict, seed: int) -> Dataset:
-    kind = spec["kind"]
-    try:
-        from ..simulate import pipeline  # noqa: F401
-    except ImportError as e:
-        raise ImportError(f"dataset kind {kind!r} needs the simulator (hybridhdr.simulate.pipeline, issue 5), "
-                          f"which is not available: {e}") from e
-    from ._simdata import simulated_dataset
-    return simulated_dataset(spec, seed)
+    d = simulated_dataset(spec, seed)
+    return Dataset(d.recording, d.contrast_threshold, d.duration_us, d.description, d.profile)
 
 
 def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
-    import hashlib
-    import json
-    from pathlib import Path
-
-    from ..container import read_recording, write_recording
     # "gt_units": references in frame-linear units (older caches held radiance: a new key)
     key = json.dumps({"spec": {k: v for k, v in spec.items() if k != "name"}, "seed": seed,
                       "gt_units": "frame_linear"}, sort_keys=True, default=str)
@@ -279,15 +271,13 @@ def _cached(spec: dict, seed: int, cache_dir) -> Dataset:
     if path.is_file() and meta.is_file():
         info = json.loads(meta.read_text())
         rec = read_recording(path)
-        from ._simdata import profile_from_provenance
         return Dataset(rec, info["contrast_threshold"], info["duration_us"], info["description"],
                        profile_from_provenance(rec.metadata.provenance))
     data = _simulated(spec, seed)
     write_recording(data.recording, path)  # atomic (.partial + rename)
-    tmp = meta.with_name(meta.name + ".partial")
-    tmp.write_text(json.dumps({"contrast_threshold": data.contrast_threshold, "duration_us": data.duration_us,
-                               "description": data.description}, default=str))
-    tmp.replace(meta)
+    write_text_atomic(meta, json.dumps({"contrast_threshold": data.contrast_threshold,
+                                        "duration_us": data.duration_us, "description": data.description},
+                                       default=str))
     return data
 
 

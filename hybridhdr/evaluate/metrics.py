@@ -22,7 +22,7 @@ each stated in the result:
    Default (:data:`DEFAULT_NORMALISE`): ``"none"`` for every method, as the paper scores
    ("on the un-altered reconstruction and raw HDR intensities", Table 1). The evaluation's
    simulated references are in the reconstruction's **frame-linear units** (1.0 = the frame
-   camera's clip level at the frame's exposure; :func:`hybridhdr.evaluate.units.reference_to_frame_units`),
+   camera's clip level at the frame's exposure; :func:`hybridhdr.simulate.units.reference_to_frame_units`),
    so no fit is needed. The fits stay available by name (``normalise="scale"`` etc.), e.g. for
    events-only ``highpass``, whose output is relative, or for references in other units.
 2. **Range**: both are divided by the reference's maximum over the sequence (one common
@@ -72,7 +72,6 @@ Metrics
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import re
@@ -83,6 +82,9 @@ from dataclasses import asdict, dataclass
 from pathlib import Path
 
 import numpy as np
+
+from .._util.checks import check_shape
+from . import cvvdp_metric
 
 __all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "ssim_map", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
@@ -144,8 +146,7 @@ def ssim_map(test, reference, data_range: float = 1.0, *, sigma: float = 1.5, tr
     a, b = _pair(test, reference, "ssim_map")
     if a.ndim == 2:
         return _ssim_map2d(a, b, data_range, sigma, truncate, k1, k2)
-    if a.ndim != 3:
-        raise ValueError(f"ssim_map: expected (H, W) or (K, H, W), got {a.shape}")
+    check_shape(a, "K H W", "ssim_map: images (or (H, W))")
     maps = [_ssim_map2d(x, y, data_range, sigma, truncate, k1, k2) for x, y in zip(a, b)]
     return np.stack([m for m, _ in maps]), maps[0][1] if maps else int(truncate * sigma + 0.5)
 
@@ -214,8 +215,7 @@ def global_ssim(test, reference, data_range: float = 255.0, *, variant: str = "e
         raise ValueError(f"variant must be 'eaf' or 'standard', got {variant!r}")
     if a.ndim == 3:
         return float(np.mean([global_ssim(x, y, data_range, variant=variant) for x, y in zip(a, b)]))
-    if a.ndim != 2:
-        raise ValueError(f"global_ssim: expected (H, W) or (K, H, W), got {a.shape}")
+    check_shape(a, "H W", "global_ssim: images (or (K, H, W))")
     c1, c2 = (0.01 * data_range) ** 2, (0.03 * data_range) ** 2
     if variant == "standard":
         mx, my = a.mean(), b.mean()
@@ -232,7 +232,7 @@ def global_ssim(test, reference, data_range: float = 255.0, *, variant: str = "e
 # -- PU21 ---------------------------------------------------------------------------------------
 
 #: PU21 parameters p0..p6 (Mantiuk & Azimi 2021, doi:10.1109/PCS50896.2021.9477471; values as in
-#: ``../shared/reference/calibration.md`` and the authors' ``gfxdisp/pu21``).
+#: ``docs/calibrate.md`` and the authors' ``gfxdisp/pu21``).
 PU21_PARAMS = {
     "banding_glare": (0.353487901, 0.3734658629, 8.277049286e-05, 0.9062562627, 0.09150303166,
                       0.9099517204, 596.3148142),
@@ -447,19 +447,18 @@ def jod_score(test01, ref01, *, max_frames: int = JOD_MAX_FRAMES, display: str |
     display model and viewing distance), ``jod_seconds``; without cvvdp/PyTorch ``jod`` is NaN
     and ``jod_note`` says :data:`JOD_NA` (never an exception).
     """
-    from .cvvdp_metric import DEFAULT_DISPLAY, CVVDPNotAvailable, cvvdp_jod
     a, b = _pair(test01, ref01, "jod_score")
     if a.ndim == 2:
         a, b = a[None], b[None]
     idx = jod_frame_indices(a.shape[0], max_frames)
-    display = display or DEFAULT_DISPLAY
+    display = display or cvvdp_metric.DEFAULT_DISPLAY
     out = {"jod_frames": int(idx.size), "jod_display": display}
     if not (np.isfinite(a[idx]).all() and np.isfinite(b[idx]).all()):
         out.update(jod=float("nan"), jod_note="non-finite pixels")
         return out
     try:
-        r = cvvdp_jod(a[idx], b[idx], fps=0.0, display=display)
-    except CVVDPNotAvailable:
+        r = cvvdp_metric.cvvdp_jod(a[idx], b[idx], fps=0.0, display=display)
+    except cvvdp_metric.CVVDPNotAvailable:
         out.update(jod=float("nan"), jod_note=JOD_NA)
         return out
     out.update(jod=r.jod, jod_display_line=r.display_line(), jod_seconds=r.seconds, jod_note="")
@@ -507,8 +506,7 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
     ``per_frame``) ``frames``.
     """
     a, b = _pair(test_frames, reference_frames, "score_video")
-    if a.ndim != 3:
-        raise ValueError(f"score_video expects (K, H, W) sequences, got {a.shape}")
+    check_shape(a, "K H W", "score_video: sequences")
     if not peak_luminance_cd_m2 > 0:
         raise ValueError(f"peak_luminance_cd_m2 must be > 0, got {peak_luminance_cd_m2}")
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
@@ -602,8 +600,7 @@ def score_akf2021(test_frames, reference_frames, *, hdrvdp: dict | None = None, 
     if r.ndim == 4:
         r = r.mean(axis=3)
     a, r = _pair(a, r, "akf2021")
-    if a.ndim != 3:
-        raise ValueError(f"score_akf2021 expects (K, H, W) sequences, got {a.shape}")
+    check_shape(a, "K H W", "score_akf2021: sequences")
     r = r / AKF2021["frame_unit"]
     mask = r != 0
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
@@ -662,7 +659,7 @@ def pixels_per_degree(diagonal_in: float = 21.0, resolution_wh=(640, 480), dista
 
     ``height = diagonal / sqrt(1 + (w/h)²)``, ``ppd = h_px / (2·atan(height / (2·distance)))`` in
     degrees. The defaults are the AKF follow-up's setting (21-inch 640×480 display at 1 m,
-    ``../shared/reference/akf.md`` §8): about 26.4 ppd.
+    Wang et al. 2021, §6): about 26.4 ppd.
     """
     w, h = resolution_wh
     if not (diagonal_in > 0 and distance_m > 0 and w > 0 and h > 0):
@@ -753,8 +750,7 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
     a, b = _pair(test, reference, "hdrvdp_q")
     if a.ndim == 2:
         a, b = a[None], b[None]
-    if a.ndim != 3:
-        raise ValueError(f"hdrvdp_q expects (H, W) or (K, H, W) luminance images, got {a.shape}")
+    check_shape(a, "K H W", "hdrvdp_q: luminance images (or (H, W))")
     if not luminance_scale_cd_m2 > 0:
         raise ValueError(f"luminance_scale_cd_m2 must be > 0, got {luminance_scale_cd_m2}")
     d = find_hdrvdp(hdrvdp_dir)
@@ -788,7 +784,3 @@ def hdrvdp_q(test, reference, *, hdrvdp_dir=None, engine: str = "auto", task: st
                            + " | ".join(tail))
     return HDRVDPResult(float(np.mean(qs)), mv.group(1).strip() if mv else "unknown", task, color_encoding, ppd,
                         float(luminance_scale_cd_m2), eng, tuple(qs))
-
-
-def result_json(res: HDRVDPResult) -> str:
-    return json.dumps(asdict(res))

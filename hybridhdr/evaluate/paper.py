@@ -1,25 +1,23 @@
-"""Paper reproduction (issue 7, item 6): Table 1 of Wang et al., ICCV 2021, on simulated sets.
+"""Paper reproduction: Table 1 of Wang et al., ICCV 2021, on simulated sets.
 
 The paper's Table 1 (doi:10.1109/ICCV48922.2021.00050) scores methods on an HDR set and an AHDR
 ("artificial HDR": LDR frames clipped to a narrow code range) set with MSE, SSIM and HDR-VDP Q,
 "on the un-altered reconstruction and raw HDR intensities"; it reports AKF 1.71e-2 / 0.89 / 4.83
 (HDR) and 4.18e-2 / 0.75 / 5.54 (AHDR), a 48 % MSE reduction and 11 % better SSIM than CF.
 
-We rebuild both sets with the simulator (issue 5):
+We rebuild both sets with the simulator:
 
 - **HDR set**: built-in Mitsuba scenes with real dynamic range (``dark_room_window``,
   ``night_drive_sign``, ``fast_object_bright_background``) through the "clean" event sensor and
   an 8-bit gamma frame camera.
-- **AHDR set**: AHDR-style recordings: when :func:`hybridhdr.simulate.ahdr.build_ahdr` exists,
-  from stills of the procedural scene (3:1 and 10:1) with its default camera motion and frame
-  codes clipped to [100, 160], read with a camera profile built from the simulator's clipped
-  inverse CRF (:func:`hybridhdr.evaluate._simdata.camera_profile`); otherwise the procedural scene (low dynamic range, 3:1 and
-  10:1) and ``slow_static`` through a camera whose codes are clipped to [100, 160]
-  (``FrameCameraParams.code_clip``, the AKF paper's artificial saturation).
+- **AHDR set**: AHDR-style recordings (:func:`hybridhdr.simulate.ahdr.build_ahdr`) from stills
+  of the procedural scene (3:1 and 10:1) with its default camera motion and frame codes clipped
+  to [100, 160] (the AKF paper's artificial saturation), read with a camera profile built from
+  the simulator's clipped inverse CRF (:func:`hybridhdr.simulate.datasets.camera_profile`).
 
 Scores follow :mod:`hybridhdr.evaluate.metrics`: by default the **unaltered** reconstruction
 against references in the same frame-linear units (1.0 = the frame camera's clip level at the
-frame's exposure, :mod:`hybridhdr.evaluate.units`), as the paper scores, data range 1 after
+frame's exposure, :mod:`hybridhdr.simulate.units`), as the paper scores, data range 1 after
 dividing both by the reference maximum; ``normalise=`` names a fit instead, and the table's
 header says which was used; the learned events-only baselines (E2VID, FireNet; run when their
 weights are given, never downloaded) output relative intensities and are scored after a fitted
@@ -35,6 +33,11 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+
+from .._util.atomic import write_text_atomic
+from .bench import load_bench, parse_bench, run_bench, write_results
+from .metrics import JOD_NA, NORMALISE_MODES
+from .report import _lower, akf_vs_cf, akf_vs_cf_text, format_table, jod_label, scoring_label, summary_table
 
 __all__ = ["paper_bench", "paper_table", "run_paper", "PAPER_TABLE1"]
 
@@ -58,14 +61,6 @@ TABLE1_COLUMNS = ("e2vid", "firenet", "hpf", "cf", "akf")
 _TITLES = {"e2vid": "E2VID", "firenet": "FireNet", "hpf": "HPF", "cf": "CF", "akf": "AKF"}
 
 
-def _has_ahdr() -> bool:
-    try:
-        from ..simulate import ahdr  # noqa: F401
-        return hasattr(ahdr, "build_ahdr")
-    except ImportError:
-        return False
-
-
 #: Per-scene metering of the HDR set's frame camera (a multiplier on its electrons per
 #: radiance·s, i.e. an ISO setting; 10 ms exposures): the median of the scene's non-zero
 #: radiance lands at 0.2 of the clip level, as a camera's auto-exposure locked on the first
@@ -86,7 +81,6 @@ def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir
     (``"scale"``, ...) by name. The learned methods (``weights = {"e2vid": PATH, "firenet":
     PATH}``, those given run) are scored with ``"scale"`` unless another fit is named.
     ``jod``/``jod_frames``: ColorVideoVDP JOD on at most that many frames per sequence."""
-    from .metrics import NORMALISE_MODES
     if normalise not in NORMALISE_MODES:
         raise ValueError(f"normalise must be one of {NORMALISE_MODES}, got {normalise!r}")
     if quick:
@@ -104,17 +98,10 @@ def paper_bench(quick: bool = True, *, seed: int = 0, cache_dir=None, hdrvdp_dir
     for scene in ("dark_room_window", "night_drive_sign", "fast_object_bright_background"):
         ds.append({"name": f"HDR:{scene}", "kind": "builtin", "scene": scene, **common,
                    "exposure_scale": HDR_METERING[scene]})
-    if _has_ahdr():
-        for ratio in (3.0, 10.0):
-            ds.append({"name": f"AHDR:procedural_{ratio:g}x", "kind": "ahdr", "image": f"procedural:{ratio:g}",
-                       "width": size["width"], "height": size["height"], "duration_us": size["duration_us"],
-                       "hdr_rate_hz": hdr_rate, "sampling": dict(sampling)})
-    else:
-        clip = {"camera": {"exposure_us": 10_000, "code_clip": [100, 160]}}
-        ds.append({"name": "AHDR:disc_3x", "kind": "sim_procedural", "bright_ratio": 3.0, **common, **clip})
-        ds.append({"name": "AHDR:disc_10x", "kind": "sim_procedural", "bright_ratio": 10.0, "speed_px_per_s": 300.0,
-                   **common, **clip})
-        ds.append({"name": "AHDR:slow_static", "kind": "builtin", "scene": "slow_static", **common, **clip})
+    for ratio in (3.0, 10.0):
+        ds.append({"name": f"AHDR:procedural_{ratio:g}x", "kind": "ahdr", "image": f"procedural:{ratio:g}",
+                   "width": size["width"], "height": size["height"], "duration_us": size["duration_us"],
+                   "hdr_rate_hz": hdr_rate, "sampling": dict(sampling)})
     bench = {"name": "paper_quick" if quick else "paper", "seed": seed, "tolerance_us": 1000, "strips": 6}
     if cache_dir is not None:
         bench["cache_dir"] = str(cache_dir)
@@ -147,8 +134,6 @@ def paper_table(rows) -> tuple[str, dict]:
     """Markdown tables shaped like Table 1: methods as columns (E2VID, FireNet, HPF, CF, AKF, then
     the paper's AKF), rows MSE, SSIM, JOD (ColorVideoVDP) and, when any run has one, Q (HDR-VDP 3)
     per set; the other methods in a second table of the same shape. Returns (text, numbers)."""
-    from .metrics import JOD_NA
-    from .report import _lower, scoring_label
     sets = ("HDR", "AHDR")
     labels, norm = [], {}
     for r in rows:
@@ -238,7 +223,6 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
     one line saying why). ``jod=False`` skips ColorVideoVDP. ``details``, a dict, receives the
     numbers of the table (``table``), ``runs``, ``failed``, ``omitted`` methods and the files
     written (``written_paths``, as :func:`~.bench.write_results` returns them)."""
-    from .bench import parse_bench, run_bench, write_results
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
     weights = {k: v for k, v in (weights or {}).items() if v}
@@ -247,8 +231,7 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
     rows = run_bench(bench, workers=workers, scheduler=scheduler, progress=progress)
     w = write_results(rows, out, bench)
     text, numbers = paper_table(rows)
-    sets = "AHDR via hybridhdr.simulate.ahdr" if _has_ahdr() else "AHDR = clipped-code camera [100, 160]"
-    from .report import jod_label
+    sets = "AHDR via hybridhdr.simulate.ahdr"
     missing = [m["method"] for m in LEARNED_METHODS if m["method"] not in weights]
     header = (f"Table 1 (shape of Wang et al., ICCV 2021) on simulated sets ({'quick' if quick else 'full'}; "
               f"{sets}); linear MSE/SSIM, data range 1 after dividing by the reference maximum; Q "
@@ -262,10 +245,7 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
         text += f"\n\n{len(errors)} runs failed, e.g. {errors[0]['dataset']} / {errors[0]['method_label']}: " \
                 f"{errors[0]['status']}"
     full = header + text + f"\n\nreport: {w['report_md']}"
-    p = out / "table1.md"
-    tmp = p.with_name("table1.md.partial")
-    tmp.write_text(full + "\n", encoding="utf-8")
-    tmp.replace(p)
+    p = write_text_atomic(out / "table1.md", full + "\n")
     if details is not None:
         details.update(table=numbers, runs=len(rows), failed=len(errors), omitted=missing, quick=bool(quick),
                        written_paths={**w, "table1_md": p})
@@ -283,8 +263,6 @@ def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True
     """
     import dataclasses
 
-    from .bench import load_bench, run_bench, write_results
-    from .report import akf_vs_cf, akf_vs_cf_text, format_table, summary_table
     out = Path(out_dir)
     bench = dataclasses.replace(load_bench("demo"), seed=seed)
     rows = run_bench(bench, workers=workers, progress=progress)

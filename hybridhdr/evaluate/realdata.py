@@ -44,26 +44,24 @@ event; frames after the last event are dropped from the input (no events around 
 from __future__ import annotations
 
 import dataclasses
-import math
 import time
 
 import numpy as np
 
-__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "TASKS", "HoldoutSpec", "BASELINES", "default_held_frames",
-           "holdout_input", "holdout_reconstructions", "input_thresholds", "THRESHOLD_SOURCES", "score_frame",
-           "evaluate_holdout", "format_holdout"]
+from ..calibrate.thresholds import estimate_thresholds
+from ..camera import load_profile, profile_for_frames
+from ..camera.encoding import well_exposed_range
+from ..events import slice_time
+from ..model import Recording
+from ..reconstruct import reconstruct
+from ..reconstruct.api import make_params, resolve_method
+from ..reconstruct.measurement import frames_to_codes
+from .metrics import ssim_map
 
-#: Well-exposed codes of an 8-bit frame (inclusive); scaled to other bit depths.
-WELL_EXPOSED_8BIT = (20, 235)
+__all__ = ["TASKS", "HoldoutSpec", "BASELINES", "default_held_frames", "holdout_input", "holdout_reconstructions",
+           "input_thresholds", "THRESHOLD_SOURCES", "score_frame", "evaluate_holdout", "format_holdout"]
 
 TASKS = ("leave_one_out", "next_frame")
-
-
-def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int, int]:
-    """Well-exposed codes ``(lo, hi)`` (inclusive) for frames with top code ``max_code``: the 8-bit
-    range scaled by ``max_code / 255`` (lo rounded up, hi rounded down)."""
-    s = int(max_code) / 255.0
-    return int(math.ceil(codes_8bit[0] * s - 1e-9)), int(math.floor(codes_8bit[1] * s + 1e-9))
 
 
 @dataclasses.dataclass(frozen=True)
@@ -104,8 +102,6 @@ def default_held_frames(rec) -> list[int]:
 def holdout_input(rec, k: int, task: str):
     """``(recording, t_us)``: the input without frame k (``leave_one_out``) or cut before it
     (``next_frame``), and the output time (τ_k, or τ_k − 1 µs)."""
-    from ..model import Recording
-    from ..events import slice_time
     fr = _trimmed_frames(rec)
     if not 0 <= k < len(fr):
         raise ValueError(f"held-out frame {k} is not among the {len(fr)} frames inside the events' span")
@@ -143,8 +139,6 @@ def input_thresholds(rec_input, method: str, params, profile=None):
     """``(params, used)``: ``params`` of ``method`` with pooled ON/OFF thresholds estimated on
     ``rec_input`` in the method's own log model (module docstring), and a record of what was used.
     Methods without thresholds, and inputs without the information, keep ``params``."""
-    from ..calibrate.thresholds import estimate_thresholds
-    from ..reconstruct.api import make_params, resolve_method
     m = resolve_method(method)
     if m not in THRESHOLD_METHODS:
         return params, None
@@ -171,7 +165,6 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
     of a spec stops that spec (reported, not hidden).
     """
-    from ..reconstruct import reconstruct
     if thresholds not in THRESHOLD_SOURCES:
         raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES}, got {thresholds!r}")
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
@@ -205,8 +198,6 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
 def reference_frames(rec, held, profile=None, well_exposed=None):
     """``(references (n, H, W) float64 frame-linear, valid (n, H, W) bool, (lo, hi))`` of the
     held-out frames: the profile's ``CRF⁻¹(code)`` and the well-exposed codes."""
-    from ..camera import load_profile, profile_for_frames
-    from ..reconstruct.measurement import frames_to_codes
     fr = _trimmed_frames(rec)
     if profile is None:
         from ..reconstruct.api import _source_profile
@@ -222,7 +213,6 @@ def reference_frames(rec, held, profile=None, well_exposed=None):
 
 def score_frame(recon, reference, valid) -> dict:
     """MSE, PSNR (dB) and SSIM of one reconstruction on the ``valid`` pixels (module docstring)."""
-    from .metrics import ssim_map
     x = np.asarray(recon, np.float64)
     r = np.asarray(reference, np.float64)
     v = np.asarray(valid, bool)

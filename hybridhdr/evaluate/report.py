@@ -11,6 +11,11 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.atomic import atomic_path, write_text_atomic
+from ..formats.images import tone_map
+from .charts import _plt, numerical_failures, plot_speed_accuracy, plot_stability, stability_curves
+from .metrics import JOD_NA
+
 __all__ = ["summary_table", "akf_vs_cf", "akf_vs_cf_parts", "akf_vs_cf_text", "scoring_label", "jod_label",
            "write_report", "write_strip", "format_table", "render_report"]
 
@@ -96,7 +101,6 @@ def scoring_label(rows) -> str:
 def jod_label(rows) -> str:
     """What the JOD column means: the display model and viewing distance of every score (one
     line per distinct display), the frames scored, or why there is no JOD."""
-    from .metrics import JOD_NA
     lines = sorted({str(r.get("jod_display_line")) for r in rows if r.get("jod_display_line")})
     frames = [_f(r.get("jod_frames")) for r in rows if r.get("jod_display_line")]
     frames = [int(v) for v in frames if math.isfinite(v)]
@@ -207,8 +211,6 @@ def safe_file_stem(name: str) -> str:
 
 def write_strip(images: dict, path, title: str = "") -> Path:
     """One row of images: LDR input, each method, reference (tone-mapped with the reference's range)."""
-    from .charts import _plt
-    from ..reconstruct.output import tone_map
     plt = _plt()
     ref = images.get("__reference__")
     ldr = images.get("__ldr__")
@@ -234,25 +236,25 @@ def write_strip(images: dict, path, title: str = "") -> Path:
         fig.suptitle(title, fontsize=8)
     fig.tight_layout()
     path = Path(path)
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, dpi=110)
-    plt.close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=110)
+    finally:
+        plt.close(fig)
     return path
 
 
 def _save(fig, path: Path):
-    from .charts import _plt
-    tmp = path.with_name(path.stem + ".partial.png")
-    fig.savefig(tmp, dpi=120, bbox_inches="tight")
-    _plt().close(fig)
-    os.replace(tmp, path)
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=120, bbox_inches="tight")
+    finally:
+        _plt().close(fig)
     return path
 
 
 def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
     """Speed–accuracy and stability PNGs; returns (paths, stability failure rows)."""
-    from .charts import plot_speed_accuracy, plot_stability, stability_curves
     plt = __import__("hybridhdr.evaluate.charts", fromlist=["_plt"])._plt()
     paths, fails = {}, []
     sa = charts_cfg.get("speed_accuracy", {})
@@ -301,7 +303,6 @@ def write_charts(rows, out: Path, charts_cfg: dict) -> tuple[dict, list]:
 
 def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     """Write strips, charts, ``report.md`` and ``report.html``; returns name -> Path."""
-    from .charts import numerical_failures
     out = Path(out)
     written = {}
     # strips: first and last variant of each dataset, capped by bench.strips
@@ -367,11 +368,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
     for template, fname, key in (("report.md.j2", "report.md", "report_md"),
                                  ("report.html.j2", "report.html", "report_html")):
         text = render_report(template, context).rstrip("\n") + "\n"
-        path = out / fname
-        tmp = path.with_name(fname + ".partial")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
-        written[key] = path
+        written[key] = write_text_atomic(out / fname, text)
     written["strips"] = strip_paths
     written["failures"] = fails
     written["akf_vs_cf"] = cmp_

@@ -1,4 +1,4 @@
-"""Stability sweeps (issue 7, item 4): stress axes mapped onto dataset-generator parameters.
+"""Stability sweeps: stress axes mapped onto dataset-generator parameters.
 
 Each :class:`StressAxis` names one stress, the parameter it drives, where that parameter lives
 (``"dataset"``: a key of the dataset spec; ``"method"``: a method setting such as
@@ -59,7 +59,7 @@ STRESS_AXES: dict[str, StressAxis] = {a.name: a for a in (
                "frame rate of the frame camera", "Hz"),
 )}
 
-#: Simulator mapping of the dataset-side axes (issue 5 parameter names): key -> dotted path in an
+#: Simulator mapping of the dataset-side axes (the simulator's parameter names): key -> dotted path in an
 #: ``ahdr``/``builtin`` dataset spec.
 SIMULATOR_KEYS = {
     "noise_rate_hz": "sensor.shot_noise_rate_hz",

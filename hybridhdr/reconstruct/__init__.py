@@ -10,10 +10,9 @@ See ``docs/reconstruct.md``.
 from .api import METHOD_ALIASES, METHODS, Video, make_params, reconstruct, reconstruct_iter, resolve_method
 from .measurement import FrameMeasurements, Segment
 from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
-from .profile import CameraProfile, default_profile, load_profile
 
 __all__ = [
     "reconstruct", "reconstruct_iter", "Video", "METHODS", "METHOD_ALIASES", "resolve_method", "make_params",
     "AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
-    "CameraProfile", "default_profile", "load_profile", "FrameMeasurements", "Segment",
+    "FrameMeasurements", "Segment",
 ]

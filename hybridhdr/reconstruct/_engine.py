@@ -9,7 +9,8 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
-from .._prefetch import Prefetcher
+from .._util.checks import check_shape
+from .._util.prefetch import Prefetcher
 from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
@@ -59,8 +60,7 @@ class Engine:
         out = []
         for a, scalar, name in ((c_on, pr.c_on, "c_on"), (c_off, pr.c_off, "c_off")):
             a = np.asarray(a, dtype=np.float64)
-            if a.shape != self.shape:
-                raise ValueError(f"threshold map {name} has shape {a.shape}, expected the sensor's {self.shape}")
+            check_shape(a, "H W", f"threshold map {name} (the sensor's)", sizes=dict(zip("HW", self.shape)))
             a = np.where(np.isfinite(a) & (a > 0), a, scalar)
             out.append(np.ascontiguousarray(a.reshape(-1)))
         self.con_px, self.coff_px = out

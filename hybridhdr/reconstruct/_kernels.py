@@ -27,7 +27,7 @@ import math
 import numpy as np
 from numba import njit
 
-from .._nbprefetch import prefetch
+from .._util.nbprefetch import prefetch
 
 US = 1e-6  # seconds per microsecond
 #: events ahead whose pixel state the event kernels prefetch (1280x720: 2x the events/s; results

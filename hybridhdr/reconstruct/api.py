@@ -8,16 +8,20 @@ from typing import Callable, Iterator
 
 import numpy as np
 
-from .._limits import check_fps_outputs, check_output_count, check_sensor_size
+from .._util.checks import check_shape
+from .._util.limits import check_fps_outputs, check_output_count, check_sensor_size
+from ..camera import CameraProfile
+from ..camera.profile import load_profile
 from ..events import SensorSize, events_fields
 from ..model import Frames, Recording
 from . import _engine as E
+from .augment import AugmentedMeasurements, AugmentParams
+from .colour import _metadata, colour_source, rgb_to_luminance
+from .edi import EDIEngine, EDIParams
+from .event_arrays import EventArrays, StreamingEventArrays
+from .learned.params import E2VIDParams, FireNetParams
 from .measurement import FrameMeasurements
 from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
-from .augment import AugmentedMeasurements, AugmentParams
-from .edi import EDIEngine, EDIParams, EventArrays, StreamingEventArrays
-from .profile import load_profile
-from .learned.params import E2VIDParams, FireNetParams
 from .smoother import output_times, two_sided_iter
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
@@ -70,11 +74,9 @@ class Video:
 
     def __post_init__(self):
         fr = np.asarray(self.frames, dtype=np.float32)
-        if fr.ndim != 3 and not (fr.ndim == 4 and fr.shape[3] == 3):
-            raise ValueError(f"Video.frames must have shape (K, H, W) or (K, H, W, 3), got {fr.shape}")
+        k = check_shape(fr, "K H W | K H W 3", "Video.frames")["K"]
         t = np.asarray(self.t_us, dtype=np.int64)
-        if t.shape != (fr.shape[0],):
-            raise ValueError(f"Video.t_us must have shape ({fr.shape[0]},), got {t.shape}")
+        check_shape(t, "K", "Video.t_us", sizes={"K": k})
         object.__setattr__(self, "frames", fr)
         object.__setattr__(self, "t_us", t)
 
@@ -94,7 +96,6 @@ class Video:
         """(K, H, W) float32: the frames themselves, or Rec. 709 luminance of RGB frames."""
         if not self.is_colour:
             return self.frames
-        from .colour import rgb_to_luminance
         return rgb_to_luminance(self.frames)
 
 
@@ -146,7 +147,7 @@ def _open_source(source):
     reader = source
     close = (lambda: None)
     if isinstance(source, (str, os.PathLike)):
-        from ..io import open_reader
+        from ..formats import open_reader
         reader = open_reader(source)
         close = reader.close
     if not hasattr(reader, "iter_chunks"):
@@ -179,12 +180,10 @@ def _declared_event_count(source) -> int | None:
 def _source_profile(source):
     """The camera profile a source declares (``metadata.provenance["camera_profile"]``, e.g. an
     AKF ``.mat`` file's ``f_Q`` table), or None."""
-    from .colour import _metadata
     prov = getattr(_metadata(source), "provenance", None)
     d = prov.get("camera_profile") if isinstance(prov, dict) else None
     if not isinstance(d, dict):
         return None
-    from ..camera import CameraProfile
     try:
         return CameraProfile.from_dict(d)
     except (TypeError, ValueError) as e:
@@ -220,12 +219,12 @@ def _stored_thresholds(source):
 
 def _threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
-    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.calibrate.thresholds.load_thresholds`
+    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.formats.thresholds.load_thresholds`
     reads), or None."""
     if thresholds is None:
         return None
     if isinstance(thresholds, (str, os.PathLike)):
-        from ..calibrate.thresholds import load_thresholds
+        from ..formats.thresholds import load_thresholds
         thresholds = load_thresholds(thresholds)
     if hasattr(thresholds, "filled"):  # a ThresholdMap: pixels it could not estimate take its fallbacks
         c_on, c_off = thresholds.filled()
@@ -261,8 +260,8 @@ def make_augment_params(augment) -> AugmentParams:
     if isinstance(augment, dict):
         return AugmentParams.from_dict({"enabled": True, **augment})
     if isinstance(augment, (str, os.PathLike)):
-        from .params import _load_toml
-        d = _load_toml(augment)
+        from .._util.toml import load_toml
+        d = load_toml(augment)
         d = d["augment"] if isinstance(d.get("augment"), dict) else d
         return AugmentParams.from_dict({"enabled": True, **{k: v for k, v in d.items() if not isinstance(v, dict)}})
     raise TypeError(f"augment must be AugmentParams, a dict, a TOML path, a bool or None, "
@@ -321,11 +320,10 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
-    :func:`hybridhdr.open_reader`, a :class:`hybridhdr.container.RecordingFile` or a path, whose
+    :func:`hybridhdr.open_reader`, a :class:`hybridhdr.formats.container.RecordingFile` or a path, whose
     events are read chunk by chunk. ``info``, if given, is filled with run statistics. Images
     are (H, W), or (H, W, 3) linear RGB for a colour event camera (``cfa``).
     """
-    from .colour import colour_source
     kw = dict(times_us=times_us, fps=fps, mode=mode, profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
               n_workers=n_workers, chunk_events=chunk_events, measurements=measurements, progress=progress,
               info=info, augment=augment, thresholds=thresholds)

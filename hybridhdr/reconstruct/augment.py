@@ -8,7 +8,7 @@ For frames k with exposure ``[s_k, e_k)`` (``T_k = e_k - s_k``, each frame's own
   estimate ``L^D(e_{k+1}) - c_k Σσ[t, e_{k+1})`` exactly.
 * **Calibrate** (eq. 12): ``c_k = ΔL^D / Σσ`` per pixel, ``ΔL^D = L^D(e_{k+1}) - L^D(s_k)``, kept
   when the scale ``c / c_k`` lies in ``[calibration_scale_min, calibration_scale_max]`` (the
-  reference code's [0.6, 100], ``akf.md`` §4); otherwise ``c_k = c`` with the reason counted
+  reference code's [0.6, 100], ``ziweiWWANG/AKF:compute_ct_scale.m``); otherwise ``c_k = c`` with the reason counted
   (no events, Σσ = 0, ΔL^D = 0 or opposite sign, out of range) in :class:`AugmentStats`.
 * **Blend** (eq. 13): inside exposure k, ``L^A = w A_{k-1} + (1 - w) A_k`` with
   ``w = (e_k - t)/T_k``; in the gap ``[e_k, s_{k+1})``, ``L^A = A_k``.
@@ -33,7 +33,8 @@ import numpy as np
 
 from ..model import Frames
 from . import _augment_kernels as AK
-from .edi import EventArrays, edi_log_latent, estimate_threshold
+from .edi import edi_log_latent, estimate_threshold
+from .event_arrays import EventArrays
 from .measurement import FrameMeasurements, Segment
 from .params import _ParamsMixin
 
@@ -68,13 +69,14 @@ class AugmentParams(_ParamsMixin):
         c for EDI and interpolation, log units; None uses the AKF's (mean of ON and OFF).
     search_threshold : bool
         Estimate c per frame for EDI by the sharpness search (:func:`.edi.estimate_threshold`)
-        instead of using ``contrast_threshold``. The reference code fixes c (``akf.md`` §7).
+        instead of using ``contrast_threshold``. The reference code fixes c.
     threshold_min, threshold_max : float
         Bounds of that search, log units.
     tv_weight : float
         λ of the sharpness energy (Pan et al.: 0.2).
     calibration_scale_min, calibration_scale_max : float
-        Accepted range of c / c_k (the reference code's stored 1/c_p^k: [0.6, 100], ``akf.md`` §4).
+        Accepted range of c / c_k (the reference code's stored 1/c_p^k: [0.6, 100],
+        ``ziweiWWANG/AKF:compute_ct_scale.m``).
     blend_steps : int
         Sub-intervals of each exposure on which eq. 13's weight is held.
     """
@@ -86,24 +88,18 @@ class AugmentParams(_ParamsMixin):
     interpolate: bool = True  # eqs. 10, 11, 13
     calibrate: bool = True  # eq. 12
     contrast_threshold: float | None = None  # log units; None: the AKF's c
-    search_threshold: bool = False  # reference code fixes c (akf.md §7)
+    search_threshold: bool = False  # the reference code fixes c
     threshold_min: float = 0.05
     threshold_max: float = 0.5
     tv_weight: float = 0.2  # λ, Pan et al. TVnorm.m
-    calibration_scale_min: float = 0.6  # reference compute_ct_scale.m (akf.md §4)
+    calibration_scale_min: float = 0.6  # ziweiWWANG/AKF:compute_ct_scale.m
     calibration_scale_max: float = 100.0  # idem
     blend_steps: int = 2  # eq. 13 held on T/2 halves (cost: one AKF segment switch each)
 
     def __post_init__(self):
         for name in ("enabled", "deblur", "interpolate", "calibrate", "search_threshold"):
             self._bool(name)
-        self._num("contrast_threshold", lo=0, lo_open=True, allow_none=True)
-        self._num("threshold_min", lo=0, lo_open=True)
-        self._num("threshold_max", lo=0, lo_open=True)
-        if self.threshold_min >= self.threshold_max:
-            raise ValueError(f"AugmentParams.threshold_min ({self.threshold_min}) must be below threshold_max "
-                             f"({self.threshold_max})")
-        self._num("tv_weight", lo=0)
+        self._threshold_search()
         self._num("calibration_scale_min", lo=0, lo_open=True)
         self._num("calibration_scale_max", lo=0, lo_open=True)
         if self.calibration_scale_min > self.calibration_scale_max:

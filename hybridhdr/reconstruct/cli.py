@@ -7,8 +7,8 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
-from .._timearg import add_time_window
+from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
+from .._util.timearg import add_time_window
 
 _FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
 
@@ -91,7 +91,7 @@ def add_parser(subparsers) -> None:
 
 
 def _exr_choices() -> list[str]:
-    from .output import exr_compressions
+    from ..formats.images import exr_compressions
     return exr_compressions()
 
 
@@ -122,7 +122,7 @@ def build_params(args):
         base = getattr(AKFParams, args.preset)()
     d = base.to_dict()
     if args.config is not None:
-        d.update(cls.from_toml(args.config).to_dict() if False else _toml_fields(cls, args.config))
+        d.update(_toml_fields(cls, args.config))
     names = {f for f in d}
     if args.contrast_threshold is not None:
         if "contrast_threshold" not in names:
@@ -152,8 +152,8 @@ def build_augment(args):
     from .augment import AugmentParams
     d = {}
     if getattr(args, "config", None) is not None:
-        from .params import _load_toml
-        t = _load_toml(args.config).get("augment")
+        from .._util.toml import load_toml
+        t = load_toml(args.config).get("augment")
         if isinstance(t, dict):
             d["enabled"] = True  # an [augment] table asks for augmentation unless it says otherwise
             d.update(t)
@@ -171,8 +171,8 @@ def build_augment(args):
 
 
 def _toml_fields(cls, path) -> dict:
-    from .params import _load_toml
-    d = _load_toml(path)
+    from .._util.toml import load_toml
+    d = load_toml(path)
     if cls._toml_table in d and isinstance(d[cls._toml_table], dict):
         d = d[cls._toml_table]
     d = {k: v for k, v in d.items() if not isinstance(v, dict)}
@@ -183,7 +183,8 @@ def _toml_fields(cls, path) -> dict:
 def output_window(args, method: str):
     """The absolute [start, end) µs of the outputs, and a note when --fps outputs were cut at the end
     of the events (or frames), from --start/--end/--absolute and --until (see the --help)."""
-    from .._timearg import check_window, empty_window_error, recording_span, resolve_window, window_given
+    from .._util.timearg import check_window, empty_window_error, resolve_window, window_given
+    from ..formats.span import recording_span
     check_window(args)
     windowed = window_given(args)
     relative = windowed and args.start_us is None and args.end_us is None and not args.absolute
@@ -224,7 +225,9 @@ def run(args) -> int:
 
     from .._version import __version__
     from .api import METHODS, reconstruct_iter, resolve_method
-    from .output import DEFAULT_EXR_COMPRESSION, OutputFolder, VideoWriter, exr_compressions
+    from .._util.atomic import AtomicFolder
+    from ..formats.images import DEFAULT_EXR_COMPRESSION, exr_compressions
+    from .output import OUTPUTS, VideoWriter
     folder = writer = None
     stage = "arguments"
     try:
@@ -244,7 +247,7 @@ def run(args) -> int:
             raise ValueError(f"--writers must be >= 0, got {args.writers}")
         if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
             raise FileNotFoundError(f"recording {args.recording} not found")
-        folder = OutputFolder(args.out, overwrite=args.overwrite)
+        folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         stage = "run"
         if note:
             print(note, file=sys.stderr)
@@ -264,7 +267,7 @@ def run(args) -> int:
             info: dict = {}
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None:
-                from ..io import open_reader
+                from ..formats import open_reader
                 source = open_reader(args.recording, frame_encoding=args.frame_encoding)
             try:
                 for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
@@ -314,7 +317,7 @@ def run(args) -> int:
         if not isinstance(e, (ValueError, TypeError, OSError, ImportError)) or getattr(args, "debug", False):
             raise
         print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
-        from .._timearg import EmptyWindowError
+        from .._util.timearg import EmptyWindowError
         usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
                  and not isinstance(e, EmptyWindowError))
         return 2 if usage else 1
@@ -340,69 +343,3 @@ def _signals_exit():
     finally:
         for sg, h in old.items():
             signal.signal(sg, h)
-
-
-def demo_step(recording, out_dir) -> str:
-    """Run AKF and CF on ``recording``, write PNG previews, return a short text summary.
-
-    Scoring (HDR-aware, documented in the summary): both the reconstruction and the reference are
-    compared in log intensity, the reconstruction shifted by the constant that best matches the
-    reference (a linear gain, since filters fed by 8-bit frames recover intensity up to the
-    camera's scale), then mapped to [0, 1] by the reference's log range; MSE and SSIM (Gaussian
-    window σ = 1.5, data range 1) are computed on those. The reference is the recording's HDR
-    references when present, else its frames.
-    """
-    import numpy as np
-
-    from .api import reconstruct
-    from .output import tone_map, write_png_previews
-    out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    hdr = recording.hdr
-    if hdr is not None and len(hdr):
-        times, ref = hdr.t_us, hdr.images if hdr.images.ndim == 3 else hdr.images.mean(axis=3)
-        ref_name = "HDR reference"
-    else:
-        fr = recording.frames
-        times, ref = fr.t_mid_us, fr.images.astype(np.float64) / float(np.iinfo(fr.images.dtype).max
-                                                                            if fr.images.dtype.kind == "u" else 1.0)
-        ref_name = "frames"
-    t0 = int(recording.frames.t_mid_us.min())
-    keep = times >= t0
-    times, ref = times[keep], np.asarray(ref[keep], dtype=np.float64)
-    tiny = 1e-6 * float(ref.max() or 1.0)
-    log_ref = np.log(np.maximum(ref, tiny))
-    lo, hi = float(log_ref.min()), float(log_ref.max())
-    span = (hi - lo) or 1.0
-    lines = [f"reconstruct: {len(times)} times, scored against the {ref_name} in log intensity "
-             f"(gain-matched, log range {span:.2f} = {np.exp(span):.3g}:1 mapped to [0, 1])"]
-    _, lim = tone_map(ref)
-    for method in ("akf", "cf"):
-        v = reconstruct(recording, method, times_us=times)
-        log_rec = np.log(np.maximum(v.frames.astype(np.float64), tiny))
-        shift = float(np.mean(log_ref - log_rec))  # least-squares log offset = linear gain
-        a = np.clip((log_rec + shift - lo) / span, 0, 1)
-        b = (log_ref - lo) / span
-        mse = float(np.mean((a - b) ** 2))
-        ssim = _mean_ssim(a, b)
-        gain = float(np.exp(shift))
-        write_png_previews(type(v)(v.frames * gain, v.t_us), out / f"reconstruct_{method}",
-                           every=max(1, len(v) // 5), limits=lim)
-        lines.append(f"  {method:4s} MSE {mse:.4g}  SSIM {ssim:.3f}  (gain {gain:.3g}) -> "
-                     f"{out / ('reconstruct_' + method)}")
-    return "\n".join(lines)
-
-
-def _mean_ssim(a, b) -> float:
-    """Mean SSIM over frames: Gaussian window σ = 1.5, data range 1 (Wang et al. 2004)."""
-    import numpy as np
-    from scipy.ndimage import gaussian_filter
-    c1, c2 = 0.01 ** 2, 0.03 ** 2
-    vals = []
-    for x, y in zip(a.astype(np.float64), b.astype(np.float64)):
-        f = lambda z: gaussian_filter(z, 1.5, truncate=3.5)  # noqa: E731
-        mx, my = f(x), f(y)
-        sxx, syy, sxy = f(x * x) - mx * mx, f(y * y) - my * my, f(x * y) - mx * my
-        s = ((2 * mx * my + c1) * (2 * sxy + c2)) / ((mx * mx + my * my + c1) * (sxx + syy + c2))
-        vals.append(float(s.mean()))
-    return float(np.mean(vals)) if vals else float("nan")

@@ -1,4 +1,4 @@
-"""Colour event cameras: every method on the Bayer mosaic, demosaicked outputs (issue 16, item 2).
+"""Colour event cameras: every method on the Bayer mosaic, demosaicked outputs.
 
 A colour event camera (DAVIS346 colour, Color-DAVIS, ...) puts a Bayer filter over the event
 pixels, so each event reports a change of log intensity of *one* colour: the colour its pixel's
@@ -37,6 +37,8 @@ import os
 import numpy as np
 
 from ..camera.cfa import DEMOSAIC_METHODS, demosaic, mosaic_frames, parse_cfa
+from ..camera.encoding import LUMINANCE_WEIGHTS
+from ..model import Recording
 
 __all__ = ["ColourSource", "colour_source", "source_cfa", "rgb_to_luminance"]
 
@@ -84,7 +86,6 @@ class ColourSource:
     """
 
     def __init__(self, source, pattern: str, frame_pattern: str | None, demosaic_method: str = "log_bilinear"):
-        from ..model import Recording
         if demosaic_method not in DEMOSAIC_METHODS:
             raise ValueError(f"demosaic must be one of {DEMOSAIC_METHODS}, got {demosaic_method!r}")
         self.pattern = pattern
@@ -99,7 +100,7 @@ class ColourSource:
             return
         reader = source
         if isinstance(source, (str, os.PathLike)):
-            from ..io import open_reader
+            from ..formats import open_reader
             reader = open_reader(source)
             self._close = reader.close
         try:
@@ -156,7 +157,7 @@ def colour_source(source, cfa=None, demosaic_method: str = "log_bilinear") -> Co
     if demosaic_method not in DEMOSAIC_METHODS:
         raise ValueError(f"demosaic must be one of {DEMOSAIC_METHODS}, got {demosaic_method!r}")
     if cfa is None and isinstance(source, (str, os.PathLike)):
-        from ..io import open_reader
+        from ..formats import open_reader
         reader = open_reader(source)
         try:
             pattern, frame_pattern = source_cfa(reader)
@@ -178,7 +179,6 @@ def colour_source(source, cfa=None, demosaic_method: str = "log_bilinear") -> Co
 def rgb_to_luminance(rgb) -> np.ndarray:
     """Rec. 709 relative luminance of linear RGB (..., 3): float32 (...)
     (:data:`hybridhdr.camera.encoding.LUMINANCE_WEIGHTS`)."""
-    from ..camera.encoding import LUMINANCE_WEIGHTS
     a = np.asarray(rgb)
     if a.shape[-1:] != (3,):
         raise ValueError(f"RGB images must have a last axis of 3, got shape {a.shape}")

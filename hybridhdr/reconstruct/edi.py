@@ -8,13 +8,14 @@ pixel in ``[t_s, t)``. Averaging over the exposure (the double integral),
     B + I0 = (I(t_s) + I0) · (1/T) ∫_{t_s}^{t_e} exp(c E(t)) dt,
 
 so ``log(I(t_s) + I0) = log(B + I0) - log J`` with ``J = (1/T) ∫ exp(c E) dt``, normalised by the
-**true exposure T** (not by the span of the events, which biases pixels with few events:
-``akf.md`` §6.5), and ``log(I(t) + I0) = log(I(t_s) + I0) + c E(t)`` anywhere in the exposure.
+**true exposure T** (not by the span of the events, as the authors' code does, which biases
+pixels with few events), and ``log(I(t) + I0) = log(I(t_s) + I0) + c E(t)`` anywhere in the
+exposure.
 
 The threshold c is either given or estimated per frame by minimising a sharpness energy
 λ·TV(L) - ρ(edges(L), edges(M)) (total variation of the latent log image minus the normalised
 correlation of its Sobel edges with those of the event map M) over a bounded interval with a
-golden-section search, as Pan et al. do with a Fibonacci search (``akf.md`` §7).
+golden-section search, as Pan et al. do with a Fibonacci search in their code.
 
 References
 ----------
@@ -32,9 +33,11 @@ from dataclasses import dataclass
 import numpy as np
 
 from . import _augment_kernels as AK
+from .event_arrays import EventArrays
+from .measurement import frames_to_codes
 from .params import DEFAULT_INTENSITY_OFFSET, _ParamsMixin
 
-__all__ = ["EDIParams", "EventArrays", "edi_integral", "edi_log_latent", "edi_latent", "sharpness_energy",
+__all__ = ["EDIParams", "edi_integral", "edi_log_latent", "edi_latent", "sharpness_energy",
            "estimate_threshold", "golden_section_minimize", "EDIEngine"]
 
 _GOLD = (math.sqrt(5.0) - 1.0) / 2.0  # 0.618...
@@ -50,7 +53,7 @@ class EDIParams(_ParamsMixin):
         c in natural-log units; ``None`` estimates it per frame by the sharpness search.
     threshold_min, threshold_max : float
         Bounds of the search, log units (``davis-EDI-rs`` searches [0.1, 0.5]; we start at 0.05
-        to cover sensitive biases; ``akf.md`` §7).
+        to cover sensitive biases).
     tv_weight : float
         λ of the sharpness energy λ·TV - edge correlation (Pan et al.'s ``TVnorm.m``: 0.2).
     search_tolerance : float
@@ -62,212 +65,16 @@ class EDIParams(_ParamsMixin):
     _toml_table = "edi"
 
     contrast_threshold: float | None = None  # c, log units; None: per-frame search
-    threshold_min: float = 0.05  # log units (akf.md §7)
-    threshold_max: float = 0.5  # log units (davis-EDI-rs, akf.md §7)
-    tv_weight: float = 0.2  # λ, Pan et al. TVnorm.m (akf.md §7)
+    threshold_min: float = 0.05  # log units
+    threshold_max: float = 0.5  # log units (ac-freeman/davis-EDI-rs)
+    tv_weight: float = 0.2  # λ, Pan et al.'s TVnorm.m
     search_tolerance: float = 1e-3  # log units
     intensity_offset: float = DEFAULT_INTENSITY_OFFSET  # I0, AKF eq. 8
 
     def __post_init__(self):
-        self._num("contrast_threshold", lo=0, lo_open=True, allow_none=True)
-        self._num("threshold_min", lo=0, lo_open=True)
-        self._num("threshold_max", lo=0, lo_open=True)
-        if self.threshold_min >= self.threshold_max:
-            raise ValueError(f"EDIParams.threshold_min ({self.threshold_min}) must be below threshold_max "
-                             f"({self.threshold_max})")
-        self._num("tv_weight", lo=0)
+        self._threshold_search()
         self._num("search_tolerance", lo=0, lo_open=True)
         self._num("intensity_offset", lo=0, lo_open=True)
-
-
-class EventArrays:
-    """Time-sorted events held in memory as contiguous arrays, with half-open time windows.
-
-    Parameters
-    ----------
-    t : ndarray of shape (N,), int64
-        Timestamps in µs, non-decreasing.
-    x, y : ndarray of shape (N,), uint16
-        Column and row.
-    p : ndarray of shape (N,), int8
-        Polarity ±1.
-    shape : (int, int)
-        (H, W) of the sensor.
-    """
-
-    def __init__(self, t, x, y, p, shape):
-        self.t = np.ascontiguousarray(t, dtype=np.int64)
-        self.x = np.ascontiguousarray(x, dtype=np.uint16)
-        self.y = np.ascontiguousarray(y, dtype=np.uint16)
-        self.p = np.ascontiguousarray(p, dtype=np.int8)
-        n = self.t.shape[0]
-        for name in ("x", "y", "p"):
-            if getattr(self, name).shape != (n,):
-                raise ValueError(f"events: {name} must have shape ({n},) like t, got {getattr(self, name).shape}")
-        self.shape = (int(shape[0]), int(shape[1]))
-        _check_order_and_bounds(self.t, self.x, self.y, self.shape)
-
-    @classmethod
-    def from_structured(cls, events, shape) -> "EventArrays":
-        """From an ``EVENT_DTYPE`` structured array."""
-        return cls(events["t"], events["x"], events["y"], events["p"], shape)
-
-    @classmethod
-    def from_chunks(cls, chunks, shape) -> "EventArrays":
-        """Concatenate ``(t, x, y, p)`` chunks (as produced by the readers' chunk iterators)."""
-        parts = list(chunks)
-        if not parts:
-            z = np.zeros(0, np.int64)
-            return cls(z, z.astype(np.uint16), z.astype(np.uint16), z.astype(np.int8), shape)
-        return cls(*(np.concatenate([c[i] for c in parts]) for i in range(4)), shape)
-
-    def __len__(self) -> int:
-        return int(self.t.shape[0])
-
-    def window(self, t0_us: int, t1_us: int) -> tuple[int, int]:
-        """Indices ``[i0, i1)`` of the events with ``t0_us <= t < t1_us``."""
-        return (int(np.searchsorted(self.t, t0_us, side="left")),
-                int(np.searchsorted(self.t, t1_us, side="left")))
-
-    def chunks(self, n: int):
-        """Yield ``(t, x, y, p)`` slices of ``n`` events (for the filter driver)."""
-        for i in range(0, len(self), n):
-            yield self.t[i:i + n], self.x[i:i + n], self.y[i:i + n], self.p[i:i + n]
-
-    def close(self) -> None:
-        """Nothing to release (see :class:`StreamingEventArrays`)."""
-
-    def counts(self, t0_us: int, t1_us: int) -> tuple[np.ndarray, np.ndarray]:
-        """Per-pixel signed count Σσ and number of events in ``[t0_us, t1_us)``, int64 (H*W,)."""
-        n = self.shape[0] * self.shape[1]
-        s = np.zeros(n, np.int64)
-        a = np.zeros(n, np.int64)
-        if t1_us > t0_us:
-            i0, i1 = self.window(t0_us, t1_us)
-            AK.event_counts(self.x, self.y, self.p, i0, i1, self.shape[1], s, a)
-        return s, a
-
-
-def _check_order_and_bounds(t, x, y, shape, base: int = 0) -> None:
-    """Raise ValueError unless ``t`` is non-decreasing and ``x``, ``y`` lie on the (H, W) sensor.
-
-    ``base`` is the index of ``t[0]`` in the whole stream (for the message). No int64 diff copy
-    (20 M events: 0.1 s).
-    """
-    if t.shape[0] > 1 and np.any(dec := t[1:] < t[:-1]):
-        i = int(np.argmax(dec)) + 1
-        raise ValueError(f"events t must be non-decreasing; index {base + i} has {int(t[i])} after "
-                         f"{int(t[i - 1])}")
-    if x.shape[0] and (int(x.max()) >= shape[1] or int(y.max()) >= shape[0]):
-        raise ValueError(f"event coordinates exceed the sensor size {tuple(shape)} (H, W): max x "
-                         f"{int(x.max())}, max y {int(y.max())}")
-
-
-class StreamingEventArrays(EventArrays):
-    """:class:`EventArrays` filled from event chunks by a background thread, read as it fills.
-
-    For sources that declare their event count (the container, an in-memory recording), frame
-    augmentation and EDI need not wait for the whole file: :meth:`window` (and so
-    :meth:`counts` and the EDI functions) waits only until the events before its end time are
-    in, and :meth:`chunks` yields slices as they arrive. Reading and decompressing then overlap
-    the filter. Chunks are checked as they arrive (time order, coordinates); an error, or more
-    events than declared, is raised in the reading thread's consumer. Fewer events than declared
-    (a file that ends early) make the arrays shorter. :meth:`close` stops the thread.
-    """
-
-    def __init__(self, chunks, shape, n_total: int):
-        import threading
-        n_total = int(n_total)
-        if n_total < 0:
-            raise ValueError(f"n_total must be >= 0, got {n_total}")
-        self.shape = (int(shape[0]), int(shape[1]))
-        self.t = np.empty(n_total, np.int64)
-        self.x = np.empty(n_total, np.uint16)
-        self.y = np.empty(n_total, np.uint16)
-        self.p = np.empty(n_total, np.int8)
-        self._n = 0
-        self._done = False
-        self._error: BaseException | None = None
-        self._stop = False
-        self._cv = threading.Condition()
-        self._src = chunks
-        self._thread = threading.Thread(target=self._run, name="hybridhdr-events", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        cap = self.t.shape[0]
-        n = 0
-        try:
-            for c in self._src:
-                if self._stop:
-                    return
-                t, x, y, p = c
-                m = len(t)
-                if m == 0:
-                    continue
-                if n + m > cap:
-                    raise ValueError(f"the source declared {cap} events but yields more ({n + m} so far)")
-                if len(x) != m or len(y) != m or len(p) != m:
-                    raise ValueError(f"event chunk columns differ in length: t {m}, x {len(x)}, y {len(y)}, p {len(p)}")
-                self.t[n:n + m] = t
-                self.x[n:n + m] = x
-                self.y[n:n + m] = y
-                self.p[n:n + m] = p
-                b = max(n - 1, 0)  # the order check includes the previous chunk's last event
-                _check_order_and_bounds(self.t[b:n + m], self.x[n:n + m], self.y[n:n + m], self.shape, base=b)
-                n += m
-                with self._cv:
-                    self._n = n
-                    self._cv.notify_all()
-        except BaseException as e:  # noqa: BLE001 - handed to the reading thread
-            self._error = e
-        finally:
-            close = getattr(self._src, "close", None)
-            if close is not None:  # a generator source: release its reader (and its own thread)
-                try:
-                    close()
-                except Exception as e:  # noqa: BLE001
-                    self._error = self._error or e
-            with self._cv:
-                if self._error is None and n < cap:  # the source ended early: shorter arrays
-                    self.t, self.x, self.y, self.p = self.t[:n], self.x[:n], self.y[:n], self.p[:n]
-                self._done = True
-                self._cv.notify_all()
-
-    def _wait(self, pred) -> int:
-        with self._cv:
-            self._cv.wait_for(lambda: self._done or pred(self._n))
-            if self._error is not None:
-                raise self._error
-            return self._n
-
-    def _wait_time(self, t_us: int) -> int:
-        """Wait until every event with ``t < t_us`` is in; return the number loaded."""
-        return self._wait(lambda n: n > 0 and self.t[n - 1] >= t_us)
-
-    def __len__(self) -> int:
-        return self._wait(lambda n: False)
-
-    def window(self, t0_us: int, t1_us: int) -> tuple[int, int]:
-        n = self._wait_time(max(int(t0_us), int(t1_us)))
-        tt = self.t[:n]
-        return (int(np.searchsorted(tt, t0_us, side="left")), int(np.searchsorted(tt, t1_us, side="left")))
-
-    def chunks(self, n: int):
-        i = 0
-        while True:
-            m = self._wait(lambda k: k >= i + n)
-            if m <= i:
-                return
-            j = min(m, i + n)
-            yield self.t[i:j], self.x[i:j], self.y[i:j], self.p[i:j]
-            i = j
-
-    def close(self) -> None:
-        """Stop the reading thread (after its current chunk) and wait for it."""
-        self._stop = True
-        if self._thread.is_alive():
-            self._thread.join()
 
 
 def _check_exposure(t_start_us, t_end_us):
@@ -350,7 +157,8 @@ def edi_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int, con
     Examples
     --------
     >>> import numpy as np
-    >>> from hybridhdr.reconstruct.edi import EventArrays, edi_latent
+    >>> from hybridhdr.reconstruct.edi import edi_latent
+    >>> from hybridhdr.reconstruct.event_arrays import EventArrays
     >>> ev = EventArrays([500], [0], [0], [1], (1, 1))      # one ON event half-way through
     >>> B = 0.5 * (0.2 + 1) + 0.5 * (0.2 + 1) * np.exp(0.1) - 1   # blurred from I(t_s) = 0.2
     >>> round(float(edi_latent(np.array([[B]]), ev, 0, 1000, 0.1, 0)[0, 0]), 12)
@@ -370,7 +178,7 @@ def _sobel_mag(img):
 
 
 def sharpness_energy(log_image, event_map, tv_weight: float = 0.2) -> float:
-    """λ·TV(L) - ρ(|∇L|, M): lower is sharper (after Pan et al. 2019; ``akf.md`` §7).
+    """λ·TV(L) - ρ(|∇L|, M): lower is sharper (after Pan et al. 2019).
 
     Parameters
     ----------
@@ -501,7 +309,6 @@ class EDIEngine:
     uses_events = False
 
     def __init__(self, shape, frames, events: EventArrays, profile, params: EDIParams):
-        from .measurement import frames_to_codes
         self.shape = (int(shape[0]), int(shape[1]))
         self.params = params
         codes = frames_to_codes(frames, self.shape)

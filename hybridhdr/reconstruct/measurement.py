@@ -26,7 +26,7 @@ import numpy as np
 
 from ..model import Frames
 from ._kernels import lut_segment
-from .profile import CameraProfile, profile_for_frames
+from ..camera.profile import CameraProfile, profile_for_frames
 
 __all__ = ["Segment", "SegmentCodes", "FrameMeasurements", "frames_to_codes"]
 
@@ -119,7 +119,7 @@ class FrameMeasurements:
     profile : CameraProfile
         Weighting LUT, inverse CRF and precision scale (eqs. 3-6). The built-in default profile
         is adapted to ``frames.encoding`` (gamma frames get the gamma inverse CRF, see
-        :func:`~hybridhdr.reconstruct.profile.profile_for_frames`); the profile used is
+        :func:`~hybridhdr.camera.profile.profile_for_frames`); the profile used is
         ``self.profile``.
     intensity_offset : float
         I0 of eq. 8.

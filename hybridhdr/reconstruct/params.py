@@ -7,7 +7,7 @@ References
 ----------
 Z. Wang, Y. Ng, C. Scheerlinck, R. Mahony, "An Asynchronous Kalman Filter for Hybrid Event
 Cameras", ICCV 2021, doi:10.1109/ICCV48922.2021.00050 (defaults: §6; table in
-``../shared/reference/akf.md`` §5).
+``ziweiWWANG/AKF:run_akf.m``).
 C. Scheerlinck, N. Barnes, R. Mahony, "Continuous-time Intensity Estimation Using Event
 Cameras", ACCV 2018, doi:10.1007/978-3-030-20873-8_20 (CF, high-pass filter).
 """
@@ -17,7 +17,8 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass
-from pathlib import Path
+
+from .._util.toml import load_toml
 
 __all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
            "DEFAULT_INTENSITY_OFFSET"]
@@ -33,15 +34,6 @@ __all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesPar
 DEFAULT_INTENSITY_OFFSET = 1e-3
 #: I0 of the published code (``ziweiWWANG/AKF``: log(I^F/255 + 1)) and of CF's ROS code.
 PUBLISHED_INTENSITY_OFFSET = 1.0
-
-
-def _load_toml(path) -> dict:
-    try:
-        import tomllib
-    except ModuleNotFoundError:  # Python < 3.11
-        import tomli as tomllib
-    with open(Path(path), "rb") as f:
-        return tomllib.load(f)
 
 
 class _ParamsMixin:
@@ -64,7 +56,7 @@ class _ParamsMixin:
     def from_toml(cls, path):
         """Read a TOML file: either top-level keys or a table named after the method
         (``[akf]``, ``[cf]``, ``[highpass]``, ``[direct]``, ``[frames]``)."""
-        d = _load_toml(path)
+        d = load_toml(path)
         if cls._toml_table in d and isinstance(d[cls._toml_table], dict):
             d = d[cls._toml_table]
         d = {k: v for k, v in d.items() if not isinstance(v, dict)}
@@ -103,6 +95,17 @@ class _ParamsMixin:
         if not isinstance(v, bool):
             raise TypeError(f"{type(self).__name__}.{name} must be a bool, got {type(v).__name__} {v!r}")
 
+    def _threshold_search(self):
+        """The fields of a contrast-threshold search (EDI, augmentation): ``contrast_threshold`` > 0
+        or None, 0 < ``threshold_min`` < ``threshold_max``, ``tv_weight`` >= 0."""
+        self._num("contrast_threshold", lo=0, lo_open=True, allow_none=True)
+        self._num("threshold_min", lo=0, lo_open=True)
+        self._num("threshold_max", lo=0, lo_open=True)
+        if self.threshold_min >= self.threshold_max:
+            raise ValueError(f"{type(self).__name__}.threshold_min ({self.threshold_min}) must be below "
+                             f"threshold_max ({self.threshold_max})")
+        self._num("tv_weight", lo=0)
+
 
 class _ThresholdMixin:
     @property
@@ -126,7 +129,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     """Parameters of the Asynchronous Kalman Filter (Wang et al., ICCV 2021).
 
     Defaults are the paper's (§6) where it gives values, else the reference code's
-    (``ziweiWWANG/AKF:run_akf.m``), as tabulated in ``akf.md`` §5. Rates are per second.
+    (``ziweiWWANG/AKF:run_akf.m``). Rates are per second.
 
     Parameters
     ----------
@@ -148,7 +151,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     refractory_period_us : int
         ρ, the refractory-period bound in µs (§3.1.1 gives none; reference code 10 000 µs).
     noise_model : {"paper", "reference_code"}
-        Form of Q (akf.md §1): the paper's (time since the previous event for Q_proc, constant
+        Form of Q (Wang et al. 2021, §3): the paper's (time since the previous event for Q_proc, constant
         Q_ref) or the reference code's (time since the last update, Q_ref ∝ interval).
     initial_covariance : float
         P at initialisation from the first frame, log² (§6: "initialised to 0.01").
@@ -196,7 +199,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
 
     _toml_table = "akf"
 
-    contrast_threshold: float = 0.1  # c, log units; reference-code comments (akf.md §5)
+    contrast_threshold: float = 0.1  # c, log units; reference-code comments (``ziweiWWANG/AKF:run_akf.m``)
     contrast_threshold_on: float | None = None
     contrast_threshold_off: float | None = None
     process_noise_per_s: float = 0.05  # σ²_proc; paper §6: 5e-4 (see the docstring)
@@ -263,7 +266,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
 
     @classmethod
     def reference_code(cls, **overrides) -> "AKFParams":
-        """Settings of ``ziweiWWANG/AKF:run_akf.m`` (akf.md §5): σ_p 5e-3, σ_r 0.05 (per s),
+        """Settings of ``ziweiWWANG/AKF:run_akf.m``: σ_p 5e-3, σ_r 0.05 (per s),
         p_ini 0.09, I0 = 1, no eq. 8 correction, reference-code noise form, clipped codes as values."""
         d = dict(process_noise_per_s=5e-3, isolated_noise_per_s=0.03, refractory_noise=0.05,
                  refractory_period_us=10_000, noise_model="reference_code", initial_covariance=0.09,
@@ -280,8 +283,9 @@ class CFParams(_ParamsMixin, _ThresholdMixin):
     Parameters
     ----------
     cutoff_hz : float
-        Crossover frequency f_c in Hz; α = 2π f_c rad/s (akf.md §7: the ROS implementation's
-        default 0.5 Hz → α = π rad/s). 0 integrates events without frame correction.
+        Crossover frequency f_c in Hz; α = 2π f_c rad/s (the ROS implementation,
+        ``cedric-scheerlinck/dvs_image_reconstruction``, reads its default 0.5 Hz → α = π rad/s).
+        0 integrates events without frame correction.
     contrast_threshold, contrast_threshold_on, contrast_threshold_off : float
         As in :class:`AKFParams` (log units; 0.1 in the ROS implementation).
     intensity_offset : float
@@ -349,7 +353,7 @@ class HighPassParams(_ParamsMixin, _ThresholdMixin):
     Parameters
     ----------
     cutoff_hz : float
-        f_c in Hz, α = 2π f_c (akf.md §7: 0.06 Hz in ``pure_event_reconstruction``).
+        f_c in Hz, α = 2π f_c (0.06 Hz in ``dvs_image_reconstruction``'s ``pure_event_reconstruction``).
     event_decay : float
         Extra dimensionless decay exp(-event_decay) of L̂ at each event (the ROS code's α_e,
         0.06 there; 0 by default, the pure high-pass filter).

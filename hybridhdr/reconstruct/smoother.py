@@ -45,7 +45,7 @@ import numpy as np
 from ..model import Frames
 from . import _engine as E
 from . import _kernels as K
-from .edi import EventArrays
+from .event_arrays import EventArrays
 
 __all__ = ["reverse_events", "reverse_frames", "fuse", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
 

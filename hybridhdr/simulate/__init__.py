@@ -1,4 +1,9 @@
-"""Simulate: Mitsuba 3 scenes to events, LDR frames and HDR ground truth (see issue 5)."""
+"""Simulate: scenes (Mitsuba 3, analytic, AHDR images) to events, LDR frames and HDR ground truth,
+through event-sensor and frame-camera models with adaptive time sampling; simulated datasets.
+
+See ``docs/simulate.md`` and ``docs/simulate-sensor.md``; the analytic generator every test and
+the demo use is :mod:`.procedural`.
+"""
 
 # sensor models, time sampling, pipeline and AHDR builder (docs/simulate-sensor.md)
 from .ahdr import ImageMotionSource, ImageSequenceSource, MotionParams, build_ahdr

@@ -30,8 +30,12 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.checks import check_shape
 from ..errors import FormatError
 from ..events import SensorSize
+from ..formats.rgbe import read_rgbe as read_rgbe_repairing
+from .camera import FrameCameraParams
+from .pipeline import simulate, simulate_to_file
 
 __all__ = ["MotionParams", "ImageMotionSource", "ImageSequenceSource", "build_ahdr", "load_linear_image",
            "read_rgbe", "to_luminance", "AHDR_SATURATION"]
@@ -76,8 +80,7 @@ def read_rgbe(path) -> np.ndarray:
     r = K.decode_rgbe(data, nl + 1, h, w, out)
     if r == -2 and raw.count(b"\r\n") and raw.count(b"\r") == raw.count(b"\r\n"):
         # damaged by a text-mode copy (every CR/LF became CR LF, like shared/data's memorial.hdr):
-        # the calibrate part's reader searches for the consistent decoding (slower, pure Python)
-        from ..calibrate.hdr_reference import read_rgbe as read_rgbe_repairing
+        # the pure-Python reader searches for the consistent decoding (slower)
         return read_rgbe_repairing(path, repair_newlines=True)
     if r < 0:
         raise FormatError(path, f"{'truncated' if r == -1 else 'corrupt run-length'} RGBE pixel data")
@@ -119,10 +122,9 @@ def load_linear_image(path) -> np.ndarray:
 def to_luminance(image) -> np.ndarray:
     """Rec. 709 luminance of linear RGB (H, W, 3); (H, W) images pass through. float32."""
     im = np.asarray(image, dtype=np.float64)
-    if im.ndim == 3 and im.shape[2] == 3:
+    check_shape(im, "H W | H W 3", "image")
+    if im.ndim == 3:
         im = im @ _REC709
-    elif im.ndim != 2:
-        raise ValueError(f"image must be (H, W) or (H, W, 3), got shape {im.shape}")
     if not np.all(np.isfinite(im)):
         raise ValueError("image has non-finite values")
     return np.clip(im, 0.0, None).astype(np.float32)
@@ -345,8 +347,6 @@ def build_ahdr(image_or_path, *, sensor_size=(260, 346), duration_us: int = 1_00
     set so that radiance 1 over ``exposure_us`` gives the signal ``0.5 ** 2.2`` (code 128 through
     the gamma CRF): a well-exposed picture before the artificial saturation.
     """
-    from .camera import FrameCameraParams
-    from .pipeline import simulate, simulate_to_file
 
     ss = SensorSize.from_any(sensor_size)
     if isinstance(image_or_path, (list, tuple)):

@@ -1,6 +1,6 @@
-"""Frame-camera model: exposure, motion blur, noise, CRF and quantisation (issue 5, item 5).
+"""Frame-camera model: exposure, motion blur, noise, CRF and quantisation.
 
-The chain follows ``../shared/reference/simulator.md`` ("Frame-camera chain"):
+The chain follows ``docs/simulate-sensor.md`` ("Frame camera"):
 
 1. linear radiance from the renders;
 2. **exposure**: the time average of the radiance over the exposure interval, with the radiance
@@ -41,6 +41,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.checks import check_shape
+from ..camera import profile_from_inverse_crf
+from ..camera.profile import CameraProfile
 from ..events import SensorSize
 from ..model import Frames
 
@@ -146,8 +149,7 @@ class FrameCameraParams:
                 raise ValueError("crf='table' needs inverse_crf (one irradiance per code)")
             inv = np.asarray(self.inverse_crf, dtype=np.float64)
             n = 1 << self.bit_depth
-            if inv.shape != (n,):
-                raise ValueError(f"inverse_crf must have 2**bit_depth = {n} entries, got shape {inv.shape}")
+            check_shape(inv, "N", "inverse_crf (2**bit_depth entries)", sizes={"N": n})
             if not np.all(np.isfinite(inv)) or np.any(np.diff(inv) < 0) or inv[0] < 0 or inv[-1] <= 0:
                 raise ValueError("inverse_crf must be finite, >= 0, non-decreasing and end above 0")
             object.__setattr__(self, "inverse_crf", tuple(float(v) for v in inv))
@@ -183,7 +185,6 @@ class FrameCameraParams:
     @classmethod
     def from_profile(cls, path, **changes) -> "FrameCameraParams":
         """Use the measured inverse CRF of a camera profile JSON (``docs/camera-profile.md``)."""
-        from ..reconstruct.profile import CameraProfile
         prof = CameraProfile.load(path)
         if prof.inverse_crf is None:
             inv = np.arange(prof.max_code + 1, dtype=np.float64) / prof.max_code
@@ -408,8 +409,7 @@ class FrameCamera:
         p = self.params
         rng = self.rng if rng is None else rng
         rad = np.asarray(mean_radiance, dtype=np.float64)
-        if rad.shape != self.sensor_size.shape:
-            raise ValueError(f"mean_radiance must have shape {self.sensor_size.shape}, got {rad.shape}")
+        check_shape(rad, "H W", "mean_radiance", sizes=dict(zip("HW", self.sensor_size.shape)))
         e = np.clip(rad, 0.0, None) * (exposure_us * 1e-6) * p.electrons_per_radiance_s
         if p.shot_noise:
             e = rng.poisson(np.minimum(e, 1e15)).astype(np.float64)
@@ -474,9 +474,8 @@ class FrameCamera:
                 "inverse_crf": [float(v) for v in crf_inverse_table(self.params)]}
 
     def camera_profile(self, frame_precision_scale: float = 7e5):
-        """A :class:`~hybridhdr.reconstruct.profile.CameraProfile` for the simulated frames
+        """A :class:`~hybridhdr.camera.profile.CameraProfile` for the simulated frames
         (inverse CRF from :func:`crf_inverse_table`; weighting from eqs. 4-5)."""
-        from ..camera import profile_from_inverse_crf
         return profile_from_inverse_crf(crf_inverse_table(self.params), clip_codes=self.params.code_clip,
                                         frame_precision_scale=frame_precision_scale,
                                         name=f"simulated-{self.params.crf}", source="hybridhdr.simulate.camera")

@@ -7,7 +7,7 @@ import json
 import sys
 from pathlib import Path
 
-from .._cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
+from .._util.cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
     positive_int
 
 

@@ -1,14 +1,14 @@
-"""The simulation pipeline: a radiance source to events, frames and HDR ground truth (issue 5).
+"""The simulation pipeline: a radiance source to events, frames and HDR ground truth.
 
 :func:`simulate` drives a :class:`~hybridhdr.simulate.source.RadianceSource` through the
 :class:`~hybridhdr.simulate.sampling.TimeSampler`; every accepted render goes to the event
 sensor (events in ``(t_prev, t]``), to the frame camera (exposure integration) and, at
-ground-truth times, into the HDR references. Ground truth (issue 5, item 6) is the rendered
+ground-truth times, into the HDR references. Ground truth is the rendered
 linear radiance (float32) at every frame's mid-exposure ``t_start + (t_end - t_start) // 2``
 (``Frames.t_mid_us``) and at the requested ``gt_times_us``; these times, and the exposure bounds,
 are mandatory render times, so they are exact renders, not interpolations.
 
-:func:`simulate_to_file` streams the same output into a :class:`~hybridhdr.container.RecordingWriter`
+:func:`simulate_to_file` streams the same output into a :class:`~hybridhdr.formats.container.RecordingWriter`
 (events written after every step, frames and references as they complete; bounded memory;
 ``NAME.partial`` renamed when complete).
 
@@ -23,7 +23,7 @@ work unchanged on the mosaic; frames are the raw mosaic (K, H, W) and HDR refere
 rendered RGB (K, H, W, 3) (the rendered grey for a grey source, whose mosaic is the grey image).
 Both cameras' ``metadata.*.cfa`` record the pattern. The Mitsuba sources render luminance
 (``llvm_ad_mono``, or ``scalar_rgb`` reduced to Y), so colour scenes come from sources that
-return RGB, e.g. :func:`hybridhdr.synthetic.colour_edge_sweep_recording`'s scene.
+return RGB, e.g. :func:`hybridhdr.simulate.procedural.colour_edge_sweep_recording`'s scene.
 """
 
 from __future__ import annotations
@@ -34,7 +34,10 @@ from pathlib import Path
 
 import numpy as np
 
+from .._version import __version__
+from ..camera.cfa import mosaic, parse_cfa
 from ..events import EVENT_DTYPE
+from ..formats.container import RecordingWriter
 from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 from .camera import FrameCamera, FrameCameraParams
 from .sampling import SamplingParams, TimeSampler, event_fidelity
@@ -107,7 +110,6 @@ class _MosaicSource:
         return self._recent[t]
 
     def render(self, t_us: int) -> np.ndarray:
-        from ..camera.cfa import mosaic
         r = self.rgb(t_us)
         if r.ndim == 3:
             return mosaic(r, self.pattern)
@@ -138,7 +140,6 @@ class _MemorySink:
 
 def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress, cfa=None):
     _check_source(source)
-    from ..camera.cfa import parse_cfa
     pattern = parse_cfa(cfa)
     if pattern is not None:
         source = _MosaicSource(source, pattern)
@@ -218,7 +219,6 @@ def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress,
              "n_events": int(ev_sensor.n_events), "n_noise_events": int(ev_sensor.n_noise_events),
              "n_frames": n_frames, "n_hdr": n_hdr, "wall_s": wall, "sensor_s": t_sensor,
              "render_s": sampler.render_s, "duration_us": duration}
-    from .. import __version__
     prov = {"generator": "hybridhdr.simulate", "hybridhdr_version": __version__,
             "source": source.describe(), "sensor": params.to_dict(),
             "camera": None if cam is None else {**camera.to_dict(), **cam.crf_metadata()},
@@ -288,7 +288,6 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
     renamed when complete, or removed on error. The provenance (renders, stats) is written at
     the end. Returns a :class:`SimulationResult` with ``recording=None`` and ``path`` set.
     """
-    from ..container import RecordingWriter
 
     class _Writer(RecordingWriter):
         final_metadata = None

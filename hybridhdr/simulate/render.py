@@ -6,7 +6,7 @@ rewrites the vertex positions of moving objects, rescales blinking emitters thro
 ``mi.traverse`` parameters, and renders with a fixed sampler seed, so a static pixel gets the same
 bits in every render (no render-noise events). Output is linear float32 radiance (H, W).
 
-Variants (``../shared/reference/simulator.md``, Mitsuba recipe): ``llvm_ad_mono`` when Dr.Jit
+Variants (``docs/simulate.md``, "Rendering"): ``llvm_ad_mono`` when Dr.Jit
 loaded libLLVM >= 17 (15/16 abort the process when compiling real scenes' kernels, 14 is refused)
 and a test render of the operations real scenes use passes in a child process; otherwise
 ``scalar_rgb``, whose RGB output is converted to luminance Y = 0.2126 R + 0.7152 G + 0.0722 B
@@ -27,8 +27,10 @@ import time
 
 import numpy as np
 
+from .._util.atomic import atomic_path
 from ..events import SensorSize
 from .scene import Scene, SceneError
+from .scene import look_at_rotation
 
 __all__ = ["MitsubaSource", "select_variant", "llvm_available", "LUMINANCE_RGB", "mitsuba_camera_params", "preview_strip"]
 
@@ -229,10 +231,8 @@ def _cache_write(key: str, decision) -> None:
             d = {}
         d = dict(list(d.items())[-15:])  # a few interpreters/venvs at most
         d[key] = list(decision)
-        tmp = f"{f}.{os.getpid()}.partial"
-        with open(tmp, "w", encoding="utf-8") as fh:
+        with atomic_path(f) as tmp, open(tmp, "w", encoding="utf-8") as fh:
             json.dump(d, fh)
-        os.replace(tmp, f)
     except OSError:
         pass
 
@@ -584,7 +584,6 @@ class MitsubaSource:
 
     @staticmethod
     def _spot_matrix(pos, aim) -> np.ndarray:
-        from .scene import look_at_rotation
         z = aim - pos
         up = (0.0, 1.0, 0.0) if abs(z[1]) < 0.99 * np.linalg.norm(z) else (1.0, 0.0, 0.0)
         M = np.eye(4)
@@ -752,13 +751,9 @@ def preview_strip(source, path, n: int = 4, *, decades: float = 5.0) -> "os.Path
         ax.axis("off")
     fig.tight_layout(pad=0.3)
     p = Path(path)
-    tmp = p.with_name(p.name + ".partial")
     try:
-        fig.savefig(tmp, format="png", dpi=80)
-        os.replace(tmp, p)
-    except BaseException:
-        tmp.unlink(missing_ok=True)
-        raise
+        with atomic_path(p, ".png") as tmp:
+            fig.savefig(tmp, format="png", dpi=80)
     finally:
         plt.close(fig)
     return p

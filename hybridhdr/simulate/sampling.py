@@ -1,4 +1,4 @@
-"""Adaptive time sampling of a radiance source (issue 5, item 3) and event-fidelity scoring.
+"""Adaptive time sampling of a radiance source and event-fidelity scoring.
 
 Renders are the cost of a simulation, so the sampler renders only as often as the sensor model
 needs. After each accepted render at ``t`` the next step ``Δt`` is the smallest of
@@ -8,7 +8,7 @@ needs. After each accepted render at ``t`` the next step ``Δt`` is the smallest
   from the last two renders; robust = the ``k``-th largest with ``k = ceil((1 - robust_quantile)
   * n_pixels)``, so a handful of pixels cannot stall the simulation); ESIM's rule
   ``Δt = λ / max |∇L·u|`` predicts the same change from the optical flow, and
-  ``../shared/reference/simulator.md`` proposes C/4;
+  ``docs/simulate-sensor.md`` proposes C/4;
 * the **motion rule**: ``max_motion_px / v`` with ``v = source.max_image_speed_px_per_s(t, t +
   1/min_rate)`` (a bound over the longest possible step, so it holds for the shorter one);
 * ``τ/3`` when the photoreceptor low-pass is on (v2e README), through ``max_step_fn``;
@@ -40,6 +40,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._util.checks import check_shape
 from ..events import SensorSize
 
 __all__ = ["SamplingParams", "TimeSampler", "event_fidelity"]
@@ -62,7 +63,7 @@ class SamplingParams:
         Allowed predicted per-pixel log change per step, as a fraction of the contrast threshold
         (simulator.md proposal: 1/4; ESIM's λ = 0.5 of a threshold of 1 per step).
     max_motion_px : float
-        Allowed image motion per step in pixels (issue 5: 0.5 px; vid2e ≤ 1 px).
+        Allowed image motion per step in pixels (default 0.5 px; vid2e uses ≤ 1 px).
     robust_quantile : float
         Quantile of the per-pixel change used as the "maximum" (1.0 = the true maximum).
     bisect : bool
@@ -175,9 +176,7 @@ class TimeSampler:
         t_start = time.perf_counter()
         r = np.asarray(self.source.render(int(t)))
         self.render_s += time.perf_counter() - t_start
-        if r.shape != self.source.sensor_size.shape:
-            raise ValueError(f"source.render({t}) returned shape {r.shape}, expected "
-                             f"{self.source.sensor_size.shape}")
+        check_shape(r, "H W", f"source.render({t})", sizes=dict(zip("HW", self.source.sensor_size.shape)))
         self.renders += 1
         lg = np.log(r.astype(np.float64, copy=False).ravel() + self.eps)
         return t, r, lg

@@ -28,6 +28,9 @@ from typing import Any
 
 import numpy as np
 
+from .._util.atomic import write_text_atomic
+from .._util.toml import TOMLDecodeError, load_toml
+
 __all__ = [
     "SceneError", "Blink", "Pattern", "Material", "Emission", "MeshSpec", "Keyframe", "Trajectory",
     "CameraSpec", "Emitter", "SceneObject", "RenderSettings", "Scene", "load_scene", "save_scene",
@@ -398,7 +401,7 @@ class Emission:
 
     ``sampling_weight`` is the Mitsuba emitter-sampling weight: 0 (default) means the surface is
     seen by the camera with its radiance but does not light other surfaces, which keeps the
-    ``direct`` integrator noise free (``../shared/reference/simulator.md``, render noise).
+    ``direct`` integrator noise free (``docs/simulate.md``, "Rendering").
     """
 
     radiance: Pattern
@@ -1041,13 +1044,8 @@ class Scene:
 
 def _toml_load(path: Path) -> dict:
     try:
-        import tomllib
-    except ModuleNotFoundError:  # pragma: no cover - python 3.10
-        import tomli as tomllib
-    try:
-        with open(path, "rb") as f:
-            return tomllib.load(f)
-    except tomllib.TOMLDecodeError as e:
+        return load_toml(path)
+    except TOMLDecodeError as e:
         raise SceneError(f"scene file {str(path)!r}: invalid TOML ({e})") from None
 
 
@@ -1069,8 +1067,8 @@ def load_scene(path, allow_outside=()) -> Scene:
 
     Every file the scene names (camera ``calibration``, mesh files, textures) must resolve inside
     the scene's folder or one of the ``allow_outside`` folders (``--allow-outside``), else
-    :class:`hybridhdr._confine.OutsideFolderError` (``docs/security.md``)."""
-    from .._confine import confine
+    :class:`hybridhdr._util.confine.OutsideFolderError` (``docs/security.md``)."""
+    from .._util.confine import confine
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"scene file {str(p)!r} not found")
@@ -1140,9 +1138,5 @@ def dumps_toml(d: dict) -> str:
 
 
 def save_scene(scene: Scene, path) -> Path:
-    """Write ``scene`` as TOML (atomically: ``NAME.partial`` then rename). Returns the path."""
-    p = Path(path)
-    tmp = p.with_name(p.name + ".partial")
-    tmp.write_text(dumps_toml(scene.to_dict()))
-    os.replace(tmp, p)
-    return p
+    """Write ``scene`` as TOML (atomically: a temporary name, then rename). Returns the path."""
+    return write_text_atomic(path, dumps_toml(scene.to_dict()))

@@ -1,4 +1,4 @@
-"""Event-sensor model: log-intensity threshold crossings from rendered radiance (issue 5, item 4).
+"""Event-sensor model: log-intensity threshold crossings from rendered radiance.
 
 The model works on ``L = ln(I + log_eps)`` of the linear radiance ``I`` (ESIM), linearly
 interpolated in time between two renders per pixel. Every crossing of ``ref + C_on`` or
@@ -37,7 +37,7 @@ Y. Hu, S.-C. Liu, T. Delbruck, "v2e: From Video Frames to Realistic DVS Events",
 doi:10.1109/CVPRW53098.2021.00144.
 D. Joubert et al., "Event Camera Simulator Improvements via Characterized Parameters" (IEBCS),
 Front. Neurosci. 15:702765, 2021, doi:10.3389/fnins.2021.702765.
-Defaults and facts: ``../shared/reference/simulator.md`` ("Event-sensor tiers").
+Defaults and facts: ``docs/simulate-sensor.md`` ("Event sensor").
 """
 
 from __future__ import annotations
@@ -48,6 +48,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .._util.checks import check_shape
 from ..events import EVENT_DTYPE, SensorSize
 
 __all__ = ["EventSensorParams", "EventSensor", "PRESETS", "sensor_preset", "generate_events"]
@@ -183,8 +184,7 @@ def sensor_preset(name: str) -> EventSensorParams:
 
 def _check_radiance(radiance, shape, what="radiance") -> np.ndarray:
     r = np.asarray(radiance)
-    if r.shape != tuple(shape):
-        raise ValueError(f"{what} must have shape {tuple(shape)} (height, width), got {r.shape}")
+    check_shape(r, "H W", what, sizes=dict(zip("HW", shape)))
     if r.dtype.kind not in "fiu":
         raise TypeError(f"{what} must be a real array, got dtype {r.dtype}")
     r = r.astype(np.float64, copy=False).ravel()

@@ -1,7 +1,7 @@
 """The radiance-source protocol that joins scene rendering to the sensor models.
 
 A *radiance source* renders linear HDR radiance on the event sensor's pixel grid at any time
-and states an upper bound on image motion, which the adaptive sampler uses (issue 5, item 3).
+and states an upper bound on image motion, which the adaptive sampler uses.
 Mitsuba scenes (:mod:`hybridhdr.simulate.render`) and image-motion sources such as the AHDR
 builder (:mod:`hybridhdr.simulate.ahdr`) implement it; the simulation pipeline
 (:mod:`hybridhdr.simulate.pipeline`) consumes it.

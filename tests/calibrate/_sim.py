@@ -1,4 +1,8 @@
-"""Analytic blinking-checkerboard rig for the calibrate tests (until the simulator's scene lands).
+"""Analytic blinking-checkerboard rig for the calibrate tests: exact, known geometry at every pixel.
+
+The simulator's physically based board (``builtin:blinking_checkerboard``, Mitsuba) is used by
+``test_simulated_board.py``; this one stays analytic so that the rig tests know the true
+intrinsics, distortion and extrinsics exactly and run without a renderer.
 
 A chessboard on a monitor (white squares and a one-square white margin; the monitor is black when
 the board is off) is placed at known poses and rendered, 4x4 supersampled, on the pixel grid of

@@ -108,8 +108,8 @@ def test_bad_input():
 @pytest.mark.slow
 def test_memorial_church_against_published_map(shared_data):
     """Debevec & Malik's own brackets: our CRF + certainty-weighted merge vs ``memorial.hdr``."""
-    from hybridhdr.calibrate.hdr_reference import read_rgbe
-    from hybridhdr.capture.brackets import colour_mask, read_bracket_set
+    from hybridhdr.formats.rgbe import read_rgbe
+    from hybridhdr.formats.brackets import colour_mask, read_bracket_set
     folder = shared_data("brackets/memorial")
     bs = read_bracket_set(folder)  # exposures from image_list.txt (32 s ... 1/1024 s)
     assert len(bs) == 16 and bs.exposures_s[0] == 32.0 and bs.exposures_s[-1] == 1 / 1024

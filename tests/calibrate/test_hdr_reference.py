@@ -5,12 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridhdr.calibrate._photometric_synth import hdr_scene, random_homography, render_frame
+from hybridhdr.simulate.procedural import hdr_scene, random_homography, render_frame
 from hybridhdr.calibrate.crf import CRF, gamma_crf
 from hybridhdr.calibrate.hdr_reference import (RegistrationParams, corner_error, merge_brackets, read_exr_rgb,
-                                               read_rgbe, refine_ecc, register, register_recording,
-                                               surf_backend, warp_reference, write_exr)
-from hybridhdr.capture.brackets import BracketSet
+                                               refine_ecc, register, register_recording, surf_backend,
+                                               warp_reference, write_exr)
+from hybridhdr.formats.brackets import BracketSet
+from hybridhdr.formats.rgbe import read_rgbe
 
 
 def test_merge_linear_raw_poisson_ml():
@@ -140,8 +141,8 @@ def test_warp_reference_marks_outside_nan():
 
 
 def test_register_recording_writes_new_file(tmp_path):
-    from hybridhdr.container import read_recording, write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.formats.container import read_recording, write_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, scene = procedural_recording((120, 160), 200_000, frame_rate_hz=10.0, seed=0)
     src = write_recording(rec, tmp_path / "rec.h5")
     before = src.read_bytes()
@@ -163,8 +164,8 @@ def test_cli_crf_and_hdr_reference(tmp_path):
     import json
 
     from hybridhdr.cli import main
-    from hybridhdr.container import read_recording, write_recording
-    from hybridhdr.capture.brackets import write_bracket_set
+    from hybridhdr.formats.container import read_recording, write_recording
+    from hybridhdr.formats.brackets import write_bracket_set
     from hybridhdr.events import SensorSize, make_events
     from hybridhdr.model import Frames, Recording
     rng = np.random.default_rng(4)
@@ -287,9 +288,9 @@ def test_align_brackets_recovers_hand_held_motion():
 def test_cli_unrelated_recording_clean_error_no_output(tmp_path, capsys):
     """Issue 18: '--register' on an unrelated recording ended with 'error: Singular matrix' and
     still left the EXR; now one clear error line, exit status 1 and no output files."""
-    from hybridhdr.capture.brackets import write_bracket_set
+    from hybridhdr.formats.brackets import write_bracket_set
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.events import SensorSize, make_events
     from hybridhdr.model import Frames, Recording
     rng = np.random.default_rng(4)

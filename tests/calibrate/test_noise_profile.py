@@ -7,7 +7,7 @@ import pytest
 
 from hybridhdr.calibrate.crf import CRF, debevec, gamma_crf
 from hybridhdr.calibrate.noise_profile import certainty, estimate_sigma2_im, noise_profile, plot_profile
-from hybridhdr.reconstruct.profile import CameraProfile
+from hybridhdr.camera.profile import CameraProfile
 
 
 def test_certainty_log_domain_of_gamma():
@@ -53,7 +53,7 @@ def test_sigma2_im_estimators(dup):
 def test_profile_file_and_reconstruct(tmp_path):
     """Measured profile -> JSON -> hybridhdr reconstruct --profile on a procedural recording."""
     from hybridhdr.reconstruct import reconstruct
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     ex = np.array([1 / 16, 1 / 4, 1.0, 4.0])
     imgs = _noisy_brackets(0.5, ex)
     crf = debevec(imgs, ex)

@@ -201,7 +201,7 @@ def test_calibration_file_round_trip(sim_rig, tmp_path):
     np.testing.assert_allclose(back.homography, rig.homography)
     assert back.names == ("frame", "event") and back.camera2.image_size == S.SIZE_EVENT
     # accepted by the recording metadata, and back
-    from hybridhdr.container import read_recording, write_recording
+    from hybridhdr.formats.container import read_recording, write_recording
     from hybridhdr.model import Metadata, Recording
     rec = Recording(sensor_size=S.SIZE_EVENT, metadata=Metadata(calibration=rig.to_metadata()))
     write_recording(rec, tmp_path / "r.h5")
@@ -255,7 +255,7 @@ def test_bad_input_errors(sim_rig):
 
 def test_cli_rig_from_recording(sim_rig, tmp_path):
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.events import concatenate_events, make_triggers
     from hybridhdr.model import Frames, Recording
 
@@ -314,7 +314,7 @@ def test_cli_left_right(shared_data, tmp_path):
 @pytest.mark.slow
 def test_cli_frames_folder(sim_rig, tmp_path):
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.events import concatenate_events
     from hybridhdr.model import Recording
 

@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from hybridhdr.calibrate.thresholds import (ThresholdMap, _nnls2, estimate_thresholds, load_thresholds,
-                                            plot_thresholds)
+from hybridhdr.calibrate.thresholds import _nnls2, estimate_thresholds, plot_thresholds
 from hybridhdr.events import SensorSize
+from hybridhdr.formats.thresholds import ThresholdMap, load_thresholds
 from hybridhdr.model import Frames, Recording
 
 ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_depth"
@@ -94,7 +94,7 @@ def test_threshold_map_validation(tmp_path):
         ThresholdMap(np.full((2, 3), np.inf), ok, 0.2, 0.2)
     with pytest.raises(ValueError, match="shape"):
         ThresholdMap(ok, np.full((3, 2), 0.2), 0.2, 0.2)
-    with pytest.raises(ValueError, match="2-D"):
+    with pytest.raises(ValueError, match=r"c_on must have shape \(H, W\)"):
         ThresholdMap(np.full(3, 0.2), np.full(3, 0.2), 0.2, 0.2)
     with pytest.raises(ValueError, match="fallback_off"):
         ThresholdMap(ok, ok, 0.2, float("nan"))
@@ -134,7 +134,7 @@ def test_needs_events_inside_frames(synth):
 
 def test_cli(synth, tmp_path, capsys):
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     rec, _, _ = synth
     write_recording(rec, tmp_path / "rec.h5")
     assert main(["calibrate", "thresholds", str(tmp_path / "rec.h5"), "--out", str(tmp_path / "o"), "--json"]) == 0

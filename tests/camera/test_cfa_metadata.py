@@ -6,9 +6,9 @@ import dataclasses
 
 import pytest
 
-from hybridhdr.container import RecordingFile, write_recording
+from hybridhdr.formats.container import RecordingFile, write_recording
 from hybridhdr.model import CameraInfo, Metadata
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 def test_camera_info_cfa():

@@ -11,9 +11,9 @@ from hybridhdr import make_triggers
 from hybridhdr.capture.recorder import Recorder, journal_path
 from hybridhdr.capture.sources import SyntheticEventSource
 from hybridhdr.cli import main
-from hybridhdr.container import read_recording, write_recording
+from hybridhdr.formats.container import read_recording, write_recording
 from hybridhdr.model import Frames, Recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture(scope="module")

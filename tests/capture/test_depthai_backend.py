@@ -12,11 +12,11 @@ from datetime import timedelta
 import numpy as np
 import pytest
 
-from hybridhdr.capture.brackets import read_bracket_set
+from hybridhdr.formats.brackets import read_bracket_set
 from hybridhdr.capture.depthai_backend import DepthaiFrameSource
 from hybridhdr.capture.recorder import Recorder
 from hybridhdr.capture.sources import SyntheticEventSource
-from hybridhdr.container import read_recording
+from hybridhdr.formats.container import read_recording
 
 LINE_US = 18
 PERIOD_US = 33_333

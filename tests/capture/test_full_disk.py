@@ -84,7 +84,7 @@ def _assert_clean(rc, err, files, what):
 def big_input(tmp_path_factory):
     d = tmp_path_factory.mktemp("fulldisk")
     p = d / "in.h5"
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     write_recording(_recording(), p, compression=None)
     return p
 
@@ -153,7 +153,7 @@ def test_capture_recover_to_full_disk(tmp_path):
 @pytest.fixture
 def enospc_after(monkeypatch):
     """Make the guarded HDF5 file fail with ENOSPC once ``limit`` bytes have been written."""
-    import hybridhdr._safe_h5 as safe
+    import hybridhdr.formats._safe_h5 as safe
 
     def arm(limit):
         state = {"n": 0}
@@ -171,7 +171,7 @@ def enospc_after(monkeypatch):
 @pytest.mark.parametrize("limit", [0, 3000, 200_000])
 @pytest.mark.parametrize("fmt,name", [("hybridhdr", "o.h5"), ("akf_mat", "o.mat")])
 def test_hdf5_writers_enospc_clean(tmp_path, enospc_after, limit, fmt, name):
-    from hybridhdr._safe_h5 import DiskWriteError
+    from hybridhdr.formats._safe_h5 import DiskWriteError
     rec = _recording(50_000)
     enospc_after(limit)
     with pytest.raises(DiskWriteError, match="No space left on device") as ei:
@@ -182,7 +182,7 @@ def test_hdf5_writers_enospc_clean(tmp_path, enospc_after, limit, fmt, name):
 
 def test_convert_cli_enospc_one_line(tmp_path, enospc_after, capsys):
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     src = tmp_path / "in.h5"
     write_recording(_recording(20_000), src)
     enospc_after(5000)

@@ -18,10 +18,10 @@ from hybridhdr import make_triggers
 from hybridhdr.capture import recorder as R
 from hybridhdr.capture.recorder import Recorder, journal_path, read_journal, recover
 from hybridhdr.capture.sources import ReplayEventSource, ReplayFrameSource, SyntheticEventSource
-from hybridhdr.container import RecordingFile, read_recording, write_recording
+from hybridhdr.formats.container import RecordingFile, read_recording, write_recording
 from hybridhdr.errors import FormatError
 from hybridhdr.model import Recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 REPO = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
 

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from hybridhdr.capture.brackets import write_bracket_set
+from hybridhdr.formats.brackets import write_bracket_set
 from hybridhdr.capture.session import create_session, sha256_file, verify_session
-from hybridhdr.container import write_recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.formats.container import write_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture

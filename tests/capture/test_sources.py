@@ -10,10 +10,10 @@ import pytest
 from hybridhdr import make_triggers
 from hybridhdr.capture.sources import (FrameItem, ReplayEventSource, ReplayFrameSource, SyntheticEventSource,
                                        frames_from_items)
-from hybridhdr.container import write_recording
+from hybridhdr.formats.container import write_recording
 from hybridhdr.events import concatenate_events
 from hybridhdr.model import Recording
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture(scope="module")

@@ -83,7 +83,7 @@ def test_score_run_unaltered_and_nonpositive():
 
 
 def test_edge_sweep_deterministic_and_clips_the_object():
-    from hybridhdr.synthetic import edge_sweep_recording
+    from hybridhdr.simulate.procedural import edge_sweep_recording
     a, scene = edge_sweep_recording(3, duration_us=200_000)
     b, _ = edge_sweep_recording(3, duration_us=200_000)
     c, _ = edge_sweep_recording(4, duration_us=200_000)
@@ -116,7 +116,7 @@ def _dilate(m, r=4):
 
 
 def test_ideal_events_cross_multiples_of_c():
-    from hybridhdr.synthetic import ideal_events
+    from hybridhdr.simulate.procedural import ideal_events
     # one pixel, ln I ramps linearly from 0.03 to 0.43 over 400 µs: crossings of 0.1, 0.2, 0.3, 0.4
     ev = ideal_events(lambda t: np.array([[0.03 + 1e-3 * t]]), np.arange(0, 401, 100), 0.1)
     assert ev["p"].tolist() == [1, 1, 1, 1]
@@ -131,7 +131,7 @@ def test_ideal_events_cross_multiples_of_c():
 
 def test_reference_to_frame_units():
     pytest.importorskip("hybridhdr.simulate.camera")
-    from hybridhdr.evaluate.units import reference_to_frame_units
+    from hybridhdr.simulate.units import reference_to_frame_units
     from hybridhdr.model import Frames
     from hybridhdr.simulate.camera import FrameCameraParams, crf_inverse_table
     cam = FrameCameraParams(crf="gamma", exposure_us=10_000, electrons_per_radiance_s=5e5, full_well_e=1e4,

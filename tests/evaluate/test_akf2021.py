@@ -74,9 +74,9 @@ def test_cli_protocol_akf2021_on_a_file_with_the_authors_layout(tmp_path, capsys
 
     h5py = pytest.importorskip("h5py")
     import hybridhdr as hh
-    from hybridhdr.capture.formats.akf_mat import matlab_v73_header
+    from hybridhdr.formats.akf_mat import matlab_v73_header
     from hybridhdr.cli import main
-    from hybridhdr.reconstruct.output import write_exr, write_timestamps
+    from hybridhdr.formats.images import write_exr, write_timestamps
     k, h, w = 4, 20, 28
     ref, rng = _hdr(k, h, w, seed=1)                        # HDR_mat in code units, 0 = unregistered
     t_mid = np.array([10_000, 60_000, 110_000, 160_000])

@@ -7,10 +7,10 @@ import numpy as np
 import pytest
 
 from hybridhdr.cli import main
-from hybridhdr.container import write_recording
+from hybridhdr.formats.container import write_recording
 from hybridhdr.evaluate import metrics as M
 from hybridhdr.evaluate.paper import paper_table
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 
 
 @pytest.fixture(scope="module")
@@ -32,7 +32,7 @@ def test_metrics_command_matches_library(rec_path, tmp_path, capsys):
     res = json.loads(capsys.readouterr().out)
     # library path on the same data: 200 fps outputs every 5000 µs from the first frame time, the
     # 50 Hz references every 20000 µs -> exact matches only (tolerance 0)
-    from hybridhdr.reconstruct.output import read_exr
+    from hybridhdr.formats.images import read_exr
     lines = [ln.split() for ln in (out / "timestamps.txt").read_text().splitlines() if not ln.startswith("#")]
     t = np.array([int(a) for a, _ in lines])
     vi, ri = M.match_frames(t, rec.hdr.t_us, 0)
@@ -183,7 +183,7 @@ def test_real_data_holdout_frame_prediction(shared_data):
 
 def test_ahdr_dataset_and_clipped_camera_profile():
     pytest.importorskip("hybridhdr.simulate.ahdr")
-    from hybridhdr.evaluate._simdata import camera_profile
+    from hybridhdr.simulate.datasets import camera_profile
     from hybridhdr.evaluate.datasets import load_dataset
     from hybridhdr.simulate.camera import FrameCameraParams, crf_inverse_table
     cam = FrameCameraParams(crf="gamma", code_clip=(100, 160))

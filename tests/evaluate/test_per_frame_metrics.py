@@ -61,7 +61,7 @@ def test_score_akf2021_per_frame():
 
 def test_cli_metrics_json_and_csv_per_frame(tmp_path, capsys):
     from hybridhdr.container import write_recording
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     rec, _ = procedural_recording((24, 32), 200_000, seed=1, hdr_rate_hz=50.0)
     path = write_recording(rec, tmp_path / "rec.h5")
     out = tmp_path / "recon"

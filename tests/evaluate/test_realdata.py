@@ -8,6 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from hybridhdr.camera.encoding import well_exposed_range
 from hybridhdr.evaluate import realdata as RD
 
 ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_depth"
@@ -15,15 +16,15 @@ ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_dept
 
 @pytest.fixture(scope="module")
 def rec():
-    from hybridhdr.synthetic import procedural_recording
+    from hybridhdr.simulate.procedural import procedural_recording
     r, _ = procedural_recording((30, 40), 300_000, contrast_threshold=0.15, frame_rate_hz=25.0, step_us=500)
     return r
 
 
 def test_well_exposed_range():
-    assert RD.well_exposed_range(255) == (20, 235)
-    assert RD.well_exposed_range(1023) == (81, 942)  # 80.2 rounded up, 942.7 rounded down
-    assert RD.well_exposed_range(65535) == (5140, 60395)
+    assert well_exposed_range(255) == (20, 235)
+    assert well_exposed_range(1023) == (81, 942)  # 80.2 rounded up, 942.7 rounded down
+    assert well_exposed_range(65535) == (5140, 60395)
 
 
 def test_holdout_inputs(rec):
@@ -86,7 +87,7 @@ def test_evaluate_holdout_baselines_and_causality(rec):
 
 def test_cli_json_and_errors(rec, tmp_path, capsys):
     from hybridhdr.cli import main
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     p = tmp_path / "rec.h5"
     write_recording(rec, p)
     assert main(["evaluate", "holdout", str(p), "--method", "akf,cf", "--mode", "causal",

@@ -70,7 +70,7 @@ def _info(path, expect_events=None):
 
 def _container(path, n=100, frames=None, ss=(48, 64), **kw):
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     return write_recording(hh.Recording(_events(n, ss[1], ss[0]), ss, frames), path, **kw)
 
 
@@ -195,7 +195,7 @@ def container_index_inconsistent(d):
 @case("hybridhdr", "ok")
 def container_two_events_1_16_days_apart(d):
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     ev = hh.make_events([0, int(1.16 * 86400e6)], [0, 1], [0, 1], [1, -1])
     p = write_recording(hh.Recording(ev, (48, 64)), d / "r.h5")
     size = p.stat().st_size
@@ -206,7 +206,7 @@ def container_two_events_1_16_days_apart(d):
 @case("hybridhdr", "ok")
 def container_int64_extreme_times(d):
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     big = np.iinfo(np.int64).max
     ev = hh.make_events([-big - 1, 0, big], [0, 1, 2], [0, 1, 2], [1, -1, 1])
     return _info(write_recording(hh.Recording(ev, (48, 64)), d / "r.h5"), 3)
@@ -287,7 +287,7 @@ def _aedat4(path, size=(32, 24), compression="LZ4", n=200):
 
 def _aedat4_with_packet(path, payload: bytes, compression="LZ4"):
     """A dv-written header (data table position set to -1) followed by one event packet ``payload``."""
-    from hybridhdr.capture.formats import aedat4 as A
+    from hybridhdr.formats import aedat4 as A
     _aedat4(path, compression=compression)
     data = Path(path).read_bytes()
     hsize = struct.unpack_from("<i", data, len(A.MAGIC))[0]
@@ -535,7 +535,7 @@ def mat5_events_char(d):
 
 
 def _mat73(path, events=None, image=None, extra=None):
-    from hybridhdr.capture.formats.akf_mat import matlab_v73_header
+    from hybridhdr.formats.akf_mat import matlab_v73_header
     import h5py
     with h5py.File(path, "w", userblock_size=512) as f:
         if events is not None:
@@ -583,7 +583,7 @@ def mat73_events_inf_time(d):
 # -- rosbag -------------------------------------------------------------------------------------
 def _ros1_bag(path):
     from rosbags.rosbag1 import Writer
-    from hybridhdr.capture.formats import rosbag as R
+    from hybridhdr.formats import rosbag as R
     ts = R.make_typestore(ros2=False)
     Event, EA = ts.types["dvs_msgs/msg/Event"], ts.types[R.EVENT_ARRAY]
     Time, Header = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
@@ -600,7 +600,7 @@ def _ros1_bag(path):
 def _ros1_chunk_size(path, new_size: int, compression: str = "bz2"):
     """A compressed ROS 1 bag whose (first) chunk header declares ``new_size`` decompressed bytes."""
     from rosbags.rosbag1 import Writer
-    from hybridhdr.capture.formats import rosbag as R
+    from hybridhdr.formats import rosbag as R
     ts = R.make_typestore(ros2=False)
     Event, EA = ts.types["dvs_msgs/msg/Event"], ts.types[R.EVENT_ARRAY]
     Time, Header = ts.types["builtin_interfaces/msg/Time"], ts.types["std_msgs/msg/Header"]
@@ -697,12 +697,8 @@ def journal_header_sensor_65536(d):
 # -- runner (fork server) -----------------------------------------------------------------------
 def _preload():
     import hybridhdr.cli  # noqa: F401
-    from hybridhdr import io as hio
-    for m in set(hio.FORMAT_MODULES.values()):
-        try:
-            __import__(m)
-        except ImportError:
-            pass
+    from hybridhdr.formats import formats
+    formats()  # imports every format module
     import hybridhdr.capture.cli  # noqa: F401
     import hybridhdr.capture.recorder  # noqa: F401
     for m in ("PIL.Image", "PIL.PngImagePlugin", "lz4.frame", "lz4.block", "zstandard", "rosbags.highlevel",
@@ -713,7 +709,7 @@ def _preload():
             pass
     # compile/load the numba kernels once, here, not in every child
     import hybridhdr as hh
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     with tempfile.TemporaryDirectory() as t:
         p = write_recording(hh.Recording(_events(10), (48, 64)), Path(t) / "w.h5")
         for fmt, name in (("evt2", "a.raw"), ("evt3", "b.raw"), ("dat", "c.dat"), ("ecd", "e")):

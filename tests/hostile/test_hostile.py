@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from hybridhdr._limits import LimitExceeded, allow_huge, check_fps_outputs, check_output_count
+from hybridhdr._util.limits import LimitExceeded, allow_huge, check_fps_outputs, check_output_count
 
 REPO = Path(__file__).resolve().parents[2]
 

@@ -9,8 +9,8 @@ import numpy as np
 import pytest
 
 from hybridhdr import Recording, make_events
-from hybridhdr.reconstruct import (AKFParams, CameraProfile, CFParams, HighPassParams, default_profile,
-                                   reconstruct, reconstruct_iter)
+from hybridhdr.camera import CameraProfile, default_profile
+from hybridhdr.reconstruct import AKFParams, CFParams, HighPassParams, reconstruct, reconstruct_iter
 
 from .conftest import ideal_recording
 
@@ -111,7 +111,7 @@ def test_profile_roundtrip_and_errors(tmp_path):
 
 
 def test_streaming_from_container_equals_in_memory(tmp_path):
-    container = pytest.importorskip("hybridhdr.container")
+    container = pytest.importorskip("hybridhdr.formats.container")
     rec, _ = ideal_recording()
     path = tmp_path / "rec.h5"
     container.write_recording(rec, path)
@@ -134,7 +134,7 @@ def test_window_and_empty_events():
 
 
 def test_outputs(tmp_path):
-    from hybridhdr.reconstruct.output import read_exr, tone_map, write_exr_sequence, write_png_previews
+    from hybridhdr.formats.images import read_exr, tone_map, write_exr_sequence, write_png_previews
     v = reconstruct(ideal_recording()[0], "akf", fps=100)
     paths = write_exr_sequence(v, tmp_path / "exr")
     np.testing.assert_array_equal(read_exr(paths[3]), v.frames[3])
@@ -147,7 +147,7 @@ def test_outputs(tmp_path):
 
 
 def test_cli_run(tmp_path):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.reconstruct import cli
     rec, _ = ideal_recording()
     write_recording(rec, tmp_path / "rec.h5")
@@ -171,7 +171,7 @@ def test_prefetch_order_errors_and_early_stop():
     (and is joined) when the consumer stops early."""
     import threading
 
-    from hybridhdr._prefetch import Prefetcher as _prefetch
+    from hybridhdr._util.prefetch import Prefetcher as _prefetch
 
     assert list(_prefetch(iter(range(50)))) == list(range(50))
 
@@ -211,7 +211,7 @@ def _chunked(rec, n):
 
 def test_streaming_event_arrays_equal_in_memory_arrays():
     """Windows, counts and chunks of the background-filled arrays equal the in-memory ones."""
-    from hybridhdr.reconstruct.edi import EventArrays, StreamingEventArrays
+    from hybridhdr.reconstruct.event_arrays import EventArrays, StreamingEventArrays
     rec, _ = ideal_recording()
     shape = (rec.sensor_size.height, rec.sensor_size.width)
     ref = EventArrays.from_structured(rec.events, shape)
@@ -232,7 +232,7 @@ def test_streaming_event_arrays_equal_in_memory_arrays():
 def test_streaming_event_arrays_errors_and_stop():
     import threading
 
-    from hybridhdr.reconstruct.edi import StreamingEventArrays
+    from hybridhdr.reconstruct.event_arrays import StreamingEventArrays
     rec, _ = ideal_recording()
     shape = (rec.sensor_size.height, rec.sensor_size.width)
     n = len(rec.events)

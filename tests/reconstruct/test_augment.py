@@ -12,9 +12,9 @@ from hybridhdr.reconstruct import AKFParams, reconstruct
 from hybridhdr.reconstruct import _augment_kernels as AK
 from hybridhdr.reconstruct.augment import (CALIBRATION_CATEGORIES, AugmentedMeasurements, AugmentParams,
                                            calibrate_thresholds)
-from hybridhdr.reconstruct.edi import EventArrays
+from hybridhdr.reconstruct.event_arrays import EventArrays
 from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
-from hybridhdr.reconstruct.profile import CameraProfile, default_profile
+from hybridhdr.camera.profile import CameraProfile, default_profile
 
 #: linear response with float codes = scaled irradiance 0..100 (no clipping in these tests)
 LIN = CameraProfile(weighting=np.ones(101), inverse_crf=np.arange(101.0), name="test-linear")

@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from hybridhdr.cli import main
+from hybridhdr.formats import images as IM
 from hybridhdr.reconstruct import output as O
 from hybridhdr.reconstruct.api import Video
 
@@ -25,7 +26,7 @@ REPO = Path(__file__).resolve().parents[2]
 
 @pytest.fixture(scope="module")
 def rec_path(tmp_path_factory):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     d = tmp_path_factory.mktemp("rec")
     rec, _ = ideal_recording(height=18, width=23)  # odd width: MP4 padding
     write_recording(rec, d / "rec.h5")
@@ -53,7 +54,7 @@ def test_log_percentiles_exact(seed):
         x[rng.integers(0, n, n // 10 + 1)] = rng.choice([np.nan, np.inf, 0, 1e-8, 1e-6, -1.0, 2e6])
     if seed == 4:
         x[:] = 0.25  # one value
-    lp = O.LogPercentiles()
+    lp = IM.LogPercentiles()
     parts = np.array_split(x, 5)
     for p in parts:
         lp.add(p)
@@ -84,31 +85,31 @@ def test_pipeline_bit_identical_to_serial_and_in_memory(tmp_path, colour):
         assert outs["process"][k] == outs["serial"][k], k
         assert outs["thread"][k] == outs["serial"][k], k
     # the same EXR bytes and values as the in-memory writer, the same previews as tone_map of the whole video
-    O.write_exr_sequence(v, tmp_path / "mem")
-    O.write_png_previews(v, tmp_path / "mem" / "previews")
+    IM.write_exr_sequence(v, tmp_path / "mem")
+    IM.write_png_previews(v, tmp_path / "mem" / "previews")
     mem = _tree(tmp_path / "mem")
     for k, b in mem.items():
         assert outs["serial"][k] == b, k
-    got = O.read_exr(tmp_path / "serial" / "frame_000003.exr")
+    got = IM.read_exr(tmp_path / "serial" / "frame_000003.exr")
     np.testing.assert_array_equal(got, v.frames[3])
     assert got.shape == v.frames.shape[1:]
     ts = (tmp_path / "serial" / "timestamps.txt").read_text().splitlines()
     assert ts[4].split() == [str(v.t_us[3]), "frame_000003.exr"]
 
 
-@pytest.mark.parametrize("compression", O.exr_compressions())
+@pytest.mark.parametrize("compression", IM.exr_compressions())
 def test_exr_compressions_roundtrip(tmp_path, compression):
     v = _video(k=1, h=40, w=33)
-    O.write_exr(tmp_path / "a.exr", v.frames[0], compression=compression)
-    back = O.read_exr(tmp_path / "a.exr")
+    IM.write_exr(tmp_path / "a.exr", v.frames[0], compression=compression)
+    back = IM.read_exr(tmp_path / "a.exr")
     f = np.nan_to_num(v.frames[0], nan=0.5)
     b = np.nan_to_num(back, nan=0.5)
-    if compression in O.LOSSY_EXR_COMPRESSIONS:
+    if compression in IM.LOSSY_EXR_COMPRESSIONS:
         np.testing.assert_allclose(b[np.isfinite(f)], f[np.isfinite(f)], rtol=1e-4)
     else:
         np.testing.assert_array_equal(b, f)
     with pytest.raises(ValueError, match="unknown EXR compression"):
-        O.write_exr(tmp_path / "b.exr", v.frames[0], compression="jpeg")
+        IM.write_exr(tmp_path / "b.exr", v.frames[0], compression="jpeg")
 
 
 def test_queue_bounds_frames_in_flight(tmp_path, monkeypatch):
@@ -208,7 +209,7 @@ def test_cli_existing_folders(rec_path, tmp_path, capsys):
 def test_cli_simulated_full_disk(rec_path, tmp_path, capsys, monkeypatch, writers, where):
     calls = [0]
     if where == "exr":
-        real = O.write_exr
+        real = IM.write_exr
 
         def failing(path, img, **kw):
             calls[0] += 1
@@ -222,14 +223,14 @@ def test_cli_simulated_full_disk(rec_path, tmp_path, capsys, monkeypatch, writer
         real_pool = O._make_pool
         monkeypatch.setattr(O, "_make_pool", lambda n, backend: real_pool(n, "thread"))
     else:
-        real_add = O.LogPercentiles.add
+        real_add = IM.LogPercentiles.add
 
         def failing_add(self, frame):
             calls[0] += 1
             if calls[0] > 3:
                 raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), "spill")
             return real_add(self, frame)
-        monkeypatch.setattr(O.LogPercentiles, "add", failing_add)
+        monkeypatch.setattr(IM.LogPercentiles, "add", failing_add)
     out = tmp_path / "o"
     assert _run([rec_path, "--out", out, "--fps", "300", "--png", "--writers", writers]) == 1
     err = capsys.readouterr().err

@@ -8,7 +8,8 @@ import numpy as np
 import pytest
 
 from hybridhdr import make_events
-from hybridhdr.reconstruct import AKFParams, CFParams, CameraProfile, FrameMeasurements, default_profile, reconstruct
+from hybridhdr.camera import CameraProfile, default_profile
+from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, reconstruct
 from hybridhdr.reconstruct._engine import AKFEngine, CFEngine
 from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
 

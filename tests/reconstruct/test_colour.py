@@ -38,7 +38,7 @@ def test_monochrome_outputs_unchanged(mono_recordings, frames_kind, method, mode
 import dataclasses  # noqa: E402
 
 from hybridhdr.camera.cfa import CFA_PATTERNS, channel_masks, mosaic  # noqa: E402
-from hybridhdr.container import write_recording  # noqa: E402
+from hybridhdr.formats.container import write_recording  # noqa: E402
 from hybridhdr.model import Frames  # noqa: E402
 
 
@@ -103,7 +103,7 @@ def test_colour_edge_sweep_accuracy_and_no_bleeding():
     their true level (no red leaks into them)."""
     from scipy.ndimage import binary_erosion
 
-    from hybridhdr.synthetic import colour_edge_sweep_recording
+    from hybridhdr.simulate.procedural import colour_edge_sweep_recording
 
     def lr(x, t):
         e = np.log(np.maximum(x, 1e-6)) - np.log(t)

@@ -11,8 +11,9 @@ import pytest
 from hybridhdr import SensorSize, make_events, Recording, Frames
 from hybridhdr.reconstruct import reconstruct
 from hybridhdr.reconstruct import _augment_kernels as AK
-from hybridhdr.reconstruct.edi import (EDIParams, EventArrays, edi_integral, edi_latent, edi_log_latent,
-                                       estimate_threshold, golden_section_minimize, sharpness_energy)
+from hybridhdr.reconstruct.edi import (EDIParams, edi_integral, edi_latent, edi_log_latent, estimate_threshold,
+                                       golden_section_minimize, sharpness_energy)
+from hybridhdr.reconstruct.event_arrays import EventArrays
 
 from hybridhdr.reconstruct.params import DEFAULT_INTENSITY_OFFSET, PUBLISHED_INTENSITY_OFFSET
 
@@ -181,7 +182,7 @@ def test_method_edi_video(I0, base):
 
 
 def test_event_arrays_reject_decreasing_time_naming_the_index():
-    from hybridhdr.reconstruct.edi import EventArrays
+    from hybridhdr.reconstruct.event_arrays import EventArrays
     t = np.array([5, 7, 7, 6, 9], np.int64)
     z = np.zeros(5, np.uint16)
     with pytest.raises(ValueError, match="index 3 has 6 after 7"):

@@ -218,7 +218,8 @@ def test_parallel_bit_identical(method, n_workers):
 def test_parallel_threads_bit_identical_on_large_chunk():
     """Large batches take the threaded path (>= 20 000 events per call)."""
     from hybridhdr.reconstruct._engine import AKFEngine
-    from hybridhdr.reconstruct import FrameMeasurements, default_profile
+    from hybridhdr.camera import default_profile
+    from hybridhdr.reconstruct import FrameMeasurements
     rng = np.random.default_rng(5)
     h, w, n = 20, 24, 60_000
     t = np.sort(rng.integers(0, 200_000, n)).astype(np.int64)

@@ -203,7 +203,7 @@ def _reconstruct_cli(argv: list[str]) -> int:
 
 
 def test_cli_without_weights_exits_2(tmp_path, capsys):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     write_recording(ideal_recording(), tmp_path / "r.h5")
     assert _reconstruct_cli([str(tmp_path / "r.h5"), "--method", "firenet", "--out", str(tmp_path / "o"),
                              "--no-progress"]) == 2
@@ -333,7 +333,7 @@ def test_onnx_export_matches(torch, weights, tmp_path, method):
 
 
 def test_cli_runs_with_weights(torch, weights, tmp_path):
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     write_recording(ideal_recording(height=16, width=24), tmp_path / "r.h5")
     assert _reconstruct_cli([str(tmp_path / "r.h5"), "--method", "e2vid", "--set",
                  f"weights={weights['e2vid']}", "--set", "device=cpu", "--fps", "50", "--out",

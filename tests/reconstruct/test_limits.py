@@ -7,7 +7,7 @@ import time
 import numpy as np
 import pytest
 
-from hybridhdr._limits import LimitExceeded, allow_huge
+from hybridhdr._util.limits import LimitExceeded, allow_huge
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
 from hybridhdr.reconstruct import reconstruct
@@ -47,8 +47,8 @@ def test_huge_sensor_is_refused_and_the_override_is_honoured():
 
 
 def test_threshold_map_stored_in_the_container_is_used(tmp_path):
-    from hybridhdr.calibrate.thresholds import ThresholdMap
-    from hybridhdr.container import RecordingFile, store_thresholds, write_recording
+    from hybridhdr.formats.thresholds import ThresholdMap
+    from hybridhdr.formats.container import RecordingFile, store_thresholds, write_recording
     rec = _rec()
     path = write_recording(rec, tmp_path / "r.h5")
     on = np.full((4, 5), 0.15)
@@ -76,7 +76,7 @@ def test_a_recordings_declared_profile_is_used_from_a_path_too(tmp_path):
     recording is passed in memory or as a file path."""
     import dataclasses
     from hybridhdr.camera import default_profile
-    from hybridhdr.container import write_recording
+    from hybridhdr.formats.container import write_recording
     from hybridhdr.model import Metadata
     prof = dataclasses.replace(default_profile(8, encoding="gamma"), extra={}, name="declared")  # a measured one
     rec = _rec()

@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from hybridhdr import Frames
-from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements, default_profile
+from hybridhdr.camera import default_profile
+from hybridhdr.reconstruct import AKFParams, CFParams, FrameMeasurements
 from hybridhdr.reconstruct import _kernels as K
 from hybridhdr.reconstruct._engine import AKFEngine, CFEngine, row_bands
 

@@ -6,8 +6,9 @@ import numpy as np
 import pytest
 
 from hybridhdr import Frames, Recording, SensorSize, make_events
-from hybridhdr.reconstruct import CameraProfile, FrameMeasurements, default_profile, reconstruct
-from hybridhdr.reconstruct.profile import profile_for_frames, weighting_from_inverse_crf
+from hybridhdr.camera import CameraProfile, default_profile
+from hybridhdr.reconstruct import FrameMeasurements, reconstruct
+from hybridhdr.camera.profile import profile_for_frames, weighting_from_inverse_crf
 
 
 def _static_gamma_recording(linear, encoding="gamma", n_frames=4, period_us=50_000):

@@ -8,7 +8,7 @@ import pytest
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
 from hybridhdr.reconstruct import AKFParams, reconstruct
-from hybridhdr.reconstruct.edi import EventArrays
+from hybridhdr.reconstruct.event_arrays import EventArrays
 from hybridhdr.reconstruct.smoother import fuse, output_times, reverse_events, reverse_frames
 
 

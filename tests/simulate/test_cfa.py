@@ -55,7 +55,7 @@ def test_grey_source_through_bayer_equals_mono(tmp_path):
     assert mono.metadata.event_camera.cfa is None and col.metadata.event_camera.cfa == "GRBG"
     res = simulate_to_file(RedBlobSource(height=10, width=12, duration_us=40_000), tmp_path / "c.h5",
                            sensor="ideal", camera=CAM, progress=False, cfa="RGGB")
-    from hybridhdr.container import RecordingFile
+    from hybridhdr.formats.container import RecordingFile
     with RecordingFile(res.path) as f:
         assert f.metadata.event_camera.cfa == "RGGB" and f.metadata.frame_camera.cfa == "RGGB"
         assert f.read().hdr.images.shape[-1] == 3

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from hybridhdr.container import read_recording
+from hybridhdr.formats.container import read_recording
 from hybridhdr.simulate import FrameCameraParams, SamplingParams, simulate, simulate_to_file
 
 from ._sources import BlobSource

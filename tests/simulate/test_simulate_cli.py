@@ -21,7 +21,7 @@ def test_list(capsys):
 
 
 def test_end_to_end_reconstruct(tmp_path, capsys):
-    from hybridhdr.container import read_recording
+    from hybridhdr.formats.container import read_recording
     rec_path = tmp_path / "rec.h5"
     # a 64x48 blinking checkerboard for 120 ms: the board switches off at 50 ms and on at 100 ms
     rc = main(["simulate", "builtin:blinking_checkerboard", "--width", "64", "--height", "48", "--duration-s", "0.12",
@@ -103,7 +103,7 @@ def test_failures_leave_no_partial(tmp_path, monkeypatch):
     assert calls["n"] == 3 and list(tmp_path.iterdir()) == []
     monkeypatch.setattr(R.MitsubaSource, "render", real)
 
-    import hybridhdr.container as C
+    import hybridhdr.formats.container as C
 
     def bad_open(self):
         open(self.tmp_path, "wb").close()

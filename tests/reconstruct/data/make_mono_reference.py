@@ -6,7 +6,7 @@ frame's variance (AKFParams.fusion_carried_variance); every other entry is the o
 Run ``python tests/reconstruct/data/make_mono_reference.py tests/reconstruct/data/mono_reference.npz``
 only when a deliberate change of the monochrome results is made."""
 import numpy as np, hashlib, sys
-from hybridhdr.synthetic import procedural_recording
+from hybridhdr.simulate.procedural import procedural_recording
 from hybridhdr.reconstruct import reconstruct
 from hybridhdr.model import Frames, Recording
 import dataclasses

@@ -1,0 +1,244 @@
+"""Limits on what file headers may ask for, checked before any memory is allocated or work done.
+
+A header is data an attacker (or a bug) controls: a sensor of 65536², a frame ROI of 10000², a
+declared event count with nothing stored behind it, a packet that inflates to gigabytes, a PNG
+bomb, or ``--fps 1e12`` all become a :class:`LimitExceeded` error naming the value, the limit and
+the override, instead of hours of work or an out-of-memory kill.
+
+Defaults (see ``docs/security.md``):
+
+====================  ==========================================================
+``max_side``          8192 pixels per side of a sensor, frame or ROI
+``max_frame_bytes``   4 GiB of decoded frames held by one reader
+``max_packet_bytes``  256 MiB decompressed per packet / zip member / .mat array
+``max_outputs``       1,000,000 output frames for ``--fps`` / ``--times-us``
+====================  ==========================================================
+
+Users with genuinely huge data lift them with ``--allow-huge`` on the command line,
+``HYBRIDHDR_ALLOW_HUGE=1`` in the environment, or :func:`allow_huge` in Python (a context
+manager). Checks of *consistency* (a declared count larger than the bytes stored, non-finite
+values) are never lifted: they describe broken files, not big ones.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import math
+import os
+import threading
+
+import numpy as np
+
+from ..errors import FormatError
+
+__all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_sensor_size", "check_frame_shape",
+           "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
+           "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
+           "OVERRIDE_HINT"]
+
+LIMITS = {
+    "max_side": 8192,
+    "max_frame_bytes": 4 << 30,
+    "max_packet_bytes": 256 << 20,
+    "max_outputs": 1_000_000,
+}
+
+OVERRIDE_HINT = "if the data really is that large, pass --allow-huge (or set HYBRIDHDR_ALLOW_HUGE=1)"
+
+_state = {"allow": 0}  # process-wide: the recorder's source threads see it too
+_lock = threading.Lock()
+
+
+class LimitExceeded(FormatError):
+    """A header (or an option) asks for more than the configured limit; see ``docs/security.md``."""
+
+
+def huge_allowed() -> bool:
+    """True when the limits are lifted (``allow_huge`` or ``HYBRIDHDR_ALLOW_HUGE=1``)."""
+    if _state["allow"]:
+        return True
+    return os.environ.get("HYBRIDHDR_ALLOW_HUGE", "").strip().lower() in ("1", "true", "yes", "on")
+
+
+@contextlib.contextmanager
+def allow_huge(enabled: bool = True):
+    """Lift the size limits inside the block (process-wide, nestable) when ``enabled``."""
+    if not enabled:
+        yield
+        return
+    with _lock:
+        _state["allow"] += 1
+    try:
+        yield
+    finally:
+        with _lock:
+            _state["allow"] -= 1
+
+
+def _exceeded(path, what: str, value, limit, offset=None, record=None):
+    raise LimitExceeded(path, f"{what} ({value:,}) exceeds the limit of {limit:,}; {OVERRIDE_HINT}",
+                        offset=offset, record=record)
+
+
+def check_sensor_size(height, width, path=None, what: str = "sensor") -> tuple[int, int]:
+    """Validate a sensor (or frame, ROI) size from a header: positive integers up to ``max_side``."""
+    try:
+        h, w = int(height), int(width)
+    except (TypeError, ValueError, OverflowError):
+        raise FormatError(path, f"{what} size {height!r} x {width!r} is not a pair of integers") from None
+    if h < 1 or w < 1:
+        raise FormatError(path, f"{what} size {w}x{h} (width x height) must be at least 1x1")
+    lim = LIMITS["max_side"]
+    if (h > lim or w > lim) and not huge_allowed():
+        raise LimitExceeded(path, f"{what} of {w}x{h} pixels (width x height) is larger than the limit of {lim} "
+                                  f"pixels per side; {OVERRIDE_HINT}")
+    return h, w
+
+
+def check_frame_shape(shape, path=None, what: str = "frames") -> None:
+    """The height and width of a frame stack (K, H, W[, C]) within ``max_side``."""
+    shape = tuple(int(s) for s in shape)
+    hw = shape[1:3] if len(shape) >= 3 else shape[-2:]
+    if hw and max(hw) > LIMITS["max_side"] and not huge_allowed():
+        raise LimitExceeded(path, f"{what} of shape {shape} have a side larger than the limit of "
+                                  f"{LIMITS['max_side']} pixels; {OVERRIDE_HINT}")
+
+
+def check_frame_bytes(n_bytes, path=None, what: str = "decoded frames") -> None:
+    n_bytes = int(n_bytes)
+    if n_bytes > LIMITS["max_frame_bytes"] and not huge_allowed():
+        _exceeded(path, f"{what} would take {n_bytes:,} bytes of memory; that", n_bytes, LIMITS["max_frame_bytes"])
+
+
+def check_packet_size(n_bytes, path=None, what: str = "decompressed packet", offset=None) -> None:
+    """A decompressed size declared by a header (packet, zip member, array) within ``max_packet_bytes``."""
+    n_bytes = int(n_bytes)
+    if n_bytes < 0:
+        raise FormatError(path, f"{what} declares a negative size {n_bytes}", offset=offset)
+    if n_bytes > LIMITS["max_packet_bytes"] and not huge_allowed():
+        raise LimitExceeded(path, f"{what} declares {n_bytes:,} bytes, above the limit of "
+                                  f"{LIMITS['max_packet_bytes']:,}; {OVERRIDE_HINT}", offset=offset)
+
+
+def check_output_count(n, what: str = "output frames", limit: int | None = None) -> int:
+    """Refuse more than ``max_outputs`` outputs (``--fps``/``--times-us``) before any work; returns ``n``.
+
+    >>> check_output_count(300)
+    300
+    """
+    if isinstance(n, float) and not math.isfinite(n):
+        raise ValueError(f"the number of {what} is not finite ({n}); check --fps / --times-us")
+    n = int(n)
+    if n < 0:
+        raise ValueError(f"the number of {what} is negative ({n})")
+    lim = LIMITS["max_outputs"] if limit is None else int(limit)
+    if n > lim and not huge_allowed():
+        raise LimitExceeded(None, f"{n:,} {what} requested, above the limit of {lim:,} (check --fps / "
+                                  f"--times-us); {OVERRIDE_HINT}")
+    return n
+
+
+def output_count_for_fps(t_start_us, t_end_us, fps) -> float:
+    """How many outputs ``fps`` frames per second over ``[t_start_us, t_end_us]`` make (a float: may be huge)."""
+    fps = float(fps)
+    if not math.isfinite(fps) or fps <= 0:
+        raise ValueError(f"--fps must be a positive finite number, got {fps}")
+    span = float(t_end_us) - float(t_start_us)
+    if not math.isfinite(span) or span < 0:
+        raise ValueError(f"the time range [{t_start_us}, {t_end_us}] µs is empty or not finite")
+    return math.floor(span * fps / 1e6) + 1
+
+
+def check_fps_outputs(t_start_us, t_end_us, fps, limit: int | None = None) -> int:
+    """:func:`output_count_for_fps` then :func:`check_output_count`, without building the time array."""
+    n = output_count_for_fps(t_start_us, t_end_us, fps)
+    lim = LIMITS["max_outputs"] if limit is None else int(limit)
+    if n > lim and not huge_allowed():
+        raise LimitExceeded(None, f"--fps {float(fps):g} over {(float(t_end_us) - float(t_start_us)) / 1e6:g} s "
+                                  f"makes {n:,.0f} output frames, above the limit of {lim:,}; {OVERRIDE_HINT}")
+    return int(n)
+
+
+def check_declared_count(n, available_bytes, bytes_per_item, path=None, what: str = "events", offset=None) -> int:
+    """A count from a header must fit in the bytes actually stored (never lifted: a broken file)."""
+    n = int(n)
+    if n < 0:
+        raise FormatError(path, f"declared number of {what} is negative ({n})", offset=offset)
+    need = n * int(bytes_per_item)
+    if need > int(available_bytes):
+        raise FormatError(path, f"the header declares {n:,} {what} ({need:,} bytes) but only "
+                                f"{int(available_bytes):,} bytes are stored", offset=offset)
+    return n
+
+
+def check_h5_stored(ds, path=None, name: str | None = None) -> None:
+    """An HDF5 dataset's declared shape must be backed by stored data (no fill-value-only giants).
+
+    Chunked datasets need every chunk allocated; contiguous ones need their full size stored.
+    Small datasets (< 1 MiB declared) are not checked (a fill value there is harmless).
+    """
+    name = name or getattr(ds, "name", "dataset")
+    try:
+        n_bytes = int(np.prod(ds.shape, dtype=np.float64) * ds.dtype.itemsize)
+    except Exception:
+        return
+    if n_bytes < (1 << 20):
+        return
+    try:
+        chunks = ds.chunks
+        if chunks is None:
+            if ds.compression is None and ds.id.get_storage_size() < n_bytes:
+                raise FormatError(path, f"{name} declares shape {ds.shape} ({n_bytes:,} bytes) but stores only "
+                                        f"{ds.id.get_storage_size():,} bytes; the file is truncated or forged")
+            return
+        need = 1
+        for s, c in zip(ds.shape, chunks):
+            need *= -(-int(s) // int(c))
+        have = ds.id.get_num_chunks()
+    except FormatError:
+        raise
+    except Exception:
+        return
+    if have < need:
+        raise FormatError(path, f"{name} declares shape {ds.shape} in {need:,} chunks but only {have:,} chunks are "
+                                f"stored; the file is truncated or its size is forged")
+
+
+def check_finite(a, path=None, what: str = "frames", allow_nan: bool = False) -> None:
+    """Floating-point data must be finite (NaN / ±inf are errors, never silently propagated).
+
+    ``allow_nan``: NaN is a documented mask of the data (HDR references: pixel not covered), so
+    only ±inf is an error."""
+    a = np.asarray(a)
+    if a.dtype.kind not in "fc" or a.size == 0:
+        return
+    bad = np.isinf(a) if allow_nan else ~np.isfinite(a)
+    if bad.any():
+        idx = np.unravel_index(int(np.argmax(bad)), a.shape)
+        n = int(bad.sum())
+        raise FormatError(path, f"{what} hold {n:,} non-finite values (first {a[idx]!r} at index "
+                                f"{tuple(int(i) for i in idx)}); "
+                                + ("infinity is not a valid radiance (NaN marks uncovered pixels)" if allow_nan
+                                   else "NaN and infinity are not valid intensities"))
+
+
+def open_image(path, what: str = "image"):
+    """Open an image with PIL with the size limits applied: a bomb or a giant is a clean error.
+
+    Returns the lazy ``PIL.Image`` (header read only); decode with ``np.asarray(im)``.
+    """
+    from PIL import Image
+    old = Image.MAX_IMAGE_PIXELS
+    try:
+        Image.MAX_IMAGE_PIXELS = None if huge_allowed() else LIMITS["max_side"] ** 2
+        try:
+            im = Image.open(path)
+        except Image.DecompressionBombError as e:
+            raise LimitExceeded(path, f"{what} is too large to decode safely ({e}); {OVERRIDE_HINT}") from None
+        except (OSError, SyntaxError, ValueError) as e:
+            raise FormatError(path, f"cannot read the {what} ({type(e).__name__}: {e})") from None
+    finally:
+        Image.MAX_IMAGE_PIXELS = old
+    w, h = im.size
+    check_sensor_size(h, w, path, what)
+    return im
