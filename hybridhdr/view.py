@@ -13,7 +13,7 @@ Each output frame at time ``t`` shows, side by side and scaled to one height:
   units of the frame-anchored methods, so equal intensities look alike in both panels; gamma 2.2
   when the frames are gamma/sRGB-encoded) unless it is an HDR video: brighter than the frame's
   clip level (99.5th percentile of the finite positive pixels above 1) and spanning more than
-  :data:`LOG_MAP_RATIO` (99.5th over 5th percentile); that gets the preview log map
+  :data:`hybridhdr.formats.images.LOG_MAP_RATIO` (99.5th over 5th percentile); that gets the preview log map
   (:func:`hybridhdr.formats.images.tone_map`). The log map on an ordinary scene lifted its
   dark tail to mid grey and washed the panel out;
 
@@ -33,43 +33,17 @@ import numpy as np
 from ._util.atomic import atomic_path
 from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
 from ._util.timearg import add_time_window, time_arg
+from .formats.images import apply_display_map, display_map
 
 BACKGROUND = (30, 37, 52)  # RGB
 ON_COLOUR = (255, 255, 255)
 OFF_COLOUR = (64, 126, 200)
 BAR_HEIGHT = 28
 LABEL_HEIGHT = 20
-#: the reconstruction panel is log-mapped only when the 99.5th percentile of its finite positive
-#: pixels is above the frame's clip level (1) and exceeds the 5th by more than this (an HDR
-#: video); otherwise it is shown linearly
-LOG_MAP_RATIO = 100.0
-
-
 def recon_display_map(sample, *, gamma: float = 1.0) -> dict:
-    """How the reconstruction panel shows intensities (see the module notes): ``{"mode": "linear",
-    "hi": ..., "gamma": ...}`` or ``{"mode": "log", "limits": (lo, hi)}`` (log units, as
-    :func:`~hybridhdr.formats.images.tone_map`), from a sample of outputs."""
-    from .formats.images import tone_map
-    a = np.asarray(sample, dtype=np.float64)
-    v = a[np.isfinite(a) & (a > 1e-6)]
-    if v.size == 0:
-        return {"mode": "linear", "hi": 1.0, "gamma": float(gamma)}
-    p5, p995 = (float(x) for x in np.percentile(v, [5.0, 99.5]))
-    if p995 > 1.0 and p995 > LOG_MAP_RATIO * p5:
-        _, lim = tone_map(a)
-        return {"mode": "log", "limits": (float(lim[0]), float(lim[1]))}
-    return {"mode": "linear", "hi": max(1.0, p995), "gamma": float(gamma)}
-
-
-def apply_display_map(img, m: dict) -> np.ndarray:
-    """uint8 image of linear ``img`` under :func:`recon_display_map`'s map (NaN and -inf black, +inf white)."""
-    from .formats.images import tone_map
-    if m["mode"] == "log":
-        return tone_map(img, limits=m["limits"])[0]
-    f = np.asarray(img, dtype=np.float64)
-    with np.errstate(invalid="ignore"):
-        v = np.clip(np.nan_to_num(f, nan=0.0, posinf=np.inf, neginf=0.0) / m["hi"], 0.0, 1.0) ** (1.0 / m["gamma"])
-    return np.round(255.0 * v).astype(np.uint8)
+    """How the reconstruction panel shows intensities (see the module notes): the shared preview
+    display map of :func:`hybridhdr.formats.images.display_map`, from a sample of outputs."""
+    return display_map(sample, gamma=gamma)
 
 
 def add_parser(sub) -> None:
@@ -142,7 +116,7 @@ class _Recon:
 
     def __init__(self, folder: Path):
         from .evaluate.cli import _read_timestamps
-        from .formats.images import read_exr, tone_map
+        from .formats.images import read_exr
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
             raise FileNotFoundError(f"--recon {folder}: expected timestamps.txt written by 'hybridhdr reconstruct'")

@@ -103,7 +103,8 @@ def test_view_on_ecd_with_reconstruction(tmp_path, capsys, shared_data):
 
 
 def test_recon_panel_linear_like_the_frame_unless_hdr():
-    from hybridhdr.view import LOG_MAP_RATIO, apply_display_map, recon_display_map
+    from hybridhdr.formats.images import LOG_MAP_RATIO, apply_display_map
+    from hybridhdr.view import recon_display_map
     rng = np.random.default_rng(0)
     # an ordinary scene in frame-linear units (code / 255), with a dark tail (the ECD slider's AKF output)
     codes = rng.integers(20, 122, (4, 30, 40)).astype(np.float64)

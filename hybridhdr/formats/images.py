@@ -36,7 +36,8 @@ import numpy as np
 from .._util.atomic import atomic_path
 from .._util.checks import check_shape
 
-__all__ = ["tone_map", "LogPercentiles", "write_exr", "read_exr", "write_exr_sequence", "write_timestamps",
+__all__ = ["tone_map", "display_map", "display_map_from", "apply_display_map", "LOG_MAP_RATIO", "LogPercentiles",
+           "write_exr", "read_exr", "write_exr_sequence", "write_timestamps",
            "write_png_previews", "write_mp4", "exr_compressions", "DEFAULT_EXR_COMPRESSION",
            "LOSSY_EXR_COMPRESSIONS"]
 
@@ -140,6 +141,46 @@ def _check_tone(low_percentile, high_percentile, gamma):
         raise ValueError(f"gamma must be > 0, got {gamma}")
 
 
+#: A video is shown with the log map only when the 99.5th percentile of its finite positive pixels
+#: is above the frame camera's clip level (1.0 in frame-linear units) and exceeds the 5th by more
+#: than this (an HDR video); otherwise linearly (:func:`display_map`).
+LOG_MAP_RATIO = 100.0
+
+
+def display_map_from(p5: float, p995: float, log_limits: tuple[float, float], *, gamma: float = 1.0,
+                     log_gamma: float = 1.0) -> dict:
+    """The display map of a video whose finite positive pixels have 5th / 99.5th percentiles
+    ``p5`` / ``p995`` (linear) and whose log tone-map limits are ``log_limits``:
+    ``{"mode": "log", "limits": (lo, hi), "gamma": log_gamma}`` for an HDR video (above the clip level and more than
+    :data:`LOG_MAP_RATIO` from end to end), else ``{"mode": "linear", "hi": max(1, p995),
+    "gamma": gamma}``: 1.0 is the frame camera's clip level in frame-linear units, so a low-range
+    scene looks like its frames instead of having its dark tail lifted to mid grey."""
+    if p995 > 1.0 and p995 > LOG_MAP_RATIO * p5:
+        return {"mode": "log", "limits": (float(log_limits[0]), float(log_limits[1])), "gamma": float(log_gamma)}
+    return {"mode": "linear", "hi": max(1.0, float(p995)), "gamma": float(gamma)}
+
+
+def display_map(sample, *, gamma: float = 1.0, low_percentile: float = 1.0, high_percentile: float = 99.0) -> dict:
+    """:func:`display_map_from` of a sample of linear frames (any shape); no valid pixel: linear."""
+    a = np.asarray(sample, dtype=np.float64)
+    v = a[np.isfinite(a) & (a > _FLOOR)]
+    if v.size == 0:
+        return {"mode": "linear", "hi": 1.0, "gamma": float(gamma)}
+    p5, p995 = (float(x) for x in np.percentile(v, [5.0, 99.5]))
+    lo, hi = (float(x) for x in np.percentile(np.log(v), [low_percentile, high_percentile]))
+    return display_map_from(p5, p995, (lo, hi), gamma=gamma)
+
+
+def apply_display_map(img, m: dict) -> np.ndarray:
+    """uint8 image of linear ``img`` under a :func:`display_map` (NaN and -inf black, +inf white)."""
+    if m["mode"] == "log":
+        return tone_map(img, limits=m["limits"], gamma=m.get("gamma", 1.0))[0]
+    f = np.asarray(img, dtype=np.float64)
+    with np.errstate(invalid="ignore"):
+        v = np.clip(np.nan_to_num(f, nan=0.0, posinf=np.inf, neginf=0.0) / m["hi"], 0.0, 1.0) ** (1.0 / m["gamma"])
+    return np.round(255.0 * v).astype(np.uint8)
+
+
 class LogPercentiles:
     """Exact percentiles of :func:`tone_map`'s ``log I`` over the valid values (finite, > 1e-6) of
     a stream of frames.
@@ -179,11 +220,16 @@ class LogPercentiles:
         """(lo, hi) = ``np.percentile(log I, [low, high])`` of everything added; ``frames_iter()``
         must yield the same frames again (any order). Without any valid value: (log 1e-6, log 1e-6),
         as :func:`tone_map`."""
+        lo, hi = self.percentiles(frames_iter, (low_percentile, high_percentile))
+        return lo, hi
+
+    def percentiles(self, frames_iter, percentiles) -> list[float]:
+        """``np.percentile(log I, percentiles)`` of everything added, in one more pass over
+        ``frames_iter()`` (see :meth:`limits`)."""
         if self.n == 0:
-            lf = float(np.log(_FLOOR))
-            return lf, lf
+            return [float(np.log(_FLOOR))] * len(percentiles)
         n = self.n
-        q = np.true_divide([low_percentile, high_percentile], 100)
+        q = np.true_divide(list(percentiles), 100)
         vi = (n - 1) * q  # numpy's 'linear' method (Hyndman & Fan 7)
         prev = np.floor(vi)
         nxt = prev + 1
@@ -214,7 +260,7 @@ class LogPercentiles:
         diff = bb - a
         res = a + diff * gamma
         res = np.where(gamma >= 0.5, bb - diff * (1 - gamma), res)
-        return float(res[0]), float(res[1])
+        return [float(v) for v in res]
 
 
 def write_timestamps(t_us, names, path) -> Path:

@@ -15,6 +15,7 @@ the files a run writes. The file formats (EXR, PNG, MP4, tone mapping) are
 from __future__ import annotations
 
 import errno
+import math
 import os
 import queue
 import sys
@@ -26,7 +27,8 @@ import numpy as np
 
 from .._util.atomic import current_umask
 from ..formats.images import (DEFAULT_EXR_COMPRESSION, _TIMESTAMPS_HEADER, LogPercentiles, _check_frame, _check_tone,
-                              _exr_compression, _MP4Stream, _write_png, tone_map, write_exr)
+                              _exr_compression, _MP4Stream, _write_png, apply_display_map, display_map_from,
+                              write_exr)
 
 __all__ = ["VideoWriter", "write_video", "OUTPUTS"]
 
@@ -41,10 +43,9 @@ def _task_exr(path, img, compression, channel):
     return 1
 
 
-def _task_png(spill, shape, index, path, limits, gamma):
+def _task_png(spill, shape, index, path, display):
     fr = _read_spill(spill, shape, index)
-    u8, _ = tone_map(fr, limits=limits, gamma=gamma)
-    _write_png(path, u8)
+    _write_png(path, apply_display_map(fr, display))
     return 1
 
 
@@ -111,7 +112,12 @@ class VideoWriter:
         Called with the number of images written (EXR files, PNG files, MP4 frames) as they
         complete, from any thread.
     low_percentile, high_percentile, gamma
-        Preview tone mapping (:func:`tone_map`).
+        Preview tone mapping (:func:`tone_map`) of an HDR video. A video that is not HDR (99.5th
+        percentile at most the clip level 1.0, or within :data:`~hybridhdr.formats.images.LOG_MAP_RATIO`
+        of the 5th) is shown linearly instead, up to max(1, 99.5th percentile), with
+        ``display_gamma`` (2.2: linear light on a display), as ``hybridhdr view`` shows it
+        (:func:`hybridhdr.formats.images.display_map_from`); the log map had lifted a low-range
+        scene's dark tail to mid grey.
 
     With previews, the frames are also appended to a spill file in ``out_dir``
     (``.preview-spill.f32``, 4 bytes per value, removed by ``close``/``abort``): the previews'
@@ -125,7 +131,7 @@ class VideoWriter:
                  png: bool = False, mp4: bool = False, playback_fps: float = 30.0, writers: int | None = None,
                  backend: str = "process", queue_frames: int | None = None, on_written=None,
                  prefix: str = "frame_", channel: str = "Y", low_percentile: float = 1.0,
-                 high_percentile: float = 99.0, gamma: float = 1.0):
+                 high_percentile: float = 99.0, gamma: float = 1.0, display_gamma: float = 2.2):
         self.out = Path(out_dir)
         if not self.out.is_dir():
             raise FileNotFoundError(f"output folder {self.out} does not exist")
@@ -143,7 +149,10 @@ class VideoWriter:
         self.exr, self.compression, self.png, self.mp4 = bool(exr), str(compression).lower(), bool(png), bool(mp4)
         self.playback_fps = float(playback_fps)
         self.prefix, self.channel = prefix, channel
-        self.tone = dict(low_percentile=low_percentile, high_percentile=high_percentile, gamma=gamma)
+        if not (math.isfinite(display_gamma) and display_gamma > 0):
+            raise ValueError(f"display_gamma must be > 0, got {display_gamma}")
+        self.tone = dict(low_percentile=low_percentile, high_percentile=high_percentile, gamma=gamma,
+                         display_gamma=display_gamma)
         self.n_writers = int(writers)
         self.queue_frames = int(queue_frames) if queue_frames else 2 * self.n_writers + 2
         self.on_written = on_written
@@ -334,11 +343,14 @@ class VideoWriter:
 
     def _previews(self) -> dict:
         t0 = time.perf_counter()
-        lo, hi = self._hist.limits(self._spill_frames, self.tone["low_percentile"], self.tone["high_percentile"])
+        lo, hi, p5, p995 = self._hist.percentiles(self._spill_frames, (self.tone["low_percentile"],
+                                                                      self.tone["high_percentile"], 5.0, 99.5))
         if hi <= lo:
             hi = lo + 1e-6
-        lim, gamma = (lo, hi), self.tone["gamma"]
-        out = {"preview_log_limits": [lo, hi]}
+        # log map for an HDR video, linear (display gamma) otherwise: formats.images.display_map_from
+        disp = display_map_from(math.exp(p5), math.exp(p995), (lo, hi), gamma=self.tone["display_gamma"],
+                                log_gamma=self.tone["gamma"])
+        out = {"preview_log_limits": [lo, hi], "preview_display": dict(disp)}
         mp4_thread = None
         mp4_err = []
         if self.mp4:
@@ -349,7 +361,7 @@ class VideoWriter:
                         for i, fr in enumerate(self._spill_frames()):
                             if mp4_err:
                                 break
-                            s.write(tone_map(fr, limits=lim, gamma=gamma)[0])
+                            s.write(apply_display_map(fr, disp))
                             self._written(1)
                     finally:
                         s.close()
@@ -367,10 +379,10 @@ class VideoWriter:
                 for i in range(self.n):
                     p = str(d / f"preview_{i:06d}.png")
                     if self._pool is None:
-                        _task_png(str(self._spill_path), self.shape, i, p, lim, gamma)
+                        _task_png(str(self._spill_path), self.shape, i, p, disp)
                         self._written(1)
                     else:
-                        self._submit(_task_png, str(self._spill_path), self.shape, i, p, lim, gamma)
+                        self._submit(_task_png, str(self._spill_path), self.shape, i, p, disp)
                     if mp4_err:
                         break
                 if self._pool is not None:

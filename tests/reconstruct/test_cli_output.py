@@ -290,3 +290,28 @@ def test_cli_sigterm_removes_partial(rec_path, tmp_path):
     _, err = p.communicate(timeout=120)
     assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
     assert list(tmp_path.iterdir()) == []
+
+
+@pytest.mark.parametrize("hdr", [False, True])
+def test_previews_linear_for_a_low_range_video_log_for_hdr(tmp_path, hdr):
+    """A video within the clip level is previewed linearly (display gamma 2.2, as `view` shows it):
+    its dark tail stays dark; an HDR video (above the clip level, > 100x end to end) gets the log map."""
+    from hybridhdr.formats.images import LOG_MAP_RATIO
+    from hybridhdr.reconstruct import output as O
+    rng = np.random.default_rng(0)
+    frames = rng.uniform(0.02, 0.45, (6, 12, 16)).astype(np.float32)  # codes ~ 5-115 of 255, linear
+    if hdr:
+        frames[:, :4] *= 400.0  # a bright region far above the clip level
+    w = O.VideoWriter(tmp_path, exr=False, png=True, writers=0)
+    for i, f in enumerate(frames):
+        w.write(1000 * i, f)
+    info = w.close()
+    d = info["preview_display"]
+    from imageio.v3 import imread
+    png = imread(tmp_path / "previews" / "preview_000000.png")
+    if hdr:
+        assert d["mode"] == "log" and np.exp(d["limits"][1]) > LOG_MAP_RATIO * np.exp(d["limits"][0])
+    else:
+        assert d == {"mode": "linear", "hi": 1.0, "gamma": 2.2}
+        want = np.round(255 * np.clip(frames[0], 0, 1) ** (1 / 2.2)).astype(np.uint8)
+        np.testing.assert_array_equal(png, want)  # the log map put this video's darkest pixel at 0, its p99 at 255
