@@ -201,7 +201,7 @@ def hd_case(n: int, reps: int, res: dict) -> None:
 
 
 def concurrent_two_sided_iter(events, frames, make_engine, times, *, offset, chunk_events=1 << 20, progress=None,
-                              info=None):
+                              info=None, carried_variance=None):
     """PROTOTYPE of a proposed ``smoother.two_sided_iter`` (not in the package: smoother.py is not
     this benchmark's to change): the backward and forward passes run at the same time, one
     thread each (each pass serial), both keep their estimates, and the outputs are fused in time
@@ -227,8 +227,10 @@ def concurrent_two_sided_iter(events, frames, make_engine, times, *, offset, chu
     errors = []
 
     def run(key, fr, ev, tms, backward):
+        cv = None if carried_variance is None else (fr.t_mid_us,) + tuple(carried_variance)
         try:
-            for tt, lg, var in SM._run_pass(lambda: make_engine(fr, ev, backward), ev, tms, chunk_events, progress):
+            for tt, lg, var in SM._run_pass(lambda: make_engine(fr, ev, backward), ev, tms, chunk_events, progress,
+                                            cv):
                 i = index[int(mirror - tt) if backward else int(tt)]
                 stores[key].put(i, lg, var)
                 have[key][i] = True

@@ -663,3 +663,21 @@ def aligned_state(n_pixels: int, n_fields: int) -> np.ndarray:
     raw = np.zeros(n_pixels * n_fields + 8, dtype=np.float64)
     off = (-raw.ctypes.data % 64) // 8
     return raw[off:off + n_pixels * n_fields].reshape(n_pixels, n_fields)
+
+
+@njit(cache=True, nogil=True)
+def count_pixel_events(y, x, i0, i1, width, cnt):
+    """``cnt[y·width + x] += 1`` for the events ``[i0, i1)`` (float32 counts, exact below 2²⁴)."""
+    for i in range(i0, i1):
+        cnt[np.int64(y[i]) * width + np.int64(x[i])] += np.float32(1.0)
+
+
+@njit(cache=True, nogil=True)
+def add_carried_variance(var, cnt, q, s_age):
+    """In place, float32: ``var += q·cnt + s_age`` (the two-sided fusion's carried variance,
+    :class:`hybridhdr.reconstruct.smoother._CarriedVariance`), in one pass."""
+    qq = np.float32(q)
+    sa = np.float32(s_age)
+    for i in range(var.shape[0]):
+        var[i] = var[i] + (qq * cnt[i] + sa)
+

@@ -198,7 +198,8 @@ class _CarriedVariance:
         self.pos = 0  # events counted up to this index
 
     def add_to(self, t_us: int, var: np.ndarray) -> np.ndarray:
-        """``var + q·n + s·Δt`` (float32) at ``t_us``; calls come in increasing time."""
+        """``var + q·n + s·Δt`` at ``t_us``, in place (float32 ``var``, this output's own array);
+        calls come in increasing time."""
         j = int(np.searchsorted(self.tau, t_us, side="right")) - 1
         if j < 0:
             return var
@@ -209,15 +210,11 @@ class _CarriedVariance:
             self.pos = int(np.searchsorted(t_ev, self.tau[j], side="left"))
         end = int(np.searchsorted(t_ev, t_us, side="left"))
         if end > self.pos:
-            w = self.ev.shape[1]
-            pix = self.ev.y[self.pos:end].astype(np.int64) * w + self.ev.x[self.pos:end]
-            self.cnt += np.bincount(pix, minlength=self.n_pix)
+            K.count_pixel_events(self.ev.y, self.ev.x, self.pos, end, self.ev.shape[1], self.cnt)
             self.pos = end
         age_s = (int(t_us) - int(self.tau[j])) * 1e-6
-        out = np.multiply(self.cnt, np.float32(self.q))
-        out += np.float32(self.s * age_s)
-        out += var
-        return out
+        K.add_carried_variance(var, self.cnt, self.q, self.s * age_s)  # in place: var is this output's own
+        return var
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
