@@ -135,24 +135,32 @@ THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
 THRESHOLD_SOURCES = ("params", "input")
 
 
-def input_thresholds(rec_input, method: str, params, profile=None):
+def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
     """``(params, used)``: ``params`` of ``method`` with pooled ON/OFF thresholds estimated on
     ``rec_input`` in the method's own log model (module docstring), and a record of what was used.
-    Methods without thresholds, and inputs without the information, keep ``params``."""
+    Methods without thresholds, and inputs without the information, keep ``params``. ``cache``
+    (a dict kept for one ``rec_input``) holds the estimate per log model, so methods sharing an
+    intensity offset estimate it once."""
     m = resolve_method(method)
     if m not in THRESHOLD_METHODS:
         return params, None
     p = make_params(m, params)
     if not hasattr(p, "intensity_offset"):  # no frame model (high-pass): nothing to calibrate against
         return params, None
-    try:
-        tm = estimate_thresholds(rec_input, profile=profile, intensity_offset=float(p.intensity_offset))
-    except ValueError as e:  # too little information in this input: the method's own thresholds
-        return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": str(e)[:200]}
-    c_on, c_off = float(tm.fallback_on), float(tm.fallback_off)
+    i0 = float(p.intensity_offset)
+    cache = {} if cache is None else cache
+    if i0 not in cache:
+        try:
+            tm = estimate_thresholds(rec_input, profile=profile, intensity_offset=i0)
+            cache[i0] = (float(tm.fallback_on), float(tm.fallback_off), int(tm.provenance["intervals_used"]))
+        except ValueError as e:  # too little information in this input: the method's own thresholds
+            cache[i0] = str(e)[:200]
+    est = cache[i0]
+    if isinstance(est, str):
+        return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": est}
+    c_on, c_off, intervals = est
     return (p.replace(contrast_threshold_on=c_on, contrast_threshold_off=c_off),
-            {"source": "input", "c_on": c_on, "c_off": c_off, "intensity_offset": float(p.intensity_offset),
-             "intervals": int(tm.provenance["intervals_used"])})
+            {"source": "input", "c_on": c_on, "c_off": c_off, "intensity_offset": i0, "intervals": intervals})
 
 
 def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params") -> dict:
@@ -169,6 +177,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
         raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES}, got {thresholds!r}")
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
     for k in held:
+        loo_k, calib_k = None, {}  # the recording without frame k, and its threshold estimates, once per k
         for s in specs:
             st = out[s.label]
             if st["error"] is not None:
@@ -180,8 +189,9 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                 if thresholds == "input":
                     # next-frame: the filter sees only the data before tau_k; its two threshold
                     # numbers, a camera constant, come from the recording without frame k
-                    r_c = r_k if tk == "leave_one_out" else holdout_input(rec, k, "leave_one_out")[0]
-                    params, used = input_thresholds(r_c, s.method, params, profile)
+                    if loo_k is None:
+                        loo_k = r_k if tk == "leave_one_out" else holdout_input(rec, k, "leave_one_out")[0]
+                    params, used = input_thresholds(loo_k, s.method, params, profile, cache=calib_k)
                     st["thresholds"].append(used)
                 t0 = time.perf_counter()
                 v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
