@@ -138,18 +138,7 @@ def hd_case(n: int, reps: int, res: dict) -> None:
     prof = default_profile()
 
     def drive(eng, m):
-        eng.start(None)
-        cuts = np.searchsorted(t, m.times_us[1:], side="left")
-        tt, tc = time.perf_counter(), time.thread_time()
-        i = 0
-        for j in cuts:
-            eng.process(t, x, y, p, i, int(j))
-            eng.switch()
-            i = int(j)
-        eng.process(t, x, y, p, i, n)
-        el, cpu = time.perf_counter() - tt, time.thread_time() - tc
-        eng.close()
-        return el, cpu
+        return drive_events(eng, m, t, x, y, p)
 
     def akf():
         pr = AKFParams()
@@ -285,6 +274,26 @@ class _FastColumn:
         return self._ds[key]
 
 
+def drive_events(eng, m, t, x, y, p, barrier=None):
+    """Events ``(t, x, y, p)`` through ``eng`` between the frame switches of ``m`` (the switches,
+    O(pixels) each, are included); returns (wall s, CPU s of this thread: robust to a loaded
+    machine, 1 worker). ``barrier``: wait on it before the clock starts."""
+    eng.start(None)
+    cuts = np.searchsorted(t, m.times_us[1:], side="left")
+    if barrier is not None:
+        barrier.wait()
+    tt, tc = time.perf_counter(), time.thread_time()
+    i = 0
+    for j in cuts:
+        eng.process(t, x, y, p, i, int(j))
+        eng.switch()
+        i = int(j)
+    eng.process(t, x, y, p, i, len(t))
+    el, cpu = time.perf_counter() - tt, time.thread_time() - tc
+    eng.close()
+    return el, cpu
+
+
 def best_of(fn, repeats: int):
     best = float("inf")
     out = None
@@ -318,30 +327,11 @@ def main(argv=None) -> int:
     res: dict = {"sensor": f"{W}x{H}", "n_events": n, "duration_s": dur / 1e6, "quick": bool(args.quick),
                  "cpu_count": os.cpu_count(), "loadavg_start": loadavg()}
 
-    def drive_events(eng, m, barrier=None):
-        """Events through ``eng`` between frame switches (the 30 Hz switches, O(pixels) each, are
-        included); returns (wall s, CPU s of this thread: robust to a loaded machine, 1 worker)."""
-        eng.start(None)
-        cuts = np.searchsorted(t, m.times_us[1:], side="left")
-        if barrier is not None:
-            barrier.wait()
-        tt = time.perf_counter()
-        tc = time.thread_time()
-        i = 0
-        for j in cuts:
-            eng.process(t, x, y, p, i, int(j))
-            eng.switch()
-            i = int(j)
-        eng.process(t, x, y, p, i, n)
-        el, cpu = time.perf_counter() - tt, time.thread_time() - tc
-        eng.close()
-        return el, cpu
-
     def akf_run(n_workers, params=AKFParams(), barrier=None):
         m = FrameMeasurements(frames, (H, W), prof, intensity_offset=params.intensity_offset,
                               interpolate_covariance=params.covariance_interpolation == "linear")
         eng = AKFEngine((H, W), m, params, n_workers=n_workers)
-        el, akf_run.cpu = drive_events(eng, m, barrier)
+        el, akf_run.cpu = drive_events(eng, m, t, x, y, p, barrier)
         return el, eng.S.copy()
 
     def concurrent_pair():
@@ -402,7 +392,7 @@ def main(argv=None) -> int:
     def cf_run():
         m = FrameMeasurements(frames, (H, W), prof, intensity_offset=1.0, bias_correction=False,
                               interpolate_covariance=False)
-        return drive_events(CFEngine((H, W), m, CFParams(), "cf"), m)[0]
+        return drive_events(CFEngine((H, W), m, CFParams(), "cf"), m, t, x, y, p)[0]
 
     cf_run()
     el = min(cf_run() for _ in range(reps))

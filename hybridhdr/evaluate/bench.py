@@ -25,6 +25,7 @@ from pathlib import Path
 import numpy as np
 
 from .._util.atomic import atomic_path
+from .._util.confine import confine
 from .._util.toml import load_toml, loads_toml
 from ..reconstruct.api import reconstruct, resolve_method
 from ..simulate.procedural import procedural_recording
@@ -114,7 +115,6 @@ def _confine_bench_file(d: dict, base: Path, source: str, allow_outside, out_dir
     """A bench loaded from a file reads and writes only inside its folder (and ``out_dir`` for its
     cache) unless ``allow_outside`` folders are given; it never names code to run (HDR-VDP's
     folder, unpickling checkpoints): those come from the command line or the environment."""
-    from .._util.confine import confine
     b = d.get("bench", {})
     if b.get("hdrvdp_dir") is not None:
         raise ValueError(f"{source}: [bench].hdrvdp_dir is not accepted in a bench file (HDR-VDP runs the .m files of "
@@ -210,7 +210,6 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
     def _path(v):  # relative checkpoint paths are relative to the bench file, and stay inside its folder
         if base is None:
             return v
-        from .._util.confine import confine
         return str(confine(v, base, allow_outside, what="checkpoint (weights)", source=str(source)))
     weights = {k: _path(v) for k, v in weights.items()}
     for m in ms:

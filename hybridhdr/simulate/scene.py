@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from .._util.atomic import write_text_atomic
+from .._util.confine import confine
 from .._util.toml import TOMLDecodeError, load_toml
 
 __all__ = [
@@ -1068,7 +1069,6 @@ def load_scene(path, allow_outside=()) -> Scene:
     Every file the scene names (camera ``calibration``, mesh files, textures) must resolve inside
     the scene's folder or one of the ``allow_outside`` folders (``--allow-outside``), else
     :class:`hybridhdr._util.confine.OutsideFolderError` (``docs/security.md``)."""
-    from .._util.confine import confine
     p = Path(path)
     if not p.exists():
         raise FileNotFoundError(f"scene file {str(p)!r} not found")
