@@ -316,7 +316,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                      t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                      measurements=None, progress: Callable[[int], None] | None = None,
                      info: dict | None = None, augment=None, thresholds=None, cfa=None,
-                     demosaic: str = "log_bilinear") -> Iterator[tuple[int, np.ndarray]]:
+                     demosaic: str = "log_cubic") -> Iterator[tuple[int, np.ndarray]]:
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
@@ -471,7 +471,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
                 mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
                 n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
                 progress: Callable[[int], None] | None = None, augment=None, thresholds=None, cfa=None,
-                demosaic: str = "log_bilinear") -> Video:
+                demosaic: str = "log_cubic") -> Video:
     """Reconstruct linear-intensity video from events and frames.
 
     Parameters
@@ -530,7 +530,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         (:mod:`~hybridhdr.reconstruct.colour`). None (default): the recording's
         ``metadata.event_camera.cfa``; ``"none"``: monochrome regardless. The pattern set here
         applies to the frames too (grey frames are then its raw mosaic).
-    demosaic : {"log_bilinear", "bilinear", "edge_aware"}
+    demosaic : {"log_cubic", "log_bilinear", "bilinear", "edge_aware"}
         Demosaicking of colour outputs (:func:`hybridhdr.camera.cfa.demosaic`; default geometric
         interpolation, the scale-invariant one, measured best in ``benchmarks/colour.py``); reported in
         ``Video.info["cfa"]``.

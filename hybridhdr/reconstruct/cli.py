@@ -63,7 +63,7 @@ def add_parser(subparsers) -> None:
     p.add_argument("--cfa", choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"), default=None,
                    help="colour filter array of the event and frame sensors (default: as the recording declares; "
                         "'none' forces monochrome); colour output is linear RGB")
-    p.add_argument("--demosaic", choices=("log_bilinear", "bilinear", "edge_aware"), default="log_bilinear",
+    p.add_argument("--demosaic", choices=("log_cubic", "log_bilinear", "bilinear", "edge_aware"), default="log_cubic",
                    help="demosaicking of colour outputs")
     p.add_argument("--weights", type=Path, default=None,
                    help="network checkpoint for --method e2vid / firenet (.pth / .pth.tar; never downloaded)")

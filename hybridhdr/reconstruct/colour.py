@@ -13,8 +13,8 @@ integration, frames only, EDI), is the monochrome filter run unchanged on the ra
    as the same mosaic are used as they are. Each event pixel is thus filtered against the frame
    value of its own colour, never against luminance.
 2. **Every method unchanged**, on the mosaic of events and frames.
-3. **Outputs demosaicked** (:func:`hybridhdr.camera.cfa.demosaic`, ``"log_bilinear"`` by default,
-   ``"bilinear"`` and ``"edge_aware"`` selectable) to linear RGB, float32 (K, H, W, 3); each pixel's own channel
+3. **Outputs demosaicked** (:func:`hybridhdr.camera.cfa.demosaic`, ``"log_cubic"`` by default,
+   ``"log_bilinear"``, ``"bilinear"`` and ``"edge_aware"`` selectable) to linear RGB, float32 (K, H, W, 3); each pixel's own channel
    is the filter's estimate, bit for bit. :meth:`Video.luminance` gives Rec. 709 luminance for
    the metrics.
 
@@ -85,7 +85,7 @@ class ColourSource:
     Use :func:`colour_source`, which returns None for a monochrome source.
     """
 
-    def __init__(self, source, pattern: str, frame_pattern: str | None, demosaic_method: str = "log_bilinear"):
+    def __init__(self, source, pattern: str, frame_pattern: str | None, demosaic_method: str = "log_cubic"):
         if demosaic_method not in DEMOSAIC_METHODS:
             raise ValueError(f"demosaic must be one of {DEMOSAIC_METHODS}, got {demosaic_method!r}")
         self.pattern = pattern
@@ -142,7 +142,7 @@ class ColourSource:
             self.close()
 
 
-def colour_source(source, cfa=None, demosaic_method: str = "log_bilinear") -> ColourSource | None:
+def colour_source(source, cfa=None, demosaic_method: str = "log_cubic") -> ColourSource | None:
     """A :class:`ColourSource` when the source (or ``cfa``) has a Bayer pattern, else None.
 
     Parameters
@@ -152,7 +152,7 @@ def colour_source(source, cfa=None, demosaic_method: str = "log_bilinear") -> Co
         None: the recording's own ``metadata.event_camera.cfa`` (and ``frame_camera.cfa``);
         a pattern (``RGGB``, ``BGGR``, ``GRBG``, ``GBRG``) sets both; ``"none"`` forces the
         monochrome path.
-    demosaic_method : {"log_bilinear", "bilinear", "edge_aware"}
+    demosaic_method : {"log_cubic", "log_bilinear", "bilinear", "edge_aware"}
     """
     if demosaic_method not in DEMOSAIC_METHODS:
         raise ValueError(f"demosaic must be one of {DEMOSAIC_METHODS}, got {demosaic_method!r}")

@@ -81,6 +81,22 @@ def test_demosaic_linear_ramp(pattern):
 
 
 @pytest.mark.parametrize("pattern", CFA_PATTERNS)
+def test_log_cubic_exact_on_quadratic_log_intensity(pattern):
+    # Keys' cubic reproduces polynomials up to degree 2 (tensor products too), G along rows and
+    # columns and the log ratios R/G, B/G on their quarter grid: a radiance whose log is quadratic
+    # in x and y is recovered exactly away from the border (6 pixels: the cubic reaches 3 pixels,
+    # and the ratios at R and B sites use G interpolated 3 pixels further); bilinear is not
+    yy, xx = np.mgrid[0:20, 0:22].astype(np.float64) / 8.0
+    logs = [0.5 + xx - 0.7 * yy + 0.9 * xx * xx, -1 + 0.4 * yy * yy + xx * yy, 2 - xx * xx + 0.3 * yy]
+    rgb = np.exp(np.stack(logs, axis=-1))
+    out = demosaic(mosaic(rgb, pattern), pattern, "log_cubic")
+    inner = (slice(6, -6), slice(6, -6))
+    np.testing.assert_allclose(out[inner], rgb[inner], rtol=1e-5)
+    lb = demosaic(mosaic(rgb, pattern), pattern, "log_bilinear")
+    assert np.abs(np.log(lb[inner]) - np.log(rgb[inner])).max() > 1e-3
+
+
+@pytest.mark.parametrize("pattern", CFA_PATTERNS)
 def test_edge_aware_keeps_a_vertical_edge(pattern):
     rgb = np.ones((8, 10, 3))
     rgb[:, 5:] = 100.0  # grey edge: 1 | 100

@@ -66,7 +66,7 @@ def test_grey_scene_through_colour_path(mono_recordings, method, mode, kw):
     assert col.is_colour and col.frames.shape == mono.frames.shape + (3,) and col.frames.dtype == np.float32
     np.testing.assert_array_equal(col.t_us, mono.t_us)
     assert mosaic(col.frames, pattern).tobytes() == mono.frames.tobytes()
-    assert col.info["cfa"]["event"] == pattern and col.info["cfa"]["demosaic"] == "log_bilinear"
+    assert col.info["cfa"]["event"] == pattern and col.info["cfa"]["demosaic"] == "log_cubic"
     assert col.luminance().shape == mono.frames.shape
 
 
