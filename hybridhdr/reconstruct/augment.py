@@ -11,7 +11,8 @@ For frames k with exposure ``[s_k, e_k)`` (``T_k = e_k - s_k``, each frame's own
   reference code's [0.6, 100], ``ziweiWWANG/AKF:compute_ct_scale.m``); otherwise ``c_k = c`` with the reason counted
   (no events, Σσ = 0, ΔL^D = 0 or opposite sign, out of range) in :class:`AugmentStats`.
 * **Blend** (eq. 13): inside exposure k, ``L^A = w A_{k-1} + (1 - w) A_k`` with
-  ``w = (e_k - t)/T_k``; in the gap ``[e_k, s_{k+1})``, ``L^A = A_k``.
+  ``w = (e_k - t)/T_k``; in the gap ``[e_k, s_{k+1})``, ``L^A = A_k``. Where frame k-1 clipped
+  the pixel, A_{k-1} starts from a bound, not a value, and ``L^A = A_k`` (counted).
 
 :class:`AugmentedMeasurements` gives this L^A to the AKF through the measurement-provider hook
 (``Segment.la_step``: the filter moves L^A by ±la_step at each event), with R from the camera
@@ -54,9 +55,9 @@ class AugmentParams(_ParamsMixin):
     enabled : bool
         Use the augmented frame as the AKF measurement in offline mode. Off by default: with
         hybridhdr's measurement model (saturation as a bound, discrete frame updates, frames
-        carried forward by the events) the plain frames scored better on the edge sweep of
-        ``benchmarks/accuracy.py`` than EDI deblurring plus eq. 12 calibration (well-exposed log
-        error 0.017 vs 0.040, recoverable 0.066 vs 0.082); ``augment=True`` turns it on.
+        carried forward by the events) the plain frames still score better on the well-exposed
+        pixels of ``benchmarks/accuracy.py`` (log error 0.010 vs 0.006 on the edge sweep, 0.052
+        vs 0.006 on AHDR; recoverable pixels equal on the edge sweep); ``augment=True`` turns it on.
     deblur : bool
         EDI-deblur each frame (§4.1 "Deblur"); False takes the blurred frame as sharp at both
         ends of its exposure.
@@ -129,6 +130,9 @@ class AugmentStats:
     pixels_censored : int
         Pixel-segments whose frame clipped them: augmented as the plain bound carried by the
         events (no deblurring, no calibration).
+    pixels_blend_fallback : int
+        Pixel-segments inside exposure k whose previous frame k-1 clipped them: A_{k-1} starts
+        from a bound, not a value, so eq. 13's blend is replaced by A_k alone there.
     thresholds : dict
         EDI threshold used per frame index (log units).
     """
@@ -141,6 +145,7 @@ class AugmentStats:
     intervals: int = 0
     frames_deblurred: int = 0
     pixels_censored: int = 0
+    pixels_blend_fallback: int = 0
     thresholds: dict = field(default_factory=dict)
 
     @property
@@ -156,7 +161,7 @@ class AugmentStats:
     def to_dict(self) -> dict:
         d = {name: getattr(self, name) for name in CALIBRATION_CATEGORIES}
         d.update(fallbacks=self.fallbacks, intervals=self.intervals, frames_deblurred=self.frames_deblurred,
-                 pixels_censored=self.pixels_censored)
+                 pixels_censored=self.pixels_censored, pixels_blend_fallback=self.pixels_blend_fallback)
         if self.thresholds:
             v = np.array(list(self.thresholds.values()))
             d["edi_threshold"] = {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max())}
@@ -441,6 +446,14 @@ class AugmentedMeasurements:
                 ap = lds_p + c_p * (pre + cnt_k)
                 la = w * ap + (1.0 - w) * ak  # eq. 13
                 step = w * c_p + (1.0 - w) * ck
+                # where frame k-1 clipped the pixel, A_{k-1} starts from the clip level (a bound,
+                # not a value) and would drag the blend towards it: A_k alone there
+                cp = self._fm_segment(k - 1).censor
+                if cp is not None and np.any(cp != 0):
+                    bad = cp != 0
+                    la = np.where(bad, ak, la)
+                    step = np.where(bad, ck, step)
+                    self.stats.pixels_blend_fallback += int(np.count_nonzero(bad))
             else:
                 la = ak
                 step = ck
