@@ -28,6 +28,7 @@ and it needs the events in memory (13 bytes per event).
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -39,7 +40,7 @@ from .event_arrays import EventArrays
 from .measurement import FrameMeasurements, Segment
 from .params import _ParamsMixin
 
-__all__ = ["AugmentParams", "AugmentStats", "AugmentedMeasurements", "calibrate_thresholds",
+__all__ = ["AugmentParams", "AugmentStats", "AugmentedMeasurements", "calibrate_thresholds", "deblur_min_events",
            "CALIBRATION_CATEGORIES"]
 
 #: reasons of :func:`calibrate_thresholds`, in the order of the kernel's category codes
@@ -80,6 +81,22 @@ class AugmentParams(_ParamsMixin):
         ``ziweiWWANG/AKF:compute_ct_scale.m``).
     blend_steps : int
         Sub-intervals of each exposure on which eq. 13's weight is held.
+    deblur_min_events : int or None
+        EDI-deblur a pixel of frame k only when at least this many events fell in its exposure;
+        below it the frame is taken as sharp at τ_k (``L^D(τ_k) = log B_k``, counted as
+        ``pixels_deblur_fallback``). None (default): ``n* = ceil(sqrt(24 / (√12 c)))`` for EDI's
+        c (6 at c = 0.2, 9 at c = 0.1), where deblurring starts to pay: a frame blurred by a
+        log-intensity ramp of Δ = n c over its exposure is off its mid-exposure value by only
+        ``ln(sinh(Δ/2)/(Δ/2)) ≈ Δ²/24``, since the filter anchors a frame at τ_k and carries it
+        with the events, while EDI reads each event as a change of exactly c and so adds a
+        threshold-quantisation error of about ``c/√12``; ``Δ²/24 > c/√12`` gives n*. 0 deblurs
+        every pixel, as the paper does.
+    interpolation_anchor : {"mid", "start"}
+        Where A_k is anchored: ``"mid"`` (default) ``A_k(t) = L^D(τ_k) + c_k Σσ[τ_k, t)``, so
+        A_k(τ_k) is the deblurred frame at its mid-exposure whatever the calibrated c_k;
+        ``"start"`` ``A_k(t) = L^D(s_k) + c_k Σσ[s_k, t)`` (eq. 10 as the paper writes it),
+        which at τ_k is off the deblurred frame by ``(c_k - c) Σσ[s_k, τ_k)`` (EDI deblurs with
+        c, the interval is interpolated with c_k).
     """
 
     _toml_table = "augment"
@@ -96,6 +113,8 @@ class AugmentParams(_ParamsMixin):
     calibration_scale_min: float = 0.6  # ziweiWWANG/AKF:compute_ct_scale.m
     calibration_scale_max: float = 100.0  # idem
     blend_steps: int = 2  # eq. 13 held on T/2 halves (cost: one AKF segment switch each)
+    deblur_min_events: int | None = None  # below: taken as sharp; None: n* from c (docstring); 0: the paper
+    interpolation_anchor: str = "mid"  # A_k anchored at L^D(τ_k); "start": at L^D(s_k), the paper
 
     def __post_init__(self):
         for name in ("enabled", "deblur", "interpolate", "calibrate", "search_threshold"):
@@ -109,6 +128,12 @@ class AugmentParams(_ParamsMixin):
         v = self.blend_steps
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"AugmentParams.blend_steps must be an int >= 1, got {v!r}")
+        if self.interpolation_anchor not in ("mid", "start"):
+            raise ValueError(f"AugmentParams.interpolation_anchor must be 'mid' or 'start', got "
+                             f"{self.interpolation_anchor!r}")
+        v = self.deblur_min_events
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0):
+            raise ValueError(f"AugmentParams.deblur_min_events must be None or an int >= 0, got {v!r}")
 
     @classmethod
     def off(cls) -> "AugmentParams":
@@ -130,9 +155,14 @@ class AugmentStats:
     pixels_censored : int
         Pixel-segments whose frame clipped them: augmented as the plain bound carried by the
         events (no deblurring, no calibration).
+    pixels_deblur_fallback : int
+        Pixel-frames with fewer than ``deblur_min_events`` events in the exposure: taken as
+        sharp at τ_k instead of EDI-deblurred.
     pixels_blend_fallback : int
-        Pixel-segments inside exposure k whose previous frame k-1 clipped them: A_{k-1} starts
-        from a bound, not a value, so eq. 13's blend is replaced by A_k alone there.
+        Pixel-segments inside exposure k where eq. 13's blend is replaced by A_k alone: the
+        previous frame k-1 clipped them (A_{k-1} starts from a bound, not a value), or frame k
+        is sharp there (``deblur_min_events``; A_k is then the frame itself, while A_{k-1} adds
+        the error of a whole interval of event integration).
     thresholds : dict
         EDI threshold used per frame index (log units).
     """
@@ -146,6 +176,7 @@ class AugmentStats:
     frames_deblurred: int = 0
     pixels_censored: int = 0
     pixels_blend_fallback: int = 0
+    pixels_deblur_fallback: int = 0
     thresholds: dict = field(default_factory=dict)
 
     @property
@@ -161,11 +192,24 @@ class AugmentStats:
     def to_dict(self) -> dict:
         d = {name: getattr(self, name) for name in CALIBRATION_CATEGORIES}
         d.update(fallbacks=self.fallbacks, intervals=self.intervals, frames_deblurred=self.frames_deblurred,
-                 pixels_censored=self.pixels_censored, pixels_blend_fallback=self.pixels_blend_fallback)
+                 pixels_censored=self.pixels_censored, pixels_blend_fallback=self.pixels_blend_fallback,
+                 pixels_deblur_fallback=self.pixels_deblur_fallback)
         if self.thresholds:
             v = np.array(list(self.thresholds.values()))
             d["edi_threshold"] = {"min": float(v.min()), "median": float(np.median(v)), "max": float(v.max())}
         return d
+
+
+def deblur_min_events(contrast_threshold: float, given: int | None = None) -> int:
+    """Fewest events in an exposure for EDI deblurring to pay (:class:`AugmentParams`): ``given``
+    when set, else ``ceil(sqrt(24 / (√12 c)))``.
+
+    >>> deblur_min_events(0.2), deblur_min_events(0.1), deblur_min_events(0.1, 0)
+    (6, 9, 0)
+    """
+    if given is not None:
+        return int(given)
+    return int(math.ceil(math.sqrt(24.0 / (math.sqrt(12.0) * float(contrast_threshold)))))
 
 
 def calibrate_thresholds(delta_ld, sum_sigma, n_events, contrast_threshold: float, *,
@@ -326,7 +370,9 @@ class AugmentedMeasurements:
 
     # -- per-frame and per-interval quantities ----------------------------------------------
     def _frame(self, k: int):
-        """(L^D(s_k), Σσ over exposure k, number of events over exposure k)."""
+        """(L^D(s_k), L^D(e_k), Σσ over exposure k, number of events over exposure k, the pixels
+        taken as sharp (bool) or None, the anchor of A_k and Σσ from s_k to it: L^D(τ_k) and
+        Σσ[s_k, τ_k), or L^D(s_k) and 0 with ``interpolation_anchor="start"``; Σσ[s_k, τ_k))."""
         if k in self._frames_cache:
             return self._frames_cache[k]
         seg = self._fm_segment(k)
@@ -341,13 +387,26 @@ class AugmentedMeasurements:
                                           tv_weight=self.params.tv_weight, intensity_offset=self.akf.intensity_offset,
                                           log_blurred=logb)
             lds, _ = edi_log_latent(None, self.events, a, b, c, log_blurred=logb)
+            cnt_mid, _ = self.events.counts(a, int(self.tau[k]))
+            few = tot < deblur_min_events(c, self.params.deblur_min_events)
+            sharp = few if np.any(few) else None
+            if sharp is not None:  # too few events to tell blur from threshold quantisation: sharp at τ_k
+                lds = np.where(few, logb - c * cnt_mid, lds)
+                self.stats.pixels_deblur_fallback += int(np.count_nonzero(few))
             self.stats.frames_deblurred += 1
             self.stats.thresholds[k] = float(c)
             lde = lds + c * cnt
+            ldm = lds + c * cnt_mid
         else:
             lds = logb
             lde = logb
-        out = (lds, lde, cnt, tot)
+            sharp = None
+            ldm = logb
+            cnt_mid = self.events.counts(a, int(self.tau[k]))[0] if b > a else np.zeros_like(cnt)
+        cnt_anchor = cnt_mid
+        if self.params.interpolation_anchor == "start":  # the paper: A_k anchored at L^D(s_k)
+            ldm, cnt_anchor = lds, np.zeros_like(cnt)
+        out = (lds, lde, cnt, tot, sharp, ldm, cnt_anchor, cnt_mid)
         self._frames_cache[k] = out
         for old in [j for j in self._frames_cache if j < k - 2]:
             del self._frames_cache[old]
@@ -357,11 +416,11 @@ class AugmentedMeasurements:
         """(L^D(s_k), c_k) of interval k = [s_k, e_{k+1}); c_k = c for the last frame."""
         if k in self._interval_cache:
             return self._interval_cache[k]
-        lds, _, cnt_k, tot_k = self._frame(k)
+        lds, _, cnt_k, tot_k = self._frame(k)[:4]
         if k + 1 >= self.K or not self.params.calibrate:
             c_eff = np.full(self.n, self.c)
         else:
-            _, lde1, cnt_1, tot_1 = self._frame(k + 1)
+            _, lde1, cnt_1, tot_1 = self._frame(k + 1)[:4]
             g, gt = self.events.counts(int(self.te[k]), int(self.ts[k + 1]))
             c_eff, cat = calibrate_thresholds(lde1 - lds, cnt_k + g + cnt_1, tot_k + gt + tot_1, self.c,
                                               scale_min=self.params.calibration_scale_min,
@@ -392,10 +451,12 @@ class AugmentedMeasurements:
         return cnt
 
     def _estimate(self, k: int, t_us: int, *, back_count=None):
-        """A_k(t) = L^D(s_k) + c_k Σσ[s_k, t) (eq. 10; equal to eq. 11 when calibrated), and c_k."""
-        lds, c_eff = self._interval(k)
+        """A_k(t) = L^D(τ_k) + c_k Σσ[τ_k, t) (eq. 10 anchored at mid-exposure; with
+        ``interpolation_anchor="start"`` L^D(s_k) + c_k Σσ[s_k, t) as the paper), and c_k."""
+        _, c_eff = self._interval(k)
+        f = self._frame(k)
         cnt = self._count_since(k, t_us) if back_count is None else back_count
-        return lds + c_eff * cnt, c_eff
+        return f[5] + c_eff * (cnt - f[6]), c_eff
 
     def _fm_segment(self, j: int) -> Segment:
         """Zero-order-hold measurement of frame j (cached: two frames are live at a time)."""
@@ -429,7 +490,7 @@ class AugmentedMeasurements:
         t1 = int(self.times_us[i + 1]) if i + 1 < len(self) else None
         rinv, beta = self._r_pieces(t0, t1)
         if kind == 2:  # no interpolation: hold the (deblurred) image at τ_k
-            lds, _, _, _ = self._frame(k)
+            lds = self._frame(k)[0]
             cnt = self._count_since(k, int(self.tau[k])) if self.params.deblur else 0
             c = self.c if self.params.deblur else 0.0
             la = lds + c * cnt
@@ -438,19 +499,23 @@ class AugmentedMeasurements:
             ak, ck = self._estimate(k, t0)
             if kind == 0 and w > 0.0:
                 # A_{k-1}(t0) = L^D(s_{k-1}) + c_{k-1} (Σσ[s_{k-1}, s_k) + Σσ[s_k, t0))
-                lds_p, c_p = self._interval(k - 1)
+                _, c_p = self._interval(k - 1)
+                fp = self._frame(k - 1)
                 if self._pre is None or self._pre[0] != k:
                     self._pre = (k, self.events.counts(int(self.ts[k - 1]), int(self.ts[k]))[0])
                 pre = self._pre[1]
                 cnt_k = self._count_cache[2]
-                ap = lds_p + c_p * (pre + cnt_k)
+                ap = fp[5] + c_p * (pre + cnt_k - fp[6])
                 la = w * ap + (1.0 - w) * ak  # eq. 13
                 step = w * c_p + (1.0 - w) * ck
                 # where frame k-1 clipped the pixel, A_{k-1} starts from the clip level (a bound,
                 # not a value) and would drag the blend towards it: A_k alone there
                 cp = self._fm_segment(k - 1).censor
-                if cp is not None and np.any(cp != 0):
-                    bad = cp != 0
+                sharp = self._frame(k)[4]
+                if (cp is not None and np.any(cp != 0)) or sharp is not None:
+                    bad = np.zeros(self.n, bool) if cp is None else cp != 0
+                    if sharp is not None:  # frame k is sharp there: A_k(τ_k) is the frame itself
+                        bad |= sharp
                     la = np.where(bad, ak, la)
                     step = np.where(bad, ck, step)
                     self.stats.pixels_blend_fallback += int(np.count_nonzero(bad))
@@ -464,7 +529,8 @@ class AugmentedMeasurements:
         cens = fseg.censor
         if cens is not None and np.any(cens != 0):
             cz = cens != 0
-            cnt = self._count_since(k, t0) if kind != 2 else 0
+            # the bound frame k states at τ_k, carried to t0 by the events (as the plain frames)
+            cnt = self._count_since(k, t0) - self._frame(k)[7] if kind != 2 else 0
             la = np.where(cz, fseg.log_frame + self.c * cnt, la)
             if step is not None:
                 step = np.where(cz, self.c, step)
