@@ -168,6 +168,15 @@ def _targets(s) -> dict:
     nm = {m: g("real_next", m, "mse") for m in ("akf_causal", "frames_zoh", "cf")}
     t["real_next_akf_causal_beats_hold_and_cf"] = {**nm, "pass": bool(nm["akf_causal"] < nm["frames_zoh"]
                                                                       and nm["akf_causal"] < nm["cf"])}
+    # frame augmentation never hurts: akf_aug against akf on every target suite (MSE and SSIM)
+    aug = {}
+    for su in ("edge_sweep", "hdr", "ahdr", "real"):
+        pm, am_, ps, as_ = g(su, "akf", "mse"), g(su, "akf_aug", "mse"), g(su, "akf", "ssim"), g(su, "akf_aug", "ssim")
+        if all(math.isfinite(v) for v in (pm, am_, ps, as_)):
+            aug[su] = {"mse_ratio": am_ / pm, "ssim_ratio": as_ / ps}
+    t["akf_aug_not_worse_than_akf"] = {**{f"{su}_{k}": round(v, 4) for su, d in aug.items() for k, v in d.items()},
+                                       "pass": bool(aug) and all(d["mse_ratio"] <= 1.0 and d["ssim_ratio"] >= 1.0
+                                                                 for d in aug.values())}
     bad = {f"{su}/{m}": (d.get("nonpositive_frac"), d.get("n_nonfinite")) for su, dd in s.items()
            for m, d in dd.items() if (d.get("nonpositive_frac") or 0) > 0 or (d.get("n_nonfinite") or 0) > 0}
     t["no_nonpositive_or_nan"] = {"offenders": bad, "pass": not bad}

@@ -106,3 +106,61 @@ def calibrate_threshold(delta_ld, sum_sigma, any_events, c, scale_min, scale_max
         category[pix] = 0
         n_ok += 1
     return n_ok
+
+
+@njit(cache=True, nogil=True)
+def edi_walk_asym(t, x, y, p, i0, i1, width, t_s, t_e, c_on, c_off, count, level, t_last, acc):
+    """:func:`edi_walk` with per-pixel ON and OFF thresholds (float64 (H*W,) each):
+    ∫ exp(E(t)) dt with E(t) = c_on N_on(t) - c_off N_off(t) of the pixel's events in [t_s, t).
+    ``level`` (float64, zeroed by the caller) ends as E(t_e); ``count`` as the signed count."""
+    for i in range(i0, i1):
+        pix = np.int64(y[i]) * width + np.int64(x[i])
+        ti = np.float64(t[i])
+        acc[pix] += math.exp(level[pix]) * (ti - t_last[pix])
+        t_last[pix] = ti
+        if p[i] > 0:
+            count[pix] += 1
+            level[pix] += c_on[pix]
+        else:
+            count[pix] -= 1
+            level[pix] -= c_off[pix]
+    te = np.float64(t_e)
+    for pix in range(acc.shape[0]):
+        acc[pix] += math.exp(level[pix]) * (te - t_last[pix])
+    return i1 - i0
+
+
+@njit(cache=True, nogil=True)
+def calibrate_scale(delta_ld, nominal, any_events, scale_min, scale_max, scale, category):
+    """Eq. 12 with ON and OFF thresholds: per pixel, ``r = ΔL^D / D`` with D the nominal change
+    ``c_on N_on - c_off N_off`` of the interval's events; ``scale = r`` when ``scale_min <= 1/r
+    <= scale_max``, else 1 with the reason in ``category`` (as :func:`calibrate_threshold`;
+    2 is now D = 0). The calibrated thresholds are ``r c_on`` and ``r c_off``: one equation per
+    interval fixes their common scale, their ratio is the sensor's. Returns the number of
+    calibrated pixels."""
+    n_ok = 0
+    for pix in range(delta_ld.shape[0]):
+        if not any_events[pix]:
+            scale[pix] = 1.0
+            category[pix] = 1
+            continue
+        den = nominal[pix]
+        if den == 0.0:
+            scale[pix] = 1.0
+            category[pix] = 2
+            continue
+        d = delta_ld[pix]
+        if d == 0.0 or (d > 0.0) != (den > 0.0):
+            scale[pix] = 1.0
+            category[pix] = 3
+            continue
+        r = d / den
+        inv = 1.0 / r
+        if inv < scale_min or inv > scale_max:
+            scale[pix] = 1.0
+            category[pix] = 4
+            continue
+        scale[pix] = r
+        category[pix] = 0
+        n_ok += 1
+    return n_ok

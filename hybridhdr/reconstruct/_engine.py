@@ -147,6 +147,15 @@ class AKFEngine(Engine):
         self.has_la_step = False
         self.noise_form = K.NOISE_PAPER if params.noise_model == "paper" else K.NOISE_REFERENCE
 
+    def set_thresholds(self, c_on, c_off) -> None:
+        """:meth:`Engine.set_thresholds`, also given to a measurement provider that takes them
+        (frame augmentation: eq. 12 and the interpolation step ON and OFF events by their own
+        thresholds)."""
+        super().set_thresholds(c_on, c_off)
+        fn = getattr(self.m, "set_thresholds", None)
+        if fn is not None:
+            fn(*((None, None) if self.con_px.size == 0 else (self.con_px, self.coff_px)))
+
     @property
     def S(self) -> np.ndarray:
         """The per-pixel state (n_pixels, 8) with any pending frame switch applied."""

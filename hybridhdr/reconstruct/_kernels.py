@@ -208,8 +208,8 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
             S[pix, A_LA] = lav + jump
         elif positive:
             S[pix, A_LA] = lav + st
-        else:
-            S[pix, A_LA] = lav - st
+        else:  # st is the ON step; OFF steps keep the thresholds' ratio (1 when symmetric: same bits)
+            S[pix, A_LA] = lav - st * ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on))
     S[pix, A_TU] = tif
     te[tp] = ti
 
@@ -279,7 +279,9 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     ``tu`` with the stable closed forms of eqs. 17 and 20 (g = P ∫R⁻¹; P ← P/(1+g);
     L̂ ← L^A + (L̂ - L^A)/(1+g)); add Q = Q_proc + Q_iso + Q_ref to P (eq. 21); jump L̂ by
     +c_on or -c_off (eq. 15); set ``tu = te = t_i``; when the measurement is event-driven
-    (``has_la_step``, frame augmentation), move L^A by ±``la_step``.
+    (``has_la_step``, frame augmentation), move L^A by +``la_step`` (ON) or by
+    -``la_step`` c_off/c_on (OFF: ``la_step`` is the calibrated ON step, the OFF step keeps the
+    thresholds' ratio).
 
     Q (``noise_form`` 0, paper §3.1.1): σ²_proc (t_i - t_{i-1}) + σ²_iso (t_i - t*) + σ²_ref·[t_i -
     t_{i-1} ≤ ρ]; ``noise_form`` 1 (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) +

@@ -10,6 +10,11 @@ For frames k with exposure ``[s_k, e_k)`` (``T_k = e_k - s_k``, each frame's own
   when the scale ``c / c_k`` lies in ``[calibration_scale_min, calibration_scale_max]`` (the
   reference code's [0.6, 100], ``ziweiWWANG/AKF:compute_ct_scale.m``); otherwise ``c_k = c`` with the reason counted
   (no events, Σσ = 0, ΔL^D = 0 or opposite sign, out of range) in :class:`AugmentStats`.
+  With ON and OFF thresholds (the AKF's ``c_on``/``c_off`` or a per-pixel map) ON events
+  step by c_on and OFF events by c_off everywhere (EDI, interpolation, the filter's L^A), and
+  eq. 12 becomes ``r_k = ΔL^D / (c_on N_on - c_off N_off)``, calibrating both to ``r_k c_on``,
+  ``r_k c_off``: one equation per interval fixes their common scale, their ratio is the
+  sensor's (a real DAVIS can be far from symmetric). Equal thresholds give the paper's form.
 * **Blend** (eq. 13): inside exposure k, ``L^A = w A_{k-1} + (1 - w) A_k`` with
   ``w = (e_k - t)/T_k``; in the gap ``[e_k, s_{k+1})``, ``L^A = A_k``. Where frame k-1 clipped
   the pixel, A_{k-1} starts from a bound, not a value, and ``L^A = A_k`` (counted).
@@ -68,7 +73,8 @@ class AugmentParams(_ParamsMixin):
     calibrate : bool
         Per-pixel threshold calibration (eq. 12); False interpolates with the nominal c.
     contrast_threshold : float or None
-        c for EDI and interpolation, log units; None uses the AKF's (mean of ON and OFF).
+        One c for both polarities in EDI and interpolation, log units; None uses the AKF's ON
+        and OFF thresholds (and a per-pixel map when the engine is given one).
     search_threshold : bool
         Estimate c per frame for EDI by the sharpness search (:func:`.edi.estimate_threshold`)
         instead of using ``contrast_threshold``. The reference code fixes c.
@@ -257,6 +263,24 @@ def calibrate_thresholds(delta_ld, sum_sigma, n_events, contrast_threshold: floa
     return c_eff, cat
 
 
+@dataclass(frozen=True, eq=False)
+class _FrameAug:
+    """Frame k for the augmentation: L^D(s_k), L^D(e_k), the signed and total event counts of
+    its exposure, the pixels taken as sharp (or None), the anchor of A_k with the counts from
+    s_k to it, and the counts of [s_k, τ_k)."""
+
+    lds: np.ndarray
+    lde: np.ndarray
+    cnt: np.ndarray
+    tot: np.ndarray
+    sharp: np.ndarray | None
+    ldm: np.ndarray
+    a_sg: np.ndarray
+    a_tot: np.ndarray
+    mid_sg: np.ndarray
+    mid_tot: np.ndarray
+
+
 class AugmentedMeasurements:
     """Measurement provider (see :mod:`.measurement`) giving the AKF the augmented frame L^A.
 
@@ -311,8 +335,10 @@ class AugmentedMeasurements:
         self.events = events
         self.shape = tuple(sensor_shape)
         self.n = self.shape[0] * self.shape[1]
-        self.c = float(params.contrast_threshold if params.contrast_threshold is not None
-                       else 0.5 * (akf_params.c_on + akf_params.c_off))
+        if params.contrast_threshold is not None:
+            self._set_pair(float(params.contrast_threshold), float(params.contrast_threshold))
+        else:
+            self._set_pair(float(akf_params.c_on), float(akf_params.c_off))
         self.fm = FrameMeasurements(frames, sensor_shape, profile, intensity_offset=akf_params.intensity_offset,
                                     bias_correction=akf_params.bias_correction,
                                     interpolate_covariance=akf_params.covariance_interpolation == "linear",
@@ -330,6 +356,40 @@ class AugmentedMeasurements:
         self._pre = None
         self._fm_cache: dict = {}
         self._build_segments()
+
+    # -- thresholds -------------------------------------------------------------------------
+    def _set_pair(self, c_on, c_off) -> None:
+        """ON and OFF thresholds (scalars or (H*W,) arrays); c is their mean (EDI's when they
+        are equal, the n* of ``deblur_min_events``)."""
+        self.c_on, self.c_off = c_on, c_off
+        scalar = np.ndim(c_on) == 0 and np.ndim(c_off) == 0
+        self._asym = not (scalar and float(c_on) == float(c_off))
+        self.c = float(c_on) if not self._asym else 0.5 * (float(np.mean(c_on)) + float(np.mean(c_off)))
+        self._cbar = 0.5 * (np.asarray(c_on, np.float64) + np.asarray(c_off, np.float64))
+        self._cdelta = 0.5 * (np.asarray(c_on, np.float64) - np.asarray(c_off, np.float64))
+
+    def _con_arr(self):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(self.c_on, np.float64), (self.n,)))
+
+    def _coff_arr(self):
+        return np.ascontiguousarray(np.broadcast_to(np.asarray(self.c_off, np.float64), (self.n,)))
+
+    def _inc(self, signed, total):
+        """The nominal log change ``c_on N_on - c_off N_off`` of ``signed`` = N_on - N_off and
+        ``total`` = N_on + N_off events (``c Σσ`` when the thresholds are one scalar)."""
+        if not self._asym:
+            return self.c * signed
+        return self._cbar * signed + self._cdelta * total
+
+    def set_thresholds(self, c_on, c_off) -> None:
+        """Per-pixel ON and OFF thresholds (log units, (H, W) or (H*W,)), as the AKF engine's
+        :meth:`~._engine.AKFEngine.set_thresholds` (None: the parameters'); before any segment
+        is read."""
+        if self._frames_cache or self._interval_cache:
+            raise RuntimeError("set_thresholds must be called before the first segment")
+        if c_on is None and c_off is None:
+            return
+        self._set_pair(*(np.ascontiguousarray(np.asarray(a, np.float64).reshape(-1)) for a in (c_on, c_off)))
 
     # -- segment layout ---------------------------------------------------------------------
     def _build_segments(self):
@@ -369,94 +429,98 @@ class AugmentedMeasurements:
         return int(self.times_us.shape[0])
 
     # -- per-frame and per-interval quantities ----------------------------------------------
-    def _frame(self, k: int):
-        """(L^D(s_k), L^D(e_k), Σσ over exposure k, number of events over exposure k, the pixels
-        taken as sharp (bool) or None, the anchor of A_k and Σσ from s_k to it: L^D(τ_k) and
-        Σσ[s_k, τ_k), or L^D(s_k) and 0 with ``interpolation_anchor="start"``; Σσ[s_k, τ_k))."""
+    def _frame(self, k: int) -> "_FrameAug":
+        """EDI and the anchor of frame k (:class:`_FrameAug`)."""
         if k in self._frames_cache:
             return self._frames_cache[k]
         seg = self._fm_segment(k)
         logb = seg.log_frame  # log(B + I0), bias-corrected (eq. 8)
         a, b = int(self.ts[k]), int(self.te[k])
         cnt, tot = self.events.counts(a, b)
+        mid_sg, mid_tot = self.events.counts(a, int(self.tau[k])) if b > a else (np.zeros_like(cnt), np.zeros_like(tot))
         if self.params.deblur and b > a:
             c = self.c
-            if self.params.search_threshold:
+            thr = (self._con_arr(), self._coff_arr()) if self._asym else None
+            if self.params.search_threshold:  # one searched c for both polarities
                 c, _ = estimate_threshold(seg.intensity, self.events, a, b,
                                           bounds=(self.params.threshold_min, self.params.threshold_max),
                                           tv_weight=self.params.tv_weight, intensity_offset=self.akf.intensity_offset,
                                           log_blurred=logb)
-            lds, _ = edi_log_latent(None, self.events, a, b, c, log_blurred=logb)
-            cnt_mid, _ = self.events.counts(a, int(self.tau[k]))
+                thr = None
+            inc = (lambda sg, n: c * sg) if thr is None else self._inc  # noqa: E731
+            lds, _ = edi_log_latent(None, self.events, a, b, c, log_blurred=logb, thresholds=thr)
             few = tot < deblur_min_events(c, self.params.deblur_min_events)
             sharp = few if np.any(few) else None
             if sharp is not None:  # too few events to tell blur from threshold quantisation: sharp at τ_k
-                lds = np.where(few, logb - c * cnt_mid, lds)
+                lds = np.where(few, logb - inc(mid_sg, mid_tot), lds)
                 self.stats.pixels_deblur_fallback += int(np.count_nonzero(few))
             self.stats.frames_deblurred += 1
             self.stats.thresholds[k] = float(c)
-            lde = lds + c * cnt
-            ldm = lds + c * cnt_mid
+            lde = lds + inc(cnt, tot)
+            ldm = lds + inc(mid_sg, mid_tot)
         else:
-            lds = logb
-            lde = logb
+            lds = lde = ldm = logb
             sharp = None
-            ldm = logb
-            cnt_mid = self.events.counts(a, int(self.tau[k]))[0] if b > a else np.zeros_like(cnt)
-        cnt_anchor = cnt_mid
         if self.params.interpolation_anchor == "start":  # the paper: A_k anchored at L^D(s_k)
-            ldm, cnt_anchor = lds, np.zeros_like(cnt)
-        out = (lds, lde, cnt, tot, sharp, ldm, cnt_anchor, cnt_mid)
+            out = _FrameAug(lds, lde, cnt, tot, sharp, lds, np.zeros_like(cnt), np.zeros_like(tot), mid_sg, mid_tot)
+        else:
+            out = _FrameAug(lds, lde, cnt, tot, sharp, ldm, mid_sg, mid_tot, mid_sg, mid_tot)
         self._frames_cache[k] = out
         for old in [j for j in self._frames_cache if j < k - 2]:
             del self._frames_cache[old]
         return out
 
     def _interval(self, k: int):
-        """(L^D(s_k), c_k) of interval k = [s_k, e_{k+1}); c_k = c for the last frame."""
+        """(L^D(s_k), r_k) of interval k = [s_k, e_{k+1}): eq. 12's scale of the ON and OFF
+        thresholds (1 for the last frame and wherever calibration falls back)."""
         if k in self._interval_cache:
             return self._interval_cache[k]
-        lds, _, cnt_k, tot_k = self._frame(k)[:4]
+        fk = self._frame(k)
         if k + 1 >= self.K or not self.params.calibrate:
-            c_eff = np.full(self.n, self.c)
+            scale = np.ones(self.n)
         else:
-            _, lde1, cnt_1, tot_1 = self._frame(k + 1)[:4]
+            f1 = self._frame(k + 1)
             g, gt = self.events.counts(int(self.te[k]), int(self.ts[k + 1]))
-            c_eff, cat = calibrate_thresholds(lde1 - lds, cnt_k + g + cnt_1, tot_k + gt + tot_1, self.c,
-                                              scale_min=self.params.calibration_scale_min,
-                                              scale_max=self.params.calibration_scale_max)
+            nominal = np.ascontiguousarray(self._inc(fk.cnt + g + f1.cnt, fk.tot + gt + f1.tot), dtype=np.float64)
+            scale = np.empty(self.n)
+            cat = np.empty(self.n, np.int64)
+            AK.calibrate_scale(np.ascontiguousarray(f1.lde - fk.lds, dtype=np.float64), nominal,
+                               (fk.tot + gt + f1.tot) != 0, float(self.params.calibration_scale_min),
+                               float(self.params.calibration_scale_max), scale, cat)
             # a clipped end is a bound, not a value: ΔL^D says nothing there, keep c
             ca, cb = self._fm_segment(k).censor, self._fm_segment(k + 1).censor
             if ca is not None and cb is not None:
                 cz = (ca != 0) | (cb != 0)
-                c_eff = np.where(cz, self.c, c_eff)
+                scale = np.where(cz, 1.0, scale)
                 cat = np.where(cz & (cat == 0), CALIBRATION_CATEGORIES.index("out_of_range"), cat)
             self.stats.add(cat)
-        out = (lds, c_eff)
+        out = (fk.lds, scale)
         self._interval_cache[k] = out
         for old in [j for j in self._interval_cache if j < k - 2]:
             del self._interval_cache[old]
         return out
 
-    def _count_since(self, k: int, t_us: int) -> np.ndarray:
-        """Σσ over [s_k, t_us) (incremental when called with increasing t for one k)."""
+    def _count_since(self, k: int, t_us: int):
+        """(Σσ, number of events) over [s_k, t_us) (incremental when called with increasing t
+        for one k)."""
         cc = self._count_cache
         a = int(self.ts[k])
         if cc is not None and cc[0] == k and cc[1] <= t_us:
-            d, _ = self.events.counts(cc[1], t_us)
-            cnt = cc[2] + d
+            d, dn = self.events.counts(cc[1], t_us)
+            cnt, tot = cc[2] + d, cc[3] + dn
         else:
-            cnt, _ = self.events.counts(a, t_us)
-        self._count_cache = (k, int(t_us), cnt)
-        return cnt
+            cnt, tot = self.events.counts(a, t_us)
+        self._count_cache = (k, int(t_us), cnt, tot)
+        return cnt, tot
 
-    def _estimate(self, k: int, t_us: int, *, back_count=None):
-        """A_k(t) = L^D(τ_k) + c_k Σσ[τ_k, t) (eq. 10 anchored at mid-exposure; with
-        ``interpolation_anchor="start"`` L^D(s_k) + c_k Σσ[s_k, t) as the paper), and c_k."""
-        _, c_eff = self._interval(k)
+    def _estimate(self, k: int, t_us: int):
+        """A_k(t) = L^D(τ_k) + r_k (c_on N_on - c_off N_off)[τ_k, t) (eq. 10 anchored at
+        mid-exposure; ``interpolation_anchor="start"``: from L^D(s_k) and s_k, as the paper),
+        and its ON step r_k c_on."""
+        _, r = self._interval(k)
         f = self._frame(k)
-        cnt = self._count_since(k, t_us) if back_count is None else back_count
-        return f[5] + c_eff * (cnt - f[6]), c_eff
+        cnt, tot = self._count_since(k, t_us)
+        return f.ldm + r * self._inc(cnt - f.a_sg, tot - f.a_tot), r * self.c_on
 
     def _fm_segment(self, j: int) -> Segment:
         """Zero-order-hold measurement of frame j (cached: two frames are live at a time)."""
@@ -490,28 +554,26 @@ class AugmentedMeasurements:
         t1 = int(self.times_us[i + 1]) if i + 1 < len(self) else None
         rinv, beta = self._r_pieces(t0, t1)
         if kind == 2:  # no interpolation: hold the (deblurred) image at τ_k
-            lds = self._frame(k)[0]
-            cnt = self._count_since(k, int(self.tau[k])) if self.params.deblur else 0
-            c = self.c if self.params.deblur else 0.0
-            la = lds + c * cnt
+            f = self._frame(k)
+            la = f.lds + self._inc(f.mid_sg, f.mid_tot) if self.params.deblur else f.lds
             step = None
         else:
             ak, ck = self._estimate(k, t0)
             if kind == 0 and w > 0.0:
-                # A_{k-1}(t0) = L^D(s_{k-1}) + c_{k-1} (Σσ[s_{k-1}, s_k) + Σσ[s_k, t0))
-                _, c_p = self._interval(k - 1)
+                # A_{k-1}(t0) from its anchor over [s_{k-1}, s_k) and [s_k, t0)
+                _, r_p = self._interval(k - 1)
                 fp = self._frame(k - 1)
                 if self._pre is None or self._pre[0] != k:
-                    self._pre = (k, self.events.counts(int(self.ts[k - 1]), int(self.ts[k]))[0])
-                pre = self._pre[1]
-                cnt_k = self._count_cache[2]
-                ap = fp[5] + c_p * (pre + cnt_k - fp[6])
+                    self._pre = (k,) + self.events.counts(int(self.ts[k - 1]), int(self.ts[k]))
+                _, pre, pre_n = self._pre
+                cnt_k, tot_k = self._count_cache[2], self._count_cache[3]
+                ap = fp.ldm + r_p * self._inc(pre + cnt_k - fp.a_sg, pre_n + tot_k - fp.a_tot)
                 la = w * ap + (1.0 - w) * ak  # eq. 13
-                step = w * c_p + (1.0 - w) * ck
+                step = w * (r_p * self.c_on) + (1.0 - w) * ck
                 # where frame k-1 clipped the pixel, A_{k-1} starts from the clip level (a bound,
                 # not a value) and would drag the blend towards it: A_k alone there
                 cp = self._fm_segment(k - 1).censor
-                sharp = self._frame(k)[4]
+                sharp = self._frame(k).sharp
                 if (cp is not None and np.any(cp != 0)) or sharp is not None:
                     bad = np.zeros(self.n, bool) if cp is None else cp != 0
                     if sharp is not None:  # frame k is sharp there: A_k(τ_k) is the frame itself
@@ -530,10 +592,14 @@ class AugmentedMeasurements:
         if cens is not None and np.any(cens != 0):
             cz = cens != 0
             # the bound frame k states at τ_k, carried to t0 by the events (as the plain frames)
-            cnt = self._count_since(k, t0) - self._frame(k)[7] if kind != 2 else 0
-            la = np.where(cz, fseg.log_frame + self.c * cnt, la)
+            if kind != 2:
+                f = self._frame(k)
+                cnt, tot = self._count_since(k, t0)
+                la = np.where(cz, fseg.log_frame + self._inc(cnt - f.mid_sg, tot - f.mid_tot), la)
+            else:
+                la = np.where(cz, fseg.log_frame, la)
             if step is not None:
-                step = np.where(cz, self.c, step)
+                step = np.where(cz, self.c_on, step)
             self.stats.pixels_censored += int(np.count_nonzero(cz))
         return Segment(t0_us=int(t0), t1_us=t1, log_frame=np.ascontiguousarray(la, dtype=np.float64),
                        intensity=fseg.intensity, rinv=np.ascontiguousarray(rinv, dtype=np.float64),

@@ -85,8 +85,13 @@ def _check_exposure(t_start_us, t_end_us):
         raise ValueError(f"exposure must have t_end_us >= t_start_us, got {t_start_us}..{t_end_us} µs")
 
 
-def edi_integral(events: EventArrays, t_start_us: int, t_end_us: int, contrast_threshold: float):
+def edi_integral(events: EventArrays, t_start_us: int, t_end_us: int, contrast_threshold: float, *,
+                 thresholds=None):
     """J = (1/T) ∫_{t_s}^{t_e} exp(c E(t)) dt per pixel, and the signed count over the exposure.
+
+    ``thresholds = (c_on, c_off)`` (float64 arrays of shape (H*W,)): ON and OFF events step the
+    log intensity by their own thresholds, ``exp(c_on N_on(t) - c_off N_off(t))``, and
+    ``contrast_threshold`` is unused.
 
     Parameters
     ----------
@@ -111,13 +116,18 @@ def edi_integral(events: EventArrays, t_start_us: int, t_end_us: int, contrast_t
     acc = np.zeros(n)
     t_last = np.full(n, float(t_start_us))
     i0, i1 = events.window(t_start_us, t_end_us)
-    AK.edi_walk(events.t, events.x, events.y, events.p, i0, i1, events.shape[1], t_start_us, t_end_us,
-                float(contrast_threshold), count, t_last, acc)
+    if thresholds is None:
+        AK.edi_walk(events.t, events.x, events.y, events.p, i0, i1, events.shape[1], t_start_us, t_end_us,
+                    float(contrast_threshold), count, t_last, acc)
+    else:
+        c_on, c_off = (np.ascontiguousarray(np.broadcast_to(np.asarray(c, np.float64), (n,))) for c in thresholds)
+        AK.edi_walk_asym(events.t, events.x, events.y, events.p, i0, i1, events.shape[1], t_start_us, t_end_us,
+                         c_on, c_off, count, np.zeros(n), t_last, acc)
     return acc / float(t_end_us - t_start_us), count
 
 
 def edi_log_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int, contrast_threshold: float, *,
-                   intensity_offset: float = DEFAULT_INTENSITY_OFFSET, log_blurred=None):
+                   intensity_offset: float = DEFAULT_INTENSITY_OFFSET, log_blurred=None, thresholds=None):
     """Latent log image at the exposure start, log(I(t_s) + I0) = log(B + I0) - log J.
 
     Parameters
@@ -130,6 +140,8 @@ def edi_log_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int,
         I0 (AKF eq. 8).
     log_blurred : ndarray of shape (H*W,), optional
         log(B + I0) precomputed (e.g. with the bias correction of eq. 8); overrides ``blurred``.
+    thresholds : (c_on, c_off), optional
+        Per-pixel ON and OFF thresholds (:func:`edi_integral`).
 
     Returns
     -------
@@ -138,7 +150,7 @@ def edi_log_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int,
     count : ndarray of shape (H*W,), int64
         Σσ over the exposure, so that log(I(t_e) + I0) = log_start + c·count.
     """
-    J, count = edi_integral(events, t_start_us, t_end_us, contrast_threshold)
+    J, count = edi_integral(events, t_start_us, t_end_us, contrast_threshold, thresholds=thresholds)
     if log_blurred is None:
         b = np.asarray(blurred, dtype=np.float64).ravel()
         if b.shape[0] != J.shape[0]:

@@ -101,11 +101,12 @@ def _ramp_recording(c_true=0.12, exposure_us=0, I0=DEFAULT_INTENSITY_OFFSET):
 def test_calibration_recovers_known_threshold_within_2_percent(I0):
     rec, L = _ramp_recording(c_true=0.12, I0=I0)
     m = _provider(rec, I0=I0)
-    lds, c_eff = m._interval(0)
+    lds, scale = m._interval(0)
+    c_eff = scale * m.c_on  # eq. 12: the calibrated threshold (ON = OFF here)
     assert abs(c_eff[0] - 0.12) / 0.12 < 0.02  # nominal c = 0.1
     assert m.stats.calibrated == 1 and m.stats.fallbacks == 0
     # forward integration lands exactly on the next L^D (akf.md §9 test 6)
-    _, lde1, _, _ = m._frame(1)[:4]
+    lde1 = m._frame(1).lde
     assert lds[0] + c_eff[0] * 20 == pytest.approx(lde1[0], abs=1e-12)
 
 
@@ -119,8 +120,8 @@ def test_forward_backward_agree_on_noise_free_data(I0):
     m = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
                               akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False, intensity_offset=I0),
                               params=AugmentParams(calibrate=False, **PAPER_FORM))
-    lds0, _, _, _ = m._frame(0)[:4]
-    _, lde1, _, _ = m._frame(1)[:4]
+    lds0 = m._frame(0).lds
+    lde1 = m._frame(1).lde
     for t in (0, 3_500, 8_000, 14_500, 20_000, 27_999):
         fwd = lds0 + 0.2 * ev.counts(0, t)[0]
         bwd = lde1 - 0.2 * ev.counts(t, 28_000)[0]
@@ -129,8 +130,8 @@ def test_forward_backward_agree_on_noise_free_data(I0):
     m2 = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
                                akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False, intensity_offset=I0),
                                params=AugmentParams(enabled=True, **PAPER_FORM))
-    _, c_eff = m2._interval(0)
-    np.testing.assert_allclose(c_eff, 0.2, rtol=1e-12)
+    _, scale = m2._interval(0)
+    np.testing.assert_allclose(scale * m2.c_on, 0.2, rtol=1e-12)
     st = m2.stats.to_dict()
     assert st["calibrated"] + st["fallbacks"] == rec.sensor_size.shape[0] * rec.sensor_size.shape[1]
     assert st["calibrated"] > 0 and st["zero_net_events"] > 0  # a bar passed in and out: explicit fallback
@@ -147,8 +148,8 @@ def test_segments_blend_and_layout():
     assert segs[-1].t1_us is None and not segs[-1].beta.any()
     # eq. 13 weights of A_{k-1}: 7/8, 5/8, 3/8, 1/8 in exposure 1; the step blends c_0 and c_1
     w = 7 / 8
-    _, c0 = m._interval(0)
-    _, c1 = m._interval(1)
+    c0 = m._interval(0)[1] * m.c_on
+    c1 = m._interval(1)[1] * m.c_on
     np.testing.assert_allclose(segs[5].la_step, w * c0 + (1 - w) * c1)
     with pytest.raises(IndexError):
         m.segment(len(m))
@@ -270,8 +271,8 @@ def test_default_anchor_and_sharp_fallback():
     mp = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
                                params=AugmentParams(enabled=True, **PAPER_FORM), **kw)
     k, tau = 0, int(rec.frames.t_mid_us[0])
-    _, c_k = m._interval(k)
-    lds, _, cnt, tot, sharp, ldm, _, cnt_mid = m._frame(k)
+    f = m._frame(k)
+    tot, sharp, ldm, cnt_mid = f.tot, f.sharp, f.ldm, f.mid_sg
     a_mid, _ = m._estimate(k, tau)
     np.testing.assert_allclose(a_mid, ldm, atol=1e-12)
     logb = m._fm_segment(k).log_frame
@@ -279,10 +280,10 @@ def test_default_anchor_and_sharp_fallback():
     assert n_star == 6 and sharp is not None and np.array_equal(sharp, tot < n_star)
     np.testing.assert_allclose(ldm[sharp], logb[sharp], atol=1e-12)
     assert m.stats.frames_deblurred == 2  # interval 0 needs frames 0 and 1
-    assert m.stats.pixels_deblur_fallback == sum(int(np.count_nonzero(m._frame(j)[4])) for j in (0, 1))
+    assert m.stats.pixels_deblur_fallback == sum(int(np.count_nonzero(m._frame(j).sharp)) for j in (0, 1))
     # the paper's form: EDI everywhere, anchored at s_k
-    lds_p = mp._frame(k)[0]
-    _, c_kp = mp._interval(k)
+    lds_p = mp._frame(k).lds
+    c_kp = mp._interval(k)[1] * mp.c_on
     a_p, _ = mp._estimate(k, tau)
     np.testing.assert_allclose(a_p, lds_p + c_kp * cnt_mid, atol=1e-12)
     assert mp.stats.pixels_deblur_fallback == 0
@@ -290,3 +291,77 @@ def test_default_anchor_and_sharp_fallback():
         AugmentParams(interpolation_anchor="end")
     with pytest.raises(ValueError, match="deblur_min_events"):
         AugmentParams(deblur_min_events=-1)
+
+
+def test_edi_with_on_and_off_thresholds_closed_form():
+    # one pixel, exposure [0, 1000) µs: ON at 200, OFF at 700; E(t) = 0, c_on, c_on - c_off
+    from hybridhdr.reconstruct.edi import edi_integral
+    ev = EventArrays.from_structured(make_events(np.array([200, 700], np.int64), np.zeros(2), np.zeros(2),
+                                                 np.array([1, -1])), (1, 1))
+    c_on, c_off = 0.3, 0.1
+    J, cnt = edi_integral(ev, 0, 1000, 0.2, thresholds=(np.array([c_on]), np.array([c_off])))
+    want = (200 + np.exp(c_on) * 500 + np.exp(c_on - c_off) * 300) / 1000
+    assert J[0] == pytest.approx(want, rel=1e-14) and cnt[0] == 0
+    # equal thresholds: the symmetric walk
+    Js, _ = edi_integral(ev, 0, 1000, 0.2)
+    Ja, _ = edi_integral(ev, 0, 1000, 0.2, thresholds=(np.array([0.2]), np.array([0.2])))
+    assert Ja[0] == pytest.approx(Js[0], rel=1e-14)
+
+
+def test_calibration_with_on_and_off_thresholds():
+    """Eq. 12 with a sensor whose ON threshold is twice its OFF one: one pixel goes up by 6
+    ON events and down by 3 OFF events between two sharp frames. The thresholds' ratio is the
+    sensor's (0.3 / 0.15), the scale comes from the frames: nominal 0.2 / 0.1 calibrates to
+    0.3 / 0.15 exactly (scale 1.5; the accepted 1/scale is [0.6, 100]), where a single
+    threshold (the mean) cannot fit both."""
+    c_on, c_off, I0 = 0.3, 0.15, DEFAULT_INTENSITY_OFFSET
+    t_ev = np.array([100, 200, 300, 400, 500, 600, 700, 800, 900], np.int64) * 1000
+    p = np.array([1, 1, 1, 1, 1, 1, -1, -1, -1])
+    ev = make_events(t_ev, np.zeros(9), np.zeros(9), p)
+    L0 = np.log(0.2 + I0)
+    L1 = L0 + 6 * c_on - 3 * c_off
+    fr = Frames(np.array([[[np.exp(L0) - I0]], [[np.exp(L1) - I0]]]), np.array([0, 1_000_000], np.int64),
+                np.array([0, 1_000_000], np.int64), encoding="linear")
+    rec = Recording(ev, SensorSize(1, 1), fr)
+    ea = EventArrays.from_structured(rec.events, (1, 1))
+
+    def provider(con, coff):
+        return AugmentedMeasurements(rec.frames, ea, (1, 1), LIN, params=AugmentParams(enabled=True),
+                                     akf_params=AKFParams(contrast_threshold_on=con, contrast_threshold_off=coff,
+                                                          bias_correction=False, intensity_offset=I0))
+    m = provider(c_on / 1.5, c_off / 1.5)
+    _, scale = m._interval(0)
+    assert scale[0] == pytest.approx(1.5, rel=1e-12) and m.stats.calibrated == 1
+    # the interpolation is then exact at every event: L0 + 0.3 per ON, - 0.15 per OFF
+    for t, want in ((150_000, L0 + c_on), (650_000, L0 + 6 * c_on), (850_000, L0 + 6 * c_on - 2 * c_off)):
+        a, step_on = m._estimate(0, t)
+        assert a[0] == pytest.approx(want, abs=1e-12)
+    assert step_on[0] == pytest.approx(c_on, rel=1e-12)
+    # a per-pixel map given to the engine reaches the provider the same way
+    mp = provider(0.2, 0.2)
+    mp.set_thresholds(np.array([[c_on / 1.5]]), np.array([[c_off / 1.5]]))
+    assert mp._interval(0)[1][0] == pytest.approx(1.5, rel=1e-12)
+    with pytest.raises(RuntimeError, match="before the first segment"):
+        mp.set_thresholds(np.array([[0.1]]), np.array([[0.1]]))
+    # one threshold (the mean of the two) cannot put both halves on the data
+    ms = provider(0.225, 0.225)
+    a, _ = ms._estimate(0, 650_000)
+    assert abs(a[0] - (L0 + 6 * c_on)) > 0.1
+
+
+def test_akf_follows_on_and_off_steps_with_augmentation():
+    """End to end: the same asymmetric recording through the AKF with augmentation; at a time
+    between events the output is the true level (the OFF steps of L^A are c_off, not c_on)."""
+    c_on, c_off, I0 = 0.3, 0.15, DEFAULT_INTENSITY_OFFSET
+    t_ev = np.array([100, 200, 300, 400, 500, 600, 700, 800, 900], np.int64) * 1000
+    ev = make_events(t_ev, np.zeros(9), np.zeros(9), np.array([1, 1, 1, 1, 1, 1, -1, -1, -1]))
+    L0 = np.log(0.2 + I0)
+    L1 = L0 + 6 * c_on - 3 * c_off
+    fr = Frames(np.array([[[np.exp(L0) - I0]], [[np.exp(L1) - I0]]]), np.array([0, 1_000_000], np.int64),
+                np.array([0, 1_000_000], np.int64), encoding="linear")
+    rec = Recording(ev, SensorSize(1, 1), fr)
+    p = AKFParams(contrast_threshold_on=c_on, contrast_threshold_off=c_off, bias_correction=False, intensity_offset=I0)
+    times = np.array([850_000], np.int64)
+    v = reconstruct(rec, "akf", p, times_us=times, mode="forward", profile=LIN, augment=True)
+    want = np.exp(L0 + 6 * c_on - 2 * c_off) - I0
+    assert v.frames[0, 0, 0] == pytest.approx(want, rel=1e-6)
