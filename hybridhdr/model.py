@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import dataclasses
 from dataclasses import dataclass, field
 from typing import Any
@@ -172,16 +173,38 @@ class CameraInfo:
     monochrome sensor. For the frame camera it describes the sensor: frames stored as (K, H, W)
     are then its raw mosaic, frames stored as (K, H, W, 3) were demosaicked. Any case is accepted
     and stored upper case; ``"none"`` means None.
+
+    ``contrast_threshold_on`` / ``contrast_threshold_off``: an event sensor's nominal ON and OFF
+    contrast thresholds in natural-log units (> 0), when the recording states them (a simulated
+    sensor does; a real camera's biases rarely say); None: not stated. The reconstruction uses
+    them when it is given no threshold.
     """
 
     sensor_size: SensorSize | None = None
     model: str = ""
     serial: str = ""
     cfa: str | None = None
+    contrast_threshold_on: float | None = None
+    contrast_threshold_off: float | None = None
 
     def __post_init__(self):
         if self.cfa is not None:
             object.__setattr__(self, "cfa", parse_cfa(self.cfa))
+        for name in ("contrast_threshold_on", "contrast_threshold_off"):
+            v = getattr(self, name)
+            if v is None:
+                continue
+            if isinstance(v, bool) or not isinstance(v, (int, float, np.integer, np.floating)) \
+                    or not math.isfinite(float(v)) or float(v) <= 0:
+                raise ValueError(f"CameraInfo.{name} must be a finite number > 0 (log units) or None, got {v!r}")
+            object.__setattr__(self, name, float(v))
+
+    @property
+    def contrast_thresholds(self) -> tuple[float, float] | None:
+        """``(on, off)`` when both are stated, else None."""
+        if self.contrast_threshold_on is None or self.contrast_threshold_off is None:
+            return None
+        return self.contrast_threshold_on, self.contrast_threshold_off
 
     def to_dict(self) -> dict:
         d = {"height": None if self.sensor_size is None else self.sensor_size.height,
@@ -189,6 +212,9 @@ class CameraInfo:
              "model": self.model, "serial": self.serial}
         if self.cfa is not None:  # monochrome metadata stays as it was
             d["cfa"] = self.cfa
+        for name in ("contrast_threshold_on", "contrast_threshold_off"):  # likewise, only when stated
+            if getattr(self, name) is not None:
+                d[name] = getattr(self, name)
         return d
 
     @classmethod
@@ -197,7 +223,8 @@ class CameraInfo:
         ss = None
         if d.get("height") is not None and d.get("width") is not None:
             ss = SensorSize(int(d["height"]), int(d["width"]))
-        return cls(ss, str(d.get("model", "") or ""), str(d.get("serial", "") or ""), d.get("cfa") or None)
+        return cls(ss, str(d.get("model", "") or ""), str(d.get("serial", "") or ""), d.get("cfa") or None,
+                   d.get("contrast_threshold_on"), d.get("contrast_threshold_off"))
 
 
 @dataclass(frozen=True)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import os
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
@@ -217,6 +218,36 @@ def _stored_thresholds(source):
     return fn() if callable(fn) else None
 
 
+def _thresholds_unset(params) -> bool:
+    """True when ``params`` (None or a dict) gives no contrast threshold: the recording's declared
+    ones may then be used. A Params instance or a TOML file counts as set."""
+    if params is None:
+        return True
+    if isinstance(params, dict):
+        return not any(k in params for k in ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off"))
+    return False
+
+
+def _declared_thresholds(source) -> tuple[float, float] | None:
+    """The event sensor's nominal (ON, OFF) thresholds a source's metadata states, or None."""
+    md = getattr(source, "metadata", None)
+    if callable(md):
+        try:
+            md = md()
+        except Exception:  # noqa: BLE001 - a reader without readable metadata states nothing
+            return None
+    got = getattr(getattr(md, "event_camera", None), "contrast_thresholds", None)
+    if got is None:  # recordings simulated before CameraInfo stated them keep the sensor in provenance
+        prov = getattr(md, "provenance", None) or {}
+        sensor = prov.get("sensor") if prov.get("generator") == "hybridhdr.simulate" else None
+        if isinstance(sensor, dict):
+            on, off = sensor.get("contrast_threshold_on"), sensor.get("contrast_threshold_off")
+            if all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
+                   for v in (on, off)):
+                got = (float(on), float(off))
+    return got
+
+
 def _threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
     a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.formats.thresholds.load_thresholds`
@@ -364,6 +395,13 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 thr = _threshold_arrays(stored)
                 if info is not None:
                     info["thresholds"] = "per-pixel map stored in the recording"
+        if thr is None and thresholds is None and _thresholds_unset(params) and hasattr(p, "contrast_threshold_on"):
+            declared = _declared_thresholds(opened)  # the sensor's nominal ON/OFF the recording states
+            if declared is not None:
+                p = p.replace(contrast_threshold_on=declared[0], contrast_threshold_off=declared[1])
+                if info is not None:
+                    info["thresholds"] = (f"declared by the recording: ON {declared[0]:g}, OFF {declared[1]:g} "
+                                          f"(log units)")
         shape = _sensor_shape(ss, frames)
         check_sensor_size(*shape, what="sensor (per-pixel filter state)")
         if fps is not None and times_us is None:
@@ -482,6 +520,11 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         Aliases: "hpf" = "highpass", "frames" = "frames_zoh".
     params : Params, dict, TOML path or None
         The method's parameters (:class:`AKFParams`, :class:`CFParams`, ...); None for defaults.
+        Contrast thresholds, when neither ``params`` (None or a dict without them) nor
+        ``thresholds`` give them: a per-pixel map stored in the recording, else the ON/OFF
+        thresholds its metadata declares (``CameraInfo.contrast_threshold_on``/``_off``, e.g.
+        a simulated recording's sensor), else the parameters' default; which one was used is in
+        ``Video.info["thresholds"]`` (and ``run.json``).
     times_us : array_like of int (K,), optional
         Output times in µs, strictly increasing, not before the first frame used.
     fps : float, optional

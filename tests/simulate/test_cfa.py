@@ -59,3 +59,6 @@ def test_grey_source_through_bayer_equals_mono(tmp_path):
     with RecordingFile(res.path) as f:
         assert f.metadata.event_camera.cfa == "RGGB" and f.metadata.frame_camera.cfa == "RGGB"
         assert f.read().hdr.images.shape[-1] == 3
+        # the sensor's nominal thresholds are stated, for the reconstruction to use
+        assert f.metadata.event_camera.contrast_thresholds == (0.2, 0.2)
+        assert f.metadata.frame_camera.contrast_thresholds is None

@@ -1,0 +1,67 @@
+"""Contrast thresholds a recording declares (CameraInfo.contrast_threshold_on/_off) are what the
+reconstruction uses when it is given none; given ones and stored maps win."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from hybridhdr.formats.container import RecordingFile, write_recording
+from hybridhdr.model import CameraInfo, Metadata
+from hybridhdr.reconstruct import reconstruct
+from hybridhdr.simulate.procedural import procedural_recording
+
+
+def test_camera_info_thresholds_validated_and_round_trip():
+    c = CameraInfo(contrast_threshold_on=0.25, contrast_threshold_off=0.2)
+    assert c.contrast_thresholds == (0.25, 0.2)
+    assert CameraInfo(contrast_threshold_on=0.25).contrast_thresholds is None  # both or nothing
+    assert "contrast_threshold_on" not in CameraInfo().to_dict()  # metadata without them unchanged
+    assert CameraInfo.from_dict(c.to_dict()) == c
+    for bad in (0.0, -0.1, float("nan"), float("inf"), True, "0.2"):
+        with pytest.raises(ValueError, match="contrast_threshold_on"):
+            CameraInfo(contrast_threshold_on=bad)
+
+
+def _declaring(rec, on, off):
+    md = dataclasses.replace(rec.metadata, event_camera=dataclasses.replace(
+        rec.metadata.event_camera, contrast_threshold_on=on, contrast_threshold_off=off))
+    return dataclasses.replace(rec, metadata=md)
+
+
+def test_reconstruct_uses_the_declared_thresholds(tmp_path):
+    rec, _ = procedural_recording((12, 16), 150_000)
+    decl = _declaring(rec, 0.3, 0.2)
+    write_recording(decl, tmp_path / "r.h5")
+    times = np.array([50_000, 100_000], np.int64)
+    with RecordingFile(tmp_path / "r.h5") as f:
+        assert f.metadata.event_camera.contrast_thresholds == (0.3, 0.2)
+    for src in (decl, tmp_path / "r.h5"):
+        v = reconstruct(src, "akf", times_us=times)
+        assert v.params["contrast_threshold_on"] == 0.3 and v.params["contrast_threshold_off"] == 0.2
+        assert "declared by the recording" in v.info["thresholds"]
+        # the same as giving them explicitly, bit for bit
+        w = reconstruct(rec, "akf", {"contrast_threshold_on": 0.3, "contrast_threshold_off": 0.2}, times_us=times)
+        assert w.frames.tobytes() == v.frames.tobytes()
+    # given thresholds win; a recording without a declaration keeps the default
+    g = reconstruct(decl, "akf", {"contrast_threshold": 0.15}, times_us=times)
+    assert g.params["contrast_threshold"] == 0.15 and g.params["contrast_threshold_on"] is None
+    assert "thresholds" not in g.info
+    n = reconstruct(rec, "akf", times_us=times)
+    assert n.params["contrast_threshold_on"] is None and "thresholds" not in n.info
+    cf = reconstruct(decl, "cf", mode="causal", times_us=times)
+    assert cf.params["contrast_threshold_on"] == 0.3
+
+
+def test_old_simulated_files_declare_through_their_provenance():
+    rec, _ = procedural_recording((12, 16), 150_000)
+    prov = {"generator": "hybridhdr.simulate", "sensor": {"contrast_threshold_on": 0.22, "contrast_threshold_off": 0.18}}
+    old = dataclasses.replace(rec, metadata=Metadata(rec.metadata.event_camera, rec.metadata.frame_camera,
+                                                     provenance=prov))
+    v = reconstruct(old, "akf", times_us=np.array([50_000], np.int64))
+    assert (v.params["contrast_threshold_on"], v.params["contrast_threshold_off"]) == (0.22, 0.18)
+    other = dataclasses.replace(rec, metadata=Metadata(provenance={**prov, "generator": "elsewhere"}))
+    v = reconstruct(other, "akf", times_us=np.array([50_000], np.int64))
+    assert v.params["contrast_threshold_on"] is None
