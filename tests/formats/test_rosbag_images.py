@@ -291,3 +291,17 @@ def test_same_input_same_bits(tmp_path):
     a, b = hh.read(path), hh.read(path)
     assert a.frames.images.tobytes() == b.frames.images.tobytes()
     assert a.metadata.to_dict() == b.metadata.to_dict()
+
+
+def test_reconstruct_sees_the_declared_pattern(tmp_path):
+    """What the colour reconstruction reads (source_cfa) is the reader's declaration; --cfa overrides."""
+    from hybridhdr.reconstruct.colour import source_cfa
+    px = _pixels(2, SS.shape)
+    bayer = _bag(tmp_path, False, {"/dvs/image_raw": (px, STAMPS[:2], "bayer_bggr8")}, name="bayer")
+    rgb = _bag(tmp_path, False, {"/dvs/image_raw": (px[..., None].repeat(3, -1), STAMPS[:2], "rgb8")}, name="rgb")
+    with hh.open_reader(bayer) as r:
+        assert source_cfa(r) == ("BGGR", "BGGR")
+        assert source_cfa(r, "none") == (None, None)
+    with hh.open_reader(rgb) as r:
+        assert source_cfa(r) == (None, None)
+        assert source_cfa(r, "gbrg") == ("GBRG", "GBRG")
