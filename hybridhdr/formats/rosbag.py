@@ -26,6 +26,36 @@ per event); ROS2 ones go through ``rosbags`` deserialization (slower, one Python
 
 Options: ``topic=`` chooses the topic (default: the first topic, by name, of a supported type).
 
+Frames: one ``sensor_msgs/msg/Image`` topic is read by :meth:`RosbagReader.read_frames`
+(decoded by :mod:`hybridhdr.formats._ros_image`: ``mono8/16``, ``rgb/bgr/rgba/bgra 8/16`` and
+``bayer_{rggb,bggr,gbrg,grbg}{8,16}``; ``step * height`` must equal the data length). The option
+``image_topic=`` chooses it; by default it is the bag's only Image topic, else ``<ns>/image_raw``
+next to the event topic ``<ns>/events`` (the topic names of the ``rpg_dvs_ros`` DAVIS driver),
+else the bag's only ``*/image_raw`` topic; otherwise no frames are read and
+``metadata.provenance["image_topic_note"]`` says why. An image topic chosen by default whose
+encoding is not supported is skipped the same way; one named by ``image_topic=`` is an error
+naming the encoding and the supported ones.
+
+Exposure: a ``sensor_msgs/Image`` has only ``header.stamp``. Without more, a frame is taken as a
+zero-length exposure at its stamp (``t_start_us = t_end_us``). When the image topic
+``<ns>/image_raw`` has a ``std_msgs/msg/Int32`` topic ``<ns>/exposure`` beside it (or one is named
+by ``exposure_topic=``; ``exposure_topic=""`` ignores it), its k-th value is taken as the k-th
+image's exposure E in µs: the ``rpg_dvs_ros`` DAVIS driver publishes libcaer's
+``caerFrameEventGetExposureLength`` there and stamps the image with
+``caerFrameEventGetTimestamp64``, which libcaer defines as start of exposure + E/2 (integer
+division), so ``t_start_us = stamp - E // 2`` and ``t_end_us = t_start_us + E``. If the two topics
+have different message counts the pairing is unknown and every frame is zero-length at its
+stamp. ``metadata.provenance["frame_exposure"]`` records which rule applies.
+
+Colour filter (``metadata.*_camera.cfa``): a ``bayer_*`` image encoding declares the frame
+camera's pattern (``bayer_rggb8`` -> ``RGGB``; the frames are its raw mosaic, (K, H, W)). When
+those Bayer frames have the event sensor's size, the event camera is declared with the same
+pattern: this assumes a colour DAVIS, whose events and frames come from one pixel array under one
+filter (``metadata.provenance["event_cfa_source"]`` says so); frames of another size declare
+nothing for the events. ``rgb8``/``bgr8``/... frames are demosaicked colour (K, H, W, 3): they
+do not tell the sensor's pattern, and neither do ``mono`` frames (a colour DAVIS driver may
+publish its mosaic as ``mono8``), so nothing is declared; pass ``--cfa`` for those.
+
 Limits (:mod:`hybridhdr._util.limits`, lifted by ``--allow-huge``), the same for ROS 1 and ROS 2: the
 sensor height/width of the messages (``max_side``) and the size of every message
 (``max_packet_bytes``), checked before it is decoded; for ROS 2 storage also before the bag is
@@ -42,11 +72,12 @@ from typing import Iterator
 
 import numpy as np
 
-from .._util.limits import check_packet_size, check_sensor_size
+from .._util.limits import check_frame_bytes, check_packet_size, check_sensor_size
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
 from .base import EventChunk, EventFileReader, register_formats
-from ..model import CameraInfo, Metadata
+from ..model import CameraInfo, Frames, Metadata
+from ._ros_image import ENCODINGS, IMAGE, INT32, decode_image, image_kind
 
 __all__ = ["RosbagReader", "READERS", "WRITERS", "sniff", "MSG_DEFINITIONS", "make_typestore",
            "EVENT_ARRAY", "EVENT_PACKET", "storage_kind", "check_mcap", "check_sqlite"]
@@ -258,6 +289,13 @@ class RosbagReader(EventFileReader):
     sensor_size : SensorSize or (height, width), optional
         Overrides the ``height``/``width`` of the first message (inferred as max coordinate + 1,
         with a provenance note, when those are 0).
+    image_topic : str, optional
+        The ``sensor_msgs/msg/Image`` topic of the frames; default chosen as the module notes say.
+    exposure_topic : str, optional
+        A ``std_msgs/msg/Int32`` topic of exposure times in µs, one per image; default
+        ``<ns>/exposure`` beside ``<ns>/image_raw`` when the bag has it, ``""`` for none.
+    frame_encoding : str, optional
+        The frames' transfer function (ROS images state none: ``"unknown"`` by default).
     """
 
     format_name = "rosbag"
@@ -297,6 +335,7 @@ class RosbagReader(EventFileReader):
             for rec, (conn, ts, raw) in self._messages(r):
                 first = self._head(r, rec, raw)
                 break
+            img = self._open_images(r, topics, options)
         self.encoding = first["encoding"] if first else None
         stored = None
         if first and first["height"] and first["width"]:
@@ -321,7 +360,188 @@ class RosbagReader(EventFileReader):
                 "time_conversion": "t_us = (sec*1e9 + nsec + 500) // 1000 (nearest µs)"}
         if note:
             prov["sensor_size_note"] = note
-        self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size), provenance=prov)
+        frame_cam, event_cfa = CameraInfo(), None
+        prov.update(img["provenance"])
+        if self.image_topic is not None:
+            frame_cam = CameraInfo(self.frame_size, cfa=img["cfa"])
+            if img["cfa"] is not None:
+                if self.frame_size == self.sensor_size:
+                    event_cfa = img["cfa"]
+                    prov["event_cfa_source"] = (f"assumed the frames' ({img['encoding']} on {self.image_topic}): "
+                                                f"Bayer frames of the event sensor's size, as on a colour DAVIS "
+                                                f"whose events and frames share one pixel array")
+                else:
+                    prov["event_cfa_source"] = (f"not declared: the Bayer frames are {self.frame_size}, the events "
+                                                f"{self.sensor_size} (not one pixel array); pass --cfa")
+        self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size, cfa=event_cfa), frame_camera=frame_cam,
+                                 provenance=prov)
+
+    # -- image topics -------------------------------------------------------------------------
+    def _open_images(self, r, topics: dict, options: dict) -> dict:
+        """Choose the image topic (and the exposure topic) and read the first image's head; sets
+        ``image_topic``, ``exposure_topic``, ``frame_size``, ``image_encoding``."""
+        self.image_topic = self.exposure_topic = self.frame_size = self.image_encoding = None
+        images = sorted(t for t, ty in topics.items() if ty == IMAGE)
+        want = options.get("image_topic")
+        prov: dict = {}
+        if want is not None:
+            if want not in topics:
+                raise FormatError(self.path, f"image topic {want!r} is not in the bag; topics: {topics}")
+            if topics[want] != IMAGE:
+                raise FormatError(self.path, f"image topic {want!r} has type {topics[want]}; supported: {IMAGE}")
+            chosen, how = want, "option"
+        else:
+            chosen, how = None, None
+            ns = self.topic.rsplit("/", 1)[0]
+            raw_named = [t for t in images if t.rsplit("/", 1)[-1] == "image_raw"]
+            if len(images) == 1:
+                chosen, how = images[0], "the bag's only sensor_msgs/Image topic"
+            elif f"{ns}/image_raw" in images:
+                chosen, how = f"{ns}/image_raw", "the image_raw topic next to the event topic"
+            elif len(raw_named) == 1:
+                chosen, how = raw_named[0], "the bag's only */image_raw topic"
+            elif images:
+                prov["image_topic_note"] = (f"no frames read: several image topics {images} and none is the "
+                                            f"image_raw next to {self.topic}; pass image_topic=")
+        out = {"cfa": None, "encoding": None, "provenance": prov}
+        if chosen is None:
+            return out
+        head = None
+        for rec, (conn, ts, raw) in self._messages(r, chosen):
+            head = self._image_fields(r, raw, rec, chosen)
+            break
+        if head is None:
+            prov["image_topic_note"] = f"image topic {chosen} has no messages: no frames"
+            return out
+        enc = head["encoding"]
+        if enc not in ENCODINGS:
+            if want is not None:
+                image_kind(enc, self.path, f"message 0 of {chosen}: ")
+            prov["image_topic_note"] = (f"no frames read: {chosen} ({how}) has encoding {enc!r}, not one of "
+                                        f"{', '.join(ENCODINGS)}")
+            return out
+        hw = check_sensor_size(head["height"], head["width"], self.path, what=f"images on {chosen}")
+        try:
+            self.frame_size = SensorSize(*hw)
+        except ValueError as exc:
+            raise FormatError(self.path, f"message 0 of {chosen}: invalid height/width: {exc}", record=0) from None
+        self.image_topic, self.image_encoding = chosen, enc
+        _, _, kind, cfa = ENCODINGS[enc]
+        out.update(cfa=cfa, encoding=enc)
+        if cfa is not None:
+            cfa_src = f"image encoding {enc}: the raw Bayer mosaic, pattern {cfa}"
+        elif kind in ("rgb", "bgr"):
+            cfa_src = (f"not declared: image encoding {enc} holds demosaicked RGB frames and does not state the "
+                       f"sensor's pattern (pass --cfa)")
+        else:
+            cfa_src = f"not declared: image encoding {enc} is grey (a Bayer mosaic stored as {enc} needs --cfa)"
+        prov.update({"image_topic": chosen, "image_topic_source": how, "image_encoding": enc,
+                     "frame_cfa_source": cfa_src})
+        exp = options.get("exposure_topic")
+        parent = chosen.rsplit("/", 1)[0]
+        if exp is None:
+            exp = f"{parent}/exposure" if topics.get(f"{parent}/exposure") == INT32 else None
+        elif exp == "" or exp is False:
+            exp = None
+        elif topics.get(exp) != INT32:
+            raise FormatError(self.path, f"exposure topic {exp!r} is not a {INT32} topic of the bag; topics: {topics}")
+        self.exposure_topic = exp
+        if exp is None:
+            prov["frame_exposure"] = ("zero-length exposure at header.stamp (a sensor_msgs/Image carries no "
+                                      "exposure time): t_start_us = t_end_us = stamp")
+        else:
+            prov["exposure_topic"] = exp
+            prov["frame_exposure"] = (f"exposure E µs from {exp} (std_msgs/Int32, the k-th message for the k-th "
+                                      f"image; the rpg_dvs_ros DAVIS driver publishes caerFrameEventGetExposureLength "
+                                      f"there) around header.stamp, which that driver sets to libcaer's "
+                                      f"start of exposure + E/2: t_start_us = stamp - E//2, t_end_us = t_start_us + "
+                                      f"E; when the counts differ: zero-length exposure at the stamp")
+        return out
+
+    def _image_fields(self, r, raw: bytes, rec: int, topic: str) -> dict:
+        """The fields of one sensor_msgs/Image message (``data`` not copied for ROS 1)."""
+        if self.is_ros2:
+            m = self._deserialize(r, raw, rec, IMAGE, topic)
+            return {"sec": int(m.header.stamp.sec), "nsec": int(m.header.stamp.nanosec), "height": int(m.height),
+                    "width": int(m.width), "encoding": str(m.encoding), "is_bigendian": int(m.is_bigendian),
+                    "step": int(m.step), "data": np.asarray(m.data, dtype=np.uint8)}
+        b = _Ros1Buf(self.path, raw, rec)
+        sec, nsec, _ = b.header()
+        h, w = b.u32(), b.u32()
+        try:
+            enc = b.string().decode("ascii")
+        except UnicodeDecodeError:
+            raise FormatError(self.path, f"message {rec} of {topic}: encoding is not ASCII", record=rec) from None
+        big = b.take(1)[0]
+        step = b.u32()
+        data = b.take(b.u32())
+        if b.pos != len(raw):
+            raise FormatError(self.path, f"message {rec} of {topic}: {len(raw) - b.pos} bytes after the image data "
+                                         f"(not a sensor_msgs/Image?)", record=rec)
+        return {"sec": sec, "nsec": nsec, "height": h, "width": w, "encoding": enc, "is_bigendian": big,
+                "step": step, "data": data}
+
+    def read_frames(self) -> Frames | None:
+        """The frames of the image topic, or None when no image topic was chosen (module notes).
+
+        Returns
+        -------
+        Frames or None
+            ``images`` (K, H, W) for grey and Bayer encodings (the raw mosaic), (K, H, W, 3) RGB for
+            colour ones; uint8 or uint16 as stored. ``t_start_us``/``t_end_us``: zero-length at
+            ``header.stamp``, or around it with the exposure topic's values (module notes); sorted
+            by start. ``encoding`` is the declared ``frame_encoding``, else ``"unknown"`` (ROS
+            images state no transfer function).
+        """
+        if self.image_topic is None:
+            return None
+        topic, enc0 = self.image_topic, self.image_encoding
+        ch, nb, _, _ = ENCODINGS[enc0]
+        imgs, stamps, exposures = [], [], []
+        total = 0
+        with self._reader() as r:
+            for rec, (conn, ts, raw) in self._messages(r, topic):
+                where = f"message {rec} of {topic}: "
+                f = self._image_fields(r, raw, rec, topic)
+                if f["encoding"] != enc0 or (f["height"], f["width"]) != self.frame_size.shape:
+                    raise FormatError(self.path, f"{where}{f['encoding']} {f['height']}x{f['width']} image, unlike the "
+                                                 f"first one's {enc0} {self.frame_size.height}x{self.frame_size.width}",
+                                      record=rec)
+                total += self.frame_size.height * self.frame_size.width * min(ch, 3) * nb
+                check_frame_bytes(total, self.path, f"the frames of {topic}")
+                imgs.append(decode_image(f["height"], f["width"], f["encoding"], f["is_bigendian"], f["step"],
+                                         f["data"], self.path, where, rec))
+                stamps.append(int(_ns_to_us(f["sec"], f["nsec"])))
+            if self.exposure_topic is not None:
+                for rec, (conn, ts, raw) in self._messages(r, self.exposure_topic):
+                    if self.is_ros2:
+                        v = int(self._deserialize(r, raw, rec, INT32, self.exposure_topic).data)
+                    else:
+                        if len(raw) != 4:
+                            raise FormatError(self.path, f"message {rec} of {self.exposure_topic}: {len(raw)} bytes, "
+                                                         f"a std_msgs/Int32 has 4", record=rec)
+                        v = int.from_bytes(raw, "little", signed=True)
+                    if v < 0:
+                        raise FormatError(self.path, f"message {rec} of {self.exposure_topic}: negative exposure "
+                                                     f"{v} µs", record=rec)
+                    exposures.append(v)
+        if not imgs:
+            return Frames(np.zeros((0,) + self.frame_size.shape + ((3,) if ch >= 3 else ()),
+                                   np.uint8 if nb == 1 else np.uint16), np.zeros(0, np.int64), np.zeros(0, np.int64),
+                          encoding=self._frame_encoding("unknown"))
+        t = np.asarray(stamps, np.int64)
+        if exposures and len(exposures) == len(t):
+            e = np.asarray(exposures, np.int64)
+            ts = t - e // 2
+            te = ts + e
+        else:
+            ts, te = t, t.copy()
+        order = np.argsort(ts, kind="stable")
+        try:
+            return Frames(np.stack([imgs[i] for i in order]), ts[order], te[order],
+                          encoding=self._frame_encoding("unknown"))
+        except ValueError as exc:
+            raise FormatError(self.path, f"invalid frames: {exc}") from None
 
     # -- access -------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -403,8 +623,9 @@ class RosbagReader(EventFileReader):
         os.symlink(path.resolve(), link)
         return link, tmpdir
 
-    def _messages(self, r) -> Iterator[tuple[int, tuple]]:
-        conns = [c for c in r.connections if c.topic == self.topic]
+    def _messages(self, r, topic: str | None = None) -> Iterator[tuple[int, tuple]]:
+        topic = self.topic if topic is None else topic
+        conns = [c for c in r.connections if c.topic == topic]
         it = r.messages(connections=conns)
         i = 0
         while True:
@@ -415,17 +636,19 @@ class RosbagReader(EventFileReader):
             except FormatError:
                 raise
             except Exception as exc:
-                raise FormatError(self.path, f"cannot read message {i} of {self.topic}: {type(exc).__name__}: {exc}",
+                raise FormatError(self.path, f"cannot read message {i} of {topic}: {type(exc).__name__}: {exc}",
                                   record=i) from None
-            check_packet_size(len(item[2]), self.path, what=f"message {i} of {self.topic}")
+            check_packet_size(len(item[2]), self.path, what=f"message {i} of {topic}")
             yield i, item
             i += 1
 
-    def _deserialize(self, r, raw: bytes, rec: int):
+    def _deserialize(self, r, raw: bytes, rec: int, msgtype: str | None = None, topic: str | None = None):
+        msgtype = self.msgtype if msgtype is None else msgtype
+        topic = self.topic if topic is None else topic
         try:
-            return r.deserialize(raw, self.msgtype)
+            return r.deserialize(raw, msgtype)
         except Exception as exc:
-            raise FormatError(self.path, f"cannot deserialize message {rec} of {self.topic} ({self.msgtype}): "
+            raise FormatError(self.path, f"cannot deserialize message {rec} of {topic} ({msgtype}): "
                                          f"{type(exc).__name__}: {exc}", record=rec) from None
 
     def _head(self, r, rec: int, raw: bytes) -> dict:
@@ -589,5 +812,5 @@ READERS = {"rosbag": RosbagReader}
 WRITERS: dict = {}
 
 register_formats(__name__, {
-    "rosbag": "ROS bag with dvs_msgs/EventArray or event_camera_msgs/EventPacket",
+    "rosbag": "ROS bag with dvs_msgs/EventArray or event_camera_msgs/EventPacket (+ sensor_msgs/Image frames)",
 }, READERS, WRITERS)

@@ -7,7 +7,17 @@ doi:10.1177/0278364917691115) is a folder holding
 * ``images.txt``: ``t images/frame_XXXXXXXX.png``, one APS frame per line;
 * ``images/``: the frames (8-bit PNG for DAVIS240C);
 * optional ``calib.txt`` (``fx fy cx cy k1 k2 p1 p2 k3``) and ``groundtruth.txt``
-  (``t x y z qx qy qz qw``, not read).
+  (``t x y z qx qy qz qw``, not read);
+* hybridhdr extensions, written by :class:`EcdWriter` and read back: ``frame_exposures.txt``
+  (``t_start_us t_end_us`` per frame) and ``cfa.txt`` (``event_camera RGGB`` and
+  ``frame_camera RGGB`` lines: the colour filter arrays, ``none`` for monochrome).
+
+Colour: ECD states no colour filter. Colour PNGs (RGB, RGBA, palette ...) are read as (K, H, W, 3)
+RGB frames, i.e. already demosaicked, which says the frame camera is a colour one but not its
+pattern, nor the event sensor's; single-channel PNGs are (K, H, W) and may be grey or a raw
+mosaic. So the reader declares ``metadata.*_camera.cfa`` only from ``cfa.txt``; for any other
+colour ECD folder (a colour DAVIS recording exported to ECD) the pattern must be given with
+``--cfa``. ``metadata.provenance["frame_colour"]`` and ``["cfa_source"]`` say what was found.
 
 E2VID text (``uzh-rpg/rpg_e2vid``) is the same event lines preceded by one line ``width height``;
 a ``.zip`` holding a single such ``.txt`` member is read by streaming the member.
@@ -38,7 +48,7 @@ import numpy as np
 from .._util.limits import LimitExceeded, check_frame_bytes, check_sensor_size, open_image
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize, empty_events
-from ..model import CameraInfo, Frames, Metadata
+from ..model import CameraInfo, Frames, Metadata, parse_cfa
 from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 
 __all__ = ["EcdReader", "E2vidReader", "EcdWriter", "READERS", "WRITERS", "sniff", "parse_seconds_exact"]
@@ -342,6 +352,51 @@ def _read_image(path: Path) -> np.ndarray:
     return np.ascontiguousarray(arr)
 
 
+#: PIL modes :func:`_read_image` turns into (H, W, 3) RGB frames; every other mode gives (H, W).
+_COLOUR_MODES = ("RGB", "RGBA", "RGBX", "RGBa", "P", "PA", "CMYK", "YCbCr", "HSV", "LAB")
+
+
+def _image_is_colour(path: Path) -> bool:
+    """True when :func:`_read_image` returns (H, W, 3) for this file (from its header only)."""
+    with open_image(path, "frame") as im:
+        return im.mode in _COLOUR_MODES
+
+
+#: ``cfa.txt`` keys: the cameras of :class:`hybridhdr.model.Metadata`.
+CFA_FILE_KEYS = ("event_camera", "frame_camera")
+
+
+def _parse_cfa_file(path: Path) -> dict[str, str | None]:
+    """``cfa.txt`` (a hybridhdr extension written by :class:`EcdWriter`): lines
+    ``event_camera RGGB`` / ``frame_camera none``; ``#`` comments and blank lines skipped."""
+    try:
+        text = path.read_bytes()
+    except OSError as exc:
+        raise FormatError(path, f"cannot read: {exc}") from None
+    if len(text) > 4096:
+        raise FormatError(path, f"{len(text)} bytes; a cfa.txt holds two short lines")
+    out: dict[str, str | None] = {}
+    for k, raw in enumerate(text.splitlines(), 1):
+        line = raw.split(b"#", 1)[0].strip()
+        if not line:
+            continue
+        parts = line.split()
+        try:
+            key, value = (x.decode("ascii") for x in parts) if len(parts) == 2 else (None, None)
+        except UnicodeDecodeError:
+            key = value = None
+        if key not in CFA_FILE_KEYS:
+            raise FormatError(path, f"line {k}: expected '<camera> <pattern>' with camera one of "
+                                    f"{', '.join(CFA_FILE_KEYS)}, got {raw[:80]!r}", record=k)
+        if key in out:
+            raise FormatError(path, f"line {k}: {key} given twice", record=k)
+        try:
+            out[key] = parse_cfa(value)
+        except ValueError as exc:
+            raise FormatError(path, f"line {k}: {exc}", record=k) from None
+    return out
+
+
 def _image_size(path: Path) -> SensorSize:
     with open_image(path, "frame") as im:
         w, h = im.size
@@ -384,6 +439,9 @@ class EcdReader(EventFileReader):
     ECD gives one timestamp per frame and no exposure time, so :meth:`read_frames` uses it as both
     ``t_start_us`` and ``t_end_us``, unless the folder holds ``frame_exposures.txt`` (written by
     :class:`EcdWriter`: one ``t_start_us t_end_us`` integer pair per frame).
+
+    Colour filter arrays are declared only from ``cfa.txt`` (module notes): colour images alone
+    give RGB frames and no pattern (pass ``--cfa``).
     """
 
     format_name = "ecd"
@@ -441,9 +499,27 @@ class EcdReader(EventFileReader):
                                              "not stated by the ECD format (PNG frames, no transfer function)")
         if self.folder is not None and (self.folder / "groundtruth.txt").is_file():
             prov["groundtruth_file"] = str(self.folder / "groundtruth.txt")
-        fc = CameraInfo(self.sensor_size if self._frame_list else None)
-        self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size), frame_camera=fc,
-                                 calibration=calib, provenance=prov)
+        cfa = {}
+        cfa_file = None if self.folder is None else self.folder / "cfa.txt"
+        if cfa_file is not None and cfa_file.is_file():
+            cfa = _parse_cfa_file(cfa_file)
+            prov["cfa_source"] = f"{cfa_file.name} (a hybridhdr extension of ECD, written by its EcdWriter)"
+        elif self._frame_list:
+            prov["cfa_source"] = ("not stated: ECD has no colour filter field (a colour DAVIS's pattern must be "
+                                  "given with --cfa)")
+        if self._frame_list:
+            try:
+                colour = _image_is_colour(self._frame_list[0][1])
+            except (OSError, ValueError, SyntaxError) as exc:  # and LimitExceeded: read_frames reports it
+                colour = None
+                prov["frame_colour"] = f"unknown: the first frame cannot be read ({getattr(exc, 'message', exc)})"
+            if colour is not None:
+                prov["frame_colour"] = ("rgb: colour images, read as (K, H, W, 3) demosaicked RGB; they do not "
+                                        "tell the sensor's colour filter" if colour else
+                                        "grey: single-channel images, (K, H, W)")
+        fc = CameraInfo(self.sensor_size if self._frame_list else None, cfa=cfa.get("frame_camera"))
+        self.metadata = Metadata(event_camera=CameraInfo(self.sensor_size, cfa=cfa.get("event_camera")),
+                                 frame_camera=fc, calibration=calib, provenance=prov)
 
     def _parse_calib(self, path: Path) -> dict:
         try:
@@ -566,7 +642,9 @@ class EcdWriter(EventFileWriter):
     Frames (uint8 or uint16, grey or RGB) are written as ``images/frame_%08d.png`` with their
     mid-exposure time in ``images.txt``; when any frame has a non-zero exposure the exact
     ``t_start_us t_end_us`` pairs also go to ``frame_exposures.txt`` (a hybridhdr extension that
-    :class:`EcdReader` reads). ECD has no place for the sensor size or triggers.
+    :class:`EcdReader` reads), and when either camera of the metadata has a colour filter array
+    both patterns go to ``cfa.txt`` (``event_camera RGGB`` / ``frame_camera none`` lines; another
+    extension the reader reads). ECD has no place for the sensor size or triggers.
     """
 
     format_name = "ecd"
@@ -628,6 +706,10 @@ class EcdWriter(EventFileWriter):
         if any(a != b for a, b in self._exposures):
             with open(self.tmp_path / "frame_exposures.txt", "w", encoding="ascii", newline="\n") as f:
                 f.write("".join(f"{a} {b}\n" for a, b in self._exposures))
+        md = self.metadata
+        if md.event_camera.cfa is not None or md.frame_camera.cfa is not None:
+            with open(self.tmp_path / "cfa.txt", "w", encoding="ascii", newline="\n") as f:
+                f.write("".join(f"{key} {getattr(md, key).cfa or 'none'}\n" for key in CFA_FILE_KEYS))
 
     def _cleanup(self) -> None:
         for h in (getattr(self, "_ev", None), getattr(self, "_img", None)):
