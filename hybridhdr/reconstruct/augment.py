@@ -49,7 +49,8 @@ __all__ = ["AugmentParams", "AugmentStats", "AugmentedMeasurements", "calibrate_
            "CALIBRATION_CATEGORIES"]
 
 #: reasons of :func:`calibrate_thresholds`, in the order of the kernel's category codes
-CALIBRATION_CATEGORIES = ("calibrated", "no_events", "zero_net_events", "sign_mismatch", "out_of_range")
+CALIBRATION_CATEGORIES = ("calibrated", "no_events", "zero_net_events", "sign_mismatch", "out_of_range",
+                          "too_few_events")
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -97,6 +98,12 @@ class AugmentParams(_ParamsMixin):
         with the events, while EDI reads each event as a change of exactly c and so adds a
         threshold-quantisation error of about ``c/√12``; ``Δ²/24 > c/√12`` gives n*. 0 deblurs
         every pixel, as the paper does.
+    calibration_min_events : int
+        Calibrate a pixel's interval (eq. 12) only when its net event count |Σσ| reaches this;
+        below it the nominal thresholds are kept (counted as ``too_few_events``). Each end of
+        ΔL^D carries a sub-threshold residual uniform over one threshold, so eq. 12's 1/r is off
+        by about 1/(√6 |Σσ|): 5 keeps that under 10 %, the size of the threshold errors the
+        calibration is meant to correct. 0 calibrates every pixel, as the paper does.
     interpolation_anchor : {"mid", "start"}
         Where A_k is anchored: ``"mid"`` (default) ``A_k(t) = L^D(τ_k) + c_k Σσ[τ_k, t)``, so
         A_k(τ_k) is the deblurred frame at its mid-exposure whatever the calibrated c_k;
@@ -121,6 +128,7 @@ class AugmentParams(_ParamsMixin):
     blend_steps: int = 2  # eq. 13 held on T/2 halves (cost: one AKF segment switch each)
     deblur_min_events: int | None = None  # below: taken as sharp; None: n* from c (docstring); 0: the paper
     interpolation_anchor: str = "mid"  # A_k anchored at L^D(τ_k); "start": at L^D(s_k), the paper
+    calibration_min_events: int = 5  # |Σσ| below: nominal thresholds (0: calibrate every pixel, the paper)
 
     def __post_init__(self):
         for name in ("enabled", "deblur", "interpolate", "calibrate", "search_threshold"):
@@ -137,6 +145,9 @@ class AugmentParams(_ParamsMixin):
         if self.interpolation_anchor not in ("mid", "start"):
             raise ValueError(f"AugmentParams.interpolation_anchor must be 'mid' or 'start', got "
                              f"{self.interpolation_anchor!r}")
+        v = self.calibration_min_events
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0:
+            raise ValueError(f"AugmentParams.calibration_min_events must be an int >= 0, got {v!r}")
         v = self.deblur_min_events
         if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 0):
             raise ValueError(f"AugmentParams.deblur_min_events must be None or an int >= 0, got {v!r}")
@@ -178,6 +189,7 @@ class AugmentStats:
     zero_net_events: int = 0
     sign_mismatch: int = 0
     out_of_range: int = 0
+    too_few_events: int = 0
     intervals: int = 0
     frames_deblurred: int = 0
     pixels_censored: int = 0
@@ -187,7 +199,7 @@ class AugmentStats:
 
     @property
     def fallbacks(self) -> int:
-        return self.no_events + self.zero_net_events + self.sign_mismatch + self.out_of_range
+        return self.no_events + self.zero_net_events + self.sign_mismatch + self.out_of_range + self.too_few_events
 
     def add(self, category: np.ndarray) -> None:
         n = np.bincount(category, minlength=len(CALIBRATION_CATEGORIES))
@@ -487,6 +499,14 @@ class AugmentedMeasurements:
             AK.calibrate_scale(np.ascontiguousarray(f1.lde - fk.lds, dtype=np.float64), nominal,
                                (fk.tot + gt + f1.tot) != 0, float(self.params.calibration_scale_min),
                                float(self.params.calibration_scale_max), scale, cat)
+            # too few net events: eq. 12's ratio is mostly the thresholds' quantisation of the two
+            # ends (each end's sub-threshold residual is uniform over one threshold, so 1/r is off
+            # by about 1/(√6 |Σσ|)), not the threshold error it is meant to correct
+            m = self.params.calibration_min_events
+            if m > 0:
+                few = (cat == 0) & (np.abs(fk.cnt + g + f1.cnt) < m)
+                scale = np.where(few, 1.0, scale)
+                cat = np.where(few, CALIBRATION_CATEGORIES.index("too_few_events"), cat)
             # a clipped end is a bound, not a value: ΔL^D says nothing there, keep c
             ca, cb = self._fm_segment(k).censor, self._fm_segment(k + 1).censor
             if ca is not None and cb is not None:

@@ -69,8 +69,8 @@ def test_calibration_kernel_matches_py_func():
     np.testing.assert_array_equal(outs[0][2], outs[1][2])
 
 
-#: the paper's augmentation: EDI at every pixel, A_k anchored at L^D(s_k) (eq. 10 as written)
-PAPER_FORM = {"deblur_min_events": 0, "interpolation_anchor": "start"}
+#: the paper's augmentation: EDI and eq. 12 at every pixel, A_k anchored at L^D(s_k) (eq. 10 as written)
+PAPER_FORM = {"deblur_min_events": 0, "interpolation_anchor": "start", "calibration_min_events": 0}
 
 
 def _provider(rec, I0=DEFAULT_INTENSITY_OFFSET, **aug):
@@ -326,7 +326,9 @@ def test_calibration_with_on_and_off_thresholds():
     ea = EventArrays.from_structured(rec.events, (1, 1))
 
     def provider(con, coff):
-        return AugmentedMeasurements(rec.frames, ea, (1, 1), LIN, params=AugmentParams(enabled=True),
+        # net count 6 - 3 = 3: below the default calibration_min_events (5), so calibrate as the paper
+        return AugmentedMeasurements(rec.frames, ea, (1, 1), LIN,
+                                     params=AugmentParams(enabled=True, calibration_min_events=0),
                                      akf_params=AKFParams(contrast_threshold_on=con, contrast_threshold_off=coff,
                                                           bias_correction=False, intensity_offset=I0))
     m = provider(c_on / 1.5, c_off / 1.5)
@@ -365,3 +367,17 @@ def test_akf_follows_on_and_off_steps_with_augmentation():
     v = reconstruct(rec, "akf", p, times_us=times, mode="forward", profile=LIN, augment=True)
     want = np.exp(L0 + 6 * c_on - 2 * c_off) - I0
     assert v.frames[0, 0, 0] == pytest.approx(want, rel=1e-6)
+
+
+def test_calibration_needs_enough_net_events():
+    """Eq. 12 on a pixel with few net events is mostly threshold quantisation: below
+    ``calibration_min_events`` the nominal thresholds are kept and counted."""
+    rec, _ = _ramp_recording(c_true=0.12)  # 20 ON events between the two frames
+    for m, want_scale, cat in ((0, 1.2, "calibrated"), (20, 1.2, "calibrated"), (21, 1.0, "too_few_events")):
+        p = _provider(rec, calibration_min_events=m)
+        _, scale = p._interval(0)
+        assert scale[0] == pytest.approx(want_scale, rel=0.02)
+        assert getattr(p.stats, cat) == 1 and p.stats.to_dict()[cat] == 1
+    assert AugmentParams().calibration_min_events == 5
+    with pytest.raises(ValueError, match="calibration_min_events"):
+        AugmentParams(calibration_min_events=-1)
