@@ -473,15 +473,20 @@ class _Reorderer:
     def push(self, ev: np.ndarray, disorder: int, tmax: int, final: bool = False) -> np.ndarray:
         if len(self.pending):
             ev = np.concatenate([self.pending, ev])
-            self.pending = empty_events()
+        ev, held = self.split(ev, disorder, tmax, final)
+        self.pending = held.copy() if len(held) else empty_events()
+        return ev
+
+    def split(self, ev: np.ndarray, disorder: int, tmax: int, final: bool = False):
+        """``(released, held)``: ``ev`` (the held events of the last split first, then the new ones)
+        re-sorted if the decoder saw disorder since, cut where later events could still precede."""
         if disorder > self.seen_disorder:
             self.seen_disorder = disorder
             ev = ev[np.argsort(ev["t"], kind="stable")]
         if final or self.window_us == 0 or len(ev) == 0:
-            return ev
+            return ev, ev[len(ev):]
         cut = int(np.searchsorted(ev["t"], tmax - self.window_us, side="right"))
-        self.pending = ev[cut:].copy()
-        return ev[:cut]
+        return ev[:cut], ev[cut:]
 
 
 def _triggers_from(tt, tc, te, nt) -> np.ndarray:
@@ -769,25 +774,28 @@ class _PropheseeReader(EventFileReader):
         tt = np.empty(tcap, np.int64)
         tc = np.empty(tcap, np.uint16)
         te = np.empty(tcap, np.int8)
-        n = nt = 0
+        # the events held back for re-sorting (h of them) are copied to the start of the next
+        # buffer and the kernel decodes after them: no concatenation of whole chunks
+        h = n = nt = 0  # n counts the held events too
         for words, off in self._blocks(core):
             nw = core.n_words(words)
             pos = 0
             while pos < nw:
-                pos, n, nt, err, epos = core.run(words, pos, raw, n, min(cap, n + chunk_events + mpw),
-                                                 tt, tc, te, nt, tcap)
+                pos, n, nt, err, epos = core.run(words, pos, raw, n, h + cap, tt, tc, te, nt, tcap)
                 if err:
                     raise self._error(core, err, off + epos * wb)
-                if pos < nw or n >= chunk_events:
-                    ev = reorder.push(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
-                                      int(core.st[K.ST_TMAX]))
+                if pos < nw or n - h >= chunk_events:
+                    ev, held = reorder.split(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
+                                             int(core.st[K.ST_TMAX]))
                     tr = _triggers_from(tt, tc, te, nt)
                     if len(ev) or len(tr):
                         yield EventChunk(ev, tr)
-                    raw = np.empty(2 * cap, np.int64)
-                    n = nt = 0
-        ev = reorder.push(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
-                          int(core.st[K.ST_TMAX]), final=True)
+                    h = n = len(held)
+                    raw = np.empty(2 * (h + cap), np.int64)
+                    raw[:2 * h] = held.view(np.int64)
+                    nt = 0
+        ev, _ = reorder.split(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
+                              int(core.st[K.ST_TMAX]), final=True)
         tr = _triggers_from(tt, tc, te, nt)
         self.stats = {"out_of_order_events": int(core.st[K.ST_DISORDER])}
         if len(ev) or len(tr):
