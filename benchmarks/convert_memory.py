@@ -6,6 +6,12 @@ reports the child's peak resident memory (ru_maxrss) and throughput.
 
     python benchmarks/convert_memory.py           # 1 GB input
     python benchmarks/convert_memory.py --quick   # 120 MB input, < 60 s
+    python benchmarks/convert_memory.py --quick --repeats 3   # best of 3 per target
+
+``to_<target>_mev_per_s`` divides the events by the child's whole wall time, which includes
+starting Python, the imports and loading the Numba kernels (about 1 s, more than converting the
+120 MB input takes). ``to_<target>_startup_s`` is that fixed part, measured the same way on a
+1000-event input, and ``to_<target>_net_mev_per_s`` the rate with it subtracted.
 
 The last line printed is one JSON object.
 """
@@ -24,6 +30,15 @@ import numpy as np
 
 HERE = Path(__file__).resolve().parent
 DATA = HERE / "_data"
+
+
+def make_tiny_evt2(path: Path, n: int = 1000) -> None:
+    """A ``n``-event EVT 2.0 file (the fixed cost of a conversion: start-up, imports, JIT load)."""
+    import hybridhdr as hh
+    rng = np.random.default_rng(1)
+    with hh.open_writer(path, "evt2", sensor_size=hh.SensorSize(480, 640)) as w:
+        w.write_events(hh.make_events(np.arange(n) * 20, rng.integers(0, 640, n), rng.integers(0, 480, n),
+                                      rng.choice([-1, 1], n)))
 
 
 def make_evt2(path: Path, target_bytes: int, seed: int = 0) -> int:
@@ -74,6 +89,8 @@ def run_child(args: list[str]) -> tuple[float, float]:
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     ap.add_argument("--quick", action="store_true", help="120 MB input instead of 1 GB")
+    ap.add_argument("--repeats", type=int, default=1, help="runs per target: the fastest is reported "
+                                                           "(the peak RSS is the largest)")
     args = ap.parse_args()
     target = 120 * 2**20 if args.quick else 2**30
     DATA.mkdir(parents=True, exist_ok=True)
@@ -81,6 +98,9 @@ def main() -> None:
     if not src.exists():
         print(f"synthesising {src.name} ...", flush=True)
         make_evt2(src, target)
+    tiny = DATA / "convert_src_tiny.raw"
+    if not tiny.exists():
+        make_tiny_evt2(tiny)
     size_mb = src.stat().st_size / 2**20
     import hybridhdr as hh
     info = json.loads(subprocess.run([sys.executable, "-m", "hybridhdr", "info", str(src), "--json"],
@@ -92,16 +112,30 @@ def main() -> None:
     results["baseline_rss_mb"] = round(base_rss, 1)
     for to, ext in (("dat", ".dat"), ("hybridhdr", ".h5")):
         out = DATA / f"convert_out{ext}"
-        dt, rss = run_child(["convert", str(src), str(out), "--to", to, "--no-progress"])
+        dts, rsss, fixed = [], [], []
+        for _ in range(max(1, args.repeats)):
+            dt, rss = run_child(["convert", str(src), str(out), "--to", to, "--no-progress"])
+            os.unlink(out)
+            dts.append(dt)
+            rsss.append(rss)
+            fixed.append(run_child(["convert", str(tiny), str(out), "--to", to, "--no-progress"])[0])
+            os.unlink(out)
+        dt, startup = min(dts), min(fixed)
         results[f"to_{to}_s"] = round(dt, 2)
         results[f"to_{to}_mev_per_s"] = round(n / dt / 1e6, 1)
-        results[f"to_{to}_peak_rss_mb"] = round(rss, 1)
-        os.unlink(out)
+        results[f"to_{to}_peak_rss_mb"] = round(max(rsss), 1)
+        results[f"to_{to}_startup_s"] = round(startup, 2)
+        results[f"to_{to}_net_mev_per_s"] = round(n / max(dt - startup, 1e-3) / 1e6, 1)
     results["peak_rss_mb"] = max(results["to_dat_peak_rss_mb"], results["to_hybridhdr_peak_rss_mb"])
     results["goal_peak_rss_mb"] = 1024
     results["meets_goal"] = results["peak_rss_mb"] < 1024
+    results["repeats"] = max(1, args.repeats)
     print(f"{size_mb:.0f} MB EVT2 ({n:,} events): peak RSS {results['peak_rss_mb']} MB "
           f"(goal < 1024 MB)")
+    for to in ("dat", "hybridhdr"):
+        print(f"  to {to}: {results[f'to_{to}_s']} s, {results[f'to_{to}_mev_per_s']} Mev/s "
+              f"({results[f'to_{to}_net_mev_per_s']} Mev/s without the {results[f'to_{to}_startup_s']} s "
+              "start-up)")
     print(json.dumps(results))
 
 
