@@ -12,6 +12,8 @@ reports the child's peak resident memory (ru_maxrss) and throughput.
 starting Python, the imports and loading the Numba kernels (about 1 s, more than converting the
 120 MB input takes). ``to_<target>_startup_s`` is that fixed part, measured the same way on a
 1000-event input, and ``to_<target>_net_mev_per_s`` the rate with it subtracted.
+``to_<target>_cpu_s`` is the child's CPU time (user + system, all threads; the least of the
+repeats): on a shared machine it varies less than the wall time.
 
 The last line printed is one JSON object.
 """
@@ -21,6 +23,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import resource
 import subprocess
 import sys
 import time
@@ -70,20 +73,24 @@ _CHILD = ("import atexit, sys\n"
           "sys.exit(main(sys.argv[1:]))\n")
 
 
-def run_child(args: list[str]) -> tuple[float, float]:
-    """Run ``hybridhdr ARGS`` in a child process; return (seconds, the child's own peak RSS in MB).
+def run_child(args: list[str]) -> tuple[float, float, float]:
+    """Run ``hybridhdr ARGS`` in a child process; return (seconds, the child's own peak RSS in MB,
+    its CPU seconds, user + system, all threads).
 
     The peak is the child's ``VmHWM`` read from /proc at exit (``ru_maxrss`` of children would
-    report the largest of all children so far).
+    report the largest of all children so far); the CPU time is the growth of this process's
+    ``RUSAGE_CHILDREN`` over the run (the children run one at a time).
     """
+    r0 = resource.getrusage(resource.RUSAGE_CHILDREN)
     t = time.perf_counter()
     proc = subprocess.run([sys.executable, "-c", _CHILD, *args], check=True, stdout=subprocess.DEVNULL,
                           stderr=subprocess.PIPE, text=True)
     dt = time.perf_counter() - t
+    r1 = resource.getrusage(resource.RUSAGE_CHILDREN)
     hwm = [int(line.split()[1]) for line in proc.stderr.splitlines() if line.startswith("HWM_KB ")]
     if not hwm:
         raise RuntimeError(f"child did not report its peak memory: {proc.stderr[-2000:]}")
-    return dt, hwm[-1] / 1024.0
+    return dt, hwm[-1] / 1024.0, (r1.ru_utime - r0.ru_utime) + (r1.ru_stime - r0.ru_stime)
 
 
 def main() -> None:
@@ -108,22 +115,24 @@ def main() -> None:
     n = info["events"]
     results = {"input_format": "evt2", "input_mb": round(size_mb, 1), "events": n}
     # baseline: interpreter + imports only
-    _, base_rss = run_child(["--version"])
+    _, base_rss, _ = run_child(["--version"])
     results["baseline_rss_mb"] = round(base_rss, 1)
     for to, ext in (("dat", ".dat"), ("hybridhdr", ".h5")):
         out = DATA / f"convert_out{ext}"
-        dts, rsss, fixed = [], [], []
+        dts, rsss, cpus, fixed = [], [], [], []
         for _ in range(max(1, args.repeats)):
-            dt, rss = run_child(["convert", str(src), str(out), "--to", to, "--no-progress"])
+            dt, rss, cpu = run_child(["convert", str(src), str(out), "--to", to, "--no-progress"])
             os.unlink(out)
             dts.append(dt)
             rsss.append(rss)
+            cpus.append(cpu)
             fixed.append(run_child(["convert", str(tiny), str(out), "--to", to, "--no-progress"])[0])
             os.unlink(out)
         dt, startup = min(dts), min(fixed)
         results[f"to_{to}_s"] = round(dt, 2)
         results[f"to_{to}_mev_per_s"] = round(n / dt / 1e6, 1)
         results[f"to_{to}_peak_rss_mb"] = round(max(rsss), 1)
+        results[f"to_{to}_cpu_s"] = round(min(cpus), 2)
         results[f"to_{to}_startup_s"] = round(startup, 2)
         results[f"to_{to}_net_mev_per_s"] = round(n / max(dt - startup, 1e-3) / 1e6, 1)
     results["peak_rss_mb"] = max(results["to_dat_peak_rss_mb"], results["to_hybridhdr_peak_rss_mb"])
@@ -135,7 +144,7 @@ def main() -> None:
     for to in ("dat", "hybridhdr"):
         print(f"  to {to}: {results[f'to_{to}_s']} s, {results[f'to_{to}_mev_per_s']} Mev/s "
               f"({results[f'to_{to}_net_mev_per_s']} Mev/s without the {results[f'to_{to}_startup_s']} s "
-              "start-up)")
+              f"start-up; {results[f'to_{to}_cpu_s']} CPU s)")
     print(json.dumps(results))
 
 
