@@ -182,3 +182,38 @@ def test_empty_and_one_event(tmp_path):
     a = _write(tmp_path / "a.dat", [hh.empty_events(), make_events([5], [1], [2], [-1]), hh.empty_events()], (4, 4))
     assert a == _dat_by_definition(make_events([5], [1], [2], [-1]), 4, 4)
     assert _write(tmp_path / "b.dat", [], (4, 4)) == _dat_by_definition(hh.empty_events(), 4, 4)
+
+
+@pytest.mark.parametrize("batches", [1, 5])
+def test_write_error_of_the_writing_thread_is_raised(tmp_path, batches):
+    # the words are written by a background thread: its error (a full disk) comes out of the next
+    # write_events or of close, and the partial file is removed
+    import errno
+
+    class Full:
+        def write(self, b):
+            raise OSError(errno.ENOSPC, "No space left on device")
+
+    path = tmp_path / "full.dat"
+    w = P.DatWriter(path, sensor_size=(480, 640))
+    w._out._f = Full()
+    with pytest.raises(OSError, match="No space left"):
+        with w:
+            for part in np.array_split(_events(5000, seed=6), batches):
+                w.write_events(part)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_memory_bounded_by_three_buffers(tmp_path):
+    # many batches through the write-behind thread: the same bytes, and the same three word
+    # buffers used over and over
+    ev = _events(20_000, seed=7)
+    w = P.DatWriter(tmp_path / "m.dat", sensor_size=(480, 640))
+    handed = []
+    real = w._out.buffer
+    w._out.buffer = lambda n: handed.append(real(n)) or handed[-1]
+    with w:
+        for part in np.array_split(ev, 40):
+            w.write_events(part)
+    assert len(handed) == 40 and len({id(b) for b in handed}) == 3
+    assert (tmp_path / "m.dat").read_bytes() == _dat_by_definition(ev, 480, 640)
