@@ -54,6 +54,7 @@ then all triggers) both work. Timestamps must be >= 0 and < 2^44 µs (EVT) or fi
 from __future__ import annotations
 
 import datetime
+import os
 import queue
 import sys
 import threading
@@ -1107,6 +1108,30 @@ class Evt3Writer(_EvtWriter):
         return K.evt3_encode(t, x, y, p, tt, tch, te, self._es, out, self._use_vectors)
 
 
+#: Bytes reserved ahead of a DAT file's end with fallocate(2) (see :class:`_WriteBehind`).
+_PREALLOC_BYTES = 64 << 20
+_FALLOC_FL_KEEP_SIZE = 1
+
+
+def _fallocate():
+    """libc's ``fallocate(fd, mode, offset, length)`` (Linux), or None where there is none.
+
+    Called directly, not through ``os.posix_fallocate``: where a file system cannot reserve
+    space, that one falls back to writing a byte per block, which would cost more than it saves.
+    """
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        import ctypes
+        libc = ctypes.CDLL(None, use_errno=True)
+        fn = getattr(libc, "fallocate64", None) or libc.fallocate
+    except (OSError, AttributeError):
+        return None
+    fn.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
+    fn.restype = ctypes.c_int
+    return fn
+
+
 class _WriteBehind:
     """Append word buffers to a file from one background thread, in order (private, DatWriter).
 
@@ -1115,16 +1140,34 @@ class _WriteBehind:
     :meth:`give_back` returns one unused. The file's ``write`` releases the GIL, so writing overlaps
     with the packing of the next batch (and with a reader thread). An error of the writing thread
     is raised by the next :meth:`buffer` or :meth:`close` call; later buffers are not written.
+
+    Space is reserved ahead of the end of the file, :data:`_PREALLOC_BYTES` at a time, with
+    ``fallocate(FALLOC_FL_KEEP_SIZE)`` (the file's size stays that of the bytes written): on ext4
+    writing into reserved blocks took 0.3-0.6 s of system time for 2.2 GB instead of 0.8-3.5 s
+    (delayed allocation). Where reserving fails (no such call, an unsupported file system, not
+    enough room) the writes go on without it, so a full disk fails on the same write as before.
+    :meth:`close` truncates the file to its size, which releases the unused reservation.
     """
 
     def __init__(self, f, depth: int = 3):
         self._f = f
+        self._fallocate = _fallocate()
+        self._pos = self._reserved = 0
         self._free: queue.Queue = queue.Queue()
         for _ in range(depth):
             self._free.put(np.empty(0, np.uint32))
         self._todo: queue.Queue = queue.Queue()
         self._err: BaseException | None = None
         self._thread: threading.Thread | None = None
+
+    def _reserve(self, nbytes: int) -> None:
+        if self._fallocate is None or self._pos + nbytes <= self._reserved:
+            return
+        end = max(self._pos + nbytes, self._reserved + _PREALLOC_BYTES)
+        if self._fallocate(self._f.fileno(), _FALLOC_FL_KEEP_SIZE, self._reserved, end - self._reserved) == 0:
+            self._reserved = end
+        else:  # unsupported or no room: plain writes from here on
+            self._fallocate = None
 
     def _run(self) -> None:
         while True:
@@ -1134,7 +1177,9 @@ class _WriteBehind:
             buf, n = item
             if self._err is None:
                 try:
+                    self._reserve(4 * n)
                     self._f.write(memoryview(buf[:n]).cast("B"))
+                    self._pos += 4 * n
                 except BaseException as e:  # noqa: BLE001 - raised in the caller's thread
                     self._err = e
             self._free.put(buf)
@@ -1144,6 +1189,8 @@ class _WriteBehind:
         if self._err is not None:
             raise self._err
         if self._thread is None:
+            self._f.flush()
+            self._pos = self._reserved = self._f.tell()
             self._thread = threading.Thread(target=self._run, name="hybridhdr-dat-write", daemon=True)
             self._thread.start()
         buf = self._free.get()
@@ -1164,6 +1211,10 @@ class _WriteBehind:
             self._thread = None
         if check and self._err is not None:
             raise self._err
+        if self._reserved > self._pos and check:
+            self._f.flush()
+            os.ftruncate(self._f.fileno(), self._pos)  # release the reserved blocks past the end
+            self._reserved = self._pos
 
 
 class DatWriter(EventFileWriter):

@@ -190,12 +190,16 @@ def test_write_error_of_the_writing_thread_is_raised(tmp_path, batches):
     # write_events or of close, and the partial file is removed
     import errno
 
-    class Full:
+    path = tmp_path / "full.dat"
+    w = P.DatWriter(path, sensor_size=(480, 640))
+
+    class Full:  # the real file, whose writes fail
+        def __getattr__(self, name):
+            return getattr(w._f, name)
+
         def write(self, b):
             raise OSError(errno.ENOSPC, "No space left on device")
 
-    path = tmp_path / "full.dat"
-    w = P.DatWriter(path, sensor_size=(480, 640))
     w._out._f = Full()
     with pytest.raises(OSError, match="No space left"):
         with w:
@@ -217,3 +221,26 @@ def test_memory_bounded_by_three_buffers(tmp_path):
             w.write_events(part)
     assert len(handed) == 40 and len({id(b) for b in handed}) == 3
     assert (tmp_path / "m.dat").read_bytes() == _dat_by_definition(ev, 480, 640)
+
+
+@pytest.mark.parametrize("fallocate", ["system", "fails", "absent"])
+def test_reserved_space_changes_no_byte(tmp_path, monkeypatch, fallocate):
+    # space is reserved ahead with fallocate(KEEP_SIZE) where the file system allows it: the
+    # file's size is always the bytes written, and the file is the same with or without it
+    if fallocate == "fails":
+        monkeypatch.setattr(P, "_fallocate", lambda: (lambda fd, mode, off, n: -1))
+    elif fallocate == "absent":
+        monkeypatch.setattr(P, "_fallocate", lambda: None)
+    ev = _events(30_000, seed=8)
+    path = tmp_path / "r.dat"
+    w = P.DatWriter(path, sensor_size=(480, 640))
+    with w:
+        for part in np.array_split(ev, 3):
+            w.write_events(part)
+            w._out.close(check=False)  # wait for the writes (a new thread starts with the next batch)
+            assert w.tmp_path.stat().st_size == w._out._pos
+            if fallocate == "system" and w._out._fallocate is not None:  # reserved ahead
+                assert w._out._reserved >= w._out._pos + P._PREALLOC_BYTES // 2
+            else:
+                assert w._out._reserved <= w._out._pos
+    assert path.read_bytes() == _dat_by_definition(ev, 480, 640)
