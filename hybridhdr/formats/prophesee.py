@@ -54,10 +54,7 @@ then all triggers) both work. Timestamps must be >= 0 and < 2^44 µs (EVT) or fi
 from __future__ import annotations
 
 import datetime
-import os
-import queue
 import sys
-import threading
 from pathlib import Path
 from typing import Iterator
 
@@ -1108,115 +1105,6 @@ class Evt3Writer(_EvtWriter):
         return K.evt3_encode(t, x, y, p, tt, tch, te, self._es, out, self._use_vectors)
 
 
-#: Bytes reserved ahead of a DAT file's end with fallocate(2) (see :class:`_WriteBehind`).
-_PREALLOC_BYTES = 64 << 20
-_FALLOC_FL_KEEP_SIZE = 1
-
-
-def _fallocate():
-    """libc's ``fallocate(fd, mode, offset, length)`` (Linux), or None where there is none.
-
-    Called directly, not through ``os.posix_fallocate``: where a file system cannot reserve
-    space, that one falls back to writing a byte per block, which would cost more than it saves.
-    """
-    if not sys.platform.startswith("linux"):
-        return None
-    try:
-        import ctypes
-        libc = ctypes.CDLL(None, use_errno=True)
-        fn = getattr(libc, "fallocate64", None) or libc.fallocate
-    except (OSError, AttributeError):
-        return None
-    fn.argtypes = [ctypes.c_int, ctypes.c_int, ctypes.c_int64, ctypes.c_int64]
-    fn.restype = ctypes.c_int
-    return fn
-
-
-class _WriteBehind:
-    """Append word buffers to a file from one background thread, in order (private, DatWriter).
-
-    :meth:`buffer` hands out one of ``depth`` reusable uint32 arrays, waiting while all of them are
-    queued or being written (so memory stays bounded); :meth:`submit` queues one for writing and
-    :meth:`give_back` returns one unused. The file's ``write`` releases the GIL, so writing overlaps
-    with the packing of the next batch (and with a reader thread). An error of the writing thread
-    is raised by the next :meth:`buffer` or :meth:`close` call; later buffers are not written.
-
-    Space is reserved ahead of the end of the file, :data:`_PREALLOC_BYTES` at a time, with
-    ``fallocate(FALLOC_FL_KEEP_SIZE)`` (the file's size stays that of the bytes written): on ext4
-    writing into reserved blocks took 0.3-0.6 s of system time for 2.2 GB instead of 0.8-3.5 s
-    (delayed allocation). Where reserving fails (no such call, an unsupported file system, not
-    enough room) the writes go on without it, so a full disk fails on the same write as before.
-    :meth:`close` truncates the file to its size, which releases the unused reservation.
-    """
-
-    def __init__(self, f, depth: int = 3):
-        self._f = f
-        self._fallocate = _fallocate()
-        self._pos = self._reserved = 0
-        self._free: queue.Queue = queue.Queue()
-        for _ in range(depth):
-            self._free.put(np.empty(0, np.uint32))
-        self._todo: queue.Queue = queue.Queue()
-        self._err: BaseException | None = None
-        self._thread: threading.Thread | None = None
-
-    def _reserve(self, nbytes: int) -> None:
-        if self._fallocate is None or self._pos + nbytes <= self._reserved:
-            return
-        end = max(self._pos + nbytes, self._reserved + _PREALLOC_BYTES)
-        if self._fallocate(self._f.fileno(), _FALLOC_FL_KEEP_SIZE, self._reserved, end - self._reserved) == 0:
-            self._reserved = end
-        else:  # unsupported or no room: plain writes from here on
-            self._fallocate = None
-
-    def _run(self) -> None:
-        while True:
-            item = self._todo.get()
-            if item is None:
-                return
-            buf, n = item
-            if self._err is None:
-                try:
-                    self._reserve(4 * n)
-                    self._f.write(memoryview(buf[:n]).cast("B"))
-                    self._pos += 4 * n
-                except BaseException as e:  # noqa: BLE001 - raised in the caller's thread
-                    self._err = e
-            self._free.put(buf)
-
-    def buffer(self, n: int) -> np.ndarray:
-        """A free buffer of at least ``n`` words."""
-        if self._err is not None:
-            raise self._err
-        if self._thread is None:
-            self._f.flush()
-            self._pos = self._reserved = self._f.tell()
-            self._thread = threading.Thread(target=self._run, name="hybridhdr-dat-write", daemon=True)
-            self._thread.start()
-        buf = self._free.get()
-        return buf if len(buf) >= n else np.empty(n, np.uint32)
-
-    def give_back(self, buf: np.ndarray) -> None:
-        self._free.put(buf)
-
-    def submit(self, buf: np.ndarray, n: int) -> None:
-        """Write ``buf[:n]`` after the buffers submitted before it."""
-        self._todo.put((buf, n))
-
-    def close(self, check: bool = True) -> None:
-        """Wait for the queued writes (``check``: raise the writing thread's error, if any)."""
-        if self._thread is not None:
-            self._todo.put(None)
-            self._thread.join()
-            self._thread = None
-        if check and self._err is not None:
-            raise self._err
-        if self._reserved > self._pos and check:
-            self._f.flush()
-            os.ftruncate(self._f.fileno(), self._pos)  # release the reserved blocks past the end
-            self._reserved = self._pos
-
-
 class DatWriter(EventFileWriter):
     """Prophesee DAT writer (CD events, type 12, 8-byte records).
 
@@ -1226,9 +1114,7 @@ class DatWriter(EventFileWriter):
 
     :meth:`write_events` checks and packs contiguous event arrays in one kernel pass
     (:func:`._kernels.dat_encode`); arrays it refuses, and other layouts, take the base class's
-    path, whose checks name the problem. The packed words are written by a background thread, in
-    order, with at most three batches of words in memory; a write error (such as a full disk) is
-    raised by the next :meth:`write_events` or by :meth:`close`.
+    path, whose checks name the problem.
     """
 
     format_name = "dat"
@@ -1242,7 +1128,7 @@ class DatWriter(EventFileWriter):
                  f"Height {ss.height}", f"Width {ss.width}"]
         self._f.write("".join(f"% {s}\n" for s in lines).encode("ascii"))
         self._f.write(bytes([12, 8]))
-        self._out = _WriteBehind(self._f)
+        self._buf = np.empty(0, np.uint32)  # output words, reused (grown to the largest batch)
 
     def write_events(self, events: np.ndarray) -> None:
         """Append events; they must continue the time order of everything written so far."""
@@ -1266,45 +1152,35 @@ class DatWriter(EventFileWriter):
         self._store(events, *packed)
 
     def _pack(self, events: np.ndarray):
-        """``(words, gap)``: a buffer holding the DAT words of ``events`` first and the largest
-        time step (µs); None if an event is out of time order (also with the last event written),
-        has p not +1 or -1 or lies outside the sensor."""
+        """``(words, gap)``: the DAT words of ``events`` (a view of the reused buffer) and the
+        largest time step (µs); None if an event is out of time order (also with the last event
+        written), has p not +1 or -1 or lies outside the sensor."""
         n2 = 2 * len(events)
-        words = self._out.buffer(n2)
+        if len(self._buf) < n2:
+            self._buf = np.empty(n2, np.uint32)
+        words = self._buf[:n2]
         prev = int(events["t"][0]) if self._last_t is None else self._last_t
         bad, gap = K.dat_encode(events.view(np.int64), prev, self.sensor_size.width,
-                                self.sensor_size.height, words[:n2])
-        if bad >= 0:
-            self._out.give_back(words)
-            return None
-        return words, gap
+                                self.sensor_size.height, words)
+        return None if bad >= 0 else (words, gap)
 
     def _store(self, events: np.ndarray, words: np.ndarray, gap: int) -> None:
-        """Check the DAT time limits of packed ``events`` and queue their words for writing."""
+        """Check the DAT time limits of packed ``events`` and append their ``words``."""
         t0 = int(events["t"][0])
-        err = None
         if t0 < 0:
-            err = f"timestamps must be >= 0 µs, got {t0}"
-        elif self._last_t is None and t0 >= 1 << 32:
-            err = f"the first DAT timestamp must be < 2^32 µs (71.6 min), got {t0}; subtract an offset first"
-        elif gap >= 1 << 31:
-            err = ("DAT cannot store a gap of 2^31 µs (35.8 min) or more between consecutive events "
-                   "(its 32-bit time would be ambiguous)")
-        if err is not None:
-            self._out.give_back(words)
-            raise ValueError(f"{self.path}: {err}")
-        self._out.submit(words, 2 * len(events))
+            raise ValueError(f"{self.path}: timestamps must be >= 0 µs, got {t0}")
+        if self._last_t is None and t0 >= 1 << 32:
+            raise ValueError(f"{self.path}: the first DAT timestamp must be < 2^32 µs (71.6 min), got "
+                             f"{t0}; subtract an offset first")
+        if gap >= 1 << 31:
+            raise ValueError(f"{self.path}: DAT cannot store a gap of 2^31 µs (35.8 min) or more between "
+                             "consecutive events (its 32-bit time would be ambiguous)")
+        self._f.write(memoryview(words).cast("B"))
 
     def _finish(self) -> None:
-        try:
-            self._out.close()
-        finally:
-            self._f.close()
+        self._f.close()
 
     def _cleanup(self) -> None:
-        out = getattr(self, "_out", None)
-        if out is not None:
-            out.close(check=False)
         f = getattr(self, "_f", None)
         if f is not None and not f.closed:
             f.close()
