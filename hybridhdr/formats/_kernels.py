@@ -840,25 +840,66 @@ def evt3_encode(t, x, y, p, tt, tch, te, es, out, use_vectors):
 
 
 @njit(cache=True, nogil=True)
-def dat_encode(rec64, prev_t, out):
-    """Pack ``EVENT_DTYPE`` records (int64 (N, 2) view: t, then x | y << 16 | p << 32) into DAT
-    CD words ``out`` (uint32 (N, 2): t mod 2^32, x | y << 14 | (p > 0) << 28).
+def dat_encode(rec, prev_t, width, height, out):
+    """Check and pack ``EVENT_DTYPE`` records into DAT CD words, in one pass.
 
-    Returns the largest step between consecutive times, starting from ``prev_t`` (the writer
-    refuses steps of 2^31 µs or more, which the 32-bit time cannot carry).
+    Parameters
+    ----------
+    rec : ndarray of shape (2N,), int64
+        The records (``rec[2i] = t`` in µs, ``rec[2i+1] = x | y << 16 | p << 32`` and padding).
+    prev_t : int
+        Time (µs) the first record follows (its own time for the first records of a file).
+    width, height : int
+        Sensor size; coordinates must be below it.
+    out : ndarray of shape (2N,), uint32
+        DAT words: ``out[2i] = t mod 2^32``, ``out[2i+1] = x | y << 14 | (p > 0) << 28``.
+
+    Returns
+    -------
+    bad, gap : int
+        The index of the first record earlier than the one before it (or than ``prev_t``), with
+        p not +1 or -1 or a coordinate outside the sensor (``out`` is then incomplete), else -1;
+        and the largest step between consecutive times from ``prev_t`` (the writer refuses steps
+        of 2^31 µs or more, which the 32-bit time cannot carry).
+
+    Notes
+    -----
+    Blocks of 512 records are checked without early exit (min/max/or reductions), so the loop
+    has no data-dependent branch; a block that fails is scanned again for the exact index.
     """
+    n = rec.shape[0] // 2
     gap = np.int64(0)
-    last = prev_t
-    for i in range(rec64.shape[0]):
-        t = rec64[i, 0]
-        w = rec64[i, 1]
-        d = t - last
-        if d > gap:
-            gap = d
-        last = t
-        x = w & 0xFFFF
-        y = (w >> 16) & 0xFFFF
-        pos = 1 if (w >> 32) & 0xFF == 1 else 0
-        out[i, 0] = np.uint32(t & 0xFFFFFFFF)
-        out[i, 1] = np.uint32(x | (y << 14) | (pos << 28))
-    return gap
+    last = np.int64(prev_t)
+    for b0 in range(0, n, 512):
+        b1 = min(n, b0 + 512)
+        start = last
+        mind = np.int64(0)
+        maxx = np.int64(0)
+        maxy = np.int64(0)
+        pbad = np.int64(0)
+        for i in range(b0, b1):
+            t = rec[2 * i]
+            w = rec[2 * i + 1]
+            d = t - last
+            last = t
+            gap = max(gap, d)
+            mind = min(mind, d)
+            x = w & 0xFFFF
+            y = (w >> 16) & 0xFFFF
+            pb = (w >> 32) & 0xFF
+            maxx = max(maxx, x)
+            maxy = max(maxy, y)
+            pbad |= (pb + 1) & 0xFD  # 0 only for the bytes 0x01 (+1) and 0xFF (-1)
+            out[2 * i] = np.uint32(t & 0xFFFFFFFF)
+            out[2 * i + 1] = np.uint32(x | (y << 14) | (np.int64(pb == 1) << 28))
+        if mind < 0 or maxx >= width or maxy >= height or pbad != 0:
+            last = start
+            for i in range(b0, b1):
+                t = rec[2 * i]
+                w = rec[2 * i + 1]
+                pb = (w >> 32) & 0xFF
+                if (t < last or (w & 0xFFFF) >= width or ((w >> 16) & 0xFFFF) >= height
+                        or (pb != 1 and pb != 0xFF)):
+                    return i, gap
+                last = t
+    return -1, gap

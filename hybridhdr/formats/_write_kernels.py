@@ -25,17 +25,18 @@ def _swap(a, b, s, m):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _transpose8(rec64, r, col, m32, m16, m8):
-    """8x8 byte transpose of the words ``rec64[r:r + 8, col]`` (three swap stages): word j of
-    the result holds byte j of each of the 8 input words (HDF5's shuffle of 8 elements)."""
-    a0 = np.uint64(rec64[r, col])
-    a1 = np.uint64(rec64[r + 1, col])
-    a2 = np.uint64(rec64[r + 2, col])
-    a3 = np.uint64(rec64[r + 3, col])
-    a4 = np.uint64(rec64[r + 4, col])
-    a5 = np.uint64(rec64[r + 5, col])
-    a6 = np.uint64(rec64[r + 6, col])
-    a7 = np.uint64(rec64[r + 7, col])
+def _transpose8(v, i, step, m32, m16, m8):
+    """8x8 byte transpose of the 64-bit words ``v[i], v[i + step], ..., v[i + 7 * step]`` (three
+    swap stages): word j of the result holds byte j of each of the 8 input words, in order
+    (HDF5's shuffle of 8 elements; its own inverse, so it also unshuffles)."""
+    a0 = np.uint64(v[i])
+    a1 = np.uint64(v[i + step])
+    a2 = np.uint64(v[i + 2 * step])
+    a3 = np.uint64(v[i + 3 * step])
+    a4 = np.uint64(v[i + 4 * step])
+    a5 = np.uint64(v[i + 5 * step])
+    a6 = np.uint64(v[i + 6 * step])
+    a7 = np.uint64(v[i + 7 * step])
     a0, a4 = _swap(a0, a4, 32, m32)
     a1, a5 = _swap(a1, a5, 32, m32)
     a2, a6 = _swap(a2, a6, 32, m32)
@@ -73,7 +74,7 @@ def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride,
     q = pos
     i = 0
     if shuffle:
-        rec64 = rec.view(np.int64)  # (N, 2): t, then x | y << 16 | p << 32 (little-endian records)
+        rec64 = rec.view(np.int64).reshape(-1)  # 2N words: t, then x | y << 16 | p << 32 per record
         bt64 = bt.view(np.uint64)
         bx64 = bx.view(np.uint64)
         by64 = by.view(np.uint64)
@@ -93,7 +94,7 @@ def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride,
             r = i0 + i
             w = q >> 3
             # 8x8 byte transpose of the 8 time values (rows) in three swap stages
-            a0, a1, a2, a3, a4, a5, a6, a7 = _transpose8(rec64, r, 0, m32, m16, m8)
+            a0, a1, a2, a3, a4, a5, a6, a7 = _transpose8(rec64, 2 * r, 2, m32, m16, m8)
             bt64[w] = a0
             bt64[c8 + w] = a1
             bt64[2 * c8 + w] = a2
@@ -103,7 +104,7 @@ def stage_events(rec, t, i0, k, bt, bx, by, bp, pos, C, shuffle, g0, st, stride,
             bt64[6 * c8 + w] = a6
             bt64[7 * c8 + w] = a7
             # the second word of each record: x (bytes 0-1), y (2-3), p (4): the same transpose
-            b0, b1, b2, b3, b4, b5, b6, b7 = _transpose8(rec64, r, 1, m32, m16, m8)
+            b0, b1, b2, b3, b4, b5, b6, b7 = _transpose8(rec64, 2 * r + 1, 2, m32, m16, m8)
             bx64[w] = b0
             bx64[c8 + w] = b1
             by64[w] = b2
@@ -184,7 +185,7 @@ def unshuffle(src, s, C, a, b, out, o):
     """Undo HDF5's byte shuffle of one chunk: elements ``a..b`` of the chunk image ``src`` (uint8,
     ``s``-byte elements, byte ``j`` of element ``k`` at ``j * C + k``) into ``out[o*s:(o+b-a)*s]``
     (uint8 view of the destination). 8-byte elements go 8 at a time through the 8x8 byte
-    transpose of :func:`stage_events` (its own inverse)."""
+    transpose :func:`_transpose8` of :func:`stage_events` (its own inverse)."""
     k = a
     q = o * s
     if s == 8:
@@ -201,27 +202,7 @@ def unshuffle(src, s, C, a, b, out, o):
             q += 8
         ow = q >> 3
         while k + 8 <= b:
-            w = k >> 3
-            a0 = src64[w]
-            a1 = src64[c8 + w]
-            a2 = src64[2 * c8 + w]
-            a3 = src64[3 * c8 + w]
-            a4 = src64[4 * c8 + w]
-            a5 = src64[5 * c8 + w]
-            a6 = src64[6 * c8 + w]
-            a7 = src64[7 * c8 + w]
-            a0, a4 = _swap(a0, a4, 32, m32)
-            a1, a5 = _swap(a1, a5, 32, m32)
-            a2, a6 = _swap(a2, a6, 32, m32)
-            a3, a7 = _swap(a3, a7, 32, m32)
-            a0, a2 = _swap(a0, a2, 16, m16)
-            a1, a3 = _swap(a1, a3, 16, m16)
-            a4, a6 = _swap(a4, a6, 16, m16)
-            a5, a7 = _swap(a5, a7, 16, m16)
-            a0, a1 = _swap(a0, a1, 8, m8)
-            a2, a3 = _swap(a2, a3, 8, m8)
-            a4, a5 = _swap(a4, a5, 8, m8)
-            a6, a7 = _swap(a6, a7, 8, m8)
+            a0, a1, a2, a3, a4, a5, a6, a7 = _transpose8(src64, k >> 3, c8, m32, m16, m8)
             out64[ow] = a0
             out64[ow + 1] = a1
             out64[ow + 2] = a2

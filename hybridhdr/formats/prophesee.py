@@ -473,15 +473,20 @@ class _Reorderer:
     def push(self, ev: np.ndarray, disorder: int, tmax: int, final: bool = False) -> np.ndarray:
         if len(self.pending):
             ev = np.concatenate([self.pending, ev])
-            self.pending = empty_events()
+        ev, held = self.split(ev, disorder, tmax, final)
+        self.pending = held.copy() if len(held) else empty_events()
+        return ev
+
+    def split(self, ev: np.ndarray, disorder: int, tmax: int, final: bool = False):
+        """``(released, held)``: ``ev`` (the held events of the last split first, then the new ones)
+        re-sorted if the decoder saw disorder since, cut where later events could still precede."""
         if disorder > self.seen_disorder:
             self.seen_disorder = disorder
             ev = ev[np.argsort(ev["t"], kind="stable")]
         if final or self.window_us == 0 or len(ev) == 0:
-            return ev
+            return ev, ev[len(ev):]
         cut = int(np.searchsorted(ev["t"], tmax - self.window_us, side="right"))
-        self.pending = ev[cut:].copy()
-        return ev[:cut]
+        return ev[:cut], ev[cut:]
 
 
 def _triggers_from(tt, tc, te, nt) -> np.ndarray:
@@ -769,25 +774,28 @@ class _PropheseeReader(EventFileReader):
         tt = np.empty(tcap, np.int64)
         tc = np.empty(tcap, np.uint16)
         te = np.empty(tcap, np.int8)
-        n = nt = 0
+        # the events held back for re-sorting (h of them) are copied to the start of the next
+        # buffer and the kernel decodes after them: no concatenation of whole chunks
+        h = n = nt = 0  # n counts the held events too
         for words, off in self._blocks(core):
             nw = core.n_words(words)
             pos = 0
             while pos < nw:
-                pos, n, nt, err, epos = core.run(words, pos, raw, n, min(cap, n + chunk_events + mpw),
-                                                 tt, tc, te, nt, tcap)
+                pos, n, nt, err, epos = core.run(words, pos, raw, n, h + cap, tt, tc, te, nt, tcap)
                 if err:
                     raise self._error(core, err, off + epos * wb)
-                if pos < nw or n >= chunk_events:
-                    ev = reorder.push(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
-                                      int(core.st[K.ST_TMAX]))
+                if pos < nw or n - h >= chunk_events:
+                    ev, held = reorder.split(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
+                                             int(core.st[K.ST_TMAX]))
                     tr = _triggers_from(tt, tc, te, nt)
                     if len(ev) or len(tr):
                         yield EventChunk(ev, tr)
-                    raw = np.empty(2 * cap, np.int64)
-                    n = nt = 0
-        ev = reorder.push(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
-                          int(core.st[K.ST_TMAX]), final=True)
+                    h = n = len(held)
+                    raw = np.empty(2 * (h + cap), np.int64)
+                    raw[:2 * h] = held.view(np.int64)
+                    nt = 0
+        ev, _ = reorder.split(raw[:2 * n].view(EVENT_DTYPE), int(core.st[K.ST_DISORDER]),
+                              int(core.st[K.ST_TMAX]), final=True)
         tr = _triggers_from(tt, tc, te, nt)
         self.stats = {"out_of_order_events": int(core.st[K.ST_DISORDER])}
         if len(ev) or len(tr):
@@ -1103,6 +1111,10 @@ class DatWriter(EventFileWriter):
     The 32-bit time field wraps every 2^32 µs; readers unwrap it from consecutive differences, so
     the first timestamp must be < 2^32 µs and consecutive events less than 2^31 µs (35.8 min)
     apart, else ``ValueError``. Triggers are not stored.
+
+    :meth:`write_events` checks and packs contiguous event arrays in one kernel pass
+    (:func:`._kernels.dat_encode`); arrays it refuses, and other layouts, take the base class's
+    path, whose checks name the problem.
     """
 
     format_name = "dat"
@@ -1116,28 +1128,54 @@ class DatWriter(EventFileWriter):
                  f"Height {ss.height}", f"Width {ss.width}"]
         self._f.write("".join(f"% {s}\n" for s in lines).encode("ascii"))
         self._f.write(bytes([12, 8]))
-        self._prev_t = None
-        self._buf = np.empty((1 << 20, 2), np.uint32)  # reused output words
+        self._buf = np.empty(0, np.uint32)  # output words, reused (grown to the largest batch)
+
+    def write_events(self, events: np.ndarray) -> None:
+        """Append events; they must continue the time order of everything written so far."""
+        if (not self._closed and isinstance(events, np.ndarray) and events.dtype == EVENT_DTYPE
+                and events.ndim == 1 and events.flags.c_contiguous and len(events)):
+            packed = self._pack(events)
+            if packed is not None:  # valid (as the base class checks them) and packed
+                self._store(events, *packed)
+                self._last_t = int(events["t"][-1])
+                self.n_events += len(events)
+                return
+        super().write_events(events)
 
     def _write_events(self, events: np.ndarray) -> None:
-        t = events["t"]
-        if t[0] < 0:
-            raise ValueError(f"{self.path}: timestamps must be >= 0 µs, got {int(t[0])}")
-        if self._prev_t is None and t[0] >= 1 << 32:
-            raise ValueError(f"{self.path}: the first DAT timestamp must be < 2^32 µs (71.6 min), got "
-                             f"{int(t[0])}; subtract an offset first")
-        prev = int(t[0]) if self._prev_t is None else self._prev_t
+        # the base class's path: events already checked (order, polarity, coordinates)
         if not events.flags.c_contiguous:
             events = np.ascontiguousarray(events)
-        # one pass (kernel): pack the records and find the largest time step (validated
-        # events: p is +1 or -1, x and y fit the sensor)
-        rec = self._buf[:len(events)] if len(events) <= len(self._buf) else np.empty((len(events), 2), np.uint32)
-        gap = K.dat_encode(events.view(np.int64).reshape(len(events), 2), prev, rec)
+        packed = self._pack(events)
+        if packed is None:  # pragma: no cover - validated by the base class
+            raise ValueError(f"{self.path}: events failed the DAT writer's checks after validation")
+        self._store(events, *packed)
+
+    def _pack(self, events: np.ndarray):
+        """``(words, gap)``: the DAT words of ``events`` (a view of the reused buffer) and the
+        largest time step (µs); None if an event is out of time order (also with the last event
+        written), has p not +1 or -1 or lies outside the sensor."""
+        n2 = 2 * len(events)
+        if len(self._buf) < n2:
+            self._buf = np.empty(n2, np.uint32)
+        words = self._buf[:n2]
+        prev = int(events["t"][0]) if self._last_t is None else self._last_t
+        bad, gap = K.dat_encode(events.view(np.int64), prev, self.sensor_size.width,
+                                self.sensor_size.height, words)
+        return None if bad >= 0 else (words, gap)
+
+    def _store(self, events: np.ndarray, words: np.ndarray, gap: int) -> None:
+        """Check the DAT time limits of packed ``events`` and append their ``words``."""
+        t0 = int(events["t"][0])
+        if t0 < 0:
+            raise ValueError(f"{self.path}: timestamps must be >= 0 µs, got {t0}")
+        if self._last_t is None and t0 >= 1 << 32:
+            raise ValueError(f"{self.path}: the first DAT timestamp must be < 2^32 µs (71.6 min), got "
+                             f"{t0}; subtract an offset first")
         if gap >= 1 << 31:
             raise ValueError(f"{self.path}: DAT cannot store a gap of 2^31 µs (35.8 min) or more between "
                              "consecutive events (its 32-bit time would be ambiguous)")
-        self._f.write(memoryview(rec).cast("B"))
-        self._prev_t = int(t[-1])
+        self._f.write(memoryview(words).cast("B"))
 
     def _finish(self) -> None:
         self._f.close()

@@ -103,6 +103,21 @@ def test_stage_layout_is_hdf5_shuffle_or_plain(pos, shuffle):
             assert np.array_equal(b[pos * s:(pos + 1000) * s], col.view(np.uint8)), f
 
 
+@pytest.mark.parametrize("a,b", [(0, 2048), (3, 1000), (8, 16), (5, 7), (1990, 2048)])
+@pytest.mark.parametrize("s", [8, 2, 1])
+def test_unshuffle_inverts_the_shuffle(s, a, b):
+    # unshuffle (8-byte elements: the same 8x8 transpose as stage_events) against numpy's
+    # transpose of the shuffled image, compiled and as Python
+    C = 2048
+    rng = np.random.default_rng(s)
+    col = rng.integers(0, 256, C * s, dtype=np.uint8)
+    img = np.ascontiguousarray(col.reshape(C, s).T).reshape(-1)  # byte j of element k at j * C + k
+    for fn in (WK.unshuffle, WK.unshuffle.py_func):
+        out = np.zeros((b - a + 3) * s, np.uint8)
+        assert fn(img, s, C, a, b, out, 3) == b - a
+        assert np.array_equal(out[3 * s:], col[a * s:b * s]) and not out[:3 * s].any()
+
+
 def test_invalid_events_still_name_the_record(tmp_path):
     ev = _events(100)
     bad = ev.copy()

@@ -332,6 +332,36 @@ def test_reorder_window(tmp_path):
     assert "b.raw" in str(ei.value) and "byte offset" in str(ei.value) and ei.value.offset == p2.stat().st_size - 4
 
 
+def test_streaming_reorder_across_chunks(tmp_path):
+    # events encoded up to 40 µs out of order (within the 1000 µs window): whatever the chunk and
+    # block sizes, the chunks are sorted, continue each other and add up to read_all's array (the
+    # held-back events are decoded into the start of the next chunk's buffer)
+    rng = np.random.default_rng(11)
+    n = 3000
+    t = np.cumsum(rng.integers(0, 3, n)).astype(np.int64) + 64 * 1000
+    order = np.argsort(t + rng.integers(0, 40, n), kind="stable")
+    ts, xs, ys = t[order], rng.integers(0, 16, n)[order], rng.integers(0, 16, n)[order]
+    ps = rng.integers(0, 2, n)[order]
+    words, th = [], -1
+    for ti, xi, yi, pi in zip(ts.tolist(), xs.tolist(), ys.tolist(), ps.tolist()):
+        if ti >> 6 != th:
+            th = ti >> 6
+            words.append((8 << 28) | th)
+        words.append((pi << 28) | ((ti & 63) << 22) | (xi << 11) | yi)
+    p = _raw_file(tmp_path, "d.raw", "% evt 2.0\n% geometry 16x16\n", np.array(words, np.uint32))
+    r = P.Evt2Reader(p)
+    ref = r.read_all().events
+    assert r.stats["out_of_order_events"] > 0
+    assert np.array_equal(ref["t"], np.sort(t))
+    for chunk_events in (1, 7, 100, 2999, 5000):
+        for opts in ({}, {"block_bytes": 12}, {"reorder_window_us": 100}):
+            got = list(P.Evt2Reader(p, **opts).iter_chunks(chunk_events))
+            ev = np.concatenate([c.events for c in got])
+            for k in "txyp":
+                assert np.array_equal(ev[k], ref[k]), (chunk_events, opts, k)
+            assert all(len(c.events) <= chunk_events + 1000 for c in got)
+
+
 # ------------------------------------------------------------------------------------------------
 # stream decoders
 # ------------------------------------------------------------------------------------------------
