@@ -230,12 +230,7 @@ def _thresholds_unset(params) -> bool:
 
 def _declared_thresholds(source) -> tuple[float, float] | None:
     """The event sensor's nominal (ON, OFF) thresholds a source's metadata states, or None."""
-    md = getattr(source, "metadata", None)
-    if callable(md):
-        try:
-            md = md()
-        except Exception:  # noqa: BLE001 - a reader without readable metadata states nothing
-            return None
+    md = _metadata(source)
     got = getattr(getattr(md, "event_camera", None), "contrast_thresholds", None)
     if got is None:  # recordings simulated before CameraInfo stated them keep the sensor in provenance
         prov = getattr(md, "provenance", None) or {}
