@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from numba import njit
 
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
@@ -215,3 +218,45 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
     off = reconstruct(r, "akf", p.replace(fusion_carried_variance=False), times_us=[46_000]).frames[0, 0]
     assert abs(on[1] - 120 / 255) < abs(off[1] - 120 / 255)
     assert AKFParams.paper().carried_variance() is None and AKFParams.reference_code().carried_variance() is None
+
+
+# -- the faster paths against the serial order, bit for bit ------------------------------------
+
+@njit(cache=False)
+def _fuse_one_loop(l_f, p_f, l_b, p_b, offset, floor, out):
+    """``fuse_to_linear`` as it was written first (one loop per pixel): the reference."""
+    n_cl = 0
+    for i in range(out.shape[0]):
+        pf = np.float64(p_f[i])
+        pb = np.float64(p_b[i])
+        lg = (np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / (pf + pb)
+        v = np.float32(math.exp(lg) - offset)
+        if not v >= floor:
+            v = np.float32(floor)
+            n_cl += 1
+        out[i] = v
+    return n_cl
+
+
+@pytest.mark.parametrize("n", [0, 1, 1023, 1024, 1025, 5000])
+def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
+    from hybridhdr.reconstruct import _kernels as K
+    rng = np.random.default_rng(n)
+    lf = rng.normal(-1, 4, n).astype(np.float32)
+    lb = (lf + rng.normal(0, 1, n)).astype(np.float32)
+    pf = rng.uniform(0, 0.1, n).astype(np.float32)
+    pb = rng.uniform(1e-6, 0.1, n).astype(np.float32)
+    pf[::7] = 0.0
+    lf[::11] = np.nan
+    pb[::13] = np.inf
+    lb[::17] = 200.0  # exp overflows
+    for off in (1.0, 0.0, 1e-3):
+        want = np.full(n, -1.0, np.float32)
+        got = np.full(n, -2.0, np.float32)
+        got_py = np.full(n, -3.0, np.float32)
+        c_want = _fuse_one_loop(lf, pf, lb, pb, off, K.MIN_INTENSITY, want)
+        assert K.fuse_to_linear(lf, pf, lb, pb, off, K.MIN_INTENSITY, got) == c_want
+        with np.errstate(all="ignore"):  # NumPy scalars warn where the kernel silently gives NaN/inf
+            assert K.fuse_to_linear.py_func(lf, pf, lb, pb, off, K.MIN_INTENSITY, got_py) == c_want
+        np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
+        np.testing.assert_array_equal(got_py.view(np.int32), want.view(np.int32))
