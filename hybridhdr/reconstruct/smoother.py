@@ -30,7 +30,7 @@ Gaussian noise. Assumptions and their limits (docs/reconstruct.md, "Two-sided of
 Both passes run the row-band parallel kernels, so the result is bit-identical for any
 ``n_workers``. The backward pass runs first and keeps its estimates (float32 L̂ and P, 8 bytes
 per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary file through
-pwrite/pread, so memory stays bounded); the forward pass then streams, fusing as it goes.
+pwritev/preadv, so memory stays bounded); the forward pass then streams, fusing as it goes.
 """
 
 from __future__ import annotations
@@ -55,40 +55,51 @@ MEMORY_LIMIT_BYTES = 256 << 20
 
 
 class _Store:
-    """Per-output float32 (L̂, P) records of the backward pass: in memory, or in a temporary file."""
+    """Per-output records of ``fields`` float32 arrays of ``n_pix``: in memory, or in a temporary file.
 
-    def __init__(self, n_out: int, n_pix: int):
+    In memory a record is the caller's own arrays, kept by reference (no copy: the passes hand
+    over arrays they allocated for that output and never touch again). In a file (``spill``,
+    by default when the records would exceed :data:`MEMORY_LIMIT_BYTES`) they are written
+    straight from the arrays with ``pwritev`` and read into fresh writable arrays with ``preadv``.
+    """
+
+    def __init__(self, n_out: int, n_pix: int, fields: int = 2, spill: bool | None = None):
         self.n_pix = n_pix
-        self.rec = 8 * n_pix
-        self.file = None
-        if self.rec * n_out > MEMORY_LIMIT_BYTES:
-            self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-")
-            self.mem = None
-        else:
-            self.mem = np.empty((n_out, 2, n_pix), np.float32)
+        self.fields = fields
+        self.rec = 4 * fields * n_pix
+        if spill is None:
+            spill = self.rec * n_out > MEMORY_LIMIT_BYTES
+        self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-") if spill else None
+        self.mem = None if spill else [None] * n_out
 
-    def put(self, i: int, lg: np.ndarray, var: np.ndarray) -> None:
+    def put(self, i: int, *arrays: np.ndarray) -> None:
+        if len(arrays) != self.fields or any(a.dtype != np.float32 or a.shape != (self.n_pix,) for a in arrays):
+            raise ValueError(f"a record is {self.fields} float32 arrays of shape ({self.n_pix},)")
         if self.file is None:
-            self.mem[i, 0] = lg
-            self.mem[i, 1] = var
+            self.mem[i] = arrays
             return
-        buf = np.concatenate([np.asarray(lg, np.float32), np.asarray(var, np.float32)])
-        n = os.pwrite(self.file.fileno(), buf.tobytes(), i * self.rec)
+        n = os.pwritev(self.file.fileno(), [np.ascontiguousarray(a) for a in arrays], i * self.rec)
         if n != self.rec:
-            raise OSError(f"short write of the backward pass's estimates ({n} of {self.rec} bytes)")
+            raise OSError(f"short write of the two-sided filter's estimates ({n} of {self.rec} bytes)")
 
-    def get(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+    def get(self, i: int) -> tuple[np.ndarray, ...]:
         if self.file is None:
-            return self.mem[i, 0], self.mem[i, 1]
-        b = os.pread(self.file.fileno(), self.rec, i * self.rec)
-        if len(b) != self.rec:
-            raise OSError(f"short read of the backward pass's estimates ({len(b)} of {self.rec} bytes)")
-        a = np.frombuffer(b, np.float32)
-        return a[:self.n_pix], a[self.n_pix:]
+            return self.mem[i]
+        buf = np.empty((self.fields, self.n_pix), np.float32)
+        n = os.preadv(self.file.fileno(), [buf], i * self.rec)
+        if n != self.rec:
+            raise OSError(f"short read of the two-sided filter's estimates ({n} of {self.rec} bytes)")
+        return tuple(buf)
+
+    def drop(self, i: int) -> None:
+        """Forget record ``i`` (in memory: its arrays can be freed)."""
+        if self.file is None:
+            self.mem[i] = None
 
     def close(self) -> None:
         if self.file is not None:
             self.file.close()
+        self.mem = None
 
 
 def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
@@ -252,7 +263,6 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     carried frame has accumulated (:class:`_CarriedVariance`); None: P alone.
     """
     shape = events.shape
-    n_pix = shape[0] * shape[1]
     t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
     t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
     mirror = t_lo + t_hi + 1  # reversed times stay in [t_lo, t_hi]
@@ -260,24 +270,46 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     rev_fr = reverse_frames(frames, mirror)
     times = np.asarray(times, dtype=np.int64)
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
-    store = _Store(times.size, n_pix)
-    spilled = store.file is not None
-    have_b = np.zeros(times.size, bool)
-    index = {int(t): i for i, t in enumerate(times)}
-    n_b = 0
     cv_b = cv_f = None
     if carried_variance is not None:
         cv_b = (rev_fr.t_mid_us,) + tuple(carried_variance)
         cv_f = (frames.t_mid_us,) + tuple(carried_variance)
-    for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
-                                 progress, cv_b):
-        i = index[int(mirror - tr)]
-        store.put(i, lg, var)
-        have_b[i] = True
-        n_b += 1
-    n_fused = n_single = n_clamped = n_out = 0
+    passes = {True: (rev_fr, rev_ev, rev_times, cv_b), False: (frames, events, times, cv_f)}
+    stats = {"outputs_fused": 0, "outputs_one_pass": 0, "backward_outputs": 0, "spilled_to_disk": False,
+             "n_clamped": 0, "n_output_pixels": 0}
+    yield from _serial(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress, stats)
+    if info is not None:
+        info["two_sided"] = {k: stats[k] for k in ("outputs_fused", "outputs_one_pass", "backward_outputs",
+                                                   "spilled_to_disk")}
+        info["n_clamped"] = stats["n_clamped"]
+        info["n_output_pixels"] = stats["n_output_pixels"]
+
+
+def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None) -> np.ndarray:
+    """The fused linear image (float32, flat) of two pass estimates; counts the clamped pixels."""
+    img = np.empty(lf.shape[0], np.float32)
+    n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
+    if stats is not None:
+        stats["n_clamped"] += n
+    return img
+
+
+def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, stats):
+    """The backward pass into a :class:`_Store`, then the forward pass streaming, fused as it goes."""
+    n_pix = shape[0] * shape[1]
+    store = _Store(times.size, n_pix)
+    stats["spilled_to_disk"] = store.file is not None
+    have_b = np.zeros(times.size, bool)
+    index = {int(t): i for i, t in enumerate(times)}
     try:
-        fwd = _run_pass(lambda: make_engine(frames, events, False), events, times, chunk_events, progress, cv_f)
+        fr, ev, tms, cv = passes[True]
+        for tr, lg, var in _run_pass(lambda: make_engine(fr, ev, True), ev, tms, chunk_events, progress, cv):
+            i = index[int(mirror - tr)]
+            store.put(i, lg, var)
+            have_b[i] = True
+            stats["backward_outputs"] += 1
+        fr, ev, tms, cv = passes[False]
+        fwd = _run_pass(lambda: make_engine(fr, ev, False), ev, tms, chunk_events, progress, cv)
         nxt = next(fwd, None)
         for i, t in enumerate(times):
             t = int(t)
@@ -286,24 +318,18 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
                 nxt = next(fwd, None)
             else:
                 lf = pf = None
-            img = np.empty(n_pix, np.float32)
             if lf is not None and have_b[i]:
                 lb, pb = store.get(i)
-                n_clamped += K.fuse_to_linear(lf, pf, lb, pb, float(offset), K.MIN_INTENSITY, img)
-                n_fused += 1
+                img = _fuse(lf, pf, lb, pb, offset, stats)
+                stats["outputs_fused"] += 1
             elif lf is not None or have_b[i]:  # one pass only: fusing it with itself is the identity
                 l1, p1 = (lf, pf) if lf is not None else store.get(i)
-                n_clamped += K.fuse_to_linear(l1, p1, l1, p1, float(offset), K.MIN_INTENSITY, img)
-                n_single += 1
+                img = _fuse(l1, p1, l1, p1, offset, stats)
+                stats["outputs_one_pass"] += 1
             else:  # neither pass covers t (no frame at all around it): cannot happen with frames
                 continue
-            n_out += img.size
-            img = img.reshape(shape)
-            yield t, img
+            store.drop(i)
+            stats["n_output_pixels"] += img.size
+            yield t, img.reshape(shape)
     finally:
         store.close()
-    if info is not None:
-        info["two_sided"] = {"outputs_fused": n_fused, "outputs_one_pass": n_single,
-                             "backward_outputs": n_b, "spilled_to_disk": spilled}
-        info["n_clamped"] = n_clamped
-        info["n_output_pixels"] = n_out

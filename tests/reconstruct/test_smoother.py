@@ -260,3 +260,51 @@ def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
             assert K.fuse_to_linear.py_func(lf, pf, lb, pb, off, K.MIN_INTENSITY, got_py) == c_want
         np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
         np.testing.assert_array_equal(got_py.view(np.int32), want.view(np.int32))
+
+
+def _serial_reference(rec, p, times):
+    """The two-sided filter in the serial order with the first kernels: the backward pass kept in
+    full, then the forward pass fused output by output with the one-loop fusion (one worker)."""
+    from hybridhdr.reconstruct import _kernels as K
+    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.smoother import _run_pass
+    shape = rec.sensor_size.shape
+    ev, fr = EventArrays.from_structured(rec.events, shape), rec.frames
+    m = min(int(ev.t[0]), int(fr.t_start_us[0])) + max(int(ev.t[-1]), int(fr.t_end_us[-1])) + 1
+    q_s = p.carried_variance()
+    rev_p = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on)
+    rf, re = reverse_frames(fr, m), reverse_events(ev, m)
+    mk = lambda pp, f, e: _build_engine("akf", pp, shape, f, "forward", None, 1, None, events=e)[0]  # noqa: E731
+    bwd = {int(m - t): (lg.copy(), var.copy()) for t, lg, var in
+           _run_pass(lambda: mk(rev_p, rf, re), re, (m - times)[::-1], 1 << 20, None, (rf.t_mid_us,) + q_s)}
+    fwd = {int(t): (lg.copy(), var.copy()) for t, lg, var in
+           _run_pass(lambda: mk(p, fr, ev), ev, times, 1 << 20, None, (fr.t_mid_us,) + q_s)}
+    out = []
+    for t in times:
+        f, b = fwd.get(int(t)), bwd.get(int(t))
+        f, b = f or b, b or f
+        img = np.empty(shape[0] * shape[1], np.float32)
+        _fuse_one_loop(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
+        out.append(img.reshape(shape))
+    return np.stack(out)
+
+
+@pytest.mark.parametrize("n_workers", [1, 2, 3, 4])
+@pytest.mark.parametrize("spill", [False, True])
+def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spill):
+    """Every frame is bit for bit the serial reference's, in memory or spilled, for any workers."""
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(6, h=30, w=11, k=7)
+    p = AKFParams()
+    times = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=700.0)
+    assert times[-1] > rec.frames.t_mid_us[-1]  # some outputs after the last frame: the forward pass only
+    want = _serial_reference(rec, p, times)
+    if spill:
+        monkeypatch.setattr(sm, "MEMORY_LIMIT_BYTES", 1)
+    v = reconstruct(rec, "akf", p, times_us=times, n_workers=n_workers)
+    np.testing.assert_array_equal(v.frames.view(np.int32), want.view(np.int32))
+    ts = v.info["two_sided"]
+    assert ts["spilled_to_disk"] == spill
+    n_after = int(np.sum(times > rec.frames.t_mid_us[-1]))
+    assert (ts["outputs_one_pass"], ts["outputs_fused"]) == (n_after, times.size - n_after)
+    assert v.info["n_output_pixels"] == want.size
