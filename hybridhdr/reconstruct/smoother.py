@@ -28,9 +28,12 @@ Gaussian noise. Assumptions and their limits (docs/reconstruct.md, "Two-sided of
   there): the single filter's estimate is used.
 
 Both passes run the row-band parallel kernels, so the result is bit-identical for any
-``n_workers``. The backward pass runs first and keeps its estimates (float32 L̂ and P, 8 bytes
-per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary file through
-pwritev/preadv, so memory stays bounded); the forward pass then streams, fusing as it goes.
+``n_workers``. With one worker the backward pass runs first and keeps its estimates (float32 L̂
+and P, 8 bytes per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary
+file through pwritev/preadv, so memory stays bounded); the forward pass then streams, fusing as
+it goes. With two or more the passes run at the same time, one thread each with half the
+workers, and whichever reaches an output second fuses it (about the same memory, spilled the
+same way); the frames are the same bit for bit.
 """
 
 from __future__ import annotations
@@ -251,8 +254,8 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
 
 def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.ndarray, *, offset: float,
                    chunk_events: int = 1 << 20, progress: Callable[[int], None] | None = None,
-                   info: dict | None = None, carried_variance: tuple | None = None
-                   ) -> Iterator[tuple[int, np.ndarray]]:
+                   info: dict | None = None, carried_variance: tuple | None = None,
+                   n_workers: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
 
     ``make_engine(frames, events, backward)`` builds a forward :class:`~._engine.AKFEngine` for a
@@ -261,6 +264,15 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     a forward ON event of threshold c_on is a backward OFF event of the same size.
     ``carried_variance = (q_event, s_proc_per_s)``: fuse with each pass's P plus the variance its
     carried frame has accumulated (:class:`_CarriedVariance`); None: P alone.
+
+    ``n_workers`` None or 1: the passes one after the other (the backward pass first, then the
+    forward pass streams, fusing as it goes), with the engines as ``make_engine`` builds them.
+    ``n_workers >= 2``: the two passes run at the same time, one thread each, and
+    ``make_engine(frames, events, backward, n_workers=k)`` gets each pass's share of the row-band
+    workers (the backward pass ``(n_workers + 1) // 2``, the forward pass ``n_workers // 2``);
+    whichever pass reaches an output second fuses it. The first output is ready only when the
+    backward pass has finished, so all outputs come after both passes. Each pass's arithmetic and
+    the fusion are those of the serial order: the frames are the same bit for bit.
     """
     shape = events.shape
     t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
@@ -277,7 +289,13 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     passes = {True: (rev_fr, rev_ev, rev_times, cv_b), False: (frames, events, times, cv_f)}
     stats = {"outputs_fused": 0, "outputs_one_pass": 0, "backward_outputs": 0, "spilled_to_disk": False,
              "n_clamped": 0, "n_output_pixels": 0}
-    yield from _serial(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress, stats)
+    if n_workers is not None and int(n_workers) >= 2:
+        nw = int(n_workers)
+        gen = _concurrent(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress,
+                          {True: (nw + 1) // 2, False: nw // 2}, stats)
+    else:
+        gen = _serial(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress, stats)
+    yield from gen
     if info is not None:
         info["two_sided"] = {k: stats[k] for k in ("outputs_fused", "outputs_one_pass", "backward_outputs",
                                                    "spilled_to_disk")}
@@ -333,3 +351,111 @@ def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, pro
             yield t, img.reshape(shape)
     finally:
         store.close()
+
+
+def _concurrent(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, workers, stats):
+    """Both passes at once, one thread each; the pass that reaches an output second fuses it.
+
+    Per output a bit mask under one lock: 1 the forward estimate is stored, 2 the backward one, 4
+    the fused image is stored. A pass that finds the other's estimate fuses at once; otherwise it
+    stores its own and then marks it, and if the other marked its own in between (both stored,
+    neither saw the other), the later of the two marks fuses. Outputs that one pass only covers
+    are "fused" with themselves at the end, as in the serial order. Memory: the estimates waiting
+    for the other pass plus the images (about the serial order's 8 bytes per pixel per output at
+    most), all in temporary files beyond :data:`MEMORY_LIMIT_BYTES`.
+    """
+    import threading
+
+    n_pix = shape[0] * shape[1]
+    n_out = times.size
+    spill = 8 * n_pix * n_out > MEMORY_LIMIT_BYTES
+    stats["spilled_to_disk"] = spill
+    est = {b: _Store(n_out, n_pix, 2, spill) for b in (True, False)}
+    imgs = _Store(n_out, n_pix, 1, spill)
+    state = np.zeros(n_out, np.uint8)
+    lock = threading.Lock()
+    stop = threading.Event()
+    errors: list = []
+    index = {int(t): i for i, t in enumerate(times)}
+    sub = {True: {"n_clamped": 0, "outputs": 0}, False: {"n_clamped": 0, "outputs": 0}}
+    if progress is not None:
+        plock = threading.Lock()
+        user_progress = progress
+
+        def progress(k):  # noqa: F811 - the passes report from two threads
+            with plock:
+                user_progress(k)
+
+    def run(backward: bool):
+        me, other = (2, 1) if backward else (1, 2)
+        fr, ev, tms, cv = passes[backward]
+        st = sub[backward]
+        eng = engines[backward]
+
+        def fuse_store(i, lg, var, o):
+            lf, pf, lb, pb = (o[0], o[1], lg, var) if backward else (lg, var, o[0], o[1])
+            imgs.put(i, _fuse(lf, pf, lb, pb, offset, st))
+            est[not backward].drop(i)
+            with lock:
+                state[i] |= 4
+        try:
+            for tt, lg, var in _run_pass(lambda: eng, ev, tms, chunk_events, progress, cv):
+                if stop.is_set():
+                    return
+                i = index[int(mirror - tt) if backward else int(tt)]
+                st["outputs"] += 1
+                with lock:
+                    ready = bool(state[i] & other)
+                if ready:
+                    fuse_store(i, lg, var, est[not backward].get(i))
+                    continue
+                est[backward].put(i, lg, var)
+                with lock:
+                    state[i] |= me
+                    late = bool(state[i] & other)
+                if late:
+                    fuse_store(i, lg, var, est[not backward].get(i))
+                    est[backward].drop(i)
+        except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+            errors.append(e)
+            stop.set()
+
+    engines = {}  # built here, backward first as in the serial order (make_engine need not be thread-safe)
+    threads = [threading.Thread(target=run, args=(b,), name=f"hybridhdr-{'backward' if b else 'forward'}-pass")
+               for b in (True, False)]
+    try:
+        for b in (True, False):
+            fr, ev, _, _ = passes[b]
+            engines[b] = make_engine(fr, ev, b, n_workers=workers[b])
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        if errors:
+            raise errors[0]
+        stats["backward_outputs"] = sub[True]["outputs"]
+        stats["n_clamped"] = sub[True]["n_clamped"] + sub[False]["n_clamped"]
+        for i, t in enumerate(times):
+            s = int(state[i])
+            if s & 4:
+                img = imgs.get(i)[0]
+                imgs.drop(i)
+                stats["outputs_fused"] += 1
+            elif s & 3:  # one pass only: fusing it with itself is the identity
+                l1, p1 = est[not (s & 1)].get(i)
+                img = _fuse(l1, p1, l1, p1, offset, stats)
+                est[not (s & 1)].drop(i)
+                stats["outputs_one_pass"] += 1
+            else:  # neither pass covers t (no frame at all around it): cannot happen with frames
+                continue
+            stats["n_output_pixels"] += img.size
+            yield int(t), img.reshape(shape)
+    finally:
+        stop.set()
+        for th in threads:
+            if th.ident is not None:
+                th.join()
+        for e in engines.values():
+            e.close()  # idempotent; closed already by its pass unless a pass never started
+        for s in (*est.values(), imgs):
+            s.close()

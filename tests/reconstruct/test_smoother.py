@@ -292,7 +292,8 @@ def _serial_reference(rec, p, times):
 @pytest.mark.parametrize("n_workers", [1, 2, 3, 4])
 @pytest.mark.parametrize("spill", [False, True])
 def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spill):
-    """Every frame is bit for bit the serial reference's, in memory or spilled, for any workers."""
+    """1 worker: the passes in turn; 2 or more: both passes at once (one thread each, the workers
+    shared between them). Every frame is bit for bit the serial reference's, in memory or spilled."""
     import hybridhdr.reconstruct.smoother as sm
     rec = _rec(6, h=30, w=11, k=7)
     p = AKFParams()
@@ -308,3 +309,42 @@ def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spi
     n_after = int(np.sum(times > rec.frames.t_mid_us[-1]))
     assert (ts["outputs_one_pass"], ts["outputs_fused"]) == (n_after, times.size - n_after)
     assert v.info["n_output_pixels"] == want.size
+
+
+def test_concurrent_passes_storing_the_same_output_at_once_fuse_it_once(monkeypatch):
+    """Both passes reach one output together, neither finds the other's estimate, both store
+    theirs: the later mark fuses it (forced with a barrier in the store); the same bits."""
+    import threading
+
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(7, h=12, w=9)
+    times = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=400.0)
+    k = times.size // 2
+    bar = threading.Barrier(2)
+    met = []
+    put = sm._Store.put
+
+    def put_meeting(self, i, *a):
+        if self.fields == 2 and i == k:
+            bar.wait(timeout=20)  # both passes at output k before either marks it
+            met.append(i)
+        put(self, i, *a)
+    monkeypatch.setattr(sm._Store, "put", put_meeting)
+    got = reconstruct(rec, "akf", times_us=times, n_workers=2)
+    assert met == [k, k]
+    np.testing.assert_array_equal(got.frames, _serial_reference(rec, AKFParams(), times))
+
+
+def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call(monkeypatch):
+    import threading
+
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(8)
+    before = threading.active_count()
+
+    def boom(self, t_us, var):
+        raise RuntimeError("boom in a pass")
+    monkeypatch.setattr(sm._CarriedVariance, "add_to", boom)
+    with pytest.raises(RuntimeError, match="boom in a pass"):
+        reconstruct(rec, "akf", fps=300.0, n_workers=2)
+    assert threading.active_count() == before
