@@ -262,6 +262,16 @@ def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
         np.testing.assert_array_equal(got_py.view(np.int32), want.view(np.int32))
 
 
+def test_fusion_kernel_raises_on_a_zero_variance_sum_as_the_checked_division_did():
+    from hybridhdr.reconstruct import _kernels as K
+    z = np.zeros(3000, np.float32)
+    pb = np.ones(3000, np.float32)
+    pb[2500] = 0.0
+    for fn in (_fuse_one_loop, K.fuse_to_linear):
+        with pytest.raises(ZeroDivisionError):
+            fn(z, z, z, pb, 1.0, K.MIN_INTENSITY, np.empty(3000, np.float32))
+
+
 def _serial_reference(rec, p, times):
     """The two-sided filter in the serial order with the first kernels: the backward pass kept in
     full, then the forward pass fused output by output with the one-loop fusion (one worker)."""
