@@ -290,13 +290,14 @@ def _serial_reference(rec, p, times):
     fwd = {int(t): (lg.copy(), var.copy()) for t, lg, var in
            _run_pass(lambda: mk(p, fr, ev), ev, times, 1 << 20, None, (fr.t_mid_us,) + q_s)}
     out = []
+    n_clamped = 0
     for t in times:
         f, b = fwd.get(int(t)), bwd.get(int(t))
         f, b = f or b, b or f
         img = np.empty(shape[0] * shape[1], np.float32)
-        _fuse_one_loop(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
+        n_clamped += _fuse_one_loop(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
         out.append(img.reshape(shape))
-    return np.stack(out)
+    return np.stack(out), n_clamped
 
 
 @pytest.mark.parametrize("n_workers", [1, 2, 3, 4])
@@ -306,10 +307,11 @@ def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spi
     shared between them). Every frame is bit for bit the serial reference's, in memory or spilled."""
     import hybridhdr.reconstruct.smoother as sm
     rec = _rec(6, h=30, w=11, k=7)
-    p = AKFParams()
+    rec.frames.images[:, :6] = 0  # black rows and an offset of 1: some outputs clamp (n_clamped)
+    p = AKFParams(intensity_offset=1.0)
     times = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=700.0)
     assert times[-1] > rec.frames.t_mid_us[-1]  # some outputs after the last frame: the forward pass only
-    want = _serial_reference(rec, p, times)
+    want, n_clamped = _serial_reference(rec, p, times)
     if spill:
         monkeypatch.setattr(sm, "MEMORY_LIMIT_BYTES", 1)
     v = reconstruct(rec, "akf", p, times_us=times, n_workers=n_workers)
@@ -319,6 +321,7 @@ def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spi
     n_after = int(np.sum(times > rec.frames.t_mid_us[-1]))
     assert (ts["outputs_one_pass"], ts["outputs_fused"]) == (n_after, times.size - n_after)
     assert v.info["n_output_pixels"] == want.size
+    assert v.info["n_clamped"] == n_clamped > 0
 
 
 def test_concurrent_passes_storing_the_same_output_at_once_fuse_it_once(monkeypatch):
@@ -342,7 +345,7 @@ def test_concurrent_passes_storing_the_same_output_at_once_fuse_it_once(monkeypa
     monkeypatch.setattr(sm._Store, "put", put_meeting)
     got = reconstruct(rec, "akf", times_us=times, n_workers=2)
     assert met == [k, k]
-    np.testing.assert_array_equal(got.frames, _serial_reference(rec, AKFParams(), times))
+    np.testing.assert_array_equal(got.frames, _serial_reference(rec, AKFParams(), times)[0])
 
 
 def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call(monkeypatch):
