@@ -361,3 +361,14 @@ def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call
     with pytest.raises(RuntimeError, match="boom in a pass"):
         reconstruct(rec, "akf", fps=300.0, n_workers=2)
     assert threading.active_count() == before
+
+
+def test_augmented_two_sided_passes_at_once_give_the_same_frames_and_stats():
+    """Frame augmentation (EDI deblur and calibration per pass) with the passes at once: the same
+    frames and the same per-pass statistics, each under its own pass."""
+    rec = _rec(6, h=30, w=11, k=7)
+    thr = (np.full((30, 11), 0.12), np.full((30, 11), 0.2))
+    a = reconstruct(rec, "akf", fps=500.0, augment=True, n_workers=1, thresholds=thr)
+    b = reconstruct(rec, "akf", fps=500.0, augment=True, n_workers=2, thresholds=thr)
+    np.testing.assert_array_equal(a.frames, b.frames)
+    assert a.info["augmentation"] == b.info["augmentation"] and "backward" in a.info["augmentation"]
