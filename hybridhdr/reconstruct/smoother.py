@@ -61,12 +61,15 @@ class _Store:
     """Per-output records of ``fields`` float32 arrays of ``n_pix``: in memory, or in a temporary file.
 
     In memory a record is the caller's own arrays, kept by reference (no copy: the passes hand
-    over arrays they allocated for that output and never touch again). In a file (``spill``,
-    by default when the records would exceed :data:`MEMORY_LIMIT_BYTES`) they are written
-    straight from the arrays with ``pwritev`` and read into fresh writable arrays with ``preadv``.
+    over arrays they allocated for that output and never touch again); with ``block`` the
+    records are rows of one array allocated up front, and a pass writes its estimates straight
+    into the row :meth:`slot` gives it (no copy, and no allocation per output). In a file
+    (``spill``, by default when the records would exceed :data:`MEMORY_LIMIT_BYTES`) they are
+    written straight from the arrays with ``pwritev`` and read into fresh writable arrays with
+    ``preadv``.
     """
 
-    def __init__(self, n_out: int, n_pix: int, fields: int = 2, spill: bool | None = None):
+    def __init__(self, n_out: int, n_pix: int, fields: int = 2, spill: bool | None = None, block: bool = False):
         self.n_pix = n_pix
         self.fields = fields
         self.rec = 4 * fields * n_pix
@@ -74,11 +77,23 @@ class _Store:
             spill = self.rec * n_out > MEMORY_LIMIT_BYTES
         self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-") if spill else None
         self.mem = None if spill else [None] * n_out
+        self.block = np.empty((n_out, fields, n_pix), np.float32) if block and not spill else None
+
+    def slot(self, i: int) -> tuple[np.ndarray, ...]:
+        """Arrays to compute record ``i`` into, then :meth:`put`: its rows of the block, or new arrays."""
+        if self.block is not None:
+            return tuple(self.block[i])
+        return tuple(np.empty(self.n_pix, np.float32) for _ in range(self.fields))
 
     def put(self, i: int, *arrays: np.ndarray) -> None:
         if len(arrays) != self.fields or any(a.dtype != np.float32 or a.shape != (self.n_pix,) for a in arrays):
             raise ValueError(f"a record is {self.fields} float32 arrays of shape ({self.n_pix},)")
         if self.file is None:
+            if self.block is not None:
+                for k, a in enumerate(arrays):
+                    if a.ctypes.data != self.block[i, k].ctypes.data:  # not computed in place: copy
+                        self.block[i, k] = a
+                arrays = tuple(self.block[i])
             self.mem[i] = arrays
             return
         n = os.pwritev(self.file.fileno(), [np.ascontiguousarray(a) for a in arrays], i * self.rec)
@@ -103,6 +118,7 @@ class _Store:
         if self.file is not None:
             self.file.close()
         self.mem = None
+        self.block = None
 
 
 def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
@@ -166,8 +182,9 @@ def output_times(frame_times_us, t_last_us: int, *, times_us=None, fps=None, t_s
 class _StateEngine:
     """Wraps an :class:`~._engine.AKFEngine` so that each output also keeps L̂ and P."""
 
-    def __init__(self, engine):
+    def __init__(self, engine, dest: Callable[[int], tuple] | None = None):
         self._e = engine
+        self.dest = dest  # t_us -> the (L̂, P) arrays to write that output into; None: new arrays
         self.last = None
 
     def __getattr__(self, name):
@@ -177,8 +194,11 @@ class _StateEngine:
         """L̂ and P at ``t_us`` as float32 (no linear image: the fused one is made later)."""
         e = self._e
         W = e.shape[1]
-        lg = np.empty(e.n, np.float32)
-        var = np.empty(e.n, np.float32)
+        if self.dest is None:
+            lg = np.empty(e.n, np.float32)
+            var = np.empty(e.n, np.float32)
+        else:
+            lg, var = self.dest(int(t_us))
         e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
                                                               lo * W, hi * W), e.n)
         self.last = (lg, var)
@@ -232,12 +252,13 @@ class _CarriedVariance:
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
-              progress: Callable[[int], None] | None, carried: tuple | None = None):
+              progress: Callable[[int], None] | None, carried: tuple | None = None, dest=None):
     """Drive one pass; yield ``(t, L̂, P)`` at ``times`` (those at or after the pass's start).
 
     ``carried = (frame_mids_us, q_event, s_proc_per_s)``: P plus the variance the carried frame
-    has accumulated (:class:`_CarriedVariance`)."""
-    eng = _StateEngine(make_engine())
+    has accumulated (:class:`_CarriedVariance`). ``dest(t)``: the float32 arrays to write the
+    output at t into (default: new arrays for each output)."""
+    eng = _StateEngine(make_engine(), dest)
     acc = None if carried is None else _CarriedVariance(events, *carried)
     try:
         t_init = int(eng.m.times_us[0])
@@ -315,13 +336,14 @@ def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None) -> np.ndarra
 def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, stats):
     """The backward pass into a :class:`_Store`, then the forward pass streaming, fused as it goes."""
     n_pix = shape[0] * shape[1]
-    store = _Store(times.size, n_pix)
+    store = _Store(times.size, n_pix, block=True)  # the backward pass writes into its rows
     stats["spilled_to_disk"] = store.file is not None
     have_b = np.zeros(times.size, bool)
     index = {int(t): i for i, t in enumerate(times)}
     try:
         fr, ev, tms, cv = passes[True]
-        for tr, lg, var in _run_pass(lambda: make_engine(fr, ev, True), ev, tms, chunk_events, progress, cv):
+        for tr, lg, var in _run_pass(lambda: make_engine(fr, ev, True), ev, tms, chunk_events, progress, cv,
+                                     dest=lambda tr: store.slot(index[int(mirror - tr)])):
             i = index[int(mirror - tr)]
             store.put(i, lg, var)
             have_b[i] = True
