@@ -9,12 +9,14 @@ one core, parallel ≥ 1.7× on 2 cores and bit-identical, end to end (container
 300 Hz frames in memory) ≥ 10 Mev/s, CF kernel ≥ 40 Mev/s.
 
 Issue 21 adds: the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
-loop (goal: >= 20 Mev/s with 2 workers and above 1 worker), two PROTOTYPES of proposed hooks in
-files this benchmark does not own (the backward and forward passes run concurrently, and the
-container's columns read with ``hybridhdr.formats._chunk_read``), each checked bit for bit against the
-package; and a 1280x720 case (``synth_events_hd``: 20 M events, 3 M with --quick; blobs, moving
-edges, background) with the forward AKF and CF kernels on one core (30 Hz frame switches
-included, as above; goal AKF >= 20 Mev/s per core) and the two-sided and forward AKF in memory.
+loop (goal: >= 20 Mev/s with 2 workers and above 1 worker; with 2 workers the package runs the
+backward and forward passes at the same time, compared with the two passes in turn, each with
+both workers, through a benchmark-only hook), a PROTOTYPE of a proposed hook in a file this
+benchmark does not own (the container's columns read with ``hybridhdr.formats._chunk_read``),
+each checked bit for bit against the package; and a 1280x720 case (``synth_events_hd``: 20 M
+events, 3 M with --quick; blobs, moving edges, background) with the forward AKF and CF kernels
+on one core (30 Hz frame switches included, as above; goal AKF >= 20 Mev/s per core) and the
+two-sided and forward AKF in memory.
 
 The 2-core VMs this runs on change speed by tens of percent from minute to minute (the host's
 caches are shared with other tenants), so the serial and 2-worker runs are interleaved and the
@@ -189,70 +191,6 @@ def hd_case(n: int, reps: int, res: dict) -> None:
 
 
 
-def concurrent_two_sided_iter(events, frames, make_engine, times, *, offset, chunk_events=1 << 20, progress=None,
-                              info=None, carried_variance=None):
-    """PROTOTYPE of a proposed ``smoother.two_sided_iter`` (not in the package: smoother.py is not
-    this benchmark's to change): the backward and forward passes run at the same time, one
-    thread each (each pass serial), both keep their estimates, and the outputs are fused in time
-    order once both are done. Same arithmetic per pass and the same fusion, so the frames are bit
-    for bit those of the serial two-sided filter (checked by the caller); no per-output thread
-    hand-off, so a busy second core delays only its own pass."""
-    import threading
-
-    from hybridhdr.reconstruct import _kernels as K
-    from hybridhdr.reconstruct import smoother as SM
-    shape = events.shape
-    n_pix = shape[0] * shape[1]
-    t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
-    t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
-    mirror = t_lo + t_hi + 1
-    rev_ev = SM.reverse_events(events, mirror)
-    rev_fr = SM.reverse_frames(frames, mirror)
-    times = np.asarray(times, dtype=np.int64)
-    rev_times = (np.int64(mirror) - times)[::-1]
-    index = {int(t): i for i, t in enumerate(times)}
-    stores = {"b": SM._Store(times.size, n_pix), "f": SM._Store(times.size, n_pix)}
-    have = {"b": np.zeros(times.size, bool), "f": np.zeros(times.size, bool)}
-    errors = []
-
-    def run(key, fr, ev, tms, backward):
-        cv = None if carried_variance is None else (fr.t_mid_us,) + tuple(carried_variance)
-        try:
-            for tt, lg, var in SM._run_pass(lambda: make_engine(fr, ev, backward), ev, tms, chunk_events, progress,
-                                            cv):
-                i = index[int(mirror - tt) if backward else int(tt)]
-                stores[key].put(i, lg, var)
-                have[key][i] = True
-        except BaseException as e:  # noqa: BLE001
-            errors.append(e)
-
-    ths = [threading.Thread(target=run, args=("b", rev_fr, rev_ev, rev_times, True)),
-           threading.Thread(target=run, args=("f", frames, events, times, False))]
-    for th in ths:
-        th.start()
-    for th in ths:
-        th.join()
-    try:
-        if errors:
-            raise errors[0]
-        for i, t in enumerate(times):
-            img = np.empty(n_pix, np.float32)
-            hb, hf = have["b"][i], have["f"][i]
-            if hb and hf:
-                lf, pf = stores["f"].get(i)
-                lb, pb = stores["b"].get(i)
-                K.fuse_to_linear(lf, pf, lb, pb, float(offset), K.MIN_INTENSITY, img)
-            elif hb or hf:
-                l1, p1 = stores["f" if hf else "b"].get(i)
-                K.fuse_to_linear(l1, p1, l1, p1, float(offset), K.MIN_INTENSITY, img)
-            else:
-                continue
-            yield int(t), img.reshape(shape)
-    finally:
-        for st in stores.values():
-            st.close()
-
-
 class _FastColumn:
     """PROTOTYPE of the proposed container-reader hook: slices of an event column read through
     :func:`hybridhdr.formats._chunk_read.read_columns` (ISA-L inflate in 2 threads), h5py otherwise."""
@@ -424,17 +362,24 @@ def main(argv=None) -> int:
                     res[f"end_to_end{tag}_{nw}w_output_frames"] = int(k)
                     print(f"end to end ({mode}{', augmented' if aug else ''}, {nw} worker(s)): "
                           f"{n / el / 1e6:.1f} Mev/s, {k} frames at 300 Hz", file=sys.stderr)
-            # the same file, default AKF, 1 vs 2 workers interleaved in one loop (issue 21), and the
-            # prototype of concurrent passes (a proposed smoother hook), checked bit for bit
+            # the same file, default AKF, 1 vs 2 workers interleaved in one loop (issue 21); with 2
+            # workers also the passes in turn (each with both workers: the package's order before the
+            # concurrent passes, through a benchmark-only hook) and the prototype reader hook, each
+            # checked bit for bit against 1 worker
             import hybridhdr.reconstruct.api as api_mod
+            from hybridhdr.reconstruct import smoother as smoother_mod
 
             from concurrent.futures import ThreadPoolExecutor
             read_pool = ThreadPoolExecutor(2)
 
-            def run_default(nw, concurrent=False, fast_read=False):
+            def passes_in_turn(*a, **kw):
+                kw["n_workers"] = None  # the serial order, engines with all the workers
+                return smoother_mod.two_sided_iter(*a, **kw)
+
+            def run_default(nw, in_turn=False, fast_read=False):
                 orig = api_mod.two_sided_iter
-                if concurrent:
-                    api_mod.two_sided_iter = concurrent_two_sided_iter
+                if in_turn:
+                    api_mod.two_sided_iter = passes_in_turn
                 try:
                     with RecordingFile(path) as f:
                         if fast_read:  # PROTOTYPE of the proposed reader hook (hybridhdr.formats._chunk_read)
@@ -442,36 +387,31 @@ def main(argv=None) -> int:
                         return reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21)
                 finally:
                     api_mod.two_sided_iter = orig
-            ref = run_default(1)
-            proto = run_default(1, concurrent=True)
-            proto2 = run_default(1, concurrent=True, fast_read=True)
-            res["two_sided_concurrent_passes_bit_identical"] = bool(
-                np.array_equal(np.asarray(ref.frames), np.asarray(proto.frames))
-                and np.array_equal(np.asarray(ref.frames), np.asarray(proto2.frames)))
-            walls = {"1w": [], "2w": [], "concurrent_passes": [], "concurrent_passes_parallel_read": []}
+            variants = {"1w": lambda: run_default(1), "2w": lambda: run_default(2),
+                        "2w_passes_in_turn": lambda: run_default(2, in_turn=True),
+                        "2w_parallel_read": lambda: run_default(2, fast_read=True)}
+            ref = np.asarray(variants["1w"]().frames)
+            res["two_sided_workers_bit_identical"] = all(
+                np.array_equal(ref, np.asarray(variants[k]().frames)) for k in variants if k != "1w")
+            walls = {k: [] for k in variants}
             for _ in range(3 if args.quick else 5):
-                for key, fn in (("1w", lambda: run_default(1)), ("2w", lambda: run_default(2)),
-                                ("concurrent_passes", lambda: run_default(1, concurrent=True)),
-                                ("concurrent_passes_parallel_read",
-                                 lambda: run_default(1, concurrent=True, fast_read=True))):
+                for key, fn in variants.items():
                     tt = time.perf_counter()
                     fn()
                     walls[key].append(time.perf_counter() - tt)
             for key, el in walls.items():
                 res[f"default_akf_{key}_mev_s"] = round(n / min(el) / 1e6, 2)
                 res[f"default_akf_{key}_median_mev_s"] = round(n / float(np.median(el)) / 1e6, 2)
-            res["default_akf_2w_over_1w"] = round(min(walls["1w"]) / min(walls["2w"]), 2)
-            res["default_akf_concurrent_passes_over_1w"] = round(min(walls["1w"]) / min(walls["concurrent_passes"]), 2)
-            res["default_akf_concurrent_passes_parallel_read_over_1w"] = round(
-                min(walls["1w"]) / min(walls["concurrent_passes_parallel_read"]), 2)
+            for key in ("2w", "2w_passes_in_turn", "2w_parallel_read"):
+                res[f"default_akf_{key}_over_1w"] = round(min(walls["1w"]) / min(walls[key]), 2)
             read_pool.shutdown()
             print(f"default AKF (two-sided), container -> 300 Hz frames, interleaved: 1 worker "
-                  f"{res['default_akf_1w_mev_s']} Mev/s, 2 workers {res['default_akf_2w_mev_s']} Mev/s "
-                  f"({res['default_akf_2w_over_1w']}x); prototype concurrent passes (2 threads) "
-                  f"{res['default_akf_concurrent_passes_mev_s']} Mev/s ({res['default_akf_concurrent_passes_over_1w']}x, "
-                  f"bit-identical {res['two_sided_concurrent_passes_bit_identical']}); with the parallel chunk read "
-                  f"too {res['default_akf_concurrent_passes_parallel_read_mev_s']} Mev/s "
-                  f"({res['default_akf_concurrent_passes_parallel_read_over_1w']}x)", file=sys.stderr)
+                  f"{res['default_akf_1w_mev_s']} Mev/s, 2 workers (passes at once) {res['default_akf_2w_mev_s']} "
+                  f"Mev/s ({res['default_akf_2w_over_1w']}x); 2 workers, passes in turn "
+                  f"{res['default_akf_2w_passes_in_turn_mev_s']} Mev/s ({res['default_akf_2w_passes_in_turn_over_1w']}x); "
+                  f"2 workers with the prototype parallel chunk read {res['default_akf_2w_parallel_read_mev_s']} Mev/s "
+                  f"({res['default_akf_2w_parallel_read_over_1w']}x); bit-identical "
+                  f"{res['two_sided_workers_bit_identical']}", file=sys.stderr)
             for nw in (1, 2):
                 r = res[f"end_to_end_two_sided_{nw}w_mev_s"] / res[f"end_to_end_forward_{nw}w_mev_s"]
                 res[f"two_sided_over_forward_{nw}w"] = round(r, 2)

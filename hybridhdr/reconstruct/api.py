@@ -431,7 +431,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
 
             engines = []
 
-            def make_engine(fr, ev, backward):
+            def make_engine(fr, ev, backward, n_workers=n_workers):  # a pass's share of the workers
                 pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
                 e = _build_engine(method, pp, shape, fr, "forward", prof, n_workers, None, events=ev,
                                   augment=aug if use_aug else None)[0]
@@ -441,7 +441,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 return e
             yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                       chunk_events=int(chunk_events), progress=progress, info=info,
-                                      carried_variance=p.carried_variance())
+                                      carried_variance=p.carried_variance(), n_workers=int(n_workers))
             if info is not None:
                 info["n_events_used"] = len(events)  # each event by each pass
                 stats = [getattr(e.m, "stats", None) for e in engines]

@@ -28,9 +28,12 @@ Gaussian noise. Assumptions and their limits (docs/reconstruct.md, "Two-sided of
   there): the single filter's estimate is used.
 
 Both passes run the row-band parallel kernels, so the result is bit-identical for any
-``n_workers``. The backward pass runs first and keeps its estimates (float32 L̂ and P, 8 bytes
-per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary file through
-pwrite/pread, so memory stays bounded); the forward pass then streams, fusing as it goes.
+``n_workers``. With one worker the backward pass runs first and keeps its estimates (float32 L̂
+and P, 8 bytes per pixel per output; beyond ``MEMORY_LIMIT_BYTES`` in an unlinked temporary
+file through pwritev/preadv, so memory stays bounded); the forward pass then streams, fusing as
+it goes. With two or more the passes run at the same time, one thread each with half the
+workers, and whichever reaches an output second fuses it (about the same memory, spilled the
+same way); the frames are the same bit for bit.
 """
 
 from __future__ import annotations
@@ -55,40 +58,67 @@ MEMORY_LIMIT_BYTES = 256 << 20
 
 
 class _Store:
-    """Per-output float32 (L̂, P) records of the backward pass: in memory, or in a temporary file."""
+    """Per-output records of ``fields`` float32 arrays of ``n_pix``: in memory, or in a temporary file.
 
-    def __init__(self, n_out: int, n_pix: int):
+    In memory a record is the caller's own arrays, kept by reference (no copy: the passes hand
+    over arrays they allocated for that output and never touch again); with ``block`` the
+    records are rows of one array allocated up front, and a pass writes its estimates straight
+    into the row :meth:`slot` gives it (no copy, and no allocation per output). In a file
+    (``spill``, by default when the records would exceed :data:`MEMORY_LIMIT_BYTES`) they are
+    written straight from the arrays with ``pwritev`` and read into fresh writable arrays with
+    ``preadv``.
+    """
+
+    def __init__(self, n_out: int, n_pix: int, fields: int = 2, spill: bool | None = None, block: bool = False):
         self.n_pix = n_pix
-        self.rec = 8 * n_pix
-        self.file = None
-        if self.rec * n_out > MEMORY_LIMIT_BYTES:
-            self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-")
-            self.mem = None
-        else:
-            self.mem = np.empty((n_out, 2, n_pix), np.float32)
+        self.fields = fields
+        self.rec = 4 * fields * n_pix
+        if spill is None:
+            spill = self.rec * n_out > MEMORY_LIMIT_BYTES
+        self.file = tempfile.TemporaryFile(prefix="hybridhdr-backward-") if spill else None
+        self.mem = None if spill else [None] * n_out
+        self.block = np.empty((n_out, fields, n_pix), np.float32) if block and not spill else None
 
-    def put(self, i: int, lg: np.ndarray, var: np.ndarray) -> None:
+    def slot(self, i: int) -> tuple[np.ndarray, ...]:
+        """Arrays to compute record ``i`` into, then :meth:`put`: its rows of the block, or new arrays."""
+        if self.block is not None:
+            return tuple(self.block[i])
+        return tuple(np.empty(self.n_pix, np.float32) for _ in range(self.fields))
+
+    def put(self, i: int, *arrays: np.ndarray) -> None:
+        if len(arrays) != self.fields or any(a.dtype != np.float32 or a.shape != (self.n_pix,) for a in arrays):
+            raise ValueError(f"a record is {self.fields} float32 arrays of shape ({self.n_pix},)")
         if self.file is None:
-            self.mem[i, 0] = lg
-            self.mem[i, 1] = var
+            if self.block is not None:
+                for k, a in enumerate(arrays):
+                    if a.ctypes.data != self.block[i, k].ctypes.data:  # not computed in place: copy
+                        self.block[i, k] = a
+                arrays = tuple(self.block[i])
+            self.mem[i] = arrays
             return
-        buf = np.concatenate([np.asarray(lg, np.float32), np.asarray(var, np.float32)])
-        n = os.pwrite(self.file.fileno(), buf.tobytes(), i * self.rec)
+        n = os.pwritev(self.file.fileno(), [np.ascontiguousarray(a) for a in arrays], i * self.rec)
         if n != self.rec:
-            raise OSError(f"short write of the backward pass's estimates ({n} of {self.rec} bytes)")
+            raise OSError(f"short write of the two-sided filter's estimates ({n} of {self.rec} bytes)")
 
-    def get(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+    def get(self, i: int) -> tuple[np.ndarray, ...]:
         if self.file is None:
-            return self.mem[i, 0], self.mem[i, 1]
-        b = os.pread(self.file.fileno(), self.rec, i * self.rec)
-        if len(b) != self.rec:
-            raise OSError(f"short read of the backward pass's estimates ({len(b)} of {self.rec} bytes)")
-        a = np.frombuffer(b, np.float32)
-        return a[:self.n_pix], a[self.n_pix:]
+            return self.mem[i]
+        buf = np.empty((self.fields, self.n_pix), np.float32)
+        n = os.preadv(self.file.fileno(), [buf], i * self.rec)
+        if n != self.rec:
+            raise OSError(f"short read of the two-sided filter's estimates ({n} of {self.rec} bytes)")
+        return tuple(buf)
+
+    def drop(self, i: int) -> None:
+        """Forget record ``i`` (in memory: its arrays can be freed)."""
+        if self.file is None:
+            self.mem[i] = None
 
     def close(self) -> None:
         if self.file is not None:
             self.file.close()
+        self.mem = None
+        self.block = None
 
 
 def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
@@ -152,8 +182,9 @@ def output_times(frame_times_us, t_last_us: int, *, times_us=None, fps=None, t_s
 class _StateEngine:
     """Wraps an :class:`~._engine.AKFEngine` so that each output also keeps L̂ and P."""
 
-    def __init__(self, engine):
+    def __init__(self, engine, dest: Callable[[int], tuple] | None = None):
         self._e = engine
+        self.dest = dest  # t_us -> the (L̂, P) arrays to write that output into; None: new arrays
         self.last = None
 
     def __getattr__(self, name):
@@ -163,8 +194,11 @@ class _StateEngine:
         """L̂ and P at ``t_us`` as float32 (no linear image: the fused one is made later)."""
         e = self._e
         W = e.shape[1]
-        lg = np.empty(e.n, np.float32)
-        var = np.empty(e.n, np.float32)
+        if self.dest is None:
+            lg = np.empty(e.n, np.float32)
+            var = np.empty(e.n, np.float32)
+        else:
+            lg, var = self.dest(int(t_us))
         e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
                                                               lo * W, hi * W), e.n)
         self.last = (lg, var)
@@ -218,12 +252,13 @@ class _CarriedVariance:
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,
-              progress: Callable[[int], None] | None, carried: tuple | None = None):
+              progress: Callable[[int], None] | None, carried: tuple | None = None, dest=None):
     """Drive one pass; yield ``(t, L̂, P)`` at ``times`` (those at or after the pass's start).
 
     ``carried = (frame_mids_us, q_event, s_proc_per_s)``: P plus the variance the carried frame
-    has accumulated (:class:`_CarriedVariance`)."""
-    eng = _StateEngine(make_engine())
+    has accumulated (:class:`_CarriedVariance`). ``dest(t)``: the float32 arrays to write the
+    output at t into (default: new arrays for each output)."""
+    eng = _StateEngine(make_engine(), dest)
     acc = None if carried is None else _CarriedVariance(events, *carried)
     try:
         t_init = int(eng.m.times_us[0])
@@ -240,8 +275,8 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
 
 def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.ndarray, *, offset: float,
                    chunk_events: int = 1 << 20, progress: Callable[[int], None] | None = None,
-                   info: dict | None = None, carried_variance: tuple | None = None
-                   ) -> Iterator[tuple[int, np.ndarray]]:
+                   info: dict | None = None, carried_variance: tuple | None = None,
+                   n_workers: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
 
     ``make_engine(frames, events, backward)`` builds a forward :class:`~._engine.AKFEngine` for a
@@ -250,9 +285,17 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     a forward ON event of threshold c_on is a backward OFF event of the same size.
     ``carried_variance = (q_event, s_proc_per_s)``: fuse with each pass's P plus the variance its
     carried frame has accumulated (:class:`_CarriedVariance`); None: P alone.
+
+    ``n_workers`` None or 1: the passes one after the other (the backward pass first, then the
+    forward pass streams, fusing as it goes), with the engines as ``make_engine`` builds them.
+    ``n_workers >= 2``: the two passes run at the same time, one thread each, and
+    ``make_engine(frames, events, backward, n_workers=k)`` gets each pass's share of the row-band
+    workers (the backward pass ``(n_workers + 1) // 2``, the forward pass ``n_workers // 2``);
+    whichever pass reaches an output second fuses it. The first output is ready only when the
+    backward pass has finished, so all outputs come after both passes. Each pass's arithmetic and
+    the fusion are those of the serial order: the frames are the same bit for bit.
     """
     shape = events.shape
-    n_pix = shape[0] * shape[1]
     t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
     t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
     mirror = t_lo + t_hi + 1  # reversed times stay in [t_lo, t_hi]
@@ -260,24 +303,53 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     rev_fr = reverse_frames(frames, mirror)
     times = np.asarray(times, dtype=np.int64)
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
-    store = _Store(times.size, n_pix)
-    spilled = store.file is not None
-    have_b = np.zeros(times.size, bool)
-    index = {int(t): i for i, t in enumerate(times)}
-    n_b = 0
     cv_b = cv_f = None
     if carried_variance is not None:
         cv_b = (rev_fr.t_mid_us,) + tuple(carried_variance)
         cv_f = (frames.t_mid_us,) + tuple(carried_variance)
-    for tr, lg, var in _run_pass(lambda: make_engine(rev_fr, rev_ev, True), rev_ev, rev_times, chunk_events,
-                                 progress, cv_b):
-        i = index[int(mirror - tr)]
-        store.put(i, lg, var)
-        have_b[i] = True
-        n_b += 1
-    n_fused = n_single = n_clamped = n_out = 0
+    passes = {True: (rev_fr, rev_ev, rev_times, cv_b), False: (frames, events, times, cv_f)}
+    stats = {"outputs_fused": 0, "outputs_one_pass": 0, "backward_outputs": 0, "spilled_to_disk": False,
+             "n_clamped": 0, "n_output_pixels": 0}
+    if n_workers is not None and int(n_workers) >= 2:
+        nw = int(n_workers)
+        gen = _concurrent(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress,
+                          {True: (nw + 1) // 2, False: nw // 2}, stats)
+    else:
+        gen = _serial(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress, stats)
+    yield from gen
+    if info is not None:
+        info["two_sided"] = {k: stats[k] for k in ("outputs_fused", "outputs_one_pass", "backward_outputs",
+                                                   "spilled_to_disk")}
+        info["n_clamped"] = stats["n_clamped"]
+        info["n_output_pixels"] = stats["n_output_pixels"]
+
+
+def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None) -> np.ndarray:
+    """The fused linear image (float32, flat) of two pass estimates; counts the clamped pixels."""
+    img = np.empty(lf.shape[0], np.float32)
+    n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
+    if stats is not None:
+        stats["n_clamped"] += n
+    return img
+
+
+def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, stats):
+    """The backward pass into a :class:`_Store`, then the forward pass streaming, fused as it goes."""
+    n_pix = shape[0] * shape[1]
+    store = _Store(times.size, n_pix, block=True)  # the backward pass writes into its rows
+    stats["spilled_to_disk"] = store.file is not None
+    have_b = np.zeros(times.size, bool)
+    index = {int(t): i for i, t in enumerate(times)}
     try:
-        fwd = _run_pass(lambda: make_engine(frames, events, False), events, times, chunk_events, progress, cv_f)
+        fr, ev, tms, cv = passes[True]
+        for tr, lg, var in _run_pass(lambda: make_engine(fr, ev, True), ev, tms, chunk_events, progress, cv,
+                                     dest=lambda tr: store.slot(index[int(mirror - tr)])):
+            i = index[int(mirror - tr)]
+            store.put(i, lg, var)
+            have_b[i] = True
+            stats["backward_outputs"] += 1
+        fr, ev, tms, cv = passes[False]
+        fwd = _run_pass(lambda: make_engine(fr, ev, False), ev, tms, chunk_events, progress, cv)
         nxt = next(fwd, None)
         for i, t in enumerate(times):
             t = int(t)
@@ -286,24 +358,126 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
                 nxt = next(fwd, None)
             else:
                 lf = pf = None
-            img = np.empty(n_pix, np.float32)
             if lf is not None and have_b[i]:
                 lb, pb = store.get(i)
-                n_clamped += K.fuse_to_linear(lf, pf, lb, pb, float(offset), K.MIN_INTENSITY, img)
-                n_fused += 1
+                img = _fuse(lf, pf, lb, pb, offset, stats)
+                stats["outputs_fused"] += 1
             elif lf is not None or have_b[i]:  # one pass only: fusing it with itself is the identity
                 l1, p1 = (lf, pf) if lf is not None else store.get(i)
-                n_clamped += K.fuse_to_linear(l1, p1, l1, p1, float(offset), K.MIN_INTENSITY, img)
-                n_single += 1
+                img = _fuse(l1, p1, l1, p1, offset, stats)
+                stats["outputs_one_pass"] += 1
             else:  # neither pass covers t (no frame at all around it): cannot happen with frames
                 continue
-            n_out += img.size
-            img = img.reshape(shape)
-            yield t, img
+            store.drop(i)
+            stats["n_output_pixels"] += img.size
+            yield t, img.reshape(shape)
     finally:
         store.close()
-    if info is not None:
-        info["two_sided"] = {"outputs_fused": n_fused, "outputs_one_pass": n_single,
-                             "backward_outputs": n_b, "spilled_to_disk": spilled}
-        info["n_clamped"] = n_clamped
-        info["n_output_pixels"] = n_out
+
+
+def _concurrent(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, workers, stats):
+    """Both passes at once, one thread each; the pass that reaches an output second fuses it.
+
+    Per output a bit mask under one lock: 1 the forward estimate is stored, 2 the backward one, 4
+    the fused image is stored. A pass that finds the other's estimate fuses at once; otherwise it
+    stores its own and then marks it, and if the other marked its own in between (both stored,
+    neither saw the other), the later of the two marks fuses. Outputs that one pass only covers
+    are "fused" with themselves at the end, as in the serial order. Memory: the estimates waiting
+    for the other pass plus the images (about the serial order's 8 bytes per pixel per output at
+    most), all in temporary files beyond :data:`MEMORY_LIMIT_BYTES`.
+    """
+    import threading
+
+    n_pix = shape[0] * shape[1]
+    n_out = times.size
+    spill = 8 * n_pix * n_out > MEMORY_LIMIT_BYTES
+    stats["spilled_to_disk"] = spill
+    est = {b: _Store(n_out, n_pix, 2, spill) for b in (True, False)}
+    imgs = _Store(n_out, n_pix, 1, spill)
+    state = np.zeros(n_out, np.uint8)
+    lock = threading.Lock()
+    stop = threading.Event()
+    errors: list = []
+    index = {int(t): i for i, t in enumerate(times)}
+    sub = {True: {"n_clamped": 0, "outputs": 0}, False: {"n_clamped": 0, "outputs": 0}}
+    if progress is not None:
+        plock = threading.Lock()
+        user_progress = progress
+
+        def progress(k):  # noqa: F811 - the passes report from two threads
+            with plock:
+                user_progress(k)
+
+    def run(backward: bool):
+        me, other = (2, 1) if backward else (1, 2)
+        fr, ev, tms, cv = passes[backward]
+        st = sub[backward]
+        eng = engines[backward]
+
+        def fuse_store(i, lg, var, o):
+            lf, pf, lb, pb = (o[0], o[1], lg, var) if backward else (lg, var, o[0], o[1])
+            imgs.put(i, _fuse(lf, pf, lb, pb, offset, st))
+            est[not backward].drop(i)
+            with lock:
+                state[i] |= 4
+        try:
+            for tt, lg, var in _run_pass(lambda: eng, ev, tms, chunk_events, progress, cv):
+                if stop.is_set():
+                    return
+                i = index[int(mirror - tt) if backward else int(tt)]
+                st["outputs"] += 1
+                with lock:
+                    ready = bool(state[i] & other)
+                if ready:
+                    fuse_store(i, lg, var, est[not backward].get(i))
+                    continue
+                est[backward].put(i, lg, var)
+                with lock:
+                    state[i] |= me
+                    late = bool(state[i] & other)
+                if late:
+                    fuse_store(i, lg, var, est[not backward].get(i))
+                    est[backward].drop(i)
+        except BaseException as e:  # noqa: BLE001 - re-raised in the caller's thread
+            errors.append(e)
+            stop.set()
+
+    engines = {}  # built here, backward first as in the serial order (make_engine need not be thread-safe)
+    threads = [threading.Thread(target=run, args=(b,), name=f"hybridhdr-{'backward' if b else 'forward'}-pass")
+               for b in (True, False)]
+    try:
+        for b in (True, False):
+            fr, ev, _, _ = passes[b]
+            engines[b] = make_engine(fr, ev, b, n_workers=workers[b])
+        for th in threads:
+            th.start()
+        for th in threads:
+            th.join()
+        if errors:
+            raise errors[0]
+        stats["backward_outputs"] = sub[True]["outputs"]
+        stats["n_clamped"] = sub[True]["n_clamped"] + sub[False]["n_clamped"]
+        for i, t in enumerate(times):
+            s = int(state[i])
+            if s & 4:
+                img = imgs.get(i)[0]
+                imgs.drop(i)
+                stats["outputs_fused"] += 1
+            elif s & 3:  # one pass only: fusing it with itself is the identity
+                l1, p1 = est[not (s & 1)].get(i)
+                img = _fuse(l1, p1, l1, p1, offset, stats)
+                est[not (s & 1)].drop(i)
+                stats["outputs_one_pass"] += 1
+            else:  # neither pass covers t (no frame at all around it): cannot happen with frames
+                continue
+            stats["n_output_pixels"] += img.size
+            yield int(t), img.reshape(shape)
+    finally:
+        stop.set()
+        for th in threads:
+            if th.ident is not None:
+                th.join()
+        for e in engines.values():
+            e.close()  # idempotent; closed already by its pass unless a pass never started
+        for s in (*est.values(), imgs):
+            s.close()

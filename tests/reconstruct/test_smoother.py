@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import pytest
+from numba import njit
 
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
@@ -215,3 +218,157 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
     off = reconstruct(r, "akf", p.replace(fusion_carried_variance=False), times_us=[46_000]).frames[0, 0]
     assert abs(on[1] - 120 / 255) < abs(off[1] - 120 / 255)
     assert AKFParams.paper().carried_variance() is None and AKFParams.reference_code().carried_variance() is None
+
+
+# -- the faster paths against the serial order, bit for bit ------------------------------------
+
+@njit(cache=False)
+def _fuse_one_loop(l_f, p_f, l_b, p_b, offset, floor, out):
+    """``fuse_to_linear`` as it was written first (one loop per pixel): the reference."""
+    n_cl = 0
+    for i in range(out.shape[0]):
+        pf = np.float64(p_f[i])
+        pb = np.float64(p_b[i])
+        lg = (np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / (pf + pb)
+        v = np.float32(math.exp(lg) - offset)
+        if not v >= floor:
+            v = np.float32(floor)
+            n_cl += 1
+        out[i] = v
+    return n_cl
+
+
+@pytest.mark.parametrize("n", [0, 1, 1023, 1024, 1025, 5000])
+def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
+    from hybridhdr.reconstruct import _kernels as K
+    rng = np.random.default_rng(n)
+    lf = rng.normal(-1, 4, n).astype(np.float32)
+    lb = (lf + rng.normal(0, 1, n)).astype(np.float32)
+    pf = rng.uniform(0, 0.1, n).astype(np.float32)
+    pb = rng.uniform(1e-6, 0.1, n).astype(np.float32)
+    pf[::7] = 0.0
+    lf[::11] = np.nan
+    pb[::13] = np.inf
+    lb[::17] = 200.0  # exp overflows
+    for off in (1.0, 0.0, 1e-3):
+        want = np.full(n, -1.0, np.float32)
+        got = np.full(n, -2.0, np.float32)
+        got_py = np.full(n, -3.0, np.float32)
+        c_want = _fuse_one_loop(lf, pf, lb, pb, off, K.MIN_INTENSITY, want)
+        assert K.fuse_to_linear(lf, pf, lb, pb, off, K.MIN_INTENSITY, got) == c_want
+        with np.errstate(all="ignore"):  # NumPy scalars warn where the kernel silently gives NaN/inf
+            assert K.fuse_to_linear.py_func(lf, pf, lb, pb, off, K.MIN_INTENSITY, got_py) == c_want
+        np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
+        np.testing.assert_array_equal(got_py.view(np.int32), want.view(np.int32))
+
+
+def test_fusion_kernel_raises_on_a_zero_variance_sum_as_the_checked_division_did():
+    from hybridhdr.reconstruct import _kernels as K
+    z = np.zeros(3000, np.float32)
+    pb = np.ones(3000, np.float32)
+    pb[2500] = 0.0
+    for fn in (_fuse_one_loop, K.fuse_to_linear):
+        with pytest.raises(ZeroDivisionError):
+            fn(z, z, z, pb, 1.0, K.MIN_INTENSITY, np.empty(3000, np.float32))
+
+
+def _serial_reference(rec, p, times):
+    """The two-sided filter in the serial order with the first kernels: the backward pass kept in
+    full, then the forward pass fused output by output with the one-loop fusion (one worker)."""
+    from hybridhdr.reconstruct import _kernels as K
+    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.smoother import _run_pass
+    shape = rec.sensor_size.shape
+    ev, fr = EventArrays.from_structured(rec.events, shape), rec.frames
+    m = min(int(ev.t[0]), int(fr.t_start_us[0])) + max(int(ev.t[-1]), int(fr.t_end_us[-1])) + 1
+    q_s = p.carried_variance()
+    rev_p = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on)
+    rf, re = reverse_frames(fr, m), reverse_events(ev, m)
+    mk = lambda pp, f, e: _build_engine("akf", pp, shape, f, "forward", None, 1, None, events=e)[0]  # noqa: E731
+    bwd = {int(m - t): (lg.copy(), var.copy()) for t, lg, var in
+           _run_pass(lambda: mk(rev_p, rf, re), re, (m - times)[::-1], 1 << 20, None, (rf.t_mid_us,) + q_s)}
+    fwd = {int(t): (lg.copy(), var.copy()) for t, lg, var in
+           _run_pass(lambda: mk(p, fr, ev), ev, times, 1 << 20, None, (fr.t_mid_us,) + q_s)}
+    out = []
+    n_clamped = 0
+    for t in times:
+        f, b = fwd.get(int(t)), bwd.get(int(t))
+        f, b = f or b, b or f
+        img = np.empty(shape[0] * shape[1], np.float32)
+        n_clamped += _fuse_one_loop(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
+        out.append(img.reshape(shape))
+    return np.stack(out), n_clamped
+
+
+@pytest.mark.parametrize("n_workers", [1, 2, 3, 4])
+@pytest.mark.parametrize("spill", [False, True])
+def test_two_sided_paths_give_the_serial_orders_bits(monkeypatch, n_workers, spill):
+    """1 worker: the passes in turn; 2 or more: both passes at once (one thread each, the workers
+    shared between them). Every frame is bit for bit the serial reference's, in memory or spilled."""
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(6, h=30, w=11, k=7)
+    rec.frames.images[:, :6] = 0  # black rows and an offset of 1: some outputs clamp (n_clamped)
+    p = AKFParams(intensity_offset=1.0)
+    times = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=700.0)
+    assert times[-1] > rec.frames.t_mid_us[-1]  # some outputs after the last frame: the forward pass only
+    want, n_clamped = _serial_reference(rec, p, times)
+    if spill:
+        monkeypatch.setattr(sm, "MEMORY_LIMIT_BYTES", 1)
+    v = reconstruct(rec, "akf", p, times_us=times, n_workers=n_workers)
+    np.testing.assert_array_equal(v.frames.view(np.int32), want.view(np.int32))
+    ts = v.info["two_sided"]
+    assert ts["spilled_to_disk"] == spill
+    n_after = int(np.sum(times > rec.frames.t_mid_us[-1]))
+    assert (ts["outputs_one_pass"], ts["outputs_fused"]) == (n_after, times.size - n_after)
+    assert v.info["n_output_pixels"] == want.size
+    assert v.info["n_clamped"] == n_clamped > 0
+
+
+def test_concurrent_passes_storing_the_same_output_at_once_fuse_it_once(monkeypatch):
+    """Both passes reach one output together, neither finds the other's estimate, both store
+    theirs: the later mark fuses it (forced with a barrier in the store); the same bits."""
+    import threading
+
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(7, h=12, w=9)
+    times = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=400.0)
+    k = times.size // 2
+    bar = threading.Barrier(2)
+    met = []
+    put = sm._Store.put
+
+    def put_meeting(self, i, *a):
+        if self.fields == 2 and i == k:
+            bar.wait(timeout=20)  # both passes at output k before either marks it
+            met.append(i)
+        put(self, i, *a)
+    monkeypatch.setattr(sm._Store, "put", put_meeting)
+    got = reconstruct(rec, "akf", times_us=times, n_workers=2)
+    assert met == [k, k]
+    np.testing.assert_array_equal(got.frames, _serial_reference(rec, AKFParams(), times)[0])
+
+
+def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call(monkeypatch):
+    import threading
+
+    import hybridhdr.reconstruct.smoother as sm
+    rec = _rec(8)
+    before = threading.active_count()
+
+    def boom(self, t_us, var):
+        raise RuntimeError("boom in a pass")
+    monkeypatch.setattr(sm._CarriedVariance, "add_to", boom)
+    with pytest.raises(RuntimeError, match="boom in a pass"):
+        reconstruct(rec, "akf", fps=300.0, n_workers=2)
+    assert threading.active_count() == before
+
+
+def test_augmented_two_sided_passes_at_once_give_the_same_frames_and_stats():
+    """Frame augmentation (EDI deblur and calibration per pass) with the passes at once: the same
+    frames and the same per-pass statistics, each under its own pass."""
+    rec = _rec(6, h=30, w=11, k=7)
+    thr = (np.full((30, 11), 0.12), np.full((30, 11), 0.2))
+    a = reconstruct(rec, "akf", fps=500.0, augment=True, n_workers=1, thresholds=thr)
+    b = reconstruct(rec, "akf", fps=500.0, augment=True, n_workers=2, thresholds=thr)
+    np.testing.assert_array_equal(a.frames, b.frames)
+    assert a.info["augmentation"] == b.info["augmentation"] and "backward" in a.info["augmentation"]
