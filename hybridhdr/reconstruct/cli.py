@@ -70,7 +70,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
                    help="declare the frames' encoding (default: as the recording states)")
     add_time_window(p, "outputs")
-    p.add_argument("--workers", type=positive_int, default=1, help="threads for the row-band parallel kernels")
+    p.add_argument("--workers", type=positive_int, default=1,
+                   help="threads for the row-band parallel kernels (the two-sided AKF with >= 2 runs its backward and "
+                        "forward passes at once, each with half); the output is the same bit for bit")
     p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
