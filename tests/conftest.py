@@ -23,3 +23,15 @@ def shared_file(rel: str) -> Path:
 def shared_data():
     """Callable fixture: ``shared_data("prophesee/evt3_sample.raw")`` -> Path, or skip."""
     return shared_file
+
+
+@pytest.fixture(scope="module")
+def procedural_rec_file(tmp_path_factory):
+    """``(path, recording)``: a 100 ms procedural recording (seed 4) written to a container, once
+    per test module (the CLI tests read it as users' input)."""
+    from hybridhdr.formats.container import write_recording
+    from hybridhdr.simulate.procedural import procedural_recording
+    rec, _ = procedural_recording(duration_us=100_000, seed=4)
+    p = tmp_path_factory.mktemp("rec") / "src.h5"
+    write_recording(rec, p)
+    return p, rec

@@ -45,20 +45,10 @@ def _run_json(capsys, *argv, rc=0):
 
 # -- capture ------------------------------------------------------------------------------------
 
-@pytest.fixture(scope="module")
-def rec_file(tmp_path_factory):
-    from hybridhdr.container import write_recording
-    from hybridhdr.simulate.procedural import procedural_recording
-    rec, _ = procedural_recording(duration_us=100_000, seed=4)
-    p = tmp_path_factory.mktemp("json") / "src.h5"
-    write_recording(rec, p)
-    return p, rec
-
-
-def test_capture_record_recover_session_json(rec_file, tmp_path, capsys):
+def test_capture_record_recover_session_json(procedural_rec_file, tmp_path, capsys):
     from hybridhdr.capture.recorder import Recorder, journal_path
     from hybridhdr.capture.sources import SyntheticEventSource
-    src, rec = rec_file
+    src, rec = procedural_rec_file
     out = tmp_path / "r.h5"
     res, err = _run_json(capsys, "capture", "record", "--events", src, "--frames", src, "--out", out,
                          "--pace", "fast", "--no-progress")

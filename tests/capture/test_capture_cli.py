@@ -13,15 +13,6 @@ from hybridhdr.capture.sources import SyntheticEventSource
 from hybridhdr.cli import main
 from hybridhdr.formats.container import read_recording, write_recording
 from hybridhdr.model import Frames, Recording
-from hybridhdr.simulate.procedural import procedural_recording
-
-
-@pytest.fixture(scope="module")
-def rec_file(tmp_path_factory):
-    rec, _ = procedural_recording(duration_us=100_000, seed=4)
-    p = tmp_path_factory.mktemp("cli") / "src.h5"
-    write_recording(rec, p)
-    return p, rec
 
 
 @pytest.mark.parametrize("argv", [
@@ -38,8 +29,8 @@ def test_device_commands_without_hardware(argv, tmp_path, capsys):
     assert not list(tmp_path.iterdir())  # nothing half-written
 
 
-def test_record_replay(rec_file, tmp_path, capsys):
-    src, rec = rec_file
+def test_record_replay(procedural_rec_file, tmp_path, capsys):
+    src, rec = procedural_rec_file
     out = tmp_path / "r.h5"
     assert main(["capture", "record", "--events", str(src), "--frames", str(src), "--out", str(out),
                  "--pace", "fast", "--no-progress", "--flush-interval-s", "0.05"]) == 0
@@ -108,8 +99,8 @@ def test_brackets_list_file_rewrite_and_plot(tmp_path, capsys):
     assert (tmp_path / "sheet.png").stat().st_size > 1000
 
 
-def test_session_cli(rec_file, tmp_path, capsys):
-    src, _ = rec_file
+def test_session_cli(procedural_rec_file, tmp_path, capsys):
+    src, _ = procedural_rec_file
     assert main(["capture", "session", str(tmp_path / "seq"), "--recording", str(src)]) == 0
     assert main(["capture", "session", "--verify", str(tmp_path / "seq")]) == 0
     assert capsys.readouterr().out.strip().endswith("OK")
