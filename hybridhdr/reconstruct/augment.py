@@ -380,12 +380,6 @@ class AugmentedMeasurements:
         self._cbar = 0.5 * (np.asarray(c_on, np.float64) + np.asarray(c_off, np.float64))
         self._cdelta = 0.5 * (np.asarray(c_on, np.float64) - np.asarray(c_off, np.float64))
 
-    def _con_arr(self):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(self.c_on, np.float64), (self.n,)))
-
-    def _coff_arr(self):
-        return np.ascontiguousarray(np.broadcast_to(np.asarray(self.c_off, np.float64), (self.n,)))
-
     def _inc(self, signed, total):
         """The nominal log change ``c_on N_on - c_off N_off`` of ``signed`` = N_on - N_off and
         ``total`` = N_on + N_off events (``c Σσ`` when the thresholds are one scalar)."""
@@ -452,7 +446,7 @@ class AugmentedMeasurements:
         mid_sg, mid_tot = self.events.counts(a, int(self.tau[k])) if b > a else (np.zeros_like(cnt), np.zeros_like(tot))
         if self.params.deblur and b > a:
             c = self.c
-            thr = (self._con_arr(), self._coff_arr()) if self._asym else None
+            thr = (self.c_on, self.c_off) if self._asym else None  # edi_integral broadcasts scalars
             if self.params.search_threshold:  # one searched c for both polarities
                 c, _ = estimate_threshold(seg.intensity, self.events, a, b,
                                           bounds=(self.params.threshold_min, self.params.threshold_max),
@@ -493,18 +487,19 @@ class AugmentedMeasurements:
         else:
             f1 = self._frame(k + 1)
             g, gt = self.events.counts(int(self.te[k]), int(self.ts[k + 1]))
-            nominal = np.ascontiguousarray(self._inc(fk.cnt + g + f1.cnt, fk.tot + gt + f1.tot), dtype=np.float64)
+            net, total = fk.cnt + g + f1.cnt, fk.tot + gt + f1.tot
+            nominal = np.ascontiguousarray(self._inc(net, total), dtype=np.float64)
             scale = np.empty(self.n)
             cat = np.empty(self.n, np.int64)
             AK.calibrate_scale(np.ascontiguousarray(f1.lde - fk.lds, dtype=np.float64), nominal,
-                               (fk.tot + gt + f1.tot) != 0, float(self.params.calibration_scale_min),
+                               total != 0, float(self.params.calibration_scale_min),
                                float(self.params.calibration_scale_max), scale, cat)
             # too few net events: eq. 12's ratio is mostly the thresholds' quantisation of the two
             # ends (each end's sub-threshold residual is uniform over one threshold, so 1/r is off
             # by about 1/(√6 |Σσ|)), not the threshold error it is meant to correct
             m = self.params.calibration_min_events
             if m > 0:
-                few = (cat == 0) & (np.abs(fk.cnt + g + f1.cnt) < m)
+                few = (cat == 0) & (np.abs(net) < m)
                 scale = np.where(few, 1.0, scale)
                 cat = np.where(few, CALIBRATION_CATEGORIES.index("too_few_events"), cat)
             # a clipped end is a bound, not a value: ΔL^D says nothing there, keep c

@@ -89,7 +89,7 @@ def edi_integral(events: EventArrays, t_start_us: int, t_end_us: int, contrast_t
                  thresholds=None):
     """J = (1/T) ∫_{t_s}^{t_e} exp(c E(t)) dt per pixel, and the signed count over the exposure.
 
-    ``thresholds = (c_on, c_off)`` (float64 arrays of shape (H*W,)): ON and OFF events step the
+    ``thresholds = (c_on, c_off)`` (scalars or float64 arrays of shape (H*W,)): ON and OFF events step the
     log intensity by their own thresholds, ``exp(c_on N_on(t) - c_off N_off(t))``, and
     ``contrast_threshold`` is unused.
 
