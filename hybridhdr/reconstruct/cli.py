@@ -47,14 +47,17 @@ def add_parser(subparsers) -> None:
     p.add_argument("--cutoff-hz", type=positive_float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
     a.add_argument("--augmentation", action="store_true",
-                   help="use the augmented frame (EDI deblurring, eq. 12 calibration) as the measurement")
+                   help="use the augmented frame (EDI deblurring, event interpolation) as the measurement")
     a.add_argument("--no-augmentation", action="store_true",
                    help="plain frames (the default)")
     a.add_argument("--no-deblur", action="store_true", help="skip EDI deblurring of the frames")
     a.add_argument("--no-interpolation", action="store_true",
                    help="hold the (deblurred) frame instead of interpolating with events (eqs. 10, 11, 13)")
+    a.add_argument("--calibration", action="store_true",
+                   help="interpolate with per-pixel thresholds calibrated by eq. 12 (off by default: measured "
+                        "not to pay, see AugmentParams.calibrate)")
     a.add_argument("--no-calibration", action="store_true",
-                   help="interpolate with the nominal threshold (no per-pixel eq. 12)")
+                   help="interpolate with the nominal threshold (no per-pixel eq. 12; the default)")
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
     p.add_argument("--thresholds", type=Path, default=None,
@@ -159,7 +162,7 @@ def build_augment(args):
         if isinstance(t, dict):
             d["enabled"] = True  # an [augment] table asks for augmentation unless it says otherwise
             d.update(t)
-    if args.augmentation or args.no_deblur or args.no_interpolation or args.no_calibration:
+    if args.augmentation or args.no_deblur or args.no_interpolation or args.no_calibration or args.calibration:
         d["enabled"] = True
     if args.no_augmentation:
         d["enabled"] = False
@@ -167,6 +170,8 @@ def build_augment(args):
         d["deblur"] = False
     if args.no_interpolation:
         d["interpolate"] = False
+    if args.calibration:
+        d["calibrate"] = True
     if args.no_calibration:
         d["calibrate"] = False
     return AugmentParams.from_dict(d)

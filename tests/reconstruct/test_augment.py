@@ -70,7 +70,7 @@ def test_calibration_kernel_matches_py_func():
 
 
 #: the paper's augmentation: EDI and eq. 12 at every pixel, A_k anchored at L^D(s_k) (eq. 10 as written)
-PAPER_FORM = {"deblur_min_events": 0, "interpolation_anchor": "start", "calibration_min_events": 0}
+PAPER_FORM = {"deblur_min_events": 0, "interpolation_anchor": "start", "calibration_min_events": 0, "calibrate": True}
 
 
 def _provider(rec, I0=DEFAULT_INTENSITY_OFFSET, **aug):
@@ -119,7 +119,7 @@ def test_forward_backward_agree_on_noise_free_data(I0):
     ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
     m = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
                               akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False, intensity_offset=I0),
-                              params=AugmentParams(calibrate=False, **PAPER_FORM))
+                              params=AugmentParams(**{**PAPER_FORM, "calibrate": False}))
     lds0 = m._frame(0).lds
     lde1 = m._frame(1).lde
     for t in (0, 3_500, 8_000, 14_500, 20_000, 27_999):
@@ -207,7 +207,8 @@ def test_akf_offline_augmented_beats_zero_order_hold(preset):
     rec8 = _codes(rec, gain=1.0)
     times = np.arange(6_000, 46_000, 1_000, dtype=np.int64) + 500
     gt = np.stack([truth(t) for t in times])
-    va = reconstruct(rec8, "akf", p, times_us=times, augment=AugmentParams(enabled=True, deblur_min_events=0))
+    va = reconstruct(rec8, "akf", p, times_us=times,
+                     augment=AugmentParams(enabled=True, deblur_min_events=0, calibrate=True))
     vz = reconstruct(rec8, "akf", p, times_us=times, augment=False)
     # the default deblurs only pixels with >= n* = 9 events in the exposure (c = 0.1; at most 10
     # here): it gives up most of EDI's gain on these exact steps (1.2e-3 against 2e-6 on the
@@ -251,6 +252,8 @@ def test_cli_flags(tmp_path):
     args = ap.parse_args(["reconstruct", "x.aedat4", "--out", str(tmp_path), "--no-deblur", "--no-calibration"])
     assert cli.build_augment(args) == AugmentParams(enabled=True, deblur=False, calibrate=False)
     assert aug("--no-interpolation") == AugmentParams(enabled=True, interpolate=False)
+    assert aug("--calibration") == AugmentParams(enabled=True, calibrate=True)
+    assert AugmentParams().calibrate is False  # eq. 12 measured not to pay (AugmentParams docstring)
     assert aug("--no-augmentation", "--no-interpolation").enabled is False
     assert aug("--augmentation", "--no-augmentation").enabled is False
     assert aug("--no-augmentation").enabled is False
@@ -267,7 +270,8 @@ def test_default_anchor_and_sharp_fallback():
     rec, _ = shifted_sequence(c=0.2)
     ev = EventArrays.from_structured(rec.events, rec.sensor_size.shape)
     kw = dict(akf_params=AKFParams(contrast_threshold=0.2, bias_correction=False))
-    m = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN, params=AugmentParams(enabled=True), **kw)
+    m = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
+                              params=AugmentParams(enabled=True, calibrate=True), **kw)
     mp = AugmentedMeasurements(rec.frames, ev, rec.sensor_size.shape, LIN,
                                params=AugmentParams(enabled=True, **PAPER_FORM), **kw)
     k, tau = 0, int(rec.frames.t_mid_us[0])
@@ -328,7 +332,7 @@ def test_calibration_with_on_and_off_thresholds():
     def provider(con, coff):
         # net count 6 - 3 = 3: below the default calibration_min_events (5), so calibrate as the paper
         return AugmentedMeasurements(rec.frames, ea, (1, 1), LIN,
-                                     params=AugmentParams(enabled=True, calibration_min_events=0),
+                                     params=AugmentParams(enabled=True, calibrate=True, calibration_min_events=0),
                                      akf_params=AKFParams(contrast_threshold_on=con, contrast_threshold_off=coff,
                                                           bias_correction=False, intensity_offset=I0))
     m = provider(c_on / 1.5, c_off / 1.5)
@@ -381,3 +385,33 @@ def test_calibration_needs_enough_net_events():
     assert AugmentParams().calibration_min_events == 5
     with pytest.raises(ValueError, match="calibration_min_events"):
         AugmentParams(calibration_min_events=-1)
+
+
+def test_clipped_frame_keeps_previous_value_before_its_mid_exposure():
+    """Inside exposure k before τ_k, a pixel that frame k clips but frame k-1 saw keeps
+    A_{k-1} (frame k-1's value carried by the events) as a value where it satisfies frame k's
+    bound, and the bound where it violates it. Frame 0 sees code 50 of 100 at both pixels, frame
+    1 clips both (code 100); pixel 0 rose by 5 ON events of 0.2 (50 e = 136 >= 100: kept as a
+    value, frame 0's log value plus 1.0), pixel 1 by one (50 e^0.2 = 61 < 100: the value is
+    wrong, the bound is kept)."""
+    c = 0.2
+    t_ev = np.array([20, 30, 30, 40, 50, 60], np.int64) * 1000
+    x = np.array([0, 0, 1, 0, 0, 0])
+    ev = make_events(t_ev, x, np.zeros(6), np.ones(6))
+    codes = np.array([[[50, 50]], [[100, 100]]], np.uint8)
+    fr = Frames(codes, np.array([0, 100_000], np.int64), np.array([10_000, 110_000], np.int64), encoding="linear")
+    rec = Recording(ev, SensorSize(1, 2), fr)
+    ea = EventArrays.from_structured(rec.events, (1, 2))
+    I0 = DEFAULT_INTENSITY_OFFSET
+    m = AugmentedMeasurements(rec.frames, ea, (1, 2), LIN, params=AugmentParams(enabled=True),
+                              akf_params=AKFParams(contrast_threshold=c, bias_correction=False, intensity_offset=I0))
+    inside = [i for i in range(len(m)) if 100_000 <= int(m.times_us[i]) < 105_000]
+    assert inside, "no segment inside exposure 1 before its mid-exposure"
+    for i in inside:
+        seg = m.segment(i)
+        np.testing.assert_array_equal(seg.censor, [0, 1])
+        assert seg.log_frame[0] == pytest.approx(m._fm_segment(0).log_frame[0] + 5 * c, abs=1e-12)
+        assert seg.la_step[0] == pytest.approx(c)
+    after = [i for i in range(len(m)) if int(m.times_us[i]) >= 105_000]
+    np.testing.assert_array_equal(m.segment(after[0]).censor, [1, 1])  # from τ_1 on: frame 1's bound
+    assert m.stats.pixels_censor_kept_value == len(inside)
