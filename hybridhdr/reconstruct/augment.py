@@ -636,12 +636,13 @@ class AugmentedMeasurements:
                 # events, as a value, wherever it satisfies frame k's bound; where it violates the
                 # bound, the value is wrong and the bound is kept
                 ap, sp, cp = prev
-                use = cz if cp is None else cz & (cp == 0)
-                use &= cens * (ap - la) >= 0.0
+                use = cz & (cens * (ap - la) >= 0.0)  # a new array: cz is updated from it below
+                if cp is not None:
+                    use &= cp == 0
                 if np.any(use):
                     la = np.where(use, ap, la)
                     step = np.where(use, sp, step)
-                    cens = np.where(use, 0, cens).astype(cens.dtype)
+                    cens = np.where(use, cens.dtype.type(0), cens)  # a copy: fseg.censor is cached
                     cz &= ~use
                     self.stats.pixels_censor_kept_value += int(np.count_nonzero(use))
             self.stats.pixels_censored += int(np.count_nonzero(cz))
