@@ -188,6 +188,10 @@ def hd_case(n: int, reps: int, res: dict) -> None:
     res["hd_akf_switch_ms"] = round(runs["akf_switch"][b] / n_sw * 1e3, 2)
     res["hd_akf_switch_share"] = round(runs["akf_switch"][b] / runs["akf"][b], 3)
     res["hd_cf_kernel_mev_s"] = round(n / min(runs["cf"]) / 1e6, 2)
+    # is the switch bound by memory or by arithmetic? the same kernel on a state that fits in L2
+    # (8 000 pixels, 0.5 MB) and on the full 1280x720 state (56 MB)
+    for key, npx in (("l2_resident", 8000), ("full", HD_H * HD_W)):
+        res[f"hd_switch_ns_per_px_{key}"] = round(switch_ns_per_px(npx), 2)
     res["hd_two_sided_in_memory_mev_s"] = round(n / min(runs["two_sided"]) / 1e6, 2)
     res["hd_forward_in_memory_mev_s"] = round(n / min(runs["forward"]) / 1e6, 2)
     res["hd_two_sided_outputs"] = int(k)
@@ -196,10 +200,39 @@ def hd_case(n: int, reps: int, res: dict) -> None:
           f"{res['hd_akf_kernel_mev_s']} Mev/s (thread CPU {res['hd_akf_kernel_cpu_mev_s']}; "
           f"{res['hd_akf_over_346x260']}x the 346x260 figure; event updates alone "
           f"{res['hd_akf_event_updates_mev_s']} Mev/s, {res['hd_akf_switch_ms']} ms per frame switch, "
-          f"{100 * res['hd_akf_switch_share']:.0f} % of the time), CF kernel {res['hd_cf_kernel_mev_s']} Mev/s, "
+          f"{100 * res['hd_akf_switch_share']:.0f} % of the time; a switch costs {res['hd_switch_ns_per_px_full']} ns "
+          f"per pixel on the full state, {res['hd_switch_ns_per_px_l2_resident']} with the state in L2), CF kernel {res['hd_cf_kernel_mev_s']} Mev/s, "
           f"two-sided AKF in memory {res['hd_two_sided_in_memory_mev_s']} Mev/s, forward in memory "
           f"{res['hd_forward_in_memory_mev_s']} Mev/s ({k} outputs at 30 Hz; 1 worker)", file=sys.stderr)
 
+
+
+def switch_ns_per_px(n_pix: int, seed: int = 0) -> float:
+    """ns per pixel of one frame switch (``akf_switch_lut``: propagate to the segment's end, load
+    the next segment from 8-bit codes) on a synthetic state of ``n_pix`` pixels, half of them with
+    an interpolated R (β != 0: eq. 7's integral takes a ``log1p``); best of 5, restored each time."""
+    from hybridhdr.reconstruct import _kernels as K
+    rng = np.random.default_rng(seed)
+    S = K.aligned_state(n_pix, K.AKF_FIELDS)
+    S[:, K.A_L] = rng.normal(0, 1, n_pix)
+    S[:, K.A_P] = 0.01
+    S[:, K.A_LA] = 0.3
+    S[:, K.A_RINV] = 50.0
+    S[:, K.A_BETA] = np.where(rng.random(n_pix) < 0.5, 0.3, 0.0)
+    S[:, K.A_TU] = rng.uniform(0, 1000, n_pix)
+    S[:, K.A_KLOG] = np.where(S[:, K.A_BETA] != 0, 0.02, 0.0)
+    code = rng.integers(0, 256, n_pix).astype(np.uint8)
+    code_next = rng.integers(0, 256, n_pix).astype(np.uint8)
+    rbar, logf, rinv = np.linspace(1, 2, 256), np.linspace(-5, 0, 256), np.linspace(10, 100, 256)
+    S0 = S.copy()
+    best = float("inf")
+    for _ in range(5):
+        S[:] = S0
+        tt = time.perf_counter()
+        K.akf_switch_lut(S, True, 0.0, 1e-5, 30000.0, code, code_next, 255, rbar, logf, rinv, rinv[:0], 0.0,
+                         0.033, False, 0.0, 0, n_pix)
+        best = min(best, time.perf_counter() - tt)
+    return best / n_pix * 1e9
 
 
 class _FastColumn:

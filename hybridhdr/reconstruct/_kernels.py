@@ -460,6 +460,32 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
     return pix_hi - pix_lo
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _output_pixel(S, pix, seg_t0, seg_inv_t, t_out):
+    """(L̂, P) of pixel ``pix`` at ``t_out`` µs in closed form (eqs. 17, 20), the state unchanged;
+    P of a censored pixel is its held P (a bound moves L̂, not P).
+
+    The same operations as :func:`_pull_integral` followed by the propagation, arranged for the
+    output loops: the fields are loaded once, and for R held (β = 0, most pixels) whether a
+    bound holds is a select rather than a branch (data dependent: its mispredictions cost more
+    than the product), 20-25 % less time per 346x260 image. Same bits.
+    """
+    beta = S[pix, A_BETA]
+    kl = S[pix, A_KLOG]
+    lh = S[pix, A_L]
+    lav = S[pix, A_LA]
+    pp = S[pix, A_P]
+    rinv = S[pix, A_RINV]
+    tu0 = S[pix, A_TU]
+    held = rinv * ((t_out - tu0) * US)
+    integ = 0.0 if kl * (lh - lav) > 0.0 else held
+    if beta != 0.0:
+        integ = rinv_integral(rinv, beta, kl, tu0, t_out, seg_t0, seg_inv_t)
+    d = 1.0 / (1.0 + pp * integ)
+    cens = (beta == 0.0) & (kl != 0.0)
+    return lav + (lh - lav) * d, (pp if cens else pp * d)
+
+
 @njit(cache=True, nogil=True)
 def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, pix_hi):
     """State at ``t_out`` µs in closed form (eqs. 17, 20) without changing it.
@@ -472,16 +498,12 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, p
     want_log = out_log.shape[0] > 0
     want_var = out_var.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        integ = _pull_integral(S, pix, t_out, seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + S[pix, A_P] * integ)
-        lav = S[pix, A_LA]
-        lhat = lav + (S[pix, A_L] - lav) * d
+        lhat, pv = _output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
         out_l32[pix] = np.float32(lhat)
         if want_log:
             out_log[pix] = lhat
         if want_var:
-            cens = S[pix, A_BETA] == 0.0 and S[pix, A_KLOG] != 0.0
-            out_var[pix] = S[pix, A_P] if cens else S[pix, A_P] * d
+            out_var[pix] = pv
     return pix_hi - pix_lo
 
 
@@ -507,58 +529,64 @@ def akf_output_state32(S, seg_t0, seg_inv_t, t_out, out_l, out_p, pix_lo, pix_hi
     the state: the two-sided filter's per-pass estimates (:mod:`..smoother`). P of a censored
     pixel is its held P, as :func:`akf_output`."""
     for pix in range(pix_lo, pix_hi):
-        integ = _pull_integral(S, pix, t_out, seg_t0, seg_inv_t)
-        d = 1.0 / (1.0 + S[pix, A_P] * integ)
-        lav = S[pix, A_LA]
-        out_l[pix] = np.float32(lav + (S[pix, A_L] - lav) * d)
-        cens = S[pix, A_BETA] == 0.0 and S[pix, A_KLOG] != 0.0
-        out_p[pix] = np.float32(S[pix, A_P] if cens else S[pix, A_P] * d)
+        lhat, pv = _output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
+        out_l[pix] = np.float32(lhat)
+        out_p[pix] = np.float32(pv)
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True, error_model="numpy")
-def fuse_to_linear(l_f, p_f, l_b, p_b, offset, floor, out):
-    """Two-filter fusion per pixel, then ``exp(L̂) - offset`` clamped at ``floor`` (float32 ``out``).
+def fuse_log32(l_f, p_f, l_b, p_b, out):
+    """Two-filter fusion per pixel into float32 ``out``: ``L̂ = (L_f P_b + L_b P_f)/(P_f + P_b)``.
 
-    ``L̂ = (L_f P_b + L_b P_f)/(P_f + P_b)`` in float64 from the float32 pass estimates (exactly
-    symmetric in the two passes); NaN or values below ``floor`` become ``floor``. Returns the
-    number of clamped pixels.
-
-    Two loops per block of :data:`FUSE_BLOCK` pixels: the weighting alone, which LLVM vectorises
-    (with the scalar ``exp`` call in the same loop the divisions ran one at a time: twice the
-    time at 346x260), into a float64 scratch block that stays in L1, then ``exp``, offset and
-    clamp. Each pixel goes through the same IEEE operations in the same order as in one loop
-    (no fast-math, so nothing is contracted or reassociated): the same bits. The division has no
-    per-pixel zero check (``error_model="numpy"``: a branch out of the loop would stop the
-    vectorisation); a zero ``P_f + P_b`` is counted in the loop and raises ZeroDivisionError
-    after it, as the checked division did.
+    Computed in float64 from the float32 pass estimates (exactly symmetric in the two passes),
+    then rounded to float32, as the forward filter rounds L̂ before its exp
+    (:func:`akf_output`): a pixel both passes give the same (L, P) fuses to that L's bits. The
+    division has no per-pixel zero check (``error_model="numpy"``: a branch out of the loop would
+    stop LLVM vectorising it); a zero ``P_f + P_b`` is counted in the loop and raises
+    ZeroDivisionError after it, as a checked division would.
     """
-    n = out.shape[0]
-    tmp = np.empty(min(n, FUSE_BLOCK), np.float64)
+    n_zero = 0
+    for i in range(out.shape[0]):
+        pf = np.float64(p_f[i])
+        pb = np.float64(p_b[i])
+        den = pf + pb
+        n_zero += den == 0.0
+        out[i] = np.float32((np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / den)
+    if n_zero:
+        raise ZeroDivisionError("fuse_log32: P_f + P_b is 0")
+    return out.shape[0]
+
+
+@njit(cache=True, nogil=True)
+def offset_clamp(a, offset, floor):
+    """In place: ``a - offset`` in single precision, NaN or values below ``floor`` set to it;
+    returns how many were clamped (one pass, no temporary)."""
+    off = np.float32(offset)
+    fl = np.float32(floor)
     n_cl = 0
-    for b0 in range(0, n, FUSE_BLOCK):
-        m = min(FUSE_BLOCK, n - b0)
-        n_zero = 0
-        for j in range(m):
-            i = b0 + j
-            pf = np.float64(p_f[i])
-            pb = np.float64(p_b[i])
-            den = pf + pb
-            n_zero += den == 0.0
-            tmp[j] = (np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / den
-        if n_zero:
-            raise ZeroDivisionError("fuse_to_linear: P_f + P_b is 0")
-        for j in range(m):
-            v = np.float32(math.exp(tmp[j]) - offset)
-            if not v >= floor:
-                v = np.float32(floor)
-                n_cl += 1
-            out[b0 + j] = v
+    for i in range(a.shape[0]):
+        v = a[i] - off
+        bad = not (v >= fl)
+        n_cl += bad
+        a[i] = fl if bad else v
     return n_cl
 
 
-#: Pixels per block of :func:`fuse_to_linear` (its float64 scratch: 8 KiB, in L1).
-FUSE_BLOCK = 1024
+def fuse_to_linear(l_f, p_f, l_b, p_b, offset, floor, out) -> int:
+    """Two-filter fusion, then ``exp(L̂) - offset`` clamped at ``floor``, into float32 ``out``;
+    returns the number of clamped pixels.
+
+    :func:`fuse_log32` (the weighting, vectorised by LLVM), then numpy's vectorised float32
+    ``exp`` in place and :func:`offset_clamp`: the same single-precision exp as the forward
+    filter's outputs (:func:`log_to_linear`), so a fused output and a forward output of the
+    same L̂ have the same bits. A scalar float64 ``exp`` per pixel took 3.6x as long at 346x260
+    (0.64 vs 0.18 ms per image); the float32 exp's relative error, a few 1e-7, is the output's
+    own precision.
+    """
+    fuse_log32(l_f, p_f, l_b, p_b, out)
+    np.exp(out, out=out)
+    return int(offset_clamp(out, offset, floor))
 
 
 def log_to_linear(a: np.ndarray, offset: float) -> np.ndarray:

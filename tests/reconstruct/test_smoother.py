@@ -2,11 +2,9 @@
 
 from __future__ import annotations
 
-import math
 
 import numpy as np
 import pytest
-from numba import njit
 
 from hybridhdr.events import EVENT_DTYPE, SensorSize
 from hybridhdr.model import Frames, Recording
@@ -222,24 +220,22 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
 
 # -- the faster paths against the serial order, bit for bit ------------------------------------
 
-@njit(cache=False)
-def _fuse_one_loop(l_f, p_f, l_b, p_b, offset, floor, out):
-    """``fuse_to_linear`` as it was written first (one loop per pixel): the reference."""
-    n_cl = 0
-    for i in range(out.shape[0]):
-        pf = np.float64(p_f[i])
-        pb = np.float64(p_b[i])
-        lg = (np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / (pf + pb)
-        v = np.float32(math.exp(lg) - offset)
-        if not v >= floor:
-            v = np.float32(floor)
-            n_cl += 1
-        out[i] = v
-    return n_cl
+def _fuse_numpy(l_f, p_f, l_b, p_b, offset, floor, out):
+    """The fusion written with numpy: the reference of ``fuse_to_linear``. L̂ in float64 from the
+    float32 pass estimates, rounded to float32, numpy's float32 exp, minus the offset in float32,
+    clamped at the floor (NaN too)."""
+    pf, pb = p_f.astype(np.float64), p_b.astype(np.float64)
+    with np.errstate(all="ignore"):
+        lg = ((l_f.astype(np.float64) * pb + l_b.astype(np.float64) * pf) / (pf + pb)).astype(np.float32)
+        v = np.exp(lg) - np.float32(offset)
+    bad = ~(v >= np.float32(floor))
+    v[bad] = np.float32(floor)
+    out[:] = v
+    return int(bad.sum())
 
 
 @pytest.mark.parametrize("n", [0, 1, 1023, 1024, 1025, 5000])
-def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
+def test_fusion_kernel_gives_the_numpy_fusions_bits(n):
     from hybridhdr.reconstruct import _kernels as K
     rng = np.random.default_rng(n)
     lf = rng.normal(-1, 4, n).astype(np.float32)
@@ -253,28 +249,45 @@ def test_blocked_fusion_kernel_gives_the_one_loop_kernels_bits(n):
     for off in (1.0, 0.0, 1e-3):
         want = np.full(n, -1.0, np.float32)
         got = np.full(n, -2.0, np.float32)
-        got_py = np.full(n, -3.0, np.float32)
-        c_want = _fuse_one_loop(lf, pf, lb, pb, off, K.MIN_INTENSITY, want)
-        assert K.fuse_to_linear(lf, pf, lb, pb, off, K.MIN_INTENSITY, got) == c_want
-        with np.errstate(all="ignore"):  # NumPy scalars warn where the kernel silently gives NaN/inf
-            assert K.fuse_to_linear.py_func(lf, pf, lb, pb, off, K.MIN_INTENSITY, got_py) == c_want
+        c_want = _fuse_numpy(lf, pf, lb, pb, off, K.MIN_INTENSITY, want)
+        with np.errstate(all="ignore"):
+            assert K.fuse_to_linear(lf, pf, lb, pb, off, K.MIN_INTENSITY, got) == c_want
         np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
-        np.testing.assert_array_equal(got_py.view(np.int32), want.view(np.int32))
+        # the weighting's Python body (NumPy scalars) gives the compiled kernel's bits
+        lg, lg_py = np.empty(n, np.float32), np.empty(n, np.float32)
+        K.fuse_log32(lf, pf, lb, pb, lg)
+        with np.errstate(all="ignore"):
+            K.fuse_log32.py_func(lf, pf, lb, pb, lg_py)
+        np.testing.assert_array_equal(lg.view(np.int32), lg_py.view(np.int32))
 
 
-def test_fusion_kernel_raises_on_a_zero_variance_sum_as_the_checked_division_did():
+def test_fusion_of_one_pass_with_itself_gives_the_forward_outputs_bits():
+    # (L, P) fused with itself is L: the same float32 exp as the forward filter's outputs
+    from hybridhdr.reconstruct import _kernels as K
+    rng = np.random.default_rng(3)
+    lg = rng.normal(-2, 3, 4000).astype(np.float32)
+    pv = rng.uniform(1e-4, 1.0, 4000).astype(np.float32)
+    got = np.empty(4000, np.float32)
+    K.fuse_to_linear(lg, pv, lg, pv, 1e-3, K.MIN_INTENSITY, got)
+    want = K.log_to_linear(lg.copy(), 1e-3)
+    K.clamp_linear(want)
+    np.testing.assert_array_equal(got.view(np.int32), want.view(np.int32))
+
+
+def test_fusion_kernel_raises_on_a_zero_variance_sum():
     from hybridhdr.reconstruct import _kernels as K
     z = np.zeros(3000, np.float32)
     pb = np.ones(3000, np.float32)
     pb[2500] = 0.0
-    for fn in (_fuse_one_loop, K.fuse_to_linear):
-        with pytest.raises(ZeroDivisionError):
-            fn(z, z, z, pb, 1.0, K.MIN_INTENSITY, np.empty(3000, np.float32))
+    with pytest.raises(ZeroDivisionError):
+        K.fuse_to_linear(z, z, z, pb, 1.0, K.MIN_INTENSITY, np.empty(3000, np.float32))
+    with pytest.raises(ZeroDivisionError), np.errstate(all="ignore"):
+        K.fuse_log32.py_func(z, z, z, pb, np.empty(3000, np.float32))
 
 
 def _serial_reference(rec, p, times):
     """The two-sided filter in the serial order with the first kernels: the backward pass kept in
-    full, then the forward pass fused output by output with the one-loop fusion (one worker)."""
+    full, then the forward pass fused output by output with the numpy fusion (one worker)."""
     from hybridhdr.reconstruct import _kernels as K
     from hybridhdr.reconstruct.api import _build_engine
     from hybridhdr.reconstruct.smoother import _run_pass
@@ -295,7 +308,7 @@ def _serial_reference(rec, p, times):
         f, b = fwd.get(int(t)), bwd.get(int(t))
         f, b = f or b, b or f
         img = np.empty(shape[0] * shape[1], np.float32)
-        n_clamped += _fuse_one_loop(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
+        n_clamped += _fuse_numpy(f[0], f[1], b[0], b[1], p.intensity_offset, K.MIN_INTENSITY, img)
         out.append(img.reshape(shape))
     return np.stack(out), n_clamped
 

@@ -1,7 +1,9 @@
 """Regenerates mono_reference.npz: every method's output on a small procedural recording (grey and
 colour frames, no CFA), written at commit a6507ee (threshold maps), before the colour path existed.
 The two-sided AKF entries (``*_akf_offline*``) were recomputed when the fusion gained the carried
-frame's variance (AKFParams.fusion_carried_variance); every other entry is the original.
+frame's variance (AKFParams.fusion_carried_variance) and again when the fusion's exp became
+numpy's float32 exp, as the forward outputs' (changes below 2.3e-7 relative); every other entry is
+the original.
 
 Run ``python tests/reconstruct/data/make_mono_reference.py tests/reconstruct/data/mono_reference.npz``
 only when a deliberate change of the monochrome results is made."""
