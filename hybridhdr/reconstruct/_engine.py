@@ -284,6 +284,15 @@ class AKFEngine(Engine):
         # a pixel clipped in the first frame is known only to lie beyond its bound
         cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)
         S[cens, K.A_P] = getattr(self.params, "censored_initial_covariance", self.params.initial_covariance)
+        # ... except that a clipped dark code bounds it on both sides: the state is ln(I + I0)
+        # with I >= 0, so ln I0 <= L <= L_dark, an interval of width w = L_dark - ln I0 (1e-3
+        # at code 0 of a gamma-2.2 8-bit camera with I0 = 1e-3; 4.9 for AHDR's codes < 100): its
+        # P is w² (the interval as one standard deviation), at least the unclipped initial P
+        off = getattr(self.params, "intensity_offset", None)
+        if off is not None:
+            dark = cens & (S[:, K.A_KLOG] < 0.0)
+            w = S[dark, K.A_LA] - math.log(off)
+            S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
         S[:, K.A_TU] = float(t_init)
         for te in self.te:
             te[:] = t_init

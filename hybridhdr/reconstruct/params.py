@@ -175,9 +175,11 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     min_weighting : float or None
         Overrides the camera profile's floor on f_w (eq. 6's saturation; reference code 0.09).
     censored_initial_covariance : float
-        P at initialisation of a pixel the first frame clips, log²: it is known only to lie
-        beyond the bound (1e3: unknown), so a later unclipped frame or the other pass of the
-        two-sided filter decides its value; a bound moves L̂ but never shrinks P.
+        P at initialisation of a pixel the first frame clips bright, log²: it is known only to
+        lie beyond the bound (1e3: unknown), so a later unclipped frame or the other pass of the
+        two-sided filter decides its value; a bound moves L̂ but never shrinks P. A pixel the
+        first frame clips dark is bounded on both sides (the state is ln(I + I0) with I >= 0, so
+        ln I0 <= L <= L_dark): its P is (L_dark - ln I0)², at least ``initial_covariance``.
     frame_update : {"discrete", "continuous"}
         "discrete" (ours): each frame is also applied at τ_k as one discrete Kalman measurement
         (gain P/(P + R), R of eq. 9; a continuous-discrete Kalman filter), so the estimate at a

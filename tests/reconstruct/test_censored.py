@@ -133,3 +133,33 @@ def test_clamp_counts_and_raises_nan_and_negative():
     a = np.array([np.nan, -1.0, 0.0, 5e-7, 1e-6, 0.5], np.float32)
     assert K.clamp_linear(a) == 4
     assert np.all(a >= np.float32(K.MIN_INTENSITY)) and a[-1] == np.float32(0.5)
+
+
+def test_pixel_dark_clipped_at_the_start_keeps_the_level_the_events_give_it():
+    """A black pixel (code 0 of a gamma-2.2 frame) raised by 40 ideal ON events (c = 0.2) to
+    3x the clip level, then clipped bright in 10 frames. The dark code bounds ln(I + I0) on both
+    sides (ln I0 <= L <= ln(I_dark + I0), 1e-3 wide), so the forward pass knows the level
+    (P = initial_covariance), while the backward pass starts from the bright bound knowing
+    nothing above it (P = 1e3): the two-sided output follows the forward pass. With P = 1e3 at
+    the dark start too, the fusion averaged the two (about 1.7 instead of 2.98)."""
+    k, c, n_on = 11, 0.2, 40
+    ts = np.arange(k, dtype=np.int64) * PERIOD_US
+    img = np.full((k, H, W), 255, np.uint8)
+    img[0] = 0
+    frames = Frames(img, ts, ts + EXPO_US, encoding="gamma")
+    t_ev = np.linspace(10_000, 30_000, n_on).astype(np.int64)
+    ev = np.zeros(n_on * H * W, EVENT_DTYPE)
+    ev["t"] = np.repeat(t_ev, H * W)
+    yy, xx = np.mgrid[0:H, 0:W]
+    ev["x"] = np.tile(xx.ravel(), n_on)
+    ev["y"] = np.tile(yy.ravel(), n_on)
+    ev["p"] = 1
+    rec = Recording(ev, SensorSize(H, W), frames)
+    p = AKFParams(contrast_threshold=c)
+    truth = np.exp(np.log(p.intensity_offset) + n_on * c) - p.intensity_offset  # from I = 0
+    assert 2.9 < truth < 3.1
+    t_out = ts[1:] + EXPO_US // 2
+    for mode in ("offline", "forward"):
+        v = reconstruct(rec, "akf", p, times_us=t_out, mode=mode)
+        err = np.abs(v.frames / truth - 1.0)
+        assert err.max() < 0.02, f"{mode}: worst relative error {err.max():.4f}"
