@@ -152,6 +152,35 @@ def build_params(args):
     return make_params(method, cls.from_dict(d))
 
 
+#: Parameter names that state contrast thresholds.
+THRESHOLD_KEYS = ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off")
+
+
+def thresholds_given(args) -> bool:
+    """True when the command line states contrast thresholds: --contrast-threshold, a --set of
+    one, or a --config file naming one. Otherwise the recording's declared thresholds (or the
+    method's default) apply, as for ``reconstruct(..., params=None)``."""
+    if args.contrast_threshold is not None:
+        return True
+    for item in args.set:
+        if item.split("=", 1)[0].strip().replace("-", "_") in THRESHOLD_KEYS:
+            return True
+    if args.config is not None:
+        from .api import METHODS, resolve_method
+        if any(k in THRESHOLD_KEYS for k in _toml_fields(METHODS[resolve_method(args.method)][0], args.config)):
+            return True
+    return False
+
+
+def api_params(args, params):
+    """What ``run`` passes to the API: ``params`` itself when the command line states thresholds
+    (or the method has none), else its fields without the thresholds, so that the API applies
+    the thresholds the recording declares (a Params instance counts as stating them)."""
+    if thresholds_given(args) or not hasattr(params, "contrast_threshold_on"):
+        return params
+    return {k: v for k, v in params.to_dict().items() if k not in THRESHOLD_KEYS}
+
+
 def build_augment(args):
     """AugmentParams from the ``[augment]`` table of --config and the --no-* flags."""
     from .augment import AugmentParams
@@ -241,6 +270,7 @@ def run(args) -> int:
         method = resolve_method(args.method)
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
+        run_params = api_params(args, params)
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
@@ -277,7 +307,7 @@ def run(args) -> int:
                 from ..formats import open_reader
                 source = open_reader(args.recording, frame_encoding=args.frame_encoding)
             try:
-                for t, img in reconstruct_iter(source, method, params, times_us=times, fps=args.fps,
+                for t, img in reconstruct_iter(source, method, run_params, times_us=times, fps=args.fps,
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
@@ -293,12 +323,16 @@ def run(args) -> int:
                 if not isinstance(source, str):
                     source.close()
             run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
-                        "method_description": METHODS[method][3], "mode": args.mode, "params": params.to_dict(),
+                        "method_description": METHODS[method][3], "mode": args.mode, "params": info.get("params", params.to_dict()),
                         "profile": str(args.profile) if args.profile else info.get("profile", "built-in 8-bit"),
                         "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written}
             n_pix = int(info.get("n_output_pixels") or 0)
             run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
+            if hasattr(params, "contrast_threshold_on"):
+                run_info["thresholds"] = info.get("thresholds") or (
+                    "given on the command line" if thresholds_given(args) else
+                    "the method's default (none given, none declared by the recording)")
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
                 if key in info:
                     run_info[key] = info[key]
@@ -306,6 +340,10 @@ def run(args) -> int:
             with open(folder.path / "run.json", "w", encoding="utf-8") as f:
                 f.write(json.dumps(run_info, indent=1, default=str) + "\n")
             out = folder.commit()
+        if run_info.get("thresholds", "").startswith("the method's default"):
+            print(f"note: the recording declares no contrast thresholds: used the default ON "
+                  f"{run_info['params'].get('contrast_threshold')} (log units); measure them with 'hybridhdr "
+                  f"calibrate thresholds' (then --thresholds) or give --contrast-threshold", file=sys.stderr)
         if args.json:
             print(json.dumps({"method": method, "frames": writer.n, "t_first_us": writer.t_first,
                               "t_last_us": writer.t_last, "events_used": info.get("n_events_used", 0),

@@ -65,3 +65,42 @@ def test_old_simulated_files_declare_through_their_provenance():
     other = dataclasses.replace(rec, metadata=Metadata(provenance={**prov, "generator": "elsewhere"}))
     v = reconstruct(other, "akf", times_us=np.array([50_000], np.int64))
     assert v.params["contrast_threshold_on"] is None
+
+
+def test_the_command_line_uses_the_declared_thresholds_unless_it_states_its_own(tmp_path, capsys):
+    """`hybridhdr reconstruct` built a full Params from its flags, which the API counted as
+    thresholds given: a recording's declared thresholds were ignored (c = 0.1 instead of 0.3)."""
+    import json
+
+    from hybridhdr.cli import main
+    from hybridhdr.formats.images import read_exr
+    rec, _ = procedural_recording((12, 16), 150_000)
+    write_recording(_declaring(rec, 0.3, 0.2), tmp_path / "r.h5")
+    write_recording(rec, tmp_path / "plain.h5")
+    (tmp_path / "c.toml").write_text("contrast_threshold = 0.15\n")
+    times = tmp_path / "t.txt"
+    times.write_text("50000\n100000\n")
+
+    def run(name, *extra, src="r.h5"):
+        out = tmp_path / name
+        assert main(["reconstruct", str(tmp_path / src), "--out", str(out), "--times-us", str(times),
+                     "--no-progress", *extra]) == 0
+        meta = json.loads((out / "run.json").read_text())
+        return meta, np.stack([read_exr(f) for f in sorted(out.glob("*.exr"))])
+
+    meta, imgs = run("declared")
+    assert (meta["params"]["contrast_threshold_on"], meta["params"]["contrast_threshold_off"]) == (0.3, 0.2)
+    assert "declared by the recording" in meta["thresholds"]
+    want = reconstruct(tmp_path / "r.h5", "akf", times_us=np.array([50_000, 100_000], np.int64))
+    assert imgs.tobytes() == want.frames.tobytes()
+    for name, extra in (("flag", ("--contrast-threshold", "0.15")), ("set", ("--set", "contrast_threshold=0.15")),
+                        ("config", ("--config", str(tmp_path / "c.toml")))):
+        meta, _ = run(name, *extra)
+        assert meta["params"]["contrast_threshold"] == 0.15 and meta["params"]["contrast_threshold_on"] is None, name
+        assert meta["thresholds"] == "given on the command line", name
+    meta, _ = run("preset", "--preset", "paper")  # a preset states no threshold: the declared ones apply
+    assert meta["params"]["contrast_threshold_on"] == 0.3 and meta["params"]["saturation"] == "value"
+    capsys.readouterr()
+    meta, _ = run("plain", src="plain.h5")
+    assert meta["params"]["contrast_threshold_on"] is None and meta["thresholds"].startswith("the method's default")
+    assert "declares no contrast thresholds" in capsys.readouterr().err
