@@ -20,6 +20,14 @@ from .evaluate import cli as evaluate_cli
 from .reconstruct import cli as reconstruct_cli
 from .simulate import cli as simulate_cli
 
+def _pooled_thresholds(recording, **kw):
+    """``reconstruct --contrast-threshold auto``: calibrate's pooled estimate (imported when used)."""
+    from .calibrate.thresholds import pooled_thresholds
+    return pooled_thresholds(recording, **kw)
+
+
+reconstruct_cli.set_threshold_estimator(_pooled_thresholds)
+
 #: The five parts' subcommands, in the order ``--help`` lists them.
 PART_CLIS = (capture_cli, calibrate_cli, simulate_cli, reconstruct_cli, evaluate_cli)
 

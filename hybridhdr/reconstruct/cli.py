@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import argparse
 import contextlib
 import json
 import sys
@@ -43,7 +44,10 @@ def add_parser(subparsers) -> None:
                    help="override one parameter (repeatable), e.g. --set process_noise_per_s=5e-3")
     p.add_argument("--preset", default=None, choices=["paper", "reference_code"],
                    help="AKF parameter preset (before --config and --set)")
-    p.add_argument("--contrast-threshold", type=positive_float, default=None, help="contrast threshold c (log units)")
+    p.add_argument("--contrast-threshold", type=_threshold_arg, default=None, metavar="C|auto",
+                   help="contrast threshold c (log units), or 'auto': one ON and one OFF threshold estimated from "
+                        "the recording's frames and events (reads it into memory once; 'hybridhdr calibrate "
+                        "thresholds' gives a per-pixel map) [default: as the recording declares, else 0.1]")
     p.add_argument("--cutoff-hz", type=positive_float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
     a.add_argument("--augmentation", action="store_true",
@@ -95,6 +99,47 @@ def add_parser(subparsers) -> None:
     p.set_defaults(func=run)
 
 
+def _threshold_arg(text):
+    if str(text).strip().lower() == "auto":
+        return "auto"
+    try:
+        return positive_float(text)
+    except argparse.ArgumentTypeError:
+        raise argparse.ArgumentTypeError(f"expected a number > 0 (log units) or 'auto', got {text!r}") from None
+
+
+#: ``fn(recording, *, profile, intensity_offset) -> (c_on, c_off, record)`` for
+#: ``--contrast-threshold auto``: the estimator lives in ``hybridhdr.calibrate`` (which this part
+#: may not import, docs/architecture.md); the ``hybridhdr`` command installs it.
+_THRESHOLD_ESTIMATOR = None
+
+
+def set_threshold_estimator(fn) -> None:
+    """Install the estimator behind ``--contrast-threshold auto`` (the app layer does)."""
+    global _THRESHOLD_ESTIMATOR
+    _THRESHOLD_ESTIMATOR = fn
+
+
+def estimate_run_thresholds(args, params):
+    """``(params, note)`` with ``--contrast-threshold auto``'s estimate in ``params``."""
+    if _THRESHOLD_ESTIMATOR is None:
+        raise ValueError("--contrast-threshold auto needs hybridhdr.calibrate's estimator; run it through the "
+                         "'hybridhdr' command")
+    if not hasattr(params, "contrast_threshold_on"):
+        raise ValueError(f"--contrast-threshold does not apply to --method {args.method}")
+    from ..formats import read
+    enc = getattr(args, "frame_encoding", None)
+    rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
+    try:
+        on, off, record = _THRESHOLD_ESTIMATOR(rec, profile=args.profile, intensity_offset=params.intensity_offset)
+    except ValueError as e:
+        raise ValueError(f"--contrast-threshold auto: the recording cannot tell its thresholds ({e}); give "
+                         f"--contrast-threshold C") from None
+    p = params.replace(contrast_threshold_on=on, contrast_threshold_off=off)
+    return p, (f"estimated from the recording: ON {on:.4g}, OFF {off:.4g} (log units; pooled over "
+               f"{record['pixel_intervals']} pixel-intervals of {record['intervals']} frame intervals)")
+
+
 def _exr_choices() -> list[str]:
     from ..formats.images import exr_compressions
     return exr_compressions()
@@ -132,7 +177,8 @@ def build_params(args):
     if args.contrast_threshold is not None:
         if "contrast_threshold" not in names:
             raise ValueError(f"--contrast-threshold does not apply to --method {args.method}")
-        d["contrast_threshold"] = args.contrast_threshold
+        if args.contrast_threshold != "auto":  # estimated in run(), from the recording
+            d["contrast_threshold"] = args.contrast_threshold
     if args.cutoff_hz is not None:
         if "cutoff_hz" not in names:
             raise ValueError(f"--cutoff-hz does not apply to --method {args.method}")
@@ -270,6 +316,9 @@ def run(args) -> int:
         method = resolve_method(args.method)
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
+        auto_note = None
+        if args.contrast_threshold == "auto":
+            params, auto_note = estimate_run_thresholds(args, params)
         run_params = api_params(args, params)
         augment = build_augment(args)
         times = None
@@ -330,7 +379,7 @@ def run(args) -> int:
             run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
             if hasattr(params, "contrast_threshold_on"):
-                run_info["thresholds"] = info.get("thresholds") or (
+                run_info["thresholds"] = auto_note or info.get("thresholds") or (
                     "given on the command line" if thresholds_given(args) else
                     "the method's default (none given, none declared by the recording)")
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
@@ -343,7 +392,8 @@ def run(args) -> int:
         if run_info.get("thresholds", "").startswith("the method's default"):
             print(f"note: the recording declares no contrast thresholds: used the default ON "
                   f"{run_info['params'].get('contrast_threshold')} (log units); measure them with 'hybridhdr "
-                  f"calibrate thresholds' (then --thresholds) or give --contrast-threshold", file=sys.stderr)
+                  f"calibrate thresholds' (then --thresholds), estimate them with --contrast-threshold auto, or give "
+                  f"--contrast-threshold C", file=sys.stderr)
         if args.json:
             print(json.dumps({"method": method, "frames": writer.n, "t_first_us": writer.t_first,
                               "t_last_us": writer.t_last, "events_used": info.get("n_events_used", 0),

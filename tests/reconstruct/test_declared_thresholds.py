@@ -104,3 +104,30 @@ def test_the_command_line_uses_the_declared_thresholds_unless_it_states_its_own(
     meta, _ = run("plain", src="plain.h5")
     assert meta["params"]["contrast_threshold_on"] is None and meta["thresholds"].startswith("the method's default")
     assert "declares no contrast thresholds" in capsys.readouterr().err
+
+
+def test_the_command_line_estimates_thresholds_with_auto(tmp_path):
+    import json
+
+    from hybridhdr.calibrate.thresholds import pooled_thresholds
+    from hybridhdr.cli import main
+    rec, _ = procedural_recording((48, 64), 600_000)  # ideal events at c = 0.2; declares nothing
+    assert rec.metadata.event_camera.contrast_thresholds is None
+    write_recording(rec, tmp_path / "r.h5")
+    out = tmp_path / "o"
+    assert main(["reconstruct", str(tmp_path / "r.h5"), "--out", str(out), "--fps", "50", "--no-exr",
+                 "--no-progress", "--contrast-threshold", "auto"]) == 0
+    meta = json.loads((out / "run.json").read_text())
+    on, off, _ = pooled_thresholds(rec, intensity_offset=meta["params"]["intensity_offset"])
+    assert (meta["params"]["contrast_threshold_on"], meta["params"]["contrast_threshold_off"]) == (on, off)
+    assert meta["thresholds"].startswith("estimated from the recording")
+    assert abs(on - 0.2) < 0.03 and abs(off - 0.2) < 0.03  # the simulated sensor's c (measured 0.207, 0.206)
+    # a recording that cannot tell its thresholds (one frame) is a usage error, nothing written
+    one = dataclasses.replace(rec, frames=rec.frames.select(np.array([0])))
+    write_recording(one, tmp_path / "one.h5")
+    assert main(["reconstruct", str(tmp_path / "one.h5"), "--out", str(tmp_path / "o1"), "--fps", "50",
+                 "--no-exr", "--no-progress", "--contrast-threshold", "auto"]) == 2
+    assert not (tmp_path / "o1").exists()
+    # not for a method without thresholds
+    assert main(["reconstruct", str(tmp_path / "r.h5"), "--out", str(tmp_path / "o2"), "--method", "frames",
+                 "--no-exr", "--no-progress", "--contrast-threshold", "auto"]) == 2
