@@ -25,11 +25,18 @@ def _bright_object_recording(n_saturated=20, c=0.1, start=0.5, ratio_to_clip=5.0
     """A uniform pixel patch at ``start`` (unclipped, frame 0), raised by ideal ON events to
     ``ratio_to_clip`` times the clip level (1.0) before frame 1; frames 1.. all clip (code 255)."""
     n_on = int(round(np.log(ratio_to_clip / start) / c))
-    k = 1 + n_saturated
+    rec = _raised_then_clipped(1 + n_saturated, int(round(255 * start)), n_on, "linear")
+    truth = (round(255 * start) / 255) * np.exp(n_on * c)
+    return rec, rec.frames.t_start_us + EXPO_US // 2, truth
+
+
+def _raised_then_clipped(k, first_code, n_on, encoding):
+    """``k`` frames of a uniform patch, the first at ``first_code`` and the rest clipped (255);
+    ``n_on`` ON events at every pixel between 10 and 30 ms (before frame 1)."""
     ts = np.arange(k, dtype=np.int64) * PERIOD_US
     img = np.full((k, H, W), 255, np.uint8)
-    img[0] = int(round(255 * start))
-    frames = Frames(img, ts, ts + EXPO_US, encoding="linear")
+    img[0] = first_code
+    frames = Frames(img, ts, ts + EXPO_US, encoding=encoding)
     t_ev = np.linspace(10_000, 30_000, n_on).astype(np.int64)
     ev = np.zeros(n_on * H * W, EVENT_DTYPE)
     ev["t"] = np.repeat(t_ev, H * W)
@@ -37,8 +44,7 @@ def _bright_object_recording(n_saturated=20, c=0.1, start=0.5, ratio_to_clip=5.0
     ev["x"] = np.tile(xx.ravel(), n_on)
     ev["y"] = np.tile(yy.ravel(), n_on)
     ev["p"] = 1
-    truth = (round(255 * start) / 255) * np.exp(n_on * c)
-    return Recording(ev, SensorSize(H, W), frames), frames.t_start_us + EXPO_US // 2, truth
+    return Recording(ev, SensorSize(H, W), frames)
 
 
 @pytest.mark.parametrize("mode", ["causal", "offline"])
@@ -143,18 +149,8 @@ def test_pixel_dark_clipped_at_the_start_keeps_the_level_the_events_give_it():
     nothing above it (P = 1e3): the two-sided output follows the forward pass. With P = 1e3 at
     the dark start too, the fusion averaged the two (about 1.7 instead of 2.98)."""
     k, c, n_on = 11, 0.2, 40
-    ts = np.arange(k, dtype=np.int64) * PERIOD_US
-    img = np.full((k, H, W), 255, np.uint8)
-    img[0] = 0
-    frames = Frames(img, ts, ts + EXPO_US, encoding="gamma")
-    t_ev = np.linspace(10_000, 30_000, n_on).astype(np.int64)
-    ev = np.zeros(n_on * H * W, EVENT_DTYPE)
-    ev["t"] = np.repeat(t_ev, H * W)
-    yy, xx = np.mgrid[0:H, 0:W]
-    ev["x"] = np.tile(xx.ravel(), n_on)
-    ev["y"] = np.tile(yy.ravel(), n_on)
-    ev["p"] = 1
-    rec = Recording(ev, SensorSize(H, W), frames)
+    rec = _raised_then_clipped(k, 0, n_on, "gamma")
+    ts = rec.frames.t_start_us
     p = AKFParams(contrast_threshold=c)
     truth = np.exp(np.log(p.intensity_offset) + n_on * c) - p.intensity_offset  # from I = 0
     assert 2.9 < truth < 3.1
