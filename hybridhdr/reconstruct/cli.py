@@ -318,6 +318,8 @@ def run(args) -> int:
         params = build_params(args)
         auto_note = None
         if args.contrast_threshold == "auto":
+            if args.thresholds is not None:
+                raise ValueError("--contrast-threshold auto and --thresholds both give the thresholds; use one")
             params, auto_note = estimate_run_thresholds(args, params)
         run_params = api_params(args, params)
         augment = build_augment(args)
@@ -372,16 +374,21 @@ def run(args) -> int:
                 if not isinstance(source, str):
                     source.close()
             run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
-                        "method_description": METHODS[method][3], "mode": args.mode, "params": info.get("params", params.to_dict()),
+                        "method_description": METHODS[method][3], "mode": args.mode,
+                        "params": info.get("params", params.to_dict()),
                         "profile": str(args.profile) if args.profile else info.get("profile", "built-in 8-bit"),
                         "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written}
             n_pix = int(info.get("n_output_pixels") or 0)
             run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
             if hasattr(params, "contrast_threshold_on"):
-                run_info["thresholds"] = auto_note or info.get("thresholds") or (
-                    "given on the command line" if thresholds_given(args) else
-                    "the method's default (none given, none declared by the recording)")
+                used = info.get("thresholds")
+                if args.thresholds is not None:
+                    used = f"per-pixel map {args.thresholds} (--thresholds)"
+                elif not (used or "").startswith("per-pixel map"):
+                    used = auto_note or used or ("given on the command line" if thresholds_given(args) else
+                                                 "the method's default (none given, none declared by the recording)")
+                run_info["thresholds"] = used
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
                 if key in info:
                     run_info[key] = info[key]

@@ -128,6 +128,8 @@ def test_the_command_line_estimates_thresholds_with_auto(tmp_path):
     assert main(["reconstruct", str(tmp_path / "one.h5"), "--out", str(tmp_path / "o1"), "--fps", "50",
                  "--no-exr", "--no-progress", "--contrast-threshold", "auto"]) == 2
     assert not (tmp_path / "o1").exists()
-    # not for a method without thresholds
+    # not with a per-pixel map as well, nor for a method without thresholds
+    assert main(["reconstruct", str(tmp_path / "r.h5"), "--out", str(tmp_path / "o3"), "--no-exr", "--no-progress",
+                 "--contrast-threshold", "auto", "--thresholds", str(tmp_path / "none.npz")]) == 2
     assert main(["reconstruct", str(tmp_path / "r.h5"), "--out", str(tmp_path / "o2"), "--method", "frames",
                  "--no-exr", "--no-progress", "--contrast-threshold", "auto"]) == 2
