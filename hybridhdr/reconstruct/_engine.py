@@ -29,23 +29,6 @@ def row_bands(height: int, n_workers: int) -> list[tuple[int, int]]:
     return [(edges[i], edges[i + 1]) for i in range(n) if edges[i + 1] > edges[i]]
 
 
-
-#: The (code, next code) tables of a switch are built when the sensor has at least this many
-#: pixels per table entry (8-bit codes: 65 536 entries, 0.2 ms to build, 1 MB; they replace two
-#: divisions per pixel; 10-bit and wider codes keep the per-pixel divisions).
-PAIR_TABLE_MIN_PIXELS_PER_ENTRY = 1
-
-
-def _pair_tables(sc, seg_t_s: float, n_pix: int) -> tuple[np.ndarray, np.ndarray]:
-    """``(b_tab, k_tab)`` of :func:`K.pair_tables` for a look-up-table segment, or empty arrays
-    where β is held (no next frame, an open segment) or the tables would outnumber the pixels."""
-    m = int(sc.max_code) + 1
-    if sc.code_next.shape[0] == 0 or not seg_t_s > 0.0 or n_pix < PAIR_TABLE_MIN_PIXELS_PER_ENTRY * m * m:
-        return np.empty(0), np.empty(0)
-    b_tab, k_tab = np.empty(m * m), np.empty(m * m)
-    K.pair_tables(sc.rbar, sc.rinv, sc.censor, float(seg_t_s), int(sc.max_code), b_tab, k_tab)
-    return b_tab, k_tab
-
 class Engine:
     """Base of the per-method engines driven by :func:`drive`.
 
@@ -232,10 +215,9 @@ class AKFEngine(Engine):
             for a, name in ((sc.code, "code"), (sc.code_next, "code_next")):
                 if a.ndim != 1 or a.shape[0] not in ((n,) if name == "code" else (0, n)):
                     raise ValueError(f"measurement segment {k}: {name} has shape {a.shape}, expected ({n},) (H*W)")
-            tabs = _pair_tables(sc, seg_t_s, n)
             self._pending = lambda b, lo, hi: K.akf_switch_lut(*args, sc.code, sc.code_next, sc.max_code, sc.rbar,
                                                                sc.log_frame, sc.rinv, sc.censor, sc.la_step,
-                                                               seg_t_s, disc, s_proc, lo * W, hi * W, *tabs)
+                                                               seg_t_s, disc, s_proc, lo * W, hi * W)
             self.has_la_step = sc.la_step != 0.0
         else:
             def col(a, name, required):

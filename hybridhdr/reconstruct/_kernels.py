@@ -422,28 +422,8 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
 
 
 @njit(cache=True, nogil=True)
-def pair_tables(rbar_l, rinv_l, cens_l, seg_t_s, max_code, b_tab, k_tab):
-    """β (eq. 7) and ``klog`` of every (code of frame k, code of frame k+1) pair, row-major
-    ``(max_code + 1)²``, with the same operations :func:`akf_switch_lut` does per pixel (same
-    bits): β = R̄(c1)/R̄(c) - 1, 0 where either code is censored; ``klog = rinv T / β``, or the
-    censoring direction where β = 0. One table per switch replaces two divisions per pixel."""
-    has_cens = cens_l.shape[0] > 0
-    m = max_code + 1
-    for c in range(m):
-        cz = cens_l[c] if has_cens else 0.0
-        r = rinv_l[c]
-        for c1 in range(m):
-            b = 0.0
-            if cz == 0.0 and not (has_cens and cens_l[c1] != 0.0):
-                b = rbar_l[c1] / rbar_l[c] - 1.0
-            b_tab[c * m + c1] = b
-            k_tab[c * m + c1] = r * seg_t_s / b if b != 0.0 else cz
-    return m * m
-
-
-@njit(cache=True, nogil=True)
 def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_code, rbar_l, logf_l,
-                   rinv_l, cens_l, la_step, seg_t_s, discrete, s_proc, pix_lo, pix_hi, b_tab, k_tab):
+                   rinv_l, cens_l, la_step, seg_t_s, discrete, s_proc, pix_lo, pix_hi):
     """:func:`akf_switch` with the new segment built from pixel codes and per-code tables.
 
     Loads exactly what :func:`lut_segment` followed by :func:`akf_switch` would (L^F of eq. 8,
@@ -453,14 +433,10 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
     direction (+1, -1 or 0, see :func:`akf_switch`; empty: none); β is 0 where frame k or k+1
     is censored (R̄ is not interpolated towards or away from a bound). ``la_step`` is one L^A
     step per event for every pixel (0: zero-order hold; the nominal threshold: the causal
-    forward interpolation of eq. 10 from the frame itself). ``b_tab``/``k_tab``: the segment's
-    :func:`pair_tables` (same bits, two divisions fewer per pixel: 1280x720 switch 26 -> 22 ns
-    per pixel), or empty arrays to compute β and klog per pixel.
+    forward interpolation of eq. 10 from the frame itself).
     """
     has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
     has_cens = cens_l.shape[0] > 0
-    use_tab = has_beta and b_tab.shape[0] > 0
-    m = max_code + 1
     for pix in range(pix_lo, pix_hi):
         if propagate:
             q = s_proc * ((t_to - S[pix, A_TU]) * US)
@@ -471,18 +447,13 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
         S[pix, A_LA] = logf_l[c]
         S[pix, A_RINV] = r
         cz = cens_l[c] if has_cens else 0.0
-        if use_tab:
-            j = c * m + min(max(np.int64(code_next[pix]), 0), max_code)
-            S[pix, A_BETA] = b_tab[j]
-            S[pix, A_KLOG] = k_tab[j]
-        else:
-            b = 0.0
-            if has_beta and cz == 0.0:
-                c1 = min(max(np.int64(code_next[pix]), 0), max_code)
-                if not (has_cens and cens_l[c1] != 0.0):
-                    b = rbar_l[c1] / rbar_l[c] - 1.0
-            S[pix, A_BETA] = b
-            S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
+        b = 0.0
+        if has_beta and cz == 0.0:
+            c1 = min(max(np.int64(code_next[pix]), 0), max_code)
+            if not (has_cens and cens_l[c1] != 0.0):
+                b = rbar_l[c1] / rbar_l[c] - 1.0
+        S[pix, A_BETA] = b
+        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
         S[pix, A_LASTEP] = la_step
         if discrete:
             _frame_update(S, pix, 1.0 / r, cz, logf_l[c])
