@@ -20,6 +20,7 @@ from .evaluate import cli as evaluate_cli
 from .reconstruct import cli as reconstruct_cli
 from .simulate import cli as simulate_cli
 
+
 def _pooled_thresholds(recording, **kw):
     """``reconstruct --contrast-threshold auto``: calibrate's pooled estimate (imported when used)."""
     from .calibrate.thresholds import pooled_thresholds

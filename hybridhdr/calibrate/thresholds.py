@@ -249,8 +249,6 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
     return tm
 
 
-# -- plot -----------------------------------------------------------------------------------------
-
 def pooled_thresholds(recording, *, profile=None, intensity_offset: float | None = None) -> tuple[float, float, dict]:
     """``(c_on, c_off, record)``: one ON and one OFF threshold for the whole sensor, pooled over
     every usable pixel-interval of ``recording`` (:func:`estimate_thresholds`' fallback pair) in
@@ -267,6 +265,8 @@ def pooled_thresholds(recording, *, profile=None, intensity_offset: float | None
               "intensity_offset": float(pv.get("intensity_offset", intensity_offset or DEFAULT_INTENSITY_OFFSET))}
     return float(tm.fallback_on), float(tm.fallback_off), record
 
+
+# -- plot -----------------------------------------------------------------------------------------
 
 def plot_thresholds(tm: ThresholdMap, path, title: str | None = None) -> Path:
     """PNG with the ON and OFF histograms of the estimated pixels (medians and fallbacks marked)."""

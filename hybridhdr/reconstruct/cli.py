@@ -218,11 +218,12 @@ def thresholds_given(args) -> bool:
     return False
 
 
-def api_params(args, params):
+def api_params(params, given: bool):
     """What ``run`` passes to the API: ``params`` itself when the command line states thresholds
-    (or the method has none), else its fields without the thresholds, so that the API applies
-    the thresholds the recording declares (a Params instance counts as stating them)."""
-    if thresholds_given(args) or not hasattr(params, "contrast_threshold_on"):
+    (``given``, :func:`thresholds_given`) or the method has none, else its fields without the
+    thresholds, so that the API applies the thresholds the recording declares (a Params instance
+    counts as stating them)."""
+    if given or not hasattr(params, "contrast_threshold_on"):
         return params
     return {k: v for k, v in params.to_dict().items() if k not in THRESHOLD_KEYS}
 
@@ -321,7 +322,8 @@ def run(args) -> int:
             if args.thresholds is not None:
                 raise ValueError("--contrast-threshold auto and --thresholds both give the thresholds; use one")
             params, auto_note = estimate_run_thresholds(args, params)
-        run_params = api_params(args, params)
+        given = thresholds_given(args)  # once: a --config file is read for it
+        run_params = api_params(params, given)
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
@@ -386,7 +388,7 @@ def run(args) -> int:
                 if args.thresholds is not None:
                     used = f"per-pixel map {args.thresholds} (--thresholds)"
                 elif not (used or "").startswith("per-pixel map"):
-                    used = auto_note or used or ("given on the command line" if thresholds_given(args) else
+                    used = auto_note or used or ("given on the command line" if given else
                                                  "the method's default (none given, none declared by the recording)")
                 run_info["thresholds"] = used
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
