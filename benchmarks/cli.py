@@ -11,7 +11,9 @@ timed from start to exit (Python start-up and imports included in every figure a
 
 * ``read+filter``: ``--no-exr`` (events read, default two-sided AKF, outputs computed and dropped);
 * ``exr``: the same with the default EXR output (lossless, written by the writer pool);
-* ``exr_2x``: ``exr`` at twice the output rate, for the peak RSS against the number of outputs.
+* ``exr_2x``: ``exr`` at twice the output rate, for the peak RSS against the number of outputs;
+* ``exr_zip`` (not with ``--quick``): ``exr`` with ``--exr-compression zip`` (the default before issue 21's measurements),
+  for the time and bytes the default (``none``, lossless) saves.
 
 ``F`` gives >= 500 outputs (``--quick``: 2 M events over 0.2 s at 2,500 Hz = 501 outputs). The
 goal (issue 21): ``exr`` wall time <= 1.5x ``read+filter`` in the same run, and the peak RSS flat
@@ -32,7 +34,6 @@ import tempfile
 import time
 from pathlib import Path
 
-import numpy as np
 
 HERE = Path(__file__).resolve().parent
 sys.path.insert(0, str(HERE))
@@ -99,9 +100,12 @@ def main(argv=None) -> int:
         configs[f"read+filter_{w}w"] = (fps, ["--no-exr", "--workers", str(w)])
         configs[f"exr_{w}w"] = (fps, ["--workers", str(w)])
     configs["exr_2x_1w"] = (2 * fps, ["--workers", "1"])
+    if not a.quick:  # the default until issue 21 (--quick would pass 60 s)
+        configs["exr_zip_2w"] = (fps, ["--workers", "2", "--exr-compression", "zip"])
     walls: dict[str, list[float]] = {k: [] for k in configs}
     rss: dict[str, float] = {}
     n_out: dict[str, int] = {}
+    n_bytes: dict[str, int] = {}
     with tempfile.TemporaryDirectory(prefix="hybridhdr-bench-cli-") as td:
         run(rec, Path(td) / "warm", fps, ["--no-exr"])  # Numba caches and imports warm for everyone
         for r in range(max(1, a.repeats)):
@@ -110,6 +114,8 @@ def main(argv=None) -> int:
                 walls[k].append(wall)
                 rss[k] = max(rss.get(k, 0.0), mb)
                 n_out[k] = ne
+                if r == 0:
+                    n_bytes[k] = sum(q.stat().st_size for q in (Path(td) / k).glob("*.exr"))
                 print(f"  {k:16s} run {r + 1}: {wall:6.2f} s, peak RSS {mb:6.0f} MB, {ne} EXR files", flush=True)
     best = {k: min(v) for k, v in walls.items()}
     res = {"benchmark": "cli", "quick": bool(a.quick), "n_events": n, "sensor": "346x260", "fps": fps,
@@ -120,6 +126,11 @@ def main(argv=None) -> int:
     for w in (1, 2):
         res[f"exr_over_read_filter_{w}w"] = round(best[f"exr_{w}w"] / best[f"read+filter_{w}w"], 3)
         res[f"exr_mev_s_{w}w"] = round(n / best[f"exr_{w}w"] / 1e6, 2)
+    from hybridhdr.formats.images import DEFAULT_EXR_COMPRESSION
+    res["exr_compression"] = DEFAULT_EXR_COMPRESSION
+    if "exr_zip_2w" in best:
+        res["exr_zip_over_read_filter_2w"] = round(best["exr_zip_2w"] / best["read+filter_2w"], 3)
+    res["exr_mb_per_output"] = {k: round(v / max(n_out[k], 1) / 1e6, 4) for k, v in n_bytes.items() if v}
     res["rss_2x_outputs_over_1x"] = round(rss["exr_2x_1w"] / rss["exr_1w"], 3)
     res["goal_exr_over_read_filter"] = 1.5
     res["meets_goal"] = bool(max(res["exr_over_read_filter_1w"], res["exr_over_read_filter_2w"]) <= 1.5
@@ -127,7 +138,8 @@ def main(argv=None) -> int:
     res["loadavg_end"] = loadavg()
     res["elapsed_s"] = round(time.perf_counter() - t_start, 1)
     print(f"EXR / read+filter: 1 worker {res['exr_over_read_filter_1w']}x, 2 workers "
-          f"{res['exr_over_read_filter_2w']}x (goal <= 1.5x); {res['n_outputs']} outputs; peak RSS "
+          f"{res['exr_over_read_filter_2w']}x (goal <= 1.5x; EXR compression {DEFAULT_EXR_COMPRESSION}"
+          f"{'; zip %sx' % res['exr_zip_over_read_filter_2w'] if 'exr_zip_2w' in best else ''}); {res['n_outputs']} outputs; peak RSS "
           f"{rss['exr_1w']:.0f} MB, {rss['exr_2x_1w']:.0f} MB with {res['n_outputs_2x']} outputs "
           f"({res['rss_2x_outputs_over_1x']}x)", flush=True)
     print(json.dumps(res))

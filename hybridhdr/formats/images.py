@@ -49,10 +49,13 @@ _EXR_COMPRESSION_NAMES = {
 }
 #: lossy for float32 data (PXR24 rounds to 24 bits)
 LOSSY_EXR_COMPRESSIONS = frozenset({"pxr24"})
-#: lossless, readable by every OpenEXR reader, and on reconstructed float32 frames the fastest of
-#: the classic lossless codecs (benchmarks/reconstruct_io.py: ZIP 2.5 ms/frame, ZIPS 4.3, PIZ 9.0 at
-#: 240x180; zstd and htj2k are smaller but need OpenEXR >= 3.4 to read)
-DEFAULT_EXR_COMPRESSION = "zip"
+#: the default: lossless, readable by every OpenEXR reader, and the fastest. Reconstructed float32
+#: frames carry noise in their low mantissa bits, so the lossless codecs barely shrink them: on
+#: ecd_slider_depth's AKF output (240x180) ZIP saves 7 % of the bytes for 3.5x the encoding time
+#: (3.1 vs 0.9 ms/frame), ZIPS 0 % (5.0 ms), PIZ 3 % (9.6 ms), zstd 14 % (4.1 ms, OpenEXR >= 3.4
+#: only); on benchmarks/cli.py's 346x260 recording ZIP saves 4.5 %. Issue 21 measured, see
+#: docs/reconstruct.md ("EXR compression"); ``--exr-compression zip`` remains for smaller files.
+DEFAULT_EXR_COMPRESSION = "none"
 
 _FLOOR = 1e-6  # tone_map's floor of I (log 1e-6)
 # smallest float32 >= 1e-6 (float64) and the float32 just below it: the key of every value the floor raises

@@ -89,7 +89,8 @@ def add_parser(subparsers) -> None:
     o.add_argument("--no-exr", action="store_true", help="skip the EXR sequence")
     o.add_argument("--exr-compression", default=None, metavar="NAME",
                    help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
-                        f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: zip, lossless]")
+                        f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: none: lossless and the fastest; "
+                        f"zip saves about 6 %% of the bytes for 4x the encoding time]")
     o.add_argument("--writers", type=nonneg_int, default=None,
                    help="writer processes encoding files while the filter runs; 0 writes in the main thread "
                         "(same bytes) [default: min(2, CPUs)]")
