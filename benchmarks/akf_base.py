@@ -58,9 +58,13 @@ def _kernel_run(K, t, x, y, p, new: bool):
     S[:, K.A_LA] = S[:, K.A_L]
     S[:, K.A_RINV] = 1e4
     S[:, K.A_TU] = float(t[0])
-    te = K.padded_te(B.H, B.W, int(t[0]))
-    args = [t, x, y, p, 0, n, 0, B.H, B.W, B.H, S, te, False, float(t[0]), 0.0, 0.1, 0.1, 5e-4, 0.03, 0.01,
-            np.int64(10_000), 0]
+    if new:  # as the engine runs it: int32 last-event times relative to the start (te_base)
+        te = K.padded_te(B.H, B.W, 0, np.int32)
+        te_args = [te, np.int64(t[0])]
+    else:
+        te_args = [K.padded_te(B.H, B.W, int(t[0]))]
+    args = [t, x, y, p, 0, n, 0, B.H, B.W, B.H, S, *te_args, False, float(t[0]), 0.0, 0.1, 0.1, 5e-4, 0.03,
+            0.01, np.int64(10_000), 0]
     if new:
         args += [np.empty(0), np.empty(0)]
     t0 = time.perf_counter()

@@ -15,6 +15,7 @@ from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
 PARALLEL_MIN_WORK = 20_000  # events or pixels per call below which bands run in the caller
+TE32_MAX = int(np.iinfo(np.int32).max)  # the int32 last-event times' reach, µs (about 35 minutes)
 
 
 def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:
@@ -136,7 +137,11 @@ class AKFEngine(Engine):
         self.m = measurements
         self.params = params
         self._S = K.aligned_state(self.n, K.AKF_FIELDS)
-        self.te = [K.padded_te(shape[0], shape[1], 0) for _ in self.bands]
+        # last-event times, int32 relative to te_base (half the bytes of int64: the 3x3 windows of
+        # a 1280x720 sensor, which no cache holds, cost 20-25 % less; benchmarks/akf.py), int64
+        # absolute once a recording outgrows int32 (_te_fit): the same bits either way
+        self.te = [K.padded_te(shape[0], shape[1], 0, np.int32) for _ in self.bands]
+        self.te_base = 0
         self._pending = None  # a frame switch not yet applied: fn(band, row_lo, row_hi)
         self._ahead = None  # (k, Future of segment k) computed in the background
         self._ahead_pool = None
@@ -294,9 +299,25 @@ class AKFEngine(Engine):
             w = S[dark, K.A_LA] - math.log(off)
             S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
         S[:, K.A_TU] = float(t_init)
+        if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
+            self.te = [K.padded_te(self.shape[0], self.shape[1], 0, np.int32) for _ in self.bands]
         for te in self.te:
-            te[:] = t_init
+            te[:] = 0
+        self.te_base = t_init
         return t_init
+
+    def _te_fit(self, t_first: int, t_last: int) -> None:
+        """Make the events' times ``[t_first, t_last]`` µs fit the last-event times.
+
+        The kernels store ``t - te_base`` (``te_base``: the start time) in int32, which reaches
+        about 35 minutes from the start. Past that the arrays become int64 absolute times
+        (``te_base = 0``) for the rest of the run. Every use is a difference of two times, so the
+        filter's bits never depend on which. (Moving the base instead would rarely help: a pixel
+        that never fires, and the padding, keep the start time.)"""
+        if self.te[0].dtype == np.int32 and not (-TE32_MAX - 1 <= t_first - self.te_base
+                                                 and t_last - self.te_base <= TE32_MAX):
+            self.te = [te.astype(np.int64) + self.te_base for te in self.te]
+            self.te_base = 0
 
     def next_switch_us(self):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
@@ -309,11 +330,13 @@ class AKFEngine(Engine):
             return
         pr = self.params
         H, W = self.shape
+        self._te_fit(int(t[i0]), int(t[i1 - 1]))
+        tb = np.int64(self.te_base)
         rho = np.int64(pr.refractory_period_us)
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form, self.con_px, self.coff_px)
         if len(self.bands) == 1:
-            self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], *args)
+            self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], tb, *args)
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
             # a 1-in-8 sample of the rows balances as well, 8x cheaper
@@ -324,7 +347,7 @@ class AKFEngine(Engine):
                 # select the band's rows plus the two ghost rows, then filter only those events
                 idx = self._index_buffer(("band", b), i1 - i0)[0]
                 m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
-                return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], *args)
+                return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], tb, *args)
             self.n_events += int(sum(self._map_bands(band, i1 - i0)))
             return
         # threaded (every band has its own thread): worker w splits part w of the batch for all
@@ -348,7 +371,7 @@ class AKFEngine(Engine):
             n = 0
             for w in range(nb):
                 n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
-                                          self.te[b], *args)
+                                          self.te[b], tb, *args)
             return n
         self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
 

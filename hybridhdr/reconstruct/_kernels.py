@@ -162,12 +162,14 @@ def _pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
+def _akf_event(S, te, te_base, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs.
 
     See :func:`akf_events`. Indices are unsigned (no negative-index wraparound code) and ``te``
-    is padded by one pixel on every side, so the 3×3 window needs no border branch.
+    is padded by one pixel on every side, so the 3×3 window needs no border branch. ``te`` holds
+    times relative to ``te_base`` µs; every use is a difference of two times, taken in int64, so
+    an int32 ``te`` gives the int64 one's bits wherever its values fit.
     """
     tif = np.float64(ti)
     tu0 = S[pix, A_TU]
@@ -180,13 +182,14 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
     if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:  # a bound moves L̂, not P (projection)
         pp = pp * d
     # -- event noise (eq. 2, §3.1.1): t* = latest event time in the 3×3 window ------------------
-    te0 = te[tp]
+    tr = ti - te_base  # relative to te's origin
+    te0 = np.int64(te[tp])
     b = tp - wp
     c = tp + wp
-    tstar = max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
-                max(max(te0, te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE])))
-    dte = ti - te0
-    q = s_iso * ((ti - tstar) * US)
+    tstar = np.int64(max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
+                         max(max(te[tp], te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE]))))
+    dte = tr - te0
+    q = s_iso * ((tr - tstar) * US)
     if noise_form == 0:
         q += s_proc * (dte * US)
         if dte <= rho_us:
@@ -211,17 +214,21 @@ def _akf_event(S, te, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
         else:  # st is the ON step; OFF steps keep the thresholds' ratio (1 when symmetric: same bits)
             S[pix, A_LA] = lav - st * ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on))
     S[pix, A_TU] = tif
-    te[tp] = ti
+    te[tp] = tr
 
 
-def padded_te(height: int, width: int, t_init: int) -> np.ndarray:
-    """Last-event times for the AKF kernels: int64 ``(height + 2) * (width + 2)``, all ``t_init``.
+def padded_te(height: int, width: int, t_init: int, dtype=np.int64) -> np.ndarray:
+    """Last-event times for the AKF kernels: ``(height + 2) * (width + 2)``, all ``t_init``.
+
+    ``dtype`` int64 (times as they are, ``te_base = 0``) or int32 (times relative to a
+    ``te_base`` the caller keeps within int32 range of every value: half the bytes, so the 3×3
+    windows of a 1280x720 sensor miss the caches less; see ``AKFEngine._te_fit``).
 
     Pixel (y, x) lives at ``(y + 1) * (width + 2) + x + 1`` (see :func:`te_view`). The one-pixel
     border is never written and holds the start time, which no in-sensor time is below, so the
     3×3 maximum over the padded window equals the maximum over the window clipped at the border.
     """
-    return np.full((height + 2) * (width + 2), t_init, dtype=np.int64)
+    return np.full((height + 2) * (width + 2), t_init, dtype=dtype)
 
 
 def te_view(te: np.ndarray, height: int, width: int) -> np.ndarray:
@@ -247,8 +254,8 @@ def _akf_prefetch(S, te, y, x, w, wp, con_px, coff_px, has_px):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t, c_on, c_off,
-              s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
+def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0, seg_inv_t, c_on,
+              c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
     w = np.uint64(width)
     wp = w + ONE + ONE
@@ -262,16 +269,16 @@ def _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg
         tp = (yy + ONE) * wp + xx + ONE
         if yy < lo or yy >= hi:
             if yy + ONE == lo or yy == hi:  # ghost row: neighbour time only
-                te[tp] = t[i]
+                te[tp] = t[i] - te_base
             continue
-        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
+        _akf_event(S, te, te_base, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
                    seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_step,
+def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, te_base, has_la_step,
                seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
     """AKF update at each event (eqs. 15, 17, 20, 21 with the Q of eq. 2 and §3.1.1).
 
@@ -287,23 +294,24 @@ def akf_events(t, x, y, p, i0, i1, row_lo, row_hi, width, height, S, te, has_la_
     t_{i-1} ≤ ρ]; ``noise_form`` 1 (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) +
     σ_r (t_i - t_{i-1})·[t_i - t_{i-1} ≤ ρ]. t* is the latest event time in the 3×3 window
     including p (clipped at the border); t_{i-1} starts at the filter's start time. ``te`` is
-    the padded last-event-time array of :func:`padded_te`. ``con_px``/``coff_px`` (flattened, or
-    empty for the scalars ``c_on``/``c_off``) are per-pixel ON and OFF thresholds. A negative
-    ``la_step`` makes L^A follow each event's own jump.
+    the padded last-event-time array of :func:`padded_te`, its times relative to ``te_base`` µs
+    (0 for absolute int64 times; the kernel stores ``t_i - te_base``, which must fit ``te``).
+    ``con_px``/``coff_px`` (flattened, or empty for the scalars ``c_on``/``c_off``) are per-pixel
+    ON and OFF thresholds. A negative ``la_step`` makes L^A follow each event's own jump.
 
     Processes the events ``[i0, i1)``; events in the ghost rows ``row_lo - 1`` and ``row_hi``
     only set ``te`` and all other rows outside ``[row_lo, row_hi)`` are skipped (``0, height``
     is the serial filter). Returns the number of events applied to pixels of the band.
     """
     if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
-        return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+        return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0, seg_inv_t,
                          c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, True)
-    return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+    return _akf_scan(t, x, y, p, i0, i1, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0, seg_inv_t,
                      c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, False)
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t, c_on,
+def _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0, seg_inv_t, c_on,
                  c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
     w = np.uint64(width)
@@ -319,16 +327,16 @@ def _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_st
         xx = np.uint64(x[i])
         tp = (yy + ONE) * wp + xx + ONE
         if yy < lo or yy >= hi:  # ghost row
-            te[tp] = t[i]
+            te[tp] = t[i] - te_base
             continue
-        _akf_event(S, te, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
+        _akf_event(S, te, te_base, yy * w + xx, tp, wp, t[i], p[i] > 0, has_la_step, seg_t0,
                    seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px)
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S, te, has_la_step,
+def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S, te, te_base, has_la_step,
                        seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px,
                        coff_px):
     """:func:`akf_events` over the events ``i0 + idx[:m]`` (from :func:`band_select`).
@@ -338,9 +346,9 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
     disjoint bands with private ``te`` arrays reproduce it bit for bit.
     """
     if con_px.shape[0] > 0:
-        return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0,
+        return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0,
                             seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, True)
-    return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, has_la_step, seg_t0, seg_inv_t,
+    return _akf_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, S, te, te_base, has_la_step, seg_t0, seg_inv_t,
                         c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, False)
 
 

@@ -66,17 +66,21 @@ def test_akf_events_equals_py_func(noise_form, has_la_step, per_pixel):
     con = rng.uniform(0.08, 0.2, h * w) if per_pixel else np.empty(0)
     coff = rng.uniform(0.1, 0.3, h * w) if per_pixel else np.empty(0)
     outs = []
-    for fn in (K.akf_events, _py(K.akf_events)):
+    # the compiled kernel and its Python source; int64 absolute last-event times and int32 ones
+    # relative to te_base (as the engine keeps them): the same state and times bit for bit
+    for fn, dtype, base in ((K.akf_events, np.int64, 0), (_py(K.akf_events), np.int64, 0),
+                            (K.akf_events, np.int32, 1_000), (_py(K.akf_events), np.int32, 1_000)):
         S = _akf_state(h * w)
         if has_la_step == "follow":
             S[:, K.A_LASTEP] = -1.0
-        te = K.padded_te(h, w, 1_000)
-        n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, bool(has_la_step), 1_000.0, 1.0 / 100_000, 0.12, 0.08,
-               5e-4, 0.03, 0.01, np.int64(10_000), noise_form, con, coff)
-        outs.append((n, S.copy(), te.copy()))
-    assert outs[0][0] == outs[1][0] == len(t)
-    np.testing.assert_array_equal(outs[0][1], outs[1][1])
-    np.testing.assert_array_equal(outs[0][2], outs[1][2])
+        te = K.padded_te(h, w, 1_000 - base, dtype)
+        n = fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, np.int64(base), bool(has_la_step), 1_000.0,
+               1.0 / 100_000, 0.12, 0.08, 5e-4, 0.03, 0.01, np.int64(10_000), noise_form, con, coff)
+        outs.append((n, S.copy(), te.astype(np.int64) + base))
+    for o in outs[1:]:
+        assert o[0] == outs[0][0] == len(t)
+        np.testing.assert_array_equal(o[1], outs[0][1])
+        np.testing.assert_array_equal(o[2], outs[0][2])
 
 
 @pytest.mark.parametrize("update_frame", [False, True])
@@ -332,7 +336,7 @@ def test_isolated_noise_window_clipped_at_border(jit):
     S[:, K.A_TU] = 1_000.0
     te = K.padded_te(h, w, 1_000)
     s_iso = 1e3
-    fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, False, 1_000.0, 0.0, 0.1, 0.1, 0.0, s_iso, 0.0,
+    fn(t, x, y, p, 0, len(t), 0, h, w, h, S, te, np.int64(0), False, 1_000.0, 0.0, 0.1, 0.1, 0.0, s_iso, 0.0,
        np.int64(0), 0, np.empty(0), np.empty(0))
     P = S[:, K.A_P].reshape(h, w)
     # t_i − t*, keyed (y, x); the start time 1000 counts as every pixel's last event time

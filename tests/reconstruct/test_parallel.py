@@ -151,6 +151,40 @@ def test_akf_more_workers_than_rows_and_timestamps_past_2_31():
     np.testing.assert_array_equal(S1, S8)
 
 
+@pytest.mark.parametrize("n_workers", [1, 3])
+def test_int32_last_event_times_widen_to_int64_with_the_same_bits(monkeypatch, n_workers):
+    """The engine keeps the last-event times in int32 relative to the start and turns them into
+    int64 absolute times once the events pass int32's reach (about 35 minutes; shortened here
+    to 150 ms): the state and outputs equal those of int64 throughout, bit for bit."""
+    import hybridhdr.reconstruct._engine as E
+    h, w, n = 17, 13, 50_000
+    t0 = (1 << 33) + 11
+    t, x, y, p = _stream(n, h, w, seed=40 + n_workers, t0=t0, span=300_000, boundary_rows=(5, 6, 11))
+    fr = _frames(h, w, [t0 - 11, t0 + 100_000, t0 + 200_000, t0 + 299_000])
+    params = AKFParams(frame_precision_scale=1e3)
+    dtypes = []
+    fit = E.AKFEngine._te_fit
+
+    def spy(self, a, b):
+        fit(self, a, b)
+        dtypes.append(self.te[0].dtype)
+    monkeypatch.setattr(E.AKFEngine, "_te_fit", spy)
+    orig = K.padded_te
+    monkeypatch.setattr(K, "padded_te", lambda hh, ww, ti, dtype=np.int64: orig(hh, ww, ti, np.int64))
+    S_ref, o_ref, _ = _run_akf(n_workers, t, x, y, p, fr, params, (h, w))
+    assert set(dtypes) == {np.dtype(np.int64)}
+    monkeypatch.setattr(K, "padded_te", orig)
+    for limit, widened in ((1 << 31) - 1, False), (150_000, True):
+        monkeypatch.setattr(E, "TE32_MAX", limit)
+        dtypes.clear()
+        S, o, _ = _run_akf(n_workers, t, x, y, p, fr, params, (h, w))
+        assert dtypes[0] == np.int32 and (dtypes[-1] == np.int64) == widened, (limit, dtypes)
+        np.testing.assert_array_equal(S, S_ref)
+        for a, b in zip(o, o_ref):
+            for u, v in zip(a, b):
+                np.testing.assert_array_equal(u, v)
+
+
 @pytest.mark.parametrize("n_workers", [2, 4])
 def test_cf_parallel_bit_identical_threaded(n_workers):
     h, w, n = 20, 13, 60_000
@@ -214,12 +248,12 @@ def test_indexed_kernels_equal_py_func_and_scan_kernels():
         S = S0.copy()
         te = K.padded_te(h, w, 0)
         if kind == "scan":
-            c = K.akf_events(t, x, y, p, 3, n, lo, hi, w, h, S, te, *args)
+            c = K.akf_events(t, x, y, p, 3, n, lo, hi, w, h, S, te, np.int64(0), *args)
         else:
             fn = K.akf_events_indexed if kind == "indexed" else _py(K.akf_events_indexed)
             idx = np.empty(n, np.int32)
             m = K.band_select(y, 3, n, lo - 1, hi + 1, idx)
-            c = fn(t, x, y, p, 3, idx, m, lo, hi, w, h, S, te, *args)
+            c = fn(t, x, y, p, 3, idx, m, lo, hi, w, h, S, te, np.int64(0), *args)
         res.append((c, S.copy(), K.te_view(te, h, w)[lo - 1:hi + 1].copy()))
     for r in res[1:]:
         assert r[0] == res[0][0] == int(((y[3:] >= lo) & (y[3:] < hi)).sum())
