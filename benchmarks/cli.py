@@ -12,8 +12,8 @@ timed from start to exit (Python start-up and imports included in every figure a
 * ``read+filter``: ``--no-exr`` (events read, default two-sided AKF, outputs computed and dropped);
 * ``exr``: the same with the default EXR output (lossless, written by the writer pool);
 * ``exr_2x``: ``exr`` at twice the output rate, for the peak RSS against the number of outputs;
-* ``exr_zip`` (not with ``--quick``): ``exr`` with ``--exr-compression zip`` (the default before issue 21's measurements),
-  for the time and bytes the default (``none``, lossless) saves.
+* ``exr_zip`` (not with ``--quick``): ``exr`` with ``--exr-compression zip`` (the default before
+  issue 21's measurements), for the time and bytes the default (``none``, lossless) saves.
 
 ``F`` gives >= 500 outputs (``--quick``: 2 M events over 0.2 s at 2,500 Hz = 501 outputs). The
 goal (issue 21): ``exr`` wall time <= 1.5x ``read+filter`` in the same run, and the peak RSS flat
@@ -137,9 +137,10 @@ def main(argv=None) -> int:
                              and res["n_outputs"] >= 500 and n >= 2_000_000)
     res["loadavg_end"] = loadavg()
     res["elapsed_s"] = round(time.perf_counter() - t_start, 1)
+    zip_note = f"; zip {res['exr_zip_over_read_filter_2w']}x" if "exr_zip_2w" in best else ""
     print(f"EXR / read+filter: 1 worker {res['exr_over_read_filter_1w']}x, 2 workers "
           f"{res['exr_over_read_filter_2w']}x (goal <= 1.5x; EXR compression {DEFAULT_EXR_COMPRESSION}"
-          f"{'; zip %sx' % res['exr_zip_over_read_filter_2w'] if 'exr_zip_2w' in best else ''}); {res['n_outputs']} outputs; peak RSS "
+          f"{zip_note}); {res['n_outputs']} outputs; peak RSS "
           f"{rss['exr_1w']:.0f} MB, {rss['exr_2x_1w']:.0f} MB with {res['n_outputs_2x']} outputs "
           f"({res['rss_2x_outputs_over_1x']}x)", flush=True)
     print(json.dumps(res))

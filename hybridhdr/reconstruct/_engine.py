@@ -140,7 +140,7 @@ class AKFEngine(Engine):
         # last-event times, int32 relative to te_base (half the bytes of int64: the 3x3 windows of
         # a 1280x720 sensor, which no cache holds, cost 20-25 % less; benchmarks/akf.py), int64
         # absolute once a recording outgrows int32 (_te_fit): the same bits either way
-        self.te = [K.padded_te(shape[0], shape[1], 0, np.int32) for _ in self.bands]
+        self.te = self._int32_te()
         self.te_base = 0
         self._pending = None  # a frame switch not yet applied: fn(band, row_lo, row_hi)
         self._ahead = None  # (k, Future of segment k) computed in the background
@@ -300,11 +300,15 @@ class AKFEngine(Engine):
             S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
         S[:, K.A_TU] = float(t_init)
         if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
-            self.te = [K.padded_te(self.shape[0], self.shape[1], 0, np.int32) for _ in self.bands]
+            self.te = self._int32_te()
         for te in self.te:
             te[:] = 0
         self.te_base = t_init
         return t_init
+
+    def _int32_te(self) -> list:
+        """One zeroed int32 last-event-time array per band (times relative to ``te_base``)."""
+        return [K.padded_te(self.shape[0], self.shape[1], 0, np.int32) for _ in self.bands]
 
     def _te_fit(self, t_first: int, t_last: int) -> None:
         """Make the events' times ``[t_first, t_last]`` µs fit the last-event times.

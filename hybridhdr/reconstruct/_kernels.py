@@ -186,8 +186,8 @@ def _akf_event(S, te, te_base, pix, tp, wp, ti, positive, has_la_step, seg_t0, s
     te0 = np.int64(te[tp])
     b = tp - wp
     c = tp + wp
-    tstar = np.int64(max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
-                         max(max(te[tp], te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE]))))
+    tstar = max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
+                max(max(te0, te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE])))
     dte = tr - te0
     q = s_iso * ((tr - tstar) * US)
     if noise_form == 0:
