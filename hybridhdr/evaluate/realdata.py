@@ -99,13 +99,15 @@ def default_held_frames(rec) -> list[int]:
     return [k for k in range(1, len(fr) - 1) if fr.t_mid_us[k] > t0]
 
 
-def holdout_input(rec, k: int, task: str):
+def holdout_input(rec, k: int, task: str, time_offset_us: int = 0):
     """``(recording, t_us)``: the input without frame k (``leave_one_out``) or cut before it
-    (``next_frame``), and the output time (τ_k, or τ_k − 1 µs)."""
+    (``next_frame``), and the output time (τ_k, or τ_k − 1 µs). ``time_offset_us``: frame k stands
+    for τ_k + offset (a calibrated frame time), so the output time and the next-frame cut move by it
+    (the input's frames keep their stamps; the method shifts them by the same offset)."""
     fr = _trimmed_frames(rec)
     if not 0 <= k < len(fr):
         raise ValueError(f"held-out frame {k} is not among the {len(fr)} frames inside the events' span")
-    tk = int(fr.t_mid_us[k])
+    tk = int(fr.t_mid_us[k]) + int(time_offset_us)
     if task == "leave_one_out":
         sub = fr.select(np.setdiff1d(np.arange(len(fr)), [k]))
         return Recording(rec.events, rec.sensor_size, sub, rec.triggers, None, rec.metadata), tk
@@ -131,8 +133,40 @@ def _luminance(frame):
 #: Methods whose events are scaled by contrast thresholds (``thresholds="input"`` calibrates them).
 THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
 
-#: Values of ``thresholds``: the methods' own (``"params"``) or estimated on each input (``"input"``).
-THRESHOLD_SOURCES = ("params", "input")
+#: Values of ``thresholds``: the methods' own (``"params"``), estimated on each input (``"input"``),
+#: or the event/frame self-calibration of each input (``"selfcal"``: frame time offset, thresholds
+#: and the AKF's log offset, :mod:`hybridhdr.calibrate.selfcal`).
+THRESHOLD_SOURCES = ("params", "input", "selfcal")
+
+
+def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
+    """``(params, time_offset_us, used)``: ``params`` of ``method`` with the self-calibration of
+    ``rec_input`` (:func:`hybridhdr.calibrate.selfcal.self_calibration`): the AKF takes the
+    calibrated log offset I0 and thresholds, CF and direct integration thresholds re-fitted in their
+    own log model; every frame-using method takes the frame time offset. Inputs without the
+    information keep ``params`` and no offset (recorded in ``used``)."""
+    from ..calibrate.selfcal import self_calibration
+    m = resolve_method(method)
+    p = make_params(m, params)
+    cache = {} if cache is None else cache
+    if m in THRESHOLD_METHODS and not hasattr(p, "intensity_offset"):  # high-pass: no frames
+        return params, 0, None
+    own_i0 = None if m == "akf" or not hasattr(p, "intensity_offset") else float(p.intensity_offset)
+    if own_i0 not in cache:
+        try:
+            cache[own_i0] = self_calibration(rec_input, profile=profile, intensity_offset=own_i0)
+        except ValueError as e:
+            cache[own_i0] = str(e)[:200]
+    cal = cache[own_i0]
+    if isinstance(cal, str):
+        return params, 0, {"source": "params", "why": cal}
+    used = {"source": "selfcal", **{k: v for k, v in cal.items() if k != "calibration"}}
+    if m in THRESHOLD_METHODS:
+        over = {"contrast_threshold_on": cal["c_on"], "contrast_threshold_off": cal["c_off"]}
+        if m == "akf":
+            over["intensity_offset"] = cal["intensity_offset"]
+        p = p.replace(**over)
+    return p, int(cal["time_offset_us"]), used
 
 
 def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
@@ -186,6 +220,17 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
             try:
                 r_k, t = holdout_input(rec, k, tk)
                 params = s.params
+                dt = 0
+                if thresholds == "selfcal" and s.method not in ("frames_zoh", "frames_linear"):
+                    # the calibration of the recording without frame k (never the scored frame);
+                    # frame k stands for tau_k + dt, so it is predicted there (next-frame: the
+                    # input is cut just before that time)
+                    if loo_k is None:
+                        loo_k = r_k if tk == "leave_one_out" else holdout_input(rec, k, "leave_one_out")[0]
+                    params, dt, used = selfcal_params(loo_k, s.method, params, profile, cache=calib_k)
+                    st["thresholds"].append(used)
+                    if dt:
+                        r_k, t = holdout_input(rec, k, tk, time_offset_us=dt)
                 if thresholds == "input":
                     # next-frame: the filter sees only the data before tau_k; its two threshold
                     # numbers, a camera constant, come from the recording without frame k
@@ -195,7 +240,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     st["thresholds"].append(used)
                 t0 = time.perf_counter()
                 v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
-                                profile=profile, augment=s.augment)
+                                profile=profile, augment=s.augment, frame_time_offset_us=dt)
                 st["wall_s"] += time.perf_counter() - t0
                 st["frames"].append(_luminance(v.frames[0]))
             except Exception as e:  # reported per spec

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -342,7 +343,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
                      t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                      measurements=None, progress: Callable[[int], None] | None = None,
                      info: dict | None = None, augment=None, thresholds=None, cfa=None,
-                     demosaic: str = "log_cubic") -> Iterator[tuple[int, np.ndarray]]:
+                     demosaic: str = "log_cubic", frame_time_offset_us: int = 0) -> Iterator[tuple[int, np.ndarray]]:
     """Stream ``(t_us, image)`` pairs with memory bounded by ``chunk_events`` (plus the frames).
 
     Parameters are those of :func:`reconstruct`; ``source`` may also be a reader from
@@ -352,7 +353,7 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
     """
     kw = dict(times_us=times_us, fps=fps, mode=mode, profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
               n_workers=n_workers, chunk_events=chunk_events, measurements=measurements, progress=progress,
-              info=info, augment=augment, thresholds=thresholds)
+              info=info, augment=augment, thresholds=thresholds, frame_time_offset_us=frame_time_offset_us)
     cs = colour_source(source, cfa, demosaic)
     if cs is None:  # monochrome: the driver below, unchanged
         yield from _reconstruct_iter_mono(source, method, params, **kw)
@@ -365,7 +366,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                            t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
                            measurements=None, progress: Callable[[int], None] | None = None,
                            info: dict | None = None, augment=None,
-                           thresholds=None) -> Iterator[tuple[int, np.ndarray]]:
+                           thresholds=None, frame_time_offset_us: int = 0) -> Iterator[tuple[int, np.ndarray]]:
     method = resolve_method(method)
     if mode not in MODES:
         raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
@@ -381,9 +382,18 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
     thr = _threshold_arrays(thresholds)
     if times_us is not None:
         check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
+    if isinstance(frame_time_offset_us, bool) or not isinstance(frame_time_offset_us, (int, np.integer)):
+        raise TypeError(f"frame_time_offset_us must be an int (µs), got {type(frame_time_offset_us).__name__}")
     ss, frames, chunk_factory, close, n_declared, opened = _open_source(source)
     events = None
     try:
+        if frame_time_offset_us and frames is not None and len(frames):
+            # the time each frame stands for, as calibrated (hybridhdr.calibrate.selfcal): every
+            # exposure interval shifted, events untouched
+            dt = int(frame_time_offset_us)
+            frames = dataclasses.replace(frames, t_start_us=frames.t_start_us + dt, t_end_us=frames.t_end_us + dt)
+            if info is not None:
+                info["frame_time_offset_us"] = dt
         if thr is None and thresholds is None and method in ("akf", "cf", "direct", "highpass"):
             stored = _stored_thresholds(opened)  # a map calibrated into the container is used
             if stored is not None:
@@ -504,7 +514,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
                 mode: str = "offline", profile=None, t_start_us: int | None = None, t_end_us: int | None = None,
                 n_workers: int = 1, chunk_events: int = 1 << 20, measurements=None,
                 progress: Callable[[int], None] | None = None, augment=None, thresholds=None, cfa=None,
-                demosaic: str = "log_cubic") -> Video:
+                demosaic: str = "log_cubic", frame_time_offset_us: int = 0) -> Video:
     """Reconstruct linear-intensity video from events and frames.
 
     Parameters
@@ -572,6 +582,11 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         Demosaicking of colour outputs (:func:`hybridhdr.camera.cfa.demosaic`; default geometric
         interpolation, the scale-invariant one, measured best in ``benchmarks/colour.py``); reported in
         ``Video.info["cfa"]``.
+    frame_time_offset_us : int
+        Shift added to every frame's exposure interval (µs; events untouched): the time a frame
+        stands for when the recording's stamps mean something else, e.g. the offset
+        ``hybridhdr.calibrate.selfcal`` estimates from the recording. Output times are not
+        shifted. Recorded in ``Video.info["frame_time_offset_us"]``.
 
     Returns
     -------
@@ -589,7 +604,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
                                    profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
                                    n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
                                    progress=progress, info=info, augment=augment, thresholds=thresholds,
-                                   cfa=cfa, demosaic=demosaic):
+                                   cfa=cfa, demosaic=demosaic, frame_time_offset_us=frame_time_offset_us):
         ts.append(t)
         imgs.append(img)
     method = resolve_method(method)

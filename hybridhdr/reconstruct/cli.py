@@ -48,6 +48,11 @@ def add_parser(subparsers) -> None:
                    help="contrast threshold c (log units), or 'auto': one ON and one OFF threshold estimated from "
                         "the recording's frames and events (reads it into memory once; 'hybridhdr calibrate "
                         "thresholds' gives a per-pixel map) [default: as the recording declares, else 0.1]")
+    p.add_argument("--self-calibrate", choices=("auto", "on", "off"), default="auto",
+                   help="estimate from the recording's own frames and events the time each frame stands for, the "
+                        "contrast thresholds and (AKF) the log model's offset I0 (hybridhdr.calibrate.selfcal; "
+                        "docs/calibrate.md). auto: for a recording that declares no thresholds when none are given "
+                        "(AKF, CF, direct); recorded in run.json")
     p.add_argument("--cutoff-hz", type=positive_float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
     a.add_argument("--augmentation", action="store_true",
@@ -119,6 +124,66 @@ def set_threshold_estimator(fn) -> None:
     """Install the estimator behind ``--contrast-threshold auto`` (the app layer does)."""
     global _THRESHOLD_ESTIMATOR
     _THRESHOLD_ESTIMATOR = fn
+
+
+#: ``fn(recording, *, profile, intensity_offset) -> dict`` behind ``--self-calibrate``
+#: (:func:`hybridhdr.calibrate.selfcal.self_calibration`), installed by the ``hybridhdr`` command.
+_SELF_CALIBRATOR = None
+
+#: Methods ``--self-calibrate`` applies to (a frame model and contrast thresholds).
+SELF_CALIBRATED_METHODS = ("akf", "cf", "direct")
+
+
+def set_self_calibrator(fn) -> None:
+    """Install the estimator behind ``--self-calibrate`` (the app layer does)."""
+    global _SELF_CALIBRATOR
+    _SELF_CALIBRATOR = fn
+
+
+def self_calibrate_run(args, params, method: str, given: bool):
+    """``(params, frame_time_offset_us, record or None, note or None)`` for ``--self-calibrate``.
+
+    ``auto`` calibrates only a recording that declares no thresholds (nor stores a map) when the
+    command line gives none; ``on`` always (an error when the recording cannot tell); ``off``
+    never. The AKF takes the calibrated log offset and thresholds, CF and direct integration
+    thresholds in their own log model; all take the frame time offset."""
+    mode = getattr(args, "self_calibrate", "off")
+    if mode == "off" or method not in SELF_CALIBRATED_METHODS:
+        if mode == "on" and method not in SELF_CALIBRATED_METHODS:
+            raise ValueError(f"--self-calibrate on applies to --method {'/'.join(SELF_CALIBRATED_METHODS)}, "
+                             f"not {method}")
+        return params, 0, None, None
+    if mode == "auto" and (given or args.thresholds is not None or args.contrast_threshold is not None):
+        return params, 0, None, None
+    if _SELF_CALIBRATOR is None:
+        raise ValueError("--self-calibrate needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command")
+    from ..formats import read
+    from .api import _declared_thresholds, _open_source, _stored_thresholds
+    if mode == "auto":
+        _, frames, _, close, _, opened = _open_source(str(args.recording))
+        try:
+            declared = _declared_thresholds(opened) is not None or _stored_thresholds(opened) is not None
+        finally:
+            close()
+        if declared or frames is None or len(frames) < 3:
+            return params, 0, None, None
+    enc = getattr(args, "frame_encoding", None)
+    rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
+    own_i0 = None if method == "akf" else float(params.intensity_offset)
+    try:
+        cal = _SELF_CALIBRATOR(rec, profile=args.profile, intensity_offset=own_i0)
+    except ValueError as e:
+        if mode == "on":
+            raise ValueError(f"--self-calibrate on: the recording cannot tell ({e})") from None
+        return params, 0, None, f"self-calibration skipped: {e}"
+    over = {"contrast_threshold_on": cal["c_on"], "contrast_threshold_off": cal["c_off"]}
+    if method == "akf":
+        over["intensity_offset"] = cal["intensity_offset"]
+    note = (f"self-calibrated from the recording: frames stand for their stamp {cal['time_offset_us']:+d} µs, ON "
+            f"{cal['c_on']:.4g}, OFF {cal['c_off']:.4g} (log units) in ln(I + {over.get('intensity_offset', own_i0):.3g}); "
+            f"events explain {100 * cal['r2']:.0f} % of the frames' log changes (uncalibrated "
+            f"{100 * cal['r2_nominal']:.0f} %)")
+    return params.replace(**over), int(cal["time_offset_us"]), cal, note
 
 
 def estimate_run_thresholds(args, params):
@@ -324,6 +389,12 @@ def run(args) -> int:
                 raise ValueError("--contrast-threshold auto and --thresholds both give the thresholds; use one")
             params, auto_note = estimate_run_thresholds(args, params)
         given = thresholds_given(args)  # once: a --config file is read for it
+        params, frame_dt, selfcal_record, selfcal_note = self_calibrate_run(args, params, method, given)
+        if selfcal_record is not None:
+            auto_note, given = selfcal_note, True
+            print(selfcal_note, file=sys.stderr)
+        elif selfcal_note:
+            print(f"note: {selfcal_note}", file=sys.stderr)
         run_params = api_params(params, given)
         augment = build_augment(args)
         times = None
@@ -366,7 +437,7 @@ def run(args) -> int:
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
                                                augment=augment, thresholds=args.thresholds, cfa=args.cfa,
-                                               demosaic=args.demosaic):
+                                               demosaic=args.demosaic, frame_time_offset_us=frame_dt):
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
@@ -392,6 +463,8 @@ def run(args) -> int:
                     used = auto_note or used or ("given on the command line" if given else
                                                  "the method's default (none given, none declared by the recording)")
                 run_info["thresholds"] = used
+            if selfcal_record is not None:
+                run_info["self_calibration"] = selfcal_record
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
                 if key in info:
                     run_info[key] = info[key]
