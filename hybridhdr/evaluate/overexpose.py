@@ -647,11 +647,10 @@ def plot_method(res: dict, gain: float, label: str, path) -> None:
     axs[1].imshow(grey(data["over_codes"][i]), cmap="gray", vmin=0, vmax=m)
     axs[1].set_title(f"over-exposed x{gain:g} (codes)")
     im2 = axs[2].imshow(lx, cmap="gray", vmin=vmin, vmax=vmax)
-    axs[2].set_title(f"{label}: a log x + b (a={a:.2f}, b={b:.2f})")
+    axs[2].set_title(f"{label}: a ln x + b (a={a:.2f}, b={b:.2f})")
     fig.colorbar(im2, ax=axs[2], shrink=0.8, label="ln intensity (reference scale)")
     scored_px = cls["recoverable_offline"][i] | cls["well_exposed"][i]  # the causal class is inside the offline one
-    cmap = matplotlib.colormaps["RdBu_r"].copy()
-    cmap.set_bad("0.8")  # pixels of no class: light grey
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.8")  # pixels of no class: light grey
     im3 = axs[3].imshow(np.where(scored_px, err, np.nan), cmap=cmap, vmin=-1.0, vmax=1.0)
     fig.colorbar(im3, ax=axs[3], shrink=0.8, label="ln r - (a ln x + b)")
     colours = {"recoverable_causal": "lime", "recoverable_offline": "orange", "well_exposed": "magenta"}
