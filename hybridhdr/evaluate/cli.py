@@ -498,7 +498,7 @@ def _overexpose_specs(args):
 def run_overexpose_cmd(args) -> int:
     from .._util.atomic import AtomicFolder, write_json_atomic, write_text_atomic
     from ..formats import read
-    from .overexpose import evaluate_overexpose, format_overexpose, plot_method, write_per_frame_csv
+    from .overexpose import evaluate_overexpose, format_overexpose, gain_key, plot_method, write_per_frame_csv
     specs, skipped = _overexpose_specs(args)
     frames = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
     if args.profile is not None and not args.profile.is_file():
@@ -528,7 +528,7 @@ def run_overexpose_cmd(args) -> int:
         if images is not None:
             res["_images"] = images
             for g in res["gains"]:
-                for lab, row in res[str(g)]["methods"].items():
+                for lab, row in res["by_gain"][gain_key(g)]["methods"].items():
                     if row.get("status") == "ok":
                         name = f"figures/{lab}_gain{g:g}.png"
                         plot_method(res, g, lab, folder.path / name)

@@ -67,7 +67,7 @@ from . import realdata as RD
 from .accuracy import LOG_FLOOR, log_errors, recoverable_masks
 
 __all__ = ["CLASSES", "BASELINES", "OverexposeSpec", "default_specs", "FRAME_METHODS", "overexpose_recording",
-           "pixel_classes", "default_scored_frames", "apply_calibration", "evaluate_overexpose",
+           "pixel_classes", "default_scored_frames", "gain_key", "apply_calibration", "evaluate_overexpose",
            "format_overexpose", "per_frame_rows", "write_per_frame_csv", "plot_method"]
 
 #: The pixel classes (module docstring), in the order of the tables.
@@ -393,6 +393,11 @@ def _scores(x, ref, classes, frames_ids, t_us) -> dict:
 RATIO_FLOOR = 1e-6
 
 
+def gain_key(gain) -> str:
+    """The key of a gain in ``evaluate_overexpose(...)["by_gain"]``: ``"4"``, ``"2.5"``."""
+    return f"{float(gain):g}"
+
+
 def _ratio(a, b) -> float:
     return float(a / b) if (math.isfinite(a) and math.isfinite(b) and b > RATIO_FLOOR) else float("nan")
 
@@ -422,7 +427,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     -------
     dict with ``frames`` (scored, indices into the kept frames), ``frame_indices`` (into the
     recording's frames), ``t_us``, ``well_exposed_codes``, ``clip_codes``, ``thresholds``,
-    ``gains`` and per gain ``str(gain)``: ``{"counts": {class: n}, "counts_per_frame",
+    ``gains`` and ``by_gain``: per :func:`gain_key` ``{"counts": {class: n}, "counts_per_frame",
     "clipped_fraction", "methods": {label: {"method", "mode", "role", "status", "log_rmse",
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
     "wall_s", "per_frame", "used" (with thresholds="input" or calibrate)}}}``.
@@ -470,7 +475,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
            "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
            "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "
                   "pixels the over-exposed frame shows unclipped" % LOG_FLOOR,
-           "gains": gains, "skipped": dict(skipped or {})}
+           "gains": gains, "skipped": dict(skipped or {}), "by_gain": {}}
     images = {}
     for g in gains:
         over, refs = overexpose_recording(rec_k, g, profile=prof)
@@ -535,7 +540,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
         if keep_images:
             images[(g, "_data")] = {"reference": ref, "over_codes": over.frames.images[scored],
                                     "orig_codes": fr_all.images[scored], "classes": cls, "max_code": prof.max_code}
-        res[str(g)] = gres
+        res["by_gain"][gain_key(g)] = gres
     if keep_images:
         res["_images"] = images
     return res
@@ -555,7 +560,7 @@ def format_overexpose(res: dict, title: str = "") -> str:
     """The tables of :func:`evaluate_overexpose` as text, one per gain."""
     lines = []
     for g in res["gains"]:
-        gr = res[str(g)]
+        gr = res["by_gain"][gain_key(g)]
         n = gr["counts"]
         lines.append(f"{title}gain {g:g}: frames {res['frames']} (recording frames {res['frame_indices']}); "
                      f"pixels recoverable causal {n['recoverable_causal']}, offline {n['recoverable_offline']}, "
@@ -581,7 +586,7 @@ def per_frame_rows(res: dict) -> list[dict]:
     """One row per (gain, method, frame, class): n_pixels, log_rmse, ratio_to_frames_only."""
     rows = []
     for g in res["gains"]:
-        for lab, row in res[str(g)]["methods"].items():
+        for lab, row in res["by_gain"][gain_key(g)]["methods"].items():
             if row.get("status") != "ok":
                 continue
             for pf in row["per_frame"]:
@@ -621,7 +626,7 @@ def plot_method(res: dict, gain: float, label: str, path) -> None:
     from .._util.atomic import atomic_path
     data = res["_images"][(gain, "_data")]
     x_all = res["_images"][(gain, label)]
-    row = res[str(gain)]["methods"][label]
+    row = res["by_gain"][gain_key(gain)]["methods"][label]
     cls = data["classes"]
     i = int(np.argmax(cls["recoverable_causal"].sum(axis=(1, 2))))
     a, b = row["log_fit"]

@@ -50,7 +50,7 @@ def test_recoverable_error_vanishes_with_ideal_events():
         specs = [O.OverexposeSpec("akf_causal", "akf", "causal", {"contrast_threshold": c}),
                  O.OverexposeSpec("akf", "akf", "offline", {"contrast_threshold": c})]
         res = O.evaluate_overexpose(rec, [4], specs)
-        g = res["4.0"]
+        g = res["by_gain"]["4"]
         assert res["frames"] == [1, 2, 3, 4, 5]
         assert g["counts"]["recoverable_causal"] > 200 and g["counts"]["well_exposed"] > 100
         fo = g["methods"]["frames_only"]
@@ -138,8 +138,8 @@ def test_colour_recording_is_scored_in_luminance():
     over, refs = O.overexpose_recording(crec, 4)
     assert over.frames.images.shape == rgb.shape and refs.images.shape == rgb.shape
     res = O.evaluate_overexpose(crec, [4], [O.OverexposeSpec("akf_causal", "akf", "causal", {"contrast_threshold": 0.05})])
-    m = res["4.0"]["methods"]
-    assert m["akf_causal"]["status"] == "ok" and res["4.0"]["counts"]["recoverable_causal"] > 0
+    m = res["by_gain"]["4"]["methods"]
+    assert m["akf_causal"]["status"] == "ok" and res["by_gain"]["4"]["counts"]["recoverable_causal"] > 0
     assert m["frames_only"]["log_rmse"]["well_exposed"] < 1e-9
 
 
@@ -185,7 +185,7 @@ def test_calibration_and_input_thresholds_never_see_the_scored_frame(monkeypatch
     for k, s in zip(scored, seen):
         assert s == set(tau.tolist()) - {int(tau[k])}
     assert len(est_seen) == 2 * len(scored) and all(s in seen for s in est_seen)
-    used = res["4.0"]["methods"]["akf_causal"]["used"]
+    used = res["by_gain"]["4"]["methods"]["akf_causal"]["used"]
     assert [u["frame"] for u in used] == scored
     assert all(u["calibration"]["applied"] == {"contrast_threshold": 0.05} and u["calibration"]["note"] == "spy"
                for u in used)
@@ -202,8 +202,8 @@ def test_planted_frame_changes_no_estimate_made_for_it():
     rec2 = Recording(rec.events, rec.sensor_size, Frames(noisy, fr.t_start_us, fr.t_end_us, encoding="linear"),
                      metadata=rec.metadata)
     specs = [O.OverexposeSpec("akf_causal", "akf", "causal")]
-    u1 = O.evaluate_overexpose(rec, [4], specs, thresholds="input")["4.0"]["methods"]["akf_causal"]["used"]
-    u2 = O.evaluate_overexpose(rec2, [4], specs, thresholds="input")["4.0"]["methods"]["akf_causal"]["used"]
+    u1 = O.evaluate_overexpose(rec, [4], specs, thresholds="input")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
+    u2 = O.evaluate_overexpose(rec2, [4], specs, thresholds="input")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
     by1 = {u["frame"]: u["thresholds"] for u in u1}
     by2 = {u["frame"]: u["thresholds"] for u in u2}
     assert by1[2]["source"] == "input" and by1[2] == by2[2]
@@ -221,14 +221,14 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
                  "--contrast-threshold", "0.05", "--out", str(out), "--json", "--no-progress", "--no-figures"]) == 0
     res = json.loads(capsys.readouterr().out)
     assert res["gains"] == [2.0, 4.0] and res["thresholds"] == "params"
-    m = res["4.0"]["methods"]
+    m = res["by_gain"]["4"]["methods"]
     assert set(m) == {"akf_causal", "frames_only", "hold_previous"}
     assert m["akf_causal"]["ratio_to_frames_only"]["recoverable_causal"] < 0.2
     assert m["frames_only"]["ratio_to_frames_only"]["well_exposed"] is None  # no ratio to a zero error
     for name in ("results.json", "table.txt", "per_frame.csv"):
         assert (out / name).is_file(), name
     assert not (out / "figures").exists()
-    assert json.loads((out / "results.json").read_text())["4.0"]["counts"] == res["4.0"]["counts"]
+    assert json.loads((out / "results.json").read_text())["by_gain"]["4"]["counts"] == res["by_gain"]["4"]["counts"]
     rows = (out / "per_frame.csv").read_text().splitlines()
     assert rows[0] == "gain,method,frame,t_us,class,n_pixels,log_rmse,ratio_to_frames_only,nonpositive_frac"
     assert len(rows) == 1 + 2 * 3 * len(res["frames"]) * 3  # gains x methods x frames x classes
