@@ -35,9 +35,12 @@ a mosaic frame), unaltered (the paper's practice): ``log r ≈ a·log max(x, 1e-
 once per (gain, method) by least squares over all scored frames, on the pixels the over-exposed
 frame shows unclipped (:func:`hybridhdr.evaluate.accuracy.log_errors`, the fit of the accuracy
 suites), then the RMSE of ``log r − (a·log x + b)`` on each class, pooled over the frames and per
-frame (same fit); the ratio to ``frames_only`` per class; and the fraction of non-positive or
-non-finite reconstructed pixels (before any floor). Baselines: ``frames_only`` (the clipped
-frame k itself, ``CRF⁻¹(code)``) and ``hold_previous`` (frame k−1, causal).
+frame (same fit), and on the fit's own pixels (``log_rmse_fit_pixels``, a diagnostic); the
+ratio to ``frames_only`` per class (none where the frames-only error is below
+:data:`RATIO_FLOOR`: the well-exposed class, where the frame is the reference); and the
+fraction of non-positive or non-finite reconstructed pixels (before any floor). Baselines:
+``frames_only`` (the clipped frame k itself, ``CRF⁻¹(code)``) and ``hold_previous`` (frame k−1,
+causal). Memory: one method's reconstructions at the scored frames at a time.
 
 **Parameters**: each method's own (``thresholds="params"``, the CLI defaults) or, with
 ``thresholds="input"``, pooled ON/OFF thresholds estimated in the method's log model on the
@@ -299,7 +302,7 @@ def apply_calibration(spec: OverexposeSpec, params, overrides) -> tuple[object, 
     for src in (overrides.get("params") or {}, (overrides.get("method_params") or {}).get(spec.method) or {},
                 (overrides.get("method_params") or {}).get(spec.label) or {}):
         for k, v in src.items():
-            if k in fields or hasattr(p, k):
+            if k in fields:
                 applied[k] = v
             else:
                 skipped.append(k)
@@ -362,28 +365,23 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
 
 def _scores(x, ref, classes, frames_ids, t_us) -> dict:
     """Pooled and per-frame class errors of one reconstruction stack (module docstring)."""
-    masks = {"well_exposed": classes["unclipped"]}  # log_errors fits on "well_exposed": the fit's pixels
-    n = x.shape[0]
-    for c in CLASSES:
-        masks[f"c_{c}"] = classes[c]
-        for i in range(n):
-            sel = np.zeros_like(classes[c])
-            sel[i] = classes[c][i]
-            masks[f"f{i}_{c}"] = sel
-    e = log_errors(x, ref, masks)
+    masks = {"well_exposed": classes["unclipped"], **{f"c_{c}": classes[c] for c in CLASSES}}
+    e = log_errors(x, ref, masks)  # the fit's pixels are log_errors' "well_exposed": the unclipped ones
+    fit = (e["log_fit_a"], e["log_fit_b"])
     finite_pos = np.isfinite(x) & (x > 0)
-    out = {"log_fit": [e["log_fit_a"], e["log_fit_b"]],
+    out = {"log_fit": [fit[0], fit[1]],
            "log_rmse": {c: e[f"log_rmse_c_{c}"] for c in CLASSES},
            "n_pixels": {c: e[f"n_c_{c}"] for c in CLASSES},
            "log_rmse_fit_pixels": e["log_rmse_well_exposed"],
            "nonpositive_frac": float(np.mean(~finite_pos)),
            "n_nonfinite": int(np.count_nonzero(~np.isfinite(x))),
            "per_frame": []}
-    for i in range(n):
+    for i in range(x.shape[0]):  # each frame with the sequence's fit
+        ei = log_errors(x[i], ref[i], {"well_exposed": classes["unclipped"][i],
+                                       **{c: classes[c][i] for c in CLASSES}}, fit=fit)
         out["per_frame"].append({"frame": int(frames_ids[i]), "t_us": int(t_us[i]),
                                  "nonpositive_frac": float(np.mean(~finite_pos[i])),
-                                 **{c: {"n_pixels": e[f"n_f{i}_{c}"], "log_rmse": e[f"log_rmse_f{i}_{c}"]}
-                                    for c in CLASSES}})
+                                 **{c: {"n_pixels": ei[f"n_{c}"], "log_rmse": ei[f"log_rmse_{c}"]} for c in CLASSES}})
     return out
 
 
@@ -420,7 +418,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     calibrate : callable ``calibrate(recording_without_frame_k) -> overrides``
         (:func:`apply_calibration`), called once per scored frame and gain; None: no calibration
     skipped : ``{label: why}`` of specs left out (reported)
-    keep_images : also return per (gain, label) the reconstructions and the frames for figures
+    keep_images : also return, under ``_images``, per (gain, label) the reconstruction of the figures'
+        frame (the scored frame with the most recoverable-causal pixels) and that frame's data
     log : callable(str) for failures; progress : callable() after each (gain, method)
 
     Returns
@@ -487,46 +486,44 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
         gres = {"counts": {c: int(cls[c].sum()) for c in CLASSES},
                 "counts_per_frame": {c: [int(v) for v in cls[c].sum(axis=(1, 2))] for c in CLASSES},
                 "clipped_fraction": float(np.mean(~cls["unclipped"])), "methods": {}}
-        runs = []
-        if baselines:
-            for lab, ks in (("frames_only", scored), ("hold_previous", [k - 1 for k in scored])):
-                x = over_lin[ks]
-                x = np.stack([_luminance(v) for v in x]) if ref_ndim == 4 else x
-                runs.append((lab, {"method": "frames", "mode": "causal", "role": "baseline"}, x, 0.0, None, None))
-        cal_cache = {}
-        for s in specs:
-            info = {"method": s.method, "mode": s.mode, "role": "method"}
-            try:
-                x, wall, used = _run_spec(s, over, scored, t_us, profile=profile, thresholds=thresholds,
-                                          calibrate=calibrate, cal_cache=cal_cache,
-                                          ref_ndim=ref_ndim, pattern=pattern)
-                runs.append((s.label, info, x, wall, used, None))
-            except Exception as e:  # reported per method, never hidden
-                err = f"error: {type(e).__name__}: {e}"
-                runs.append((s.label, info, None, 0.0, None, err))
-                if log is not None:
-                    log(f"gain {g:g}, {s.label}: {err}")
-            if progress is not None:
-                progress()
+        fig_i = int(np.argmax(cls["recoverable_causal"].sum(axis=(1, 2))))  # the figures' frame
         base = None
-        for lab, info, x, wall, used, err in runs:
-            row = dict(info)
-            if err is not None:
-                row["status"] = err
-                gres["methods"][lab] = row
-                continue
+
+        def record(lab, row, x, wall, used):
+            nonlocal base
             sc = _scores(x, ref, cls, scored, t_us)
             row.update(status="ok", log_rmse=sc["log_rmse"], n_pixels=sc["n_pixels"],
-                       log_rmse_fit_pixels=sc["log_rmse_fit_pixels"],
-                       nonpositive_frac=sc["nonpositive_frac"], n_nonfinite=sc["n_nonfinite"], log_fit=sc["log_fit"],
-                       wall_s=wall, per_frame=sc["per_frame"])
+                       log_rmse_fit_pixels=sc["log_rmse_fit_pixels"], nonpositive_frac=sc["nonpositive_frac"],
+                       n_nonfinite=sc["n_nonfinite"], log_fit=sc["log_fit"], wall_s=wall, per_frame=sc["per_frame"])
             if used is not None:
                 row["used"] = used
             if lab == "frames_only":
                 base = row
-            gres["methods"][lab] = row
             if keep_images:
-                images[(g, lab)] = x
+                images[(g, lab)] = x[fig_i]
+
+        if baselines:
+            for lab, ks in (("frames_only", scored), ("hold_previous", [k - 1 for k in scored])):
+                x = over_lin[ks]
+                x = np.stack([_luminance(v) for v in x]) if ref_ndim == 4 else x
+                gres["methods"][lab] = row = {"method": "frames", "mode": "causal", "role": "baseline"}
+                record(lab, row, x, 0.0, None)
+        cal_cache = {}
+        for s in specs:
+            gres["methods"][s.label] = row = {"method": s.method, "mode": s.mode, "role": "method"}
+            try:
+                x, wall, used = _run_spec(s, over, scored, t_us, profile=profile, thresholds=thresholds,
+                                          calibrate=calibrate, cal_cache=cal_cache,
+                                          ref_ndim=ref_ndim, pattern=pattern)
+            except Exception as e:  # reported per method, never hidden
+                row["status"] = f"error: {type(e).__name__}: {e}"
+                if log is not None:
+                    log(f"gain {g:g}, {s.label}: {row['status']}")
+            else:
+                record(s.label, row, x, wall, used)
+                x = None  # one method's stack at a time
+            if progress is not None:
+                progress()
         for lab, row in gres["methods"].items():
             if row.get("status") != "ok":
                 continue
@@ -538,8 +535,10 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                 for c in CLASSES:
                     pf[c]["ratio_to_frames_only"] = _ratio(pf[c]["log_rmse"], bf[c]["log_rmse"])
         if keep_images:
-            images[(g, "_data")] = {"reference": ref, "over_codes": over.frames.images[scored],
-                                    "orig_codes": fr_all.images[scored], "classes": cls, "max_code": prof.max_code}
+            images[(g, "_data")] = {"frame_index": fig_i, "reference": ref[fig_i],
+                                    "over_codes": over.frames.images[scored[fig_i]],
+                                    "orig_codes": fr_all.images[scored[fig_i]],
+                                    "classes": {c: cls[c][fig_i] for c in cls}, "max_code": prof.max_code}
         res["by_gain"][gain_key(g)] = gres
     if keep_images:
         res["_images"] = images
@@ -625,13 +624,12 @@ def plot_method(res: dict, gain: float, label: str, path) -> None:
 
     from .._util.atomic import atomic_path
     data = res["_images"][(gain, "_data")]
-    x_all = res["_images"][(gain, label)]
+    x = res["_images"][(gain, label)]
     row = res["by_gain"][gain_key(gain)]["methods"][label]
     cls = data["classes"]
-    i = int(np.argmax(cls["recoverable_causal"].sum(axis=(1, 2))))
+    i = data["frame_index"]
     a, b = row["log_fit"]
-    ref = data["reference"][i]
-    x = x_all[i]
+    ref = data["reference"]
     with np.errstate(divide="ignore", invalid="ignore"):
         lr = np.log(np.where(ref > 0, ref, np.nan))
         lx = a * np.log(np.maximum(np.where(np.isfinite(x), x, np.nan), LOG_FLOOR)) + b
@@ -647,23 +645,23 @@ def plot_method(res: dict, gain: float, label: str, path) -> None:
     fig, axs = plt.subplots(1, 4, figsize=(16, 4.2), constrained_layout=True)
     k = res["frames"][i]
     pf = row["per_frame"][i]
-    axs[0].imshow(grey(data["orig_codes"][i]), cmap="gray", vmin=0, vmax=m)
+    axs[0].imshow(grey(data["orig_codes"]), cmap="gray", vmin=0, vmax=m)
     axs[0].set_title(f"original frame {k} (codes)")
-    axs[1].imshow(grey(data["over_codes"][i]), cmap="gray", vmin=0, vmax=m)
+    axs[1].imshow(grey(data["over_codes"]), cmap="gray", vmin=0, vmax=m)
     axs[1].set_title(f"over-exposed x{gain:g} (codes)")
     im2 = axs[2].imshow(lx, cmap="gray", vmin=vmin, vmax=vmax)
     axs[2].set_title(f"{label}: a ln x + b (a={a:.2f}, b={b:.2f})")
     fig.colorbar(im2, ax=axs[2], shrink=0.8, label="ln intensity (reference scale)")
-    scored_px = cls["recoverable_offline"][i] | cls["well_exposed"][i]  # the causal class is inside the offline one
+    scored_px = cls["recoverable_offline"] | cls["well_exposed"]  # the causal class is inside the offline one
     cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.8")  # pixels of no class: light grey
     im3 = axs[3].imshow(np.where(scored_px, err, np.nan), cmap=cmap, vmin=-1.0, vmax=1.0)
     fig.colorbar(im3, ax=axs[3], shrink=0.8, label="ln r - (a ln x + b)")
     colours = {"recoverable_causal": "lime", "recoverable_offline": "orange", "well_exposed": "magenta"}
     handles = []
     for c, col in colours.items():
-        mk = cls[c][i]
+        mk = cls[c]
         if c == "recoverable_offline":
-            mk = mk & ~cls["recoverable_causal"][i]  # outline only what the causal class lacks
+            mk = mk & ~cls["recoverable_causal"]  # outline only what the causal class lacks
         if mk.any() and c != "well_exposed":
             axs[3].contour(mk.astype(float), levels=[0.5], colors=col, linewidths=0.7)
         handles.append(Line2D([0], [0], color=col, lw=1.5 if c != "well_exposed" else 0,

@@ -71,6 +71,11 @@ def test_recoverable_error_vanishes_with_ideal_events():
             # where frame k sees the pixel the filter follows the frame
             assert m["log_rmse"]["well_exposed"] < 0.01
             errs[(lab, c)] = e
+            # per frame with the same (sequence) fit: the pixel-weighted RMS of the frames is the pooled one
+            pf = [(f["recoverable_causal"]["n_pixels"], f["recoverable_causal"]["log_rmse"]) for f in m["per_frame"]]
+            pooled = np.sqrt(sum(n * v * v for n, v in pf if n) / sum(n for n, _ in pf))
+            assert pooled == pytest.approx(e, rel=1e-9)
+            assert sum(n for n, _ in pf) == g["counts"]["recoverable_causal"]
     assert errs[("akf_causal", 0.01)] < 0.5 * errs[("akf_causal", 0.05)]
 
 
