@@ -151,16 +151,17 @@ def fit_log_affine(recon, reference, mask, floor: float = LOG_FLOOR) -> tuple[fl
     return a, mr - a * mx
 
 
-def log_errors(recon, reference, masks: dict, floor: float = LOG_FLOOR) -> dict:
+def log_errors(recon, reference, masks: dict, floor: float = LOG_FLOOR, fit=None) -> dict:
     """The log-domain errors of the module docstring.
 
     ``masks`` must hold ``well_exposed`` (the fit's pixels) and may hold any other named masks;
     pixels with a reference <= 0 are left out; returns ``log_fit_a``, ``log_fit_b``, ``log_rmse_<name>`` and ``n_<name>`` for each mask
-    (NaN for an empty mask), plus ``log_rmse_all`` (own fit over all pixels).
+    (NaN for an empty mask), plus ``log_rmse_all`` (own fit over all pixels). ``fit``: a given
+    ``(a, b)`` instead of the fit on ``well_exposed`` (e.g. one frame scored with its sequence's fit).
     """
     x = np.asarray(recon, dtype=np.float64)
     r = np.asarray(reference, dtype=np.float64)
-    a, b = fit_log_affine(x, r, masks["well_exposed"], floor)
+    a, b = fit_log_affine(x, r, masks["well_exposed"], floor) if fit is None else (float(fit[0]), float(fit[1]))
     with np.errstate(invalid="ignore", divide="ignore"):
         lr = np.log(np.where(r > 0, r, np.nan))
         lx = np.log(np.maximum(np.where(np.isfinite(x), x, np.nan), floor))

@@ -114,7 +114,63 @@ def add_parser(sub) -> None:
                    help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
     h.add_argument("--format", default=None, help="input format (default: detected)")
     h.set_defaults(func=run_holdout_cmd)
+    o = esub.add_parser("overexpose", formatter_class=fmt,
+                        help="real data without an HDR reference: over-expose the frames, score HDR recovery",
+                        description="Over-expose REC's frames GAIN times after the fact (linear intensity x GAIN, "
+                                    "re-encoded through the camera profile, clipped; events untouched) and score "
+                                    "every method at the frames' times against the original frames x GAIN on "
+                                    "three pixel classes: recoverable causal (frame k clips it, the original "
+                                    "shows it well exposed, an earlier over-exposed frame saw it), recoverable "
+                                    "offline (any other frame saw it) and well-exposed; log RMSE after "
+                                    "a*log x + b fitted on the unclipped pixels, beside frames-only and "
+                                    "hold-previous. Writes results.json, table.txt, per_frame.csv and "
+                                    "figures/METHOD_gainG.png to --out. See docs/evaluate.md.")
+    o.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and integer frames")
+    o.add_argument("--gain", type=_gain_list, default=[4.0], metavar="G[,G...]",
+                   help="over-exposure factor(s) on the frames' linear intensity, comma-separated (default 4)")
+    o.add_argument("--method", default="akf,cf,direct,edi",
+                   help="method(s) that take frames, comma-separated: akf, cf, direct, edi")
+    o.add_argument("--mode", default="offline,causal", metavar="MODE[,MODE]",
+                   help="reconstruction mode(s), comma-separated: offline (the AKF's two-sided filter), causal, "
+                        "forward; each method runs in each mode it supports")
+    o.add_argument("--frames", default=None, metavar="K,K,...",
+                   help="scored frame indices among the frames up to the last event (default: every frame k >= 1 "
+                        "at or after the first event)")
+    o.add_argument("--params", action="append", default=[], metavar="METHOD=FILE",
+                   help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
+    o.add_argument("--contrast-threshold", type=positive_float, default=None,
+                   help="contrast threshold c (log units) for every event method")
+    o.add_argument("--thresholds", choices=["params", "input"], default="params",
+                   help="contrast thresholds: 'params' = the method's own (default, the CLI defaults); 'input' = "
+                        "pooled ON/OFF thresholds estimated in the method's log model on the over-exposed input "
+                        "without the scored frame")
+    o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
+                                                              "recording's, else built-in)")
+    o.add_argument("--format", default=None, help="input format (default: detected)")
+    o.add_argument("--out", type=Path, required=True, help="output folder")
+    o.add_argument("--overwrite", action="store_true",
+                   help="replace the files a previous overexpose run wrote in --out (keeps everything else)")
+    o.add_argument("--no-figures", action="store_true", help="skip the figures (PNG per method and gain)")
+    o.set_defaults(func=run_overexpose_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
+
+
+def _gain_list(text: str) -> list:
+    """``--gain 4`` or ``4,8``: finite factors > 0 (a usage error otherwise)."""
+    import argparse
+    import math
+    out = []
+    for v in str(text).split(","):
+        try:
+            g = float(v)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}") from None
+        if not (math.isfinite(g) and g > 0):
+            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}")
+        out.append(g)
+    if len(set(out)) != len(out):
+        raise argparse.ArgumentTypeError(f"each gain once, got {text!r}")
+    return out
 
 
 def _read_timestamps(path: Path):
@@ -394,4 +450,100 @@ def run_holdout_cmd(args) -> int:
         print(json.dumps(res, default=lambda o: o.item() if hasattr(o, "item") else str(o)))
     else:
         print(format_holdout(res, f"{args.recording.name}: "))
+    return 0
+
+
+#: The files ``evaluate overexpose`` writes in --out (what --overwrite replaces).
+OVEREXPOSE_OUTPUTS = ("results.json", "table.txt", "per_frame.csv", "figures/*.png")
+
+
+def _overexpose_specs(args):
+    import dataclasses
+
+    from ..reconstruct.api import make_params
+    from .overexpose import default_specs
+    methods = [m.strip() for m in args.method.split(",") if m.strip()]
+    modes = [m.strip() for m in args.mode.split(",") if m.strip()]
+    if not methods:
+        raise ValueError("--method names no method")
+    bad = [m for m in modes if m not in ("offline", "causal", "forward")]
+    if not modes or bad:
+        raise ValueError(f"--mode must be offline, causal and/or forward separated by commas, got {args.mode!r}")
+    files = {}
+    for item in args.params:
+        key, sep, path = item.partition("=")
+        if not sep or not key.strip() or not path.strip():
+            raise ValueError(f"--params expects METHOD=FILE (e.g. akf=akf.toml), got {item!r}")
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"--params {item}: {path} does not exist")
+        files[key.strip()] = path.strip()
+    specs, skipped = default_specs(methods, modes)
+    known = {s.label for s in specs} | {s.method for s in specs}
+    unknown = sorted(set(files) - known)
+    if unknown:
+        raise ValueError(f"--params names {unknown}, which is no method or label run here ({sorted(known)})")
+    out = []
+    for s in specs:
+        src = files.get(s.label, files.get(s.method))
+        p = None
+        if src is not None or args.contrast_threshold is not None:
+            p = make_params(s.method, src)
+            if args.contrast_threshold is not None:
+                p = p.replace(contrast_threshold=float(args.contrast_threshold))
+        out.append(dataclasses.replace(s, params=p))
+    return out, skipped
+
+
+@json_command
+def run_overexpose_cmd(args) -> int:
+    from .._util.atomic import AtomicFolder, write_json_atomic, write_text_atomic
+    from ..formats import read
+    from .overexpose import evaluate_overexpose, format_overexpose, gain_key, plot_method, write_per_frame_csv
+    specs, skipped = _overexpose_specs(args)
+    frames = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
+    if args.profile is not None and not args.profile.is_file():
+        raise FileNotFoundError(f"--profile {args.profile} does not exist")
+    folder = AtomicFolder(args.out, outputs=OVEREXPOSE_OUTPUTS, command="evaluate overexpose",
+                          overwrite=args.overwrite)
+    try:
+        rec = read(args.recording, format=args.format) if args.format else read(args.recording)
+        bar = None
+        if not args.no_progress:
+            from tqdm import tqdm
+            bar = tqdm(total=len(args.gain) * len(specs), desc="overexpose", unit="method", file=sys.stderr,
+                       dynamic_ncols=True)
+        try:
+            res = evaluate_overexpose(rec, args.gain, specs, frames=frames,
+                                      profile=None if args.profile is None else str(args.profile),
+                                      thresholds=args.thresholds, skipped=skipped, keep_images=not args.no_figures,
+                                      log=lambda msg: print(msg, file=sys.stderr),
+                                      progress=None if bar is None else bar.update)
+        finally:
+            if bar is not None:
+                bar.close()
+        images = res.pop("_images", None)
+        res["recording"] = str(args.recording)
+        text = format_overexpose(res, f"{args.recording.name}, ")
+        figures = []
+        if images is not None:
+            res["_images"] = images
+            for g in res["gains"]:
+                for lab, row in res["by_gain"][gain_key(g)]["methods"].items():
+                    if row.get("status") == "ok":
+                        name = f"figures/{lab}_gain{g:g}.png"
+                        plot_method(res, g, lab, folder.path / name)
+                        figures.append(name)
+            del res["_images"]
+        res["written"] = ["results.json", "table.txt", "per_frame.csv"] + figures
+        write_text_atomic(folder.path / "table.txt", text + "\n")
+        write_per_frame_csv(res, folder.path / "per_frame.csv")
+        write_json_atomic(folder.path / "results.json", _json_safe(res))
+        out = folder.commit()
+    except BaseException:
+        folder.abort()
+        raise
+    res["out"] = str(out)
+    print(text)
+    print(f"\nwrote {', '.join(res['written'][:3])} and {len(figures)} figure(s) to {out}")
+    args.emit_json(_json_safe(res))
     return 0

@@ -1,0 +1,681 @@
+"""HDR recovery on real recordings without an HDR reference: over-expose the frames after the fact.
+
+``hybridhdr evaluate overexpose`` and ``benchmarks/accuracy.py``'s ``real_overexpose`` suite.
+
+**The over-exposed recording** (:func:`overexpose_recording`): every frame's linear intensity
+``I = CRF⁻¹(code)`` (the camera profile of the frames, :func:`hybridhdr.camera.profile_for_frames`:
+the recording's declared profile, else the built-in one of the frames' encoding) is multiplied by
+``gain``, encoded back through the same profile (``code = round(CRF(gain·I))``, the profile's
+response inverted piecewise linearly) and clipped to the code range ``[0, max_code]`` (8 bits:
+255). Events, triggers, times and metadata are untouched; the provenance notes the gain. The
+**references** are the original frames' intensity × ``gain`` (float, unclipped), at the frames'
+mid-exposure times τ_k (``Frames.t_mid_us``), in the frames' own layout (colour frames: RGB).
+
+**Input and scored frames** (:func:`evaluate_overexpose`): as :mod:`~hybridhdr.evaluate.realdata`,
+only the frames with τ_k up to the last event are kept (the others have no events around them);
+every method gets the events and all these over-exposed frames, **frame k included** (its clipped
+codes are the measurement the method has to complete), and reconstructs at τ_k. Scored by
+default: every kept frame with an earlier kept frame (k ≥ 1, so hold-previous and the causal
+class exist) and τ_k at or after the first event.
+
+**Pixel classes** of scored frame k (codes: per pixel, its channel, or all three channels of a
+colour frame; "unclipped" = every channel strictly between the profile's clip codes,
+``clip_low_code < code < clip_high_code``, i.e. 0 < code < 255 for 8 bits; "well exposed" = every
+channel in the well-exposed codes, 20-235 of 8 bits scaled to the bit depth,
+:func:`~hybridhdr.camera.encoding.well_exposed_range`):
+
+- ``recoverable_causal``: the over-exposed frame k clips the pixel, the ORIGINAL frame k shows it
+  well exposed, and an earlier over-exposed frame j < k (kept frames only) saw it unclipped;
+- ``recoverable_offline``: the same with any other over-exposed kept frame j ≠ k;
+- ``well_exposed``: the over-exposed frame k shows it unclipped and the original frame k shows
+  it well exposed.
+
+**Scores** per method (reconstruction luminance for colour output; the pixel's own channel for
+a mosaic frame), unaltered (the paper's practice): ``log r ≈ a·log max(x, 1e-6) + b`` fitted
+once per (gain, method) by least squares over all scored frames, on the pixels the over-exposed
+frame shows unclipped (:func:`hybridhdr.evaluate.accuracy.log_errors`, the fit of the accuracy
+suites), then the RMSE of ``log r − (a·log x + b)`` on each class, pooled over the frames and per
+frame (same fit), and on the fit's own pixels (``log_rmse_fit_pixels``, a diagnostic); the
+ratio to ``frames_only`` per class (none where the frames-only error is below
+:data:`RATIO_FLOOR`: the well-exposed class, where the frame is the reference); and the
+fraction of non-positive or non-finite reconstructed pixels (before any floor). Baselines:
+``frames_only`` (the clipped frame k itself, ``CRF⁻¹(code)``) and ``hold_previous`` (frame k−1,
+causal). Memory: one method's reconstructions at the scored frames at a time.
+
+**Parameters**: each method's own (``thresholds="params"``, the CLI defaults) or, with
+``thresholds="input"``, pooled ON/OFF thresholds estimated in the method's log model on the
+over-exposed input **without frame k** (:func:`hybridhdr.evaluate.realdata.input_thresholds`).
+``calibrate`` (a callable) is the hook for a self-calibration: called once per scored frame
+with the over-exposed input without frame k, it returns overrides (:func:`apply_calibration`)
+applied on top; what was used is recorded per frame. Neither ever sees the scored frame.
+"""
+
+from __future__ import annotations
+
+import csv
+import dataclasses
+import io
+import math
+import time
+
+import numpy as np
+
+from ..camera import load_profile, profile_for_frames
+from ..camera.encoding import LUMINANCE_WEIGHTS, well_exposed_range
+from ..model import Frames, HDRReferences, Metadata, Recording
+from ..reconstruct import reconstruct
+from ..reconstruct.api import METHODS as RECON_METHODS
+from ..reconstruct.api import make_params, resolve_method
+from . import realdata as RD
+from .accuracy import LOG_FLOOR, log_errors, recoverable_masks
+
+__all__ = ["CLASSES", "BASELINES", "OverexposeSpec", "default_specs", "FRAME_METHODS", "overexpose_recording",
+           "pixel_classes", "default_scored_frames", "gain_key", "apply_calibration", "evaluate_overexpose",
+           "format_overexpose", "per_frame_rows", "write_per_frame_csv", "plot_method"]
+
+#: The pixel classes (module docstring), in the order of the tables.
+CLASSES = ("recoverable_causal", "recoverable_offline", "well_exposed")
+
+#: The frames-only baselines.
+BASELINES = ("frames_only", "hold_previous")
+
+#: Reconstruction methods that take frames (the events-only ones have no clipped frame to complete).
+FRAME_METHODS = ("akf", "cf", "direct", "edi")
+
+
+@dataclasses.dataclass(frozen=True)
+class OverexposeSpec:
+    """One scored method: a label, the reconstruction method, its mode, parameters (Params, dict,
+    TOML path or None: the method's defaults) and AKF frame augmentation (None: off)."""
+
+    label: str
+    method: str
+    mode: str = "offline"
+    params: object = None
+    augment: object = None
+
+
+def _label(method: str, mode: str) -> str:
+    return method if mode == "offline" else f"{method}_{mode}"
+
+
+def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: dict | None = None):
+    """``(specs, skipped)``: every method in every mode it supports (EDI needs the whole exposure:
+    no causal mode), labelled ``method`` (offline) or ``method_mode``. ``params``: per label or
+    method name, that method's parameters. ``skipped``: ``{label: why}``."""
+    params = params or {}
+    specs, skipped = [], {}
+    for m in methods:
+        m = resolve_method(m)
+        if not RECON_METHODS[m][1]:
+            raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
+                             f"frames: {', '.join(FRAME_METHODS)}")
+        if m in ("frames_zoh", "frames_linear"):
+            raise ValueError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
+                             f"scored")
+        for mode in modes:
+            lab = _label(m, mode)
+            if m == "edi" and mode == "causal":
+                skipped[lab] = "EDI needs the events of the whole exposure: no causal mode"
+                continue
+            specs.append(OverexposeSpec(lab, m, mode, params.get(lab, params.get(m))))
+    return specs, skipped
+
+
+# -- the over-exposed recording -----------------------------------------------------------------
+
+def _frames_profile(rec, profile):
+    if profile is None:
+        from ..reconstruct.api import _source_profile
+        profile = _source_profile(rec)
+    return profile_for_frames(load_profile(profile), rec.frames)
+
+
+def _check_codes(fr: Frames, prof) -> None:
+    im = fr.images
+    if im.dtype.kind not in "ui":
+        raise TypeError(f"overexpose needs integer frame codes (uint8, uint16), got frames of dtype {im.dtype}")
+    top = int(im.max()) if im.size else 0
+    if top > prof.max_code:
+        raise ValueError(f"frame codes reach {top} but the camera profile {prof.name!r} stops at code "
+                         f"{prof.max_code}; give the frames' profile (--profile)")
+
+
+def _encode(prof, intensity) -> np.ndarray:
+    """``round(CRF(I))`` clipped to ``[0, max_code]`` (float64): the profile's response inverted
+    piecewise linearly; an intensity at or above the clip code's intensity gives ``max_code``."""
+    x = np.asarray(intensity, np.float64)
+    top = prof.max_code
+    if prof.inverse_crf is None:  # linear: CRF⁻¹(code) = code / max_code
+        c = x * top
+    else:
+        lut = np.asarray(prof.inverse_crf, np.float64)
+        vals, first = np.unique(lut, return_index=True)  # strictly increasing knots, lowest code of each
+        c = np.interp(x, vals, first.astype(np.float64))
+        c = np.where(x >= lut[prof.clip_high_code], float(top), c)
+    return np.clip(np.rint(c), 0.0, float(top))
+
+
+def overexpose_recording(rec, gain: float, *, profile=None) -> tuple[Recording, HDRReferences]:
+    """``(recording, references)``: ``rec`` with every frame over-exposed ``gain`` times after the
+    fact, and the references (module docstring).
+
+    Parameters
+    ----------
+    rec : Recording with integer frames (mono (K, H, W) or colour (K, H, W, 3))
+    gain : float > 0
+        Factor on the frames' linear intensity (> 1 over-exposes).
+    profile : CameraProfile, path or None
+        The frames' camera profile; None: the recording's declared one, else the built-in one of
+        the frames' encoding.
+
+    Returns
+    -------
+    recording : Recording
+        Same events, triggers, HDR references, times and metadata; frames re-encoded (same dtype
+        and encoding); ``metadata.provenance["overexposed"]`` records the gain and the profile.
+    references : HDRReferences
+        Original ``CRF⁻¹(code) × gain`` per frame (unclipped, float32), ``t_us`` = τ_k.
+    """
+    if isinstance(gain, bool) or not isinstance(gain, (int, float, np.integer, np.floating)) \
+            or not math.isfinite(float(gain)) or float(gain) <= 0:
+        raise ValueError(f"gain must be a finite number > 0, got {gain!r}")
+    gain = float(gain)
+    fr = rec.frames
+    if fr is None or len(fr) == 0:
+        raise ValueError("overexpose needs a recording with frames; this one has none")
+    prof = _frames_profile(rec, profile)
+    _check_codes(fr, prof)
+    ref = prof.intensity(fr.images) * gain
+    codes = _encode(prof, ref).astype(fr.images.dtype)
+    new = Frames(codes, fr.t_start_us, fr.t_end_us, fr.gain, fr.iso, fr.encoding)
+    md = rec.metadata if rec.metadata is not None else Metadata()
+    prov = dict(md.provenance or {})
+    prov["overexposed"] = {"gain": gain, "profile": prof.name, "max_code": int(prof.max_code),
+                           "how": "frame codes re-encoded as round(CRF(gain * CRF^-1(code))) clipped to "
+                                  "[0, max_code]; events untouched (hybridhdr.evaluate.overexpose)",
+                           "clipped_fraction": float(np.mean(codes >= prof.clip_high_code))}
+    out = Recording(rec.events, rec.sensor_size, new, rec.triggers, rec.hdr, dataclasses.replace(md, provenance=prov))
+    return out, HDRReferences(ref, fr.t_mid_us)
+
+
+# -- classes ------------------------------------------------------------------------------------
+
+def _per_pixel(mask) -> np.ndarray:
+    """A per-channel mask (K, H, W, 3) as per pixel (every channel); (K, H, W) as is."""
+    m = np.asarray(mask, bool)
+    return m.all(axis=-1) if m.ndim == 4 else m
+
+
+def pixel_classes(over_codes, orig_codes, scored, *, clip_codes, well_exposed) -> dict:
+    """The classes of the module docstring, bool (n_scored, H, W) each.
+
+    Parameters
+    ----------
+    over_codes, orig_codes : (F, H, W) or (F, H, W, 3) integer codes of the over-exposed and the
+        original frames (the kept frames, in time order)
+    scored : indices into the F frames
+    clip_codes : (lo, hi): unclipped means ``lo < code < hi``
+    well_exposed : (lo, hi): well exposed means ``lo <= code <= hi`` (inclusive)
+
+    Also returns ``unclipped`` (the over-exposed frame k's unclipped pixels: the fit's pixels).
+    """
+    lo, hi = (int(v) for v in clip_codes)
+    wlo, whi = (int(v) for v in well_exposed)
+    oc, gc = np.asarray(over_codes), np.asarray(orig_codes)
+    if oc.shape != gc.shape:
+        raise ValueError(f"over-exposed codes {oc.shape} and original codes {gc.shape} differ in shape")
+    unc = _per_pixel((oc > lo) & (oc < hi))
+    good = _per_pixel((gc >= wlo) & (gc <= whi))
+    cur = np.asarray(scored, np.int64)
+    if cur.size and (cur.min() < 0 or cur.max() >= len(unc)):
+        raise ValueError(f"scored frames {cur.tolist()} are not among the {len(unc)} frames")
+    m = recoverable_masks(unc, cur)  # offline: clipped at k and unclipped in some frame, so some j != k
+    g = good[cur]
+    return {"recoverable_causal": m["recoverable_causal"] & g, "recoverable_offline": m["recoverable_offline"] & g,
+            "well_exposed": m["well_exposed"] & g, "unclipped": m["well_exposed"]}
+
+
+# -- the evaluation -----------------------------------------------------------------------------
+
+def _kept(rec):
+    """Indices of the frames with τ_k up to the last event (the input's frames)."""
+    if rec.frames is None or len(rec.frames) < 2:
+        raise ValueError("overexpose needs at least 2 frames")
+    if len(rec.events) == 0:
+        raise ValueError("overexpose needs events")
+    return np.flatnonzero(rec.frames.t_mid_us <= int(rec.events["t"][-1]))
+
+
+def default_scored_frames(rec) -> list[int]:
+    """Indices (into the kept frames) scored by default: k ≥ 1 with τ_k at or after the first event."""
+    kept = _kept(rec)
+    t0 = int(rec.events["t"][0])
+    mid = rec.frames.t_mid_us[kept]
+    return [k for k in range(1, len(kept)) if mid[k] >= t0]
+
+
+def _luminance(img) -> np.ndarray:
+    x = np.asarray(img, np.float64)
+    return x @ np.asarray(LUMINANCE_WEIGHTS, np.float64) if x.ndim >= 3 and x.shape[-1] == 3 else x
+
+
+def _as_reference_layout(img, ref_ndim: int, pattern) -> np.ndarray:
+    """A reconstruction (H, W) or (H, W, 3) in the references' layout: luminance for RGB frames,
+    the pixel's own channel for mosaic frames (``pattern``), as is for mono."""
+    x = np.asarray(img, np.float64)
+    if x.ndim == 3 and ref_ndim == 3:  # RGB output, mosaic (K, H, W) frames
+        if pattern is None:
+            return _luminance(x)
+        from ..camera.cfa import channel_index
+        ch = channel_index(pattern, x.shape[:2]).astype(np.int64)
+        return np.take_along_axis(x, ch[..., None], axis=2)[..., 0]
+    return _luminance(x)
+
+
+def apply_calibration(spec: OverexposeSpec, params, overrides) -> tuple[object, dict, dict]:
+    """``(params, reconstruct_kwargs, used)``: a calibration's ``overrides`` applied to ``spec``.
+
+    ``overrides`` (what a ``calibrate`` callable returns; None = nothing): a dict with any of
+
+    - ``"params"``: Params fields for every method that has them (others skip them);
+    - ``"method_params"``: ``{label or method name: {field: value}}`` for one method (after ``params``);
+    - ``"thresholds"``: a per-pixel threshold map for ``reconstruct(thresholds=...)``;
+    - ``"profile"``: a camera profile for the reconstruction (the scoring keeps the frames' own);
+    - ``"note"``: a string, recorded.
+
+    A dict without any of these keys is taken as ``"params"``.
+    """
+    keys = ("params", "method_params", "thresholds", "profile", "note")
+    if overrides is None:
+        return params, {}, {}
+    if not isinstance(overrides, dict):
+        raise TypeError(f"calibrate must return a dict of overrides or None, got {type(overrides).__name__}")
+    if not any(k in overrides for k in keys):
+        overrides = {"params": overrides}
+    bad = set(overrides) - set(keys)
+    if bad:
+        raise ValueError(f"calibrate returned unknown keys {sorted(bad)}; expected some of {keys}")
+    p = make_params(spec.method, params)
+    fields = set(p.to_dict())
+    applied, skipped = {}, []
+    for src in (overrides.get("params") or {}, (overrides.get("method_params") or {}).get(spec.method) or {},
+                (overrides.get("method_params") or {}).get(spec.label) or {}):
+        for k, v in src.items():
+            if k in fields:
+                applied[k] = v
+            else:
+                skipped.append(k)
+    if applied:
+        p = p.replace(**applied)
+    kw = {k: overrides[k] for k in ("thresholds", "profile") if overrides.get(k) is not None}
+    used = {"applied": {k: (float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v)
+                        for k, v in applied.items()}}
+    if skipped:
+        used["not_fields_of_method"] = sorted(set(skipped))
+    for k in kw:
+        used[k] = getattr(kw[k], "name", type(kw[k]).__name__)
+    if overrides.get("note"):
+        used["note"] = str(overrides["note"])[:500]
+    return p, kw, used
+
+
+def _without(rec_in, k):
+    """The over-exposed input without its frame k (for the calibration: never the scored frame)."""
+    fr = rec_in.frames
+    return Recording(rec_in.events, rec_in.sensor_size, fr.select(np.setdiff1d(np.arange(len(fr)), [k])),
+                     rec_in.triggers, None, rec_in.metadata)
+
+
+def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern):
+    """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec."""
+    loo = thresholds == "input" or calibrate is not None
+    if not loo:
+        t0 = time.perf_counter()
+        v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
+                        augment=spec.augment)
+        wall = time.perf_counter() - t0
+        if not np.array_equal(v.t_us, tk):
+            raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
+        return np.stack([_as_reference_layout(f, ref_ndim, pattern) for f in v.frames]), wall, None
+    out, used_all, wall = [], [], 0.0
+    for i, k in enumerate(scored):
+        params, used, kw = spec.params, {}, {}
+        if k not in cal_cache:
+            cal_cache[k] = {"rec": _without(rec_in, k), "thr": {}}
+        sub = cal_cache[k]
+        if thresholds == "input":
+            params, u = RD.input_thresholds(sub["rec"], spec.method, params, profile, cache=sub["thr"])
+            used["thresholds"] = u
+        if calibrate is not None:
+            if "overrides" not in sub:
+                sub["overrides"] = calibrate(sub["rec"])
+            params, kw, u = apply_calibration(spec, params, sub["overrides"])
+            used["calibration"] = u
+        t0 = time.perf_counter()
+        v = reconstruct(rec_in, spec.method, params, times_us=tk[i:i + 1], mode=spec.mode,
+                        profile=kw.get("profile", profile), augment=spec.augment, thresholds=kw.get("thresholds"))
+        wall += time.perf_counter() - t0
+        if not np.array_equal(v.t_us, tk[i:i + 1]):
+            raise RuntimeError(f"output time {v.t_us.tolist()} differs from frame {k}'s {int(tk[i])} µs")
+        out.append(_as_reference_layout(v.frames[0], ref_ndim, pattern))
+        used_all.append({"frame": int(k), **used})
+    return np.stack(out), wall, used_all
+
+
+def _scores(x, ref, classes, frames_ids, t_us) -> dict:
+    """Pooled and per-frame class errors of one reconstruction stack (module docstring)."""
+    masks = {"well_exposed": classes["unclipped"], **{f"c_{c}": classes[c] for c in CLASSES}}
+    e = log_errors(x, ref, masks)  # the fit's pixels are log_errors' "well_exposed": the unclipped ones
+    fit = (e["log_fit_a"], e["log_fit_b"])
+    finite_pos = np.isfinite(x) & (x > 0)
+    out = {"log_fit": [fit[0], fit[1]],
+           "log_rmse": {c: e[f"log_rmse_c_{c}"] for c in CLASSES},
+           "n_pixels": {c: e[f"n_c_{c}"] for c in CLASSES},
+           "log_rmse_fit_pixels": e["log_rmse_well_exposed"],
+           "nonpositive_frac": float(np.mean(~finite_pos)),
+           "n_nonfinite": int(np.count_nonzero(~np.isfinite(x))),
+           "per_frame": []}
+    for i in range(x.shape[0]):  # each frame with the sequence's fit
+        ei = log_errors(x[i], ref[i], {"well_exposed": classes["unclipped"][i],
+                                       **{c: classes[c][i] for c in CLASSES}}, fit=fit)
+        out["per_frame"].append({"frame": int(frames_ids[i]), "t_us": int(t_us[i]),
+                                 "nonpositive_frac": float(np.mean(~finite_pos[i])),
+                                 **{c: {"n_pixels": ei[f"n_{c}"], "log_rmse": ei[f"log_rmse_{c}"]} for c in CLASSES}})
+    return out
+
+
+#: Below this frames-only log error (ln) no ratio is given: it is rounding only (the frames-only
+#: well-exposed error is the re-quantisation of ``round(CRF(gain·I))``, exactly 0 up to float64
+#: rounding, ~1e-16, for a linear profile and an integer gain), so a ratio to it means nothing.
+RATIO_FLOOR = 1e-6
+
+
+def gain_key(gain) -> str:
+    """The key of a gain in ``evaluate_overexpose(...)["by_gain"]``: ``"4"``, ``"2.5"``."""
+    return f"{float(gain):g}"
+
+
+def _ratio(a, b) -> float:
+    return float(a / b) if (math.isfinite(a) and math.isfinite(b) and b > RATIO_FLOOR) else float("nan")
+
+
+def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, thresholds: str = "params",
+                        calibrate=None, baselines: bool = True, skipped=None, keep_images: bool = False,
+                        log=None, progress=None) -> dict:
+    """Score ``specs`` and the baselines on ``rec`` over-exposed by each gain (module docstring).
+
+    Parameters
+    ----------
+    rec : Recording with events and integer frames
+    gains : sequence of float > 0
+    specs : sequence of OverexposeSpec; default :func:`default_specs` (every frame method,
+        offline and causal)
+    frames : indices into the kept frames (τ_k up to the last event) to score, each ≥ 1; default
+        :func:`default_scored_frames`
+    profile : the frames' camera profile (default: the recording's, else built-in)
+    thresholds : ``"params"`` (each method's own) or ``"input"`` (estimated without frame k)
+    calibrate : callable ``calibrate(recording_without_frame_k) -> overrides``
+        (:func:`apply_calibration`), called once per scored frame and gain; None: no calibration
+    skipped : ``{label: why}`` of specs left out (reported)
+    keep_images : also return, under ``_images``, per (gain, label) the reconstruction of the figures'
+        frame (the scored frame with the most recoverable-causal pixels) and that frame's data
+    log : callable(str) for failures; progress : callable() after each (gain, method)
+
+    Returns
+    -------
+    dict with ``frames`` (scored, indices into the kept frames), ``frame_indices`` (into the
+    recording's frames), ``t_us``, ``well_exposed_codes``, ``clip_codes``, ``thresholds``,
+    ``gains`` and ``by_gain``: per :func:`gain_key` ``{"counts": {class: n}, "counts_per_frame",
+    "clipped_fraction", "methods": {label: {"method", "mode", "role", "status", "log_rmse",
+    "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
+    "wall_s", "per_frame", "used" (with thresholds="input" or calibrate)}}}``.
+    """
+    if thresholds not in RD.THRESHOLD_SOURCES:
+        raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES}, got {thresholds!r}")
+    if calibrate is not None and not callable(calibrate):
+        raise TypeError(f"calibrate must be a callable (recording without frame k -> overrides), got "
+                        f"{type(calibrate).__name__}")
+    gains = [float(g) for g in gains]
+    if not gains:
+        raise ValueError("give at least one gain")
+    for g in gains:
+        if not (math.isfinite(g) and g > 0):
+            raise ValueError(f"gains must be finite and > 0, got {g!r}")
+    if specs is None:
+        specs, sk = default_specs()
+        skipped = {**sk, **(skipped or {})}
+    specs = list(specs)
+    labels = [s.label for s in specs] + (list(BASELINES) if baselines else [])
+    if len(set(labels)) != len(labels):
+        raise ValueError(f"method labels must be unique (and not {BASELINES}), got {labels}")
+    kept = _kept(rec)
+    scored = default_scored_frames(rec) if frames is None else [int(k) for k in frames]
+    if not scored:
+        raise ValueError("no frame to score: need a frame after the first event with an earlier frame, both up "
+                         "to the last event")
+    bad = [k for k in scored if not 1 <= k < len(kept)]
+    if bad:
+        raise ValueError(f"scored frames {bad} are not among frames 1..{len(kept) - 1} (the frames up to the last "
+                         f"event, k >= 1 so that an earlier frame exists)")
+    if len(set(scored)) != len(scored) or scored != sorted(scored):
+        raise ValueError(f"scored frames must be increasing and distinct, got {scored}")
+    fr_all = rec.frames.select(kept)
+    rec_k = Recording(rec.events, rec.sensor_size, fr_all, rec.triggers, None, rec.metadata)
+    prof = _frames_profile(rec_k, profile)
+    lo, hi = well_exposed_range(prof.max_code)
+    clip = (int(prof.clip_low_code), int(prof.clip_high_code))
+    md = rec.metadata
+    pattern = getattr(md.frame_camera, "cfa", None) or getattr(md.event_camera, "cfa", None)
+    t_us = fr_all.t_mid_us[scored]
+    res = {"frames": scored, "frame_indices": [int(kept[k]) for k in scored], "t_us": [int(t) for t in t_us],
+           "n_frames_kept": int(len(kept)), "n_events": int(len(rec.events)), "well_exposed_codes": [lo, hi],
+           "clip_codes": list(clip), "profile": prof.name, "thresholds": thresholds,
+           "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
+           "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "
+                  "pixels the over-exposed frame shows unclipped" % LOG_FLOOR,
+           "gains": gains, "skipped": dict(skipped or {}), "by_gain": {}}
+    images = {}
+    for g in gains:
+        over, refs = overexpose_recording(rec_k, g, profile=prof)
+        ref_ndim = refs.images.ndim
+        ref_all = prof.intensity(fr_all.images) * g  # = refs.images in float64 (no float32 rounding)
+        ref = np.stack([_luminance(r) for r in ref_all[scored]]) if ref_ndim == 4 else ref_all[scored]
+        over_lin = prof.intensity(over.frames.images)
+        cls = pixel_classes(over.frames.images, fr_all.images, scored, clip_codes=clip, well_exposed=(lo, hi))
+        gres = {"counts": {c: int(cls[c].sum()) for c in CLASSES},
+                "counts_per_frame": {c: [int(v) for v in cls[c].sum(axis=(1, 2))] for c in CLASSES},
+                "clipped_fraction": float(np.mean(~cls["unclipped"])), "methods": {}}
+        fig_i = int(np.argmax(cls["recoverable_causal"].sum(axis=(1, 2))))  # the figures' frame
+        base = None
+
+        def record(lab, row, x, wall, used):
+            nonlocal base
+            sc = _scores(x, ref, cls, scored, t_us)
+            row.update(status="ok", log_rmse=sc["log_rmse"], n_pixels=sc["n_pixels"],
+                       log_rmse_fit_pixels=sc["log_rmse_fit_pixels"], nonpositive_frac=sc["nonpositive_frac"],
+                       n_nonfinite=sc["n_nonfinite"], log_fit=sc["log_fit"], wall_s=wall, per_frame=sc["per_frame"])
+            if used is not None:
+                row["used"] = used
+            if lab == "frames_only":
+                base = row
+            if keep_images:
+                images[(g, lab)] = x[fig_i]
+
+        if baselines:
+            for lab, ks in (("frames_only", scored), ("hold_previous", [k - 1 for k in scored])):
+                x = over_lin[ks]
+                x = np.stack([_luminance(v) for v in x]) if ref_ndim == 4 else x
+                gres["methods"][lab] = row = {"method": "frames", "mode": "causal", "role": "baseline"}
+                record(lab, row, x, 0.0, None)
+        cal_cache = {}
+        for s in specs:
+            gres["methods"][s.label] = row = {"method": s.method, "mode": s.mode, "role": "method"}
+            try:
+                x, wall, used = _run_spec(s, over, scored, t_us, profile=profile, thresholds=thresholds,
+                                          calibrate=calibrate, cal_cache=cal_cache,
+                                          ref_ndim=ref_ndim, pattern=pattern)
+            except Exception as e:  # reported per method, never hidden
+                row["status"] = f"error: {type(e).__name__}: {e}"
+                if log is not None:
+                    log(f"gain {g:g}, {s.label}: {row['status']}")
+            else:
+                record(s.label, row, x, wall, used)
+                x = None  # one method's stack at a time
+            if progress is not None:
+                progress()
+        for lab, row in gres["methods"].items():
+            if row.get("status") != "ok":
+                continue
+            if base is None:
+                row["ratio_to_frames_only"] = {c: float("nan") for c in CLASSES}
+                continue
+            row["ratio_to_frames_only"] = {c: _ratio(row["log_rmse"][c], base["log_rmse"][c]) for c in CLASSES}
+            for pf, bf in zip(row["per_frame"], base["per_frame"]):
+                for c in CLASSES:
+                    pf[c]["ratio_to_frames_only"] = _ratio(pf[c]["log_rmse"], bf[c]["log_rmse"])
+        if keep_images:
+            images[(g, "_data")] = {"frame_index": fig_i, "reference": ref[fig_i],
+                                    "over_codes": over.frames.images[scored[fig_i]],
+                                    "orig_codes": fr_all.images[scored[fig_i]],
+                                    "classes": {c: cls[c][fig_i] for c in cls}, "max_code": prof.max_code}
+        res["by_gain"][gain_key(g)] = gres
+    if keep_images:
+        res["_images"] = images
+    return res
+
+
+# -- outputs ------------------------------------------------------------------------------------
+
+def _f(v, fmt="{:.3f}"):
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else fmt.format(v)
+
+
+def _x(r) -> str:
+    return f" ({r:.2f}x)" if isinstance(r, float) and math.isfinite(r) else "        "
+
+
+def format_overexpose(res: dict, title: str = "") -> str:
+    """The tables of :func:`evaluate_overexpose` as text, one per gain."""
+    lines = []
+    for g in res["gains"]:
+        gr = res["by_gain"][gain_key(g)]
+        n = gr["counts"]
+        lines.append(f"{title}gain {g:g}: frames {res['frames']} (recording frames {res['frame_indices']}); "
+                     f"pixels recoverable causal {n['recoverable_causal']}, offline {n['recoverable_offline']}, "
+                     f"well-exposed {n['well_exposed']}; over-exposed frames clip {gr['clipped_fraction']:.1%}")
+        lines.append(f"  log RMSE after a*log x + b (x frames_only); thresholds: {res['thresholds']}"
+                     + (f"; calibrate: {res['calibrate']}" if res.get("calibrate") else ""))
+        lines.append(f"  {'method':<16} {'rec. causal':>15} {'rec. offline':>15} {'well-exposed':>15} "
+                     f"{'non-pos':>8} {'wall s':>7}")
+        for lab, row in gr["methods"].items():
+            if row["status"] != "ok":
+                lines.append(f"  {lab:<16} {row['status'][:200]}")
+                continue
+            cells = [_f(row["log_rmse"][c]) + _x(row["ratio_to_frames_only"][c]) for c in CLASSES]
+            lines.append(f"  {lab:<16} " + " ".join(f"{c:>15}" for c in cells)
+                         + f" {row['nonpositive_frac']:>8.1e} {row['wall_s']:>7.2f}")
+        for lab, why in res.get("skipped", {}).items():
+            lines.append(f"  {lab:<16} skipped: {why}")
+        lines.append("")
+    return "\n".join(lines).rstrip()
+
+
+def per_frame_rows(res: dict) -> list[dict]:
+    """One row per (gain, method, frame, class): n_pixels, log_rmse, ratio_to_frames_only."""
+    rows = []
+    for g in res["gains"]:
+        for lab, row in res["by_gain"][gain_key(g)]["methods"].items():
+            if row.get("status") != "ok":
+                continue
+            for pf in row["per_frame"]:
+                for c in CLASSES:
+                    rows.append({"gain": g, "method": lab, "frame": pf["frame"], "t_us": pf["t_us"], "class": c,
+                                 "n_pixels": pf[c]["n_pixels"], "log_rmse": pf[c]["log_rmse"],
+                                 "ratio_to_frames_only": pf[c].get("ratio_to_frames_only", float("nan")),
+                                 "nonpositive_frac": pf["nonpositive_frac"]})
+    return rows
+
+
+def write_per_frame_csv(res: dict, path) -> None:
+    """The per-frame rows as CSV (written atomically)."""
+    from .._util.atomic import write_text_atomic
+    rows = per_frame_rows(res)
+    cols = ["gain", "method", "frame", "t_us", "class", "n_pixels", "log_rmse", "ratio_to_frames_only",
+            "nonpositive_frac"]
+    buf = io.StringIO()
+    w = csv.DictWriter(buf, fieldnames=cols, lineterminator="\n")
+    w.writeheader()
+    for r in rows:
+        w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in r.items()})
+    write_text_atomic(path, buf.getvalue())
+
+
+def plot_method(res: dict, gain: float, label: str, path) -> None:
+    """A PNG of one method at one gain, for the scored frame with the most recoverable-causal
+    pixels (ties: the earliest): the original frame, the over-exposed frame, the reconstruction
+    (``exp(a log x + b)``, the fit of the scores, on the reference's log scale) and the log error
+    ``log r − (a log x + b)`` (diverging, ±1 ln) on the classes' pixels (others grey), the
+    recoverable classes outlined and every class's count and error listed. Needs ``keep_images``."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.lines import Line2D
+
+    from .._util.atomic import atomic_path
+    data = res["_images"][(gain, "_data")]
+    x = res["_images"][(gain, label)]
+    row = res["by_gain"][gain_key(gain)]["methods"][label]
+    cls = data["classes"]
+    i = data["frame_index"]
+    a, b = row["log_fit"]
+    ref = data["reference"]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        lr = np.log(np.where(ref > 0, ref, np.nan))
+        lx = a * np.log(np.maximum(np.where(np.isfinite(x), x, np.nan), LOG_FLOOR)) + b
+    err = lr - lx
+    fin = lr[np.isfinite(lr)]
+    vmin, vmax = (float(np.percentile(fin, 1)), float(fin.max())) if fin.size else (-5.0, 0.0)
+    m = data["max_code"]
+
+    def grey(codes):
+        c = np.asarray(codes, np.float64)
+        return _luminance(c) if c.ndim == 3 else c
+
+    fig, axs = plt.subplots(1, 4, figsize=(16, 4.2), constrained_layout=True)
+    k = res["frames"][i]
+    pf = row["per_frame"][i]
+    axs[0].imshow(grey(data["orig_codes"]), cmap="gray", vmin=0, vmax=m)
+    axs[0].set_title(f"original frame {k} (codes)")
+    axs[1].imshow(grey(data["over_codes"]), cmap="gray", vmin=0, vmax=m)
+    axs[1].set_title(f"over-exposed x{gain:g} (codes)")
+    im2 = axs[2].imshow(lx, cmap="gray", vmin=vmin, vmax=vmax)
+    axs[2].set_title(f"{label}: a ln x + b (a={a:.2f}, b={b:.2f})")
+    fig.colorbar(im2, ax=axs[2], shrink=0.8, label="ln intensity (reference scale)")
+    scored_px = cls["recoverable_offline"] | cls["well_exposed"]  # the causal class is inside the offline one
+    cmap = matplotlib.colormaps["RdBu_r"].with_extremes(bad="0.8")  # pixels of no class: light grey
+    im3 = axs[3].imshow(np.where(scored_px, err, np.nan), cmap=cmap, vmin=-1.0, vmax=1.0)
+    fig.colorbar(im3, ax=axs[3], shrink=0.8, label="ln r - (a ln x + b)")
+    colours = {"recoverable_causal": "lime", "recoverable_offline": "orange", "well_exposed": "magenta"}
+    handles = []
+    for c, col in colours.items():
+        mk = cls[c]
+        if c == "recoverable_offline":
+            mk = mk & ~cls["recoverable_causal"]  # outline only what the causal class lacks
+        if mk.any() and c != "well_exposed":
+            axs[3].contour(mk.astype(float), levels=[0.5], colors=col, linewidths=0.7)
+        handles.append(Line2D([0], [0], color=col, lw=1.5 if c != "well_exposed" else 0,
+                              label=f"{c}: {pf[c]['n_pixels']} px, {_f(pf[c]['log_rmse'])} ln"
+                                    + (" (not outlined)" if c == "well_exposed" else "")))
+    axs[3].set_title(f"log error, frame {k} (grey: no class)")
+    axs[3].legend(handles=handles, loc="upper center", bbox_to_anchor=(0.5, -0.04), fontsize=7, frameon=False)
+    for ax in axs:
+        ax.set_xticks([])
+        ax.set_yticks([])
+    fig.suptitle(f"{label}, gain {gain:g}: recoverable causal {_f(row['log_rmse']['recoverable_causal'])}, "
+                 f"offline {_f(row['log_rmse']['recoverable_offline'])}, well-exposed "
+                 f"{_f(row['log_rmse']['well_exposed'])} ln (all scored frames); non-positive "
+                 f"{row['nonpositive_frac']:.1e}")
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, dpi=90, format="png")
+    plt.close(fig)
