@@ -251,7 +251,9 @@ def _real_overexpose(rec) -> dict:
     """The ``real_overexpose`` suite: per gain and method the three class errors, the ratios to
     frames_only, the class counts and the non-positive fraction (plus the text table)."""
     from hybridhdr.evaluate import overexpose as OE
-    r = OE.evaluate_overexpose(rec, OVEREXPOSE_GAINS)  # every frame method, offline and causal, CLI defaults
+    from hybridhdr.evaluate.realdata import default_threshold_source
+    # every frame method, offline and causal, CLI defaults (self-calibrated: ecd declares no thresholds)
+    r = OE.evaluate_overexpose(rec, OVEREXPOSE_GAINS, thresholds=default_threshold_source(rec))
     out = {"frames": r["frames"], "t_us": r["t_us"], "thresholds": r["thresholds"], "fit": r["fit"],
            "skipped_methods": r["skipped"], "table": OE.format_overexpose(r, "ecd_slider_depth, "), "gains": {}}
     for g in r["gains"]:

@@ -103,10 +103,13 @@ def add_parser(sub) -> None:
                         "events' span)")
     h.add_argument("--params", type=Path, default=None, help="method parameters (TOML)")
     h.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
-    h.add_argument("--thresholds", choices=["params", "input"], default=None,
-                   help="contrast thresholds: 'input' = each event method's pooled ON/OFF thresholds estimated "
-                        "without the held-out frame, in the method's own log model; 'params' = the method's own "
-                        "(default: params when --params or --contrast-threshold is given, else input)")
+    h.add_argument("--thresholds", choices=["params", "input", "selfcal"], default=None,
+                   help="contrast thresholds: 'selfcal' = the event/frame self-calibration (frame time offset, "
+                        "thresholds, the AKF's log offset) of the recording without the held-out frame, as "
+                        "reconstruct --self-calibrate; 'input' = each event method's pooled ON/OFF thresholds "
+                        "estimated without the held-out frame, in the method's own log model; 'params' = the "
+                        "method's own (default: params when --params or --contrast-threshold is given or the "
+                        "recording declares thresholds, else selfcal)")
     h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
     h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
                                                               "else built-in)")
@@ -140,10 +143,13 @@ def add_parser(sub) -> None:
                    help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
     o.add_argument("--contrast-threshold", type=positive_float, default=None,
                    help="contrast threshold c (log units) for every event method")
-    o.add_argument("--thresholds", choices=["params", "input"], default="params",
-                   help="contrast thresholds: 'params' = the method's own (default, the CLI defaults); 'input' = "
-                        "pooled ON/OFF thresholds estimated in the method's log model on the over-exposed input "
-                        "without the scored frame")
+    o.add_argument("--thresholds", choices=["params", "input", "selfcal"], default=None,
+                   help="contrast thresholds: 'selfcal' = the event/frame self-calibration of the over-exposed "
+                        "input without the scored frame (as reconstruct --self-calibrate); 'params' = the "
+                        "method's own; 'input' = pooled ON/OFF thresholds estimated in the method's log model on "
+                        "the over-exposed input without the scored frame (default: the CLI defaults, i.e. params "
+                        "when --params or --contrast-threshold is given or the recording declares thresholds, "
+                        "else selfcal)")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     o.add_argument("--format", default=None, help="input format (default: detected)")
@@ -441,7 +447,9 @@ def run_holdout_cmd(args) -> int:
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     thresholds = args.thresholds
     if thresholds is None:
-        thresholds = "params" if (args.params is not None or args.contrast_threshold is not None) else "input"
+        from .realdata import default_threshold_source
+        thresholds = ("params" if (args.params is not None or args.contrast_threshold is not None)
+                      else default_threshold_source(rec))
     res = evaluate_holdout(rec, specs, tasks=tasks, held=held, profile=args.profile, well_exposed=well,
                            log=lambda msg: print(msg, file=sys.stderr), thresholds=thresholds)
     res["thresholds"] = thresholds
@@ -507,6 +515,11 @@ def run_overexpose_cmd(args) -> int:
                           overwrite=args.overwrite)
     try:
         rec = read(args.recording, format=args.format) if args.format else read(args.recording)
+        thresholds = args.thresholds
+        if thresholds is None:
+            from .realdata import default_threshold_source
+            given = bool(args.params) or args.contrast_threshold is not None
+            thresholds = "params" if given else default_threshold_source(rec)
         bar = None
         if not args.no_progress:
             from tqdm import tqdm
@@ -515,7 +528,7 @@ def run_overexpose_cmd(args) -> int:
         try:
             res = evaluate_overexpose(rec, args.gain, specs, frames=frames,
                                       profile=None if args.profile is None else str(args.profile),
-                                      thresholds=args.thresholds, skipped=skipped, keep_images=not args.no_figures,
+                                      thresholds=thresholds, skipped=skipped, keep_images=not args.no_figures,
                                       log=lambda msg: print(msg, file=sys.stderr),
                                       progress=None if bar is None else bar.update)
         finally:

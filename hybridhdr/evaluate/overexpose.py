@@ -329,7 +329,7 @@ def _without(rec_in, k):
 
 def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec."""
-    loo = thresholds == "input" or calibrate is not None
+    loo = thresholds in ("input", "selfcal") or calibrate is not None
     if not loo:
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
@@ -344,8 +344,14 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
         if k not in cal_cache:
             cal_cache[k] = {"rec": _without(rec_in, k), "thr": {}}
         sub = cal_cache[k]
+        dt = 0
         if thresholds == "input":
             params, u = RD.input_thresholds(sub["rec"], spec.method, params, profile, cache=sub["thr"])
+            used["thresholds"] = u
+        elif thresholds == "selfcal" and spec.method not in ("frames_zoh", "frames_linear"):
+            # the self-calibration of the input without frame k: frame k stands for tau_k + dt,
+            # so the method reconstructs there (and every frame of its input is shifted alike)
+            params, dt, u = RD.selfcal_params(sub["rec"], spec.method, params, profile, cache=sub["thr"])
             used["thresholds"] = u
         if calibrate is not None:
             if "overrides" not in sub:
@@ -353,10 +359,11 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
             params, kw, u = apply_calibration(spec, params, sub["overrides"])
             used["calibration"] = u
         t0 = time.perf_counter()
-        v = reconstruct(rec_in, spec.method, params, times_us=tk[i:i + 1], mode=spec.mode,
-                        profile=kw.get("profile", profile), augment=spec.augment, thresholds=kw.get("thresholds"))
+        v = reconstruct(rec_in, spec.method, params, times_us=tk[i:i + 1] + dt, mode=spec.mode,
+                        profile=kw.get("profile", profile), augment=spec.augment, thresholds=kw.get("thresholds"),
+                        frame_time_offset_us=dt)
         wall += time.perf_counter() - t0
-        if not np.array_equal(v.t_us, tk[i:i + 1]):
+        if not np.array_equal(v.t_us, tk[i:i + 1] + dt):
             raise RuntimeError(f"output time {v.t_us.tolist()} differs from frame {k}'s {int(tk[i])} µs")
         out.append(_as_reference_layout(v.frames[0], ref_ndim, pattern))
         used_all.append({"frame": int(k), **used})
@@ -414,7 +421,10 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     frames : indices into the kept frames (τ_k up to the last event) to score, each ≥ 1; default
         :func:`default_scored_frames`
     profile : the frames' camera profile (default: the recording's, else built-in)
-    thresholds : ``"params"`` (each method's own) or ``"input"`` (estimated without frame k)
+    thresholds : ``"params"`` (each method's own), ``"input"`` (estimated without frame k) or
+        ``"selfcal"`` (the event/frame self-calibration of the input without frame k,
+        :func:`hybridhdr.evaluate.realdata.selfcal_params`: frame k is reconstructed at the time it
+        stands for, τ_k + the calibrated offset)
     calibrate : callable ``calibrate(recording_without_frame_k) -> overrides``
         (:func:`apply_calibration`), called once per scored frame and gain; None: no calibration
     skipped : ``{label: why}`` of specs left out (reported)

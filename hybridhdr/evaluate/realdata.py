@@ -139,6 +139,15 @@ THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
 THRESHOLD_SOURCES = ("params", "input", "selfcal")
 
 
+def default_threshold_source(rec) -> str:
+    """What the command line's defaults use on ``rec``: ``"selfcal"`` for a recording that declares
+    no contrast thresholds and stores no map (as ``reconstruct --self-calibrate auto``), else
+    ``"params"`` (the methods then take the declared thresholds)."""
+    from ..reconstruct.api import _declared_thresholds
+    declared = _declared_thresholds(rec) is not None or getattr(rec, "thresholds", None) is not None
+    return "params" if declared else "selfcal"
+
+
 def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
     """``(params, time_offset_us, used)``: ``params`` of ``method`` with the self-calibration of
     ``rec_input`` (:func:`hybridhdr.calibrate.selfcal.self_calibration`): the AKF takes the
