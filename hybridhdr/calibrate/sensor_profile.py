@@ -69,7 +69,8 @@ def _entry(value, *, identifiable, method, unit, reason="", std=None, ci95=None,
 
 
 def _boot_weights(rng, n_boot: int, n: int, chunk: int = 50):
-    """Poisson(1) bootstrap weights, ``chunk`` replicates at a time (bounded memory)."""
+    """Poisson(1) bootstrap weights, at most ``chunk`` replicates and 4 M weights at a time (bounded memory)."""
+    chunk = max(1, min(chunk, (4 << 20) // max(n, 1)))
     for k in range(0, n_boot, chunk):
         yield rng.poisson(1.0, size=(min(chunk, n_boot - k), n)).astype(np.float64)
 
@@ -290,10 +291,22 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
                   f"pixel-intervals ({pv['intervals_used']} frame intervals), its moments corrected for the noise "
                   f"events expected per interval (ON {lam_on:.3g}, OFF {lam_off:.3g}: shot noise and leak from the "
                   f"static pixels); 95 % bootstrap over {used.size} pixels")
+        # how much the noise correction moves them: the shot rate at its 95 % bounds, and with the
+        # sub-bound signal that may hide in the static events removed
+        sens = {}
+        sh = est.get("shot_noise_rate_hz", {})
+        if sh.get("value") and sh.get("ci95"):
+            cands = {"shot_ci95_low": sh["ci95"][0], "shot_ci95_high": sh["ci95"][1],
+                     "shot_less_contamination": max(sh["value"] - (sh.get("signal_contamination_bound_hz") or 0), 0)}
+            for label, rate in cands.items():
+                lo_ = (0.5 * rate + sim.get("leak_rate_hz", 0.0)) * dt
+                ct = [c[used].sum() for c in _corrected(sums, lo_, 0.5 * rate * dt)]
+                sens[label] = [float(v) for v in _nnls2(*ct)]
         for j, (k, v, raw) in enumerate((("contrast_threshold_on", g_on, tm.fallback_on),
                                          ("contrast_threshold_off", g_off, tm.fallback_off))):
             sd, ci = _ci(boot[:, j])
             est[k] = _entry(v, identifiable=True, method=method, unit="ln", std=sd, ci95=ci, uncorrected=raw,
+                            noise_correction_sensitivity={lab: vv[j] for lab, vv in sens.items()},
                             per_pixel_median=_f(np.nanmedian(tm.c_on if j == 0 else tm.c_off)),
                             per_pixel_estimated=int(tm.valid.sum()))
             sim[k] = float(v)

@@ -288,6 +288,9 @@ class EventSensor:
         self.sensor_size = SensorSize.from_any(sensor_size)
         if self.sensor_size is None:
             raise ValueError("EventSensor needs a sensor_size (height, width)")
+        if not isinstance(params, (EventSensorParams, str)) and not _is_profile_spec(params):
+            raise TypeError(f"params must be EventSensorParams, a preset name or a sensor profile, got "
+                            f"{type(params).__name__}")
         self.params = params if isinstance(params, EventSensorParams) else sensor_preset(params)
         if not isinstance(self.params, EventSensorParams):
             raise TypeError(f"params must be EventSensorParams, a preset name or a sensor profile, got "

@@ -155,3 +155,19 @@ def test_ecd_profile(shared_data):
     ship = sensor_preset("builtin:davis240c")
     assert math.isclose(ship.contrast_threshold_on, e["contrast_threshold_on"]["value"], rel_tol=1e-9)
     assert math.isclose(ship.shot_noise_rate_hz, e["shot_noise_rate_hz"]["value"], rel_tol=1e-9)
+
+
+def test_cli_json_and_errors(shared_data, tmp_path, capsys):
+    from hybridhdr.cli import main
+    ecd = shared_data("ecd_slider_depth")
+    out = tmp_path / "p" / "profile.json"
+    assert main(["calibrate", "sensor", str(ecd), "--out", str(out), "--bootstrap", "20", "--json"]) == 0
+    cap = capsys.readouterr()
+    assert cap.out.count("\n") == 1
+    obj = json.loads(cap.out)
+    assert obj["written"] == str(out) and load_sensor_profile(out).simulator_params == obj["simulator_params"]
+    assert obj["provenance"]["input"] == str(ecd) and obj["provenance"]["command"][0] == "hybridhdr"
+    # a recording without frames: a clear error, nothing written
+    bad_out = tmp_path / "none.json"
+    assert main(["calibrate", "sensor", str(shared_data("aedat4/sample.aedat4")), "--out", str(bad_out)]) == 1
+    assert "at least two frames; found 0" in capsys.readouterr().err and not bad_out.exists()
