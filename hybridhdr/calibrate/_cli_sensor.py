@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import sys
+import time
 from pathlib import Path
 
 from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
@@ -39,6 +40,7 @@ def run_sensor(args) -> int:
     from ..formats import read
     from .sensor_profile import estimate_sensor_profile
 
+    t0 = time.perf_counter()
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
                                    n_boot=args.bootstrap, seed=args.seed, name=args.name,
@@ -47,7 +49,7 @@ def run_sensor(args) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out, prof.to_dict(), indent=1)
     if args.json:
-        print(json.dumps({**prof.to_dict(), "written": str(args.out)}))
+        print(json.dumps({**prof.to_dict(), "written": str(args.out), "time_s": round(time.perf_counter() - t0, 3)}))
         return 0
     print(f"{args.recording}: {len(rec.events)} events, {len(rec.frames)} frames")
     for k, e in prof.estimates.items():
@@ -59,5 +61,6 @@ def run_sensor(args) -> int:
         else:
             ub = e.get("upper_bound_us")
             print(f"  {k:<26} not identifiable" + (f" (at most {ub:.0f} us)" if ub else "") + f": {e['reason']}")
-    print(f"wrote {args.out} (simulator fields: {', '.join(sorted(prof.simulator_params)) or 'none'})")
+    print(f"wrote {args.out} (simulator fields: {', '.join(sorted(prof.simulator_params)) or 'none'}) in "
+          f"{time.perf_counter() - t0:.1f} s")
     return 0

@@ -31,7 +31,6 @@ tell it:
 from __future__ import annotations
 
 import math
-import time
 from pathlib import Path
 
 import numpy as np
@@ -166,7 +165,6 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
     seed : int
         Seeds the bootstrap (same seed, same profile).
     """
-    t_start = time.perf_counter()
     rec = recording
     if isinstance(rec, (str, Path)):
         from ..formats import read
@@ -435,7 +433,7 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
             "n_events": int(len(ev)), "n_frames": int(len(rec.frames)),
             "event_span_us": [int(ev["t"][0]), int(ev["t"][-1])], "thresholds": thr_record,
             "n_boot": int(n_boot), "seed": int(seed), "static_log_bound": static_log_bound,
-            "isi_quantile": isi_quantile, "time_s": round(time.perf_counter() - t_start, 3)}
+            "isi_quantile": isi_quantile}
     sensor = {"model": sensor_model, "width": int(ss.width if ss is not None else w),
               "height": int(ss.height if ss is not None else h)}
     return SensorProfile(simulator_params=sim, estimates=est, name=name, sensor=sensor, provenance=prov)

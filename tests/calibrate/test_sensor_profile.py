@@ -152,6 +152,8 @@ def test_ecd_profile(shared_data):
     assert not e["threshold_mismatch_sigma"]["identifiable"]
     assert not e["refractory_period_us"]["identifiable"] and 2000 < e["refractory_period_us"]["upper_bound_us"] < 3500
     assert e["shot_noise_rate_hz"]["identifiable"] and 0.3 < e["shot_noise_rate_hz"]["value"] < 1.5
+    # same seed, same profile (the bootstrap is seeded; nothing time-dependent is stored)
+    assert estimate_sensor_profile(path, n_boot=30).to_dict() == prof.to_dict()
     # the shipped profile is this estimate (bootstrap aside)
     ship = sensor_preset("builtin:davis240c")
     assert math.isclose(ship.contrast_threshold_on, e["contrast_threshold_on"]["value"], rel_tol=1e-9)
