@@ -51,7 +51,7 @@ from ..formats.thresholds import METHOD, ThresholdMap
 from ..reconstruct.measurement import frames_to_codes
 from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
 
-__all__ = ["estimate_thresholds", "pooled_thresholds", "plot_thresholds"]
+__all__ = ["estimate_thresholds", "threshold_sums", "pooled_thresholds", "plot_thresholds"]
 
 # -- estimation ----------------------------------------------------------------------------------
 
@@ -83,6 +83,28 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
                         min_intervals: int = 2, min_decorrelation: float = 0.05, c_range=(0.01, 2.0),
                         require_event_coverage: bool = True, progress=None) -> ThresholdMap:
     """Estimate per-pixel ON/OFF thresholds from frames and events (module docstring).
+
+    Parameters are those of :func:`threshold_sums`, which also returns the per-pixel sums.
+    """
+    return threshold_sums(recording, profile=profile, intensity_offset=intensity_offset, well_exposed=well_exposed,
+                          min_intervals=min_intervals, min_decorrelation=min_decorrelation, c_range=c_range,
+                          require_event_coverage=require_event_coverage, progress=progress)[0]
+
+
+def threshold_sums(recording, *, profile=None, intensity_offset: float | None = None, well_exposed=None,
+                   min_intervals: int = 2, min_decorrelation: float = 0.05, c_range=(0.01, 2.0),
+                   require_event_coverage: bool = True, progress=None, parts: int = 1, interval_hook=None):
+    """:func:`estimate_thresholds` and its least-squares sums: ``(ThresholdMap, sums, part_sums)``.
+
+    ``sums`` maps ``soo, sff, sof, bo, bf, sll`` (ΣN_on², ΣN_off², ΣN_on·N_off, ΣN_on·ΔL,
+    ΣN_off·ΔL, ΣΔL²), ``n_int`` (usable intervals) and the rest below to per-pixel arrays (H·W,); the
+    pooled estimate is :func:`_nnls2` of their totals, so a bootstrap over pixels re-weights them.
+    ``part_sums`` holds the same sums over ``parts`` consecutive blocks of the usable intervals
+    (in time order; ``parts=1``: one block, the totals), for split-sample estimates, with ``k_on``,
+    ``k_off`` (usable intervals with ON / OFF events), ``n_on``, ``n_off`` (ΣN_on, ΣN_off) and
+    ``sl`` (ΣΔL); ``sums`` holds them too. ``interval_hook(tau0_us, tau1_us, dL, good,
+    i0, i1)``, if given, is called for every usable interval with the frames' log change ``dL``
+    (H·W,), the pixels both frames see well exposed and the slice ``[i0, i1)`` of its events.
 
     Parameters
     ----------
@@ -173,18 +195,27 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
         good = (c >= lo) & (c <= hi)
         return np.log(prof.intensity(c) * scale[j] + i0), good
 
+    if int(parts) < 1:
+        raise ValueError(f"parts must be >= 1, got {parts}")
+    usable = [j for j in range(len(tau) - 1)
+              if (not require_event_coverage) or (tau[j] >= t0_ev and tau[j + 1] <= t1_ev)]
+    part_of = {j: (i * int(parts)) // max(len(usable), 1) for i, j in enumerate(usable)}
+    part_sums = [{k: np.zeros(n, np.float64) for k in ("soo", "sff", "sof", "bo", "bf", "sll", "n_int", "k_on",
+                                                       "k_off", "n_on", "n_off", "sl")}
+                 for _ in range(int(parts))]
     Lk, gk = logf(0)
     idx = np.searchsorted(t, tau)
     for j in range(len(tau) - 1):
         L1, g1 = logf(j + 1)
-        ok_time = (not require_event_coverage) or (tau[j] >= t0_ev and tau[j + 1] <= t1_ev)
-        if ok_time:
+        if j in part_of:
             a, b = idx[j], idx[j + 1]
             p_ = pix[a:b]
             o_ = on[a:b]
             non = np.bincount(p_[o_], minlength=n).astype(np.float64)
             noff = np.bincount(p_[~o_], minlength=n).astype(np.float64)
             m = gk & g1
+            if interval_hook is not None:
+                interval_hook(int(tau[j]), int(tau[j + 1]), L1 - Lk, m, int(a), int(b))
             dl = np.where(m, L1 - Lk, 0.0)
             non = np.where(m, non, 0.0)
             noff = np.where(m, noff, 0.0)
@@ -194,6 +225,11 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
             sums["bo"] += non * dl
             sums["bf"] += noff * dl
             sums["sll"] += dl * dl
+            ps = part_sums[part_of[j]]
+            for k, v in (("soo", non * non), ("sff", noff * noff), ("sof", non * noff), ("bo", non * dl),
+                         ("bf", noff * dl), ("sll", dl * dl), ("n_int", m), ("k_on", non > 0),
+                         ("k_off", noff > 0), ("n_on", non), ("n_off", noff), ("sl", dl)):
+                ps[k] += v
             n_on += non.astype(np.int64)
             n_off += noff.astype(np.int64)
             k_on += non > 0
@@ -246,7 +282,8 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
     tm = ThresholdMap(c_on=c_on, c_off=c_off, fallback_on=ga, fallback_off=gb, n_on=n_on.reshape(h, w),
                       n_off=n_off.reshape(h, w), n_intervals=n_int.reshape(h, w), method=METHOD, provenance=prov)
     prov.update({k: v for k, v in tm.summary().items() if k.startswith(("median", "q25", "q75", "fraction"))})
-    return tm
+    tot_sums = {k: sum(ps[k] for ps in part_sums) for k in part_sums[0]}
+    return tm, tot_sums, part_sums
 
 
 def pooled_thresholds(recording, *, profile=None, intensity_offset: float | None = None) -> tuple[float, float, dict]:

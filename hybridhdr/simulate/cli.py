@@ -22,8 +22,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("scene", nargs="?", default=None, help="SCENE.toml or builtin:NAME (see --list)")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
-    p.add_argument("--preset", default="clean", choices=["ideal", "clean", "noisy"],
-                   help="event-sensor preset (noise tiers; docs/simulate.md)")
+    p.add_argument("--preset", default=None, choices=["ideal", "clean", "noisy"],
+                   help="event-sensor preset (noise tiers; docs/simulate.md); default clean, or ideal under --sensor")
     p.add_argument("--fixed-rate-hz", type=positive_float, default=None,
                    help="render at this fixed rate (Hz) instead of adaptive sampling")
     p.add_argument("--min-rate-hz", type=positive_float, default=None, help="adaptive sampling: lowest render rate (Hz)")
@@ -53,7 +53,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--gt-fps", "--gt-rate-hz", dest="gt_rate_hz", type=positive_float, default=None,
                    help="also store HDR ground truth at this many per second, besides every frame's mid-exposure "
                         "(--gt-rate-hz is the old name)")
-    e = p.add_argument_group("event sensor (v2e names; each overrides the --preset's value)")
+    e = p.add_argument_group("event sensor (v2e names; each overrides the --preset's and the --sensor profile's value)")
+    e.add_argument("--sensor", default=None, metavar="PROFILE",
+                   help="sensor profile JSON from 'hybridhdr calibrate sensor', or builtin:davis240c; its identified "
+                        "parameters replace the --preset's (default with --sensor: ideal, every other tier off)")
     e.add_argument("--pos-thres", type=positive_float, default=None, help="ON contrast threshold, log units (v2e 0.2)")
     e.add_argument("--neg-thres", type=positive_float, default=None,
                    help="OFF contrast threshold, log units, given positive (v2e 0.2)")
@@ -147,7 +150,12 @@ def sensor_params(args):
 
     from .sensor import sensor_preset
     over = {field: getattr(args, flag) for flag, field in _SENSOR_FLAGS.items() if getattr(args, flag, None) is not None}
-    base = sensor_preset(args.preset)
+    profile = getattr(args, "sensor", None)
+    preset = getattr(args, "preset", None) or ("ideal" if profile else "clean")
+    base = sensor_preset(preset)
+    if profile:
+        from .sensor import sensor_from_profile
+        base = sensor_from_profile(profile, base)
     if over.get("photoreceptor_cutoff_hz") == 0:
         over["photoreceptor_cutoff_hz"] = None
     for name in ("contrast_threshold_on", "contrast_threshold_off"):

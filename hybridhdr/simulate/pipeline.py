@@ -73,9 +73,11 @@ class SimulationResult:
 def _resolve_sensor(sensor) -> EventSensorParams:
     if isinstance(sensor, EventSensorParams):
         return sensor
-    if isinstance(sensor, str):
+    from ..formats.sensor_profile import SensorProfile
+    if isinstance(sensor, (str, Path, SensorProfile)):
         return sensor_preset(sensor)
-    raise TypeError(f"sensor must be a preset name or EventSensorParams, got {type(sensor).__name__}")
+    raise TypeError(f"sensor must be a preset name, a sensor profile (path, builtin:NAME, SensorProfile) or "
+                    f"EventSensorParams, got {type(sensor).__name__}")
 
 
 def _check_source(source):

@@ -28,7 +28,8 @@ from ..events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
 from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
 
 __all__ = ["ProceduralScene", "procedural_recording", "EdgeSweepScene", "edge_sweep_recording", "ideal_events",
-           "ColourEdgeSweepScene", "colour_edge_sweep_recording", "hdr_scene", "random_homography", "render_frame"]
+           "ColourEdgeSweepScene", "colour_edge_sweep_recording", "hdr_scene", "random_homography", "render_frame",
+           "SensorCalibrationScene", "sensor_calibration_recording"]
 
 
 @dataclass(frozen=True)
@@ -516,3 +517,113 @@ def render_frame(radiance: np.ndarray, H: np.ndarray, exposure: float, rng, *, g
     warped = cv2.warpPerspective(radiance, H, (w, h), flags=cv2.INTER_CUBIC, borderMode=cv2.BORDER_REFLECT)
     z = 255.0 * np.clip(warped * exposure, 0, 1) ** (1.0 / gamma) + rng.normal(0.0, noise_dn, warped.shape)
     return np.clip(np.round(z), 0, 255).astype(np.uint8)
+
+
+# -- sensor calibration scene: moving texture, static patch, saturated flicker -------------------
+
+@dataclass(frozen=True)
+class SensorCalibrationScene:
+    """Analytic scene for the sensor-profile round trip (``calibrate sensor``): three regions with
+    known roles, in radiance units where 1.0 fills the frames at the default camera below.
+
+    * ``x < texture_width``: a texture (three plane waves, radiance 0.06-0.66, well exposed)
+      translating at ``speed_px_per_s``: the threshold estimator's frame intervals;
+    * the rest, rows ``y < static_height``: a constant patch (radiance 0.3): only shot noise and
+      leak fire there;
+    * the rest, rows below: a patch that flickers between radiance 2 and ``2·e^flicker_ln``
+      (saturating the frames) with ramps linear in ln I over ``ramp_us``, every
+      ``flicker_period_us``: bursts whose same-pixel intervals pile up at the refractory period.
+    """
+
+    sensor_size: SensorSize = SensorSize(32, 64)
+    seed: int = 0
+    texture_width: int = 36
+    static_height: int = 18
+    speed_px_per_s: float = 60.0
+    flicker_ln: float = 12.0
+    ramp_us: int = 1500
+    flicker_period_us: int = 40_000
+
+    def _waves(self):
+        rng = np.random.default_rng([int(self.seed), 29])
+        kx = rng.uniform(0.04, 0.1, 3) * 2 * np.pi * rng.choice([-1, 1], 3)
+        ky = rng.uniform(-0.05, 0.05, 3) * 2 * np.pi
+        return kx, ky, rng.uniform(0, 2 * np.pi, 3)
+
+    def flicker_log(self, t_us) -> float:
+        """ln I of the flicker patch above its low level at ``t_us`` (0 .. flicker_ln)."""
+        ph = float(t_us) % self.flicker_period_us
+        half = self.flicker_period_us / 2
+        r = self.ramp_us
+        if ph < r:
+            return self.flicker_ln * ph / r
+        if ph < half:
+            return self.flicker_ln
+        if ph < half + r:
+            return self.flicker_ln * (1 - (ph - half) / r)
+        return 0.0
+
+    def intensity(self, t_us) -> np.ndarray:
+        h, w = self.sensor_size.shape
+        kx, ky, ph = self._waves()
+        yy, xx = np.mgrid[0:h, 0:w].astype(np.float64)
+        x0 = self.speed_px_per_s * float(t_us) * 1e-6
+        s = sum(np.sin(kx[i] * (xx - x0) + ky[i] * yy + ph[i]) for i in range(3)) / 3
+        out = np.exp(np.log(0.2) + 1.2 * s)
+        right = xx >= self.texture_width
+        out[right & (yy < self.static_height)] = 0.3
+        out[right & (yy >= self.static_height)] = 2.0 * np.exp(self.flicker_log(t_us))
+        return out
+
+    def region(self, name: str) -> np.ndarray:
+        """Mask of ``"texture"``, ``"static"`` or ``"flicker"`` (bool (H, W))."""
+        h, w = self.sensor_size.shape
+        yy, xx = np.mgrid[0:h, 0:w]
+        right = xx >= self.texture_width
+        masks = {"texture": ~right, "static": right & (yy < self.static_height),
+                 "flicker": right & (yy >= self.static_height)}
+        if name not in masks:
+            raise ValueError(f"region must be one of {sorted(masks)}, got {name!r}")
+        return masks[name]
+
+
+class _CalibrationSource:
+    """:class:`SensorCalibrationScene` as a ``RadianceSource`` (simulate/source.py)."""
+
+    def __init__(self, scene: SensorCalibrationScene, duration_us: int):
+        self.scene = scene
+        self.sensor_size = scene.sensor_size
+        self.duration_us = int(duration_us)
+        self.renders = 0
+
+    def render(self, t_us: int) -> np.ndarray:
+        self.renders += 1
+        return self.scene.intensity(int(t_us)).astype(np.float32)
+
+    def max_image_speed_px_per_s(self, t0_us: int, t1_us: int) -> float:
+        return float(self.scene.speed_px_per_s)
+
+    def describe(self) -> dict:
+        return {"source": "hybridhdr.simulate.procedural.SensorCalibrationScene", "seed": self.scene.seed,
+                "speed_px_per_s": self.scene.speed_px_per_s, "flicker_ln": self.scene.flicker_ln,
+                "ramp_us": self.scene.ramp_us, "flicker_period_us": self.scene.flicker_period_us}
+
+
+def sensor_calibration_recording(sensor, *, seed: int = 0, duration_us: int = 2_000_000,
+                                 scene: SensorCalibrationScene | None = None, frame_rate_hz: float = 25.0,
+                                 exposure_us: int = 2000, render_rate_hz: float = 4000.0):
+    """Simulate :class:`SensorCalibrationScene` through the simulator's sensor (``sensor``: preset
+    name, ``EventSensorParams``, profile path or ``builtin:NAME``) and an 8-bit gamma-2.2 frame camera
+    (radiance 1 fills the well over ``exposure_us``), rendered at a fixed ``render_rate_hz``.
+
+    Returns ``(recording, scene, sensor_params)``; the recording's provenance holds the sensor's
+    parameters and the simulated per-pixel thresholds are reproducible from the seed."""
+    from .camera import FrameCameraParams
+    from .pipeline import simulate
+    from .sampling import SamplingParams
+    sc = scene or SensorCalibrationScene(seed=int(seed))
+    cam = FrameCameraParams(frame_rate_hz=frame_rate_hz, exposure_us=int(exposure_us), crf="gamma",
+                            electrons_per_radiance_s=1e4 / (int(exposure_us) * 1e-6))
+    res = simulate(_CalibrationSource(sc, duration_us), sensor=sensor, camera=cam,
+                   sampling=SamplingParams(mode="fixed", fixed_rate_hz=render_rate_hz), seed=seed, progress=False)
+    return res.recording, sc, res.recording.metadata.provenance.get("sensor")

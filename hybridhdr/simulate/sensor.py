@@ -51,7 +51,8 @@ import numpy as np
 from .._util.checks import check_shape
 from ..events import EVENT_DTYPE, SensorSize
 
-__all__ = ["EventSensorParams", "EventSensor", "PRESETS", "sensor_preset", "generate_events"]
+__all__ = ["EventSensorParams", "EventSensor", "PRESETS", "sensor_preset", "generate_events", "BUILTIN_PROFILES",
+           "sensor_from_profile", "load_profile_spec"]
 
 #: Longest step (µs) handled in one kernel call; longer steps are cut into equal pieces on the
 #: same linear interpolation, which bounds the counting-sort histogram (8 bytes per µs).
@@ -149,6 +150,11 @@ class EventSensorParams:
         return dataclasses.asdict(self)
 
     @classmethod
+    def from_profile(cls, profile, base="ideal", **overrides) -> "EventSensorParams":
+        """From a sensor profile (object, JSON path or ``builtin:NAME``): :func:`sensor_from_profile`."""
+        return sensor_from_profile(profile, base, **overrides)
+
+    @classmethod
     def from_dict(cls, d: dict) -> "EventSensorParams":
         names = {f.name for f in dataclasses.fields(cls)}
         unknown = sorted(set(d) - names)
@@ -172,14 +178,71 @@ PRESETS: dict[str, EventSensorParams] = {
 }
 
 
-def sensor_preset(name: str) -> EventSensorParams:
-    """The preset ``name`` ("ideal", "clean" or "noisy")."""
+#: Built-in sensor profiles (``builtin:NAME``), package data in ``simulate/profiles/``; each was
+#: estimated by ``hybridhdr calibrate sensor`` (docs/simulate-sensor.md, "Sensor profiles").
+BUILTIN_PROFILES = {"davis240c": "davis240c_ecd.json"}
+
+
+def load_profile_spec(spec):
+    """A :class:`~hybridhdr.formats.sensor_profile.SensorProfile` from a profile object, a JSON path
+    or ``builtin:NAME`` (:data:`BUILTIN_PROFILES`)."""
+    from ..formats.sensor_profile import SensorProfile, load_sensor_profile
+    if isinstance(spec, SensorProfile):
+        return spec.validate()
+    if isinstance(spec, str) and spec.startswith("builtin:"):
+        key = spec[len("builtin:"):]
+        if key not in BUILTIN_PROFILES:
+            raise ValueError(f"unknown built-in sensor profile {spec!r}; expected one of "
+                             f"{['builtin:' + k for k in sorted(BUILTIN_PROFILES)]}")
+        from pathlib import Path
+        return load_sensor_profile(Path(__file__).with_name("profiles") / BUILTIN_PROFILES[key])
+    return load_sensor_profile(spec)
+
+
+def sensor_from_profile(profile, base: "EventSensorParams | str" = "ideal", **overrides) -> EventSensorParams:
+    """EventSensorParams from a sensor profile (object, JSON path or ``builtin:NAME``).
+
+    The profile's ``simulator_params`` (what its recording identified) replace ``base``'s values
+    (a preset name or EventSensorParams; default ``ideal``: every tier the recording could not
+    tell stays off); ``overrides`` (EventSensorParams fields) replace both. ``min_threshold`` is
+    lowered to the smallest threshold when a profile's threshold lies below it.
+    """
+    prof = load_profile_spec(profile)
+    b = sensor_preset(base) if isinstance(base, str) else base
+    if not isinstance(b, EventSensorParams):
+        raise TypeError(f"base must be a preset name or EventSensorParams, got {type(base).__name__}")
+    vals = {**prof.simulator_params, **overrides}
+    if vals.get("photoreceptor_cutoff_hz") == 0:
+        vals["photoreceptor_cutoff_hz"] = None
+    lo = min([v for k, v in vals.items() if k.startswith("contrast_threshold_")] + [b.min_threshold])
+    if "min_threshold" not in vals and lo < b.min_threshold:
+        vals["min_threshold"] = lo
+    try:
+        return dataclasses.replace(b, **vals)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"sensor profile {prof.name or profile!s}: {e}") from None
+
+
+def _is_profile_spec(name) -> bool:
+    from pathlib import Path
+
+    from ..formats.sensor_profile import SensorProfile
+    return (isinstance(name, (Path, SensorProfile))
+            or (isinstance(name, str) and (name.startswith("builtin:") or name.lower().endswith(".json"))))
+
+
+def sensor_preset(name) -> EventSensorParams:
+    """The preset ``name`` ("ideal", "clean" or "noisy"), or a sensor profile (a ``.json`` path,
+    ``builtin:NAME`` or a ``SensorProfile``) over the ``ideal`` preset (:func:`sensor_from_profile`)."""
     if isinstance(name, EventSensorParams):
         return name
+    if _is_profile_spec(name):
+        return sensor_from_profile(name)
     try:
         return PRESETS[name]
     except (KeyError, TypeError):
-        raise ValueError(f"unknown event-sensor preset {name!r}; expected one of {sorted(PRESETS)}") from None
+        raise ValueError(f"unknown event-sensor preset {name!r}; expected one of {sorted(PRESETS)}, a sensor "
+                         f"profile .json or one of {['builtin:' + k for k in sorted(BUILTIN_PROFILES)]}") from None
 
 
 def _check_radiance(radiance, shape, what="radiance") -> np.ndarray:
@@ -225,9 +288,13 @@ class EventSensor:
         self.sensor_size = SensorSize.from_any(sensor_size)
         if self.sensor_size is None:
             raise ValueError("EventSensor needs a sensor_size (height, width)")
-        self.params = sensor_preset(params) if isinstance(params, str) else params
+        if not isinstance(params, (EventSensorParams, str)) and not _is_profile_spec(params):
+            raise TypeError(f"params must be EventSensorParams, a preset name or a sensor profile, got "
+                            f"{type(params).__name__}")
+        self.params = params if isinstance(params, EventSensorParams) else sensor_preset(params)
         if not isinstance(self.params, EventSensorParams):
-            raise TypeError(f"params must be EventSensorParams or a preset name, got {type(params).__name__}")
+            raise TypeError(f"params must be EventSensorParams, a preset name or a sensor profile, got "
+                            f"{type(params).__name__}")
         self.seed = seed
         self._rng = np.random.default_rng(seed)
         p = self.params

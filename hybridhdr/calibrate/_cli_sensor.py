@@ -1,0 +1,66 @@
+"""``hybridhdr calibrate sensor``: the event-sensor profile of a recording, as the simulator defines it."""
+
+from __future__ import annotations
+
+import json
+import sys
+import time
+from pathlib import Path
+
+from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
+
+
+def register(steps) -> None:
+    p = steps.add_parser(
+        "sensor", help="event-sensor profile (thresholds, mismatch, noise, leak, refractory) of a recording",
+        formatter_class=HelpFormatter, parents=[COMMON],
+        description="Estimate a recording's event-sensor parameters as the simulator defines them (ON/OFF "
+                    "threshold means and per-pixel spread, shot-noise and leak rates, refractory period; the "
+                    "photoreceptor bandwidth and timestamp jitter are reported as not identifiable), each with a 95 %% "
+                    "interval and an identifiable flag, and write them as a sensor profile JSON that "
+                    "'hybridhdr simulate --sensor PROFILE' reads. See docs/calibrate.md, 'Sensor profile'.")
+    p.add_argument("recording", type=Path, metavar="REC", help="recording with events and frames (any readable format)")
+    p.add_argument("--out", type=Path, required=True, help="profile JSON to write (atomically)")
+    p.add_argument("--format", default=None, help="input format (default: detected)")
+    p.add_argument("--profile", type=Path, default=None,
+                   help="camera profile JSON of the frames (default: the recording's declared one, else the built-in "
+                        "profile of the frames' encoding)")
+    p.add_argument("--name", default="", help="profile name stored in the file")
+    p.add_argument("--sensor-model", default="", help="sensor model stored in the file (e.g. DAVIS240C)")
+    p.add_argument("--static-log-bound", type=float, default=0.02,
+                   help="largest |d ln I| between two frames of a static pixel (and its 3x3 neighbours), log units")
+    p.add_argument("--bootstrap", type=positive_int, default=200, help="bootstrap replicates over pixels (>= 20)")
+    p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.set_defaults(func=run_sensor)
+
+
+@json_output
+def run_sensor(args) -> int:
+    from .._util.atomic import write_json_atomic
+    from ..formats import read
+    from .sensor_profile import estimate_sensor_profile
+
+    t0 = time.perf_counter()
+    rec = read(args.recording, format=args.format) if args.format else read(args.recording)
+    prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
+                                   n_boot=args.bootstrap, seed=args.seed, name=args.name,
+                                   sensor_model=args.sensor_model)
+    prof.provenance.update(command=["hybridhdr", *sys.argv[1:]], input=str(args.recording))
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    write_json_atomic(args.out, prof.to_dict(), indent=1)
+    if args.json:
+        print(json.dumps({**prof.to_dict(), "written": str(args.out), "time_s": round(time.perf_counter() - t0, 3)}))
+        return 0
+    print(f"{args.recording}: {len(rec.events)} events, {len(rec.frames)} frames")
+    for k, e in prof.estimates.items():
+        if e["identifiable"]:
+            ci = e["ci95"]
+            ci_s = f" (95 % {ci[0]:.4g} .. {ci[1]:.4g})" if ci else ""
+            sd = f" +- {e['std']:.2g}" if e["std"] is not None else ""
+            print(f"  {k:<26} {e['value']:.4g} {e['unit']}{sd}{ci_s}")
+        else:
+            ub = e.get("upper_bound_us")
+            print(f"  {k:<26} not identifiable" + (f" (at most {ub:.0f} us)" if ub else "") + f": {e['reason']}")
+    print(f"wrote {args.out} (simulator fields: {', '.join(sorted(prof.simulator_params)) or 'none'}) in "
+          f"{time.perf_counter() - t0:.1f} s")
+    return 0
