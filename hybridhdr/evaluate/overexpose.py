@@ -282,11 +282,13 @@ def apply_calibration(spec: OverexposeSpec, params, overrides) -> tuple[object, 
     - ``"method_params"``: ``{label or method name: {field: value}}`` for one method (after ``params``);
     - ``"thresholds"``: a per-pixel threshold map for ``reconstruct(thresholds=...)``;
     - ``"profile"``: a camera profile for the reconstruction (the scoring keeps the frames' own);
+    - ``"frame_time_offset_us"``: the time frame k stands for is τ_k + this offset (the method's
+      input frames are shifted alike and it reconstructs there; frame methods included);
     - ``"note"``: a string, recorded.
 
     A dict without any of these keys is taken as ``"params"``.
     """
-    keys = ("params", "method_params", "thresholds", "profile", "note")
+    keys = ("params", "method_params", "thresholds", "profile", "frame_time_offset_us", "note")
     if overrides is None:
         return params, {}, {}
     if not isinstance(overrides, dict):
@@ -309,12 +311,14 @@ def apply_calibration(spec: OverexposeSpec, params, overrides) -> tuple[object, 
     if applied:
         p = p.replace(**applied)
     kw = {k: overrides[k] for k in ("thresholds", "profile") if overrides.get(k) is not None}
+    if overrides.get("frame_time_offset_us"):
+        kw["frame_time_offset_us"] = int(overrides["frame_time_offset_us"])
     used = {"applied": {k: (float(v) if isinstance(v, (int, float, np.number)) and not isinstance(v, bool) else v)
                         for k, v in applied.items()}}
     if skipped:
         used["not_fields_of_method"] = sorted(set(skipped))
     for k in kw:
-        used[k] = getattr(kw[k], "name", type(kw[k]).__name__)
+        used[k] = kw[k] if k == "frame_time_offset_us" else getattr(kw[k], "name", type(kw[k]).__name__)
     if overrides.get("note"):
         used["note"] = str(overrides["note"])[:500]
     return p, kw, used
@@ -358,6 +362,7 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
                 sub["overrides"] = calibrate(sub["rec"])
             params, kw, u = apply_calibration(spec, params, sub["overrides"])
             used["calibration"] = u
+            dt += int(kw.get("frame_time_offset_us", 0))
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, params, times_us=tk[i:i + 1] + dt, mode=spec.mode,
                         profile=kw.get("profile", profile), augment=spec.augment, thresholds=kw.get("thresholds"),
