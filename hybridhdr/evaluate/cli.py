@@ -508,7 +508,11 @@ def run_overexpose_cmd(args) -> int:
     from ..formats import read
     from .overexpose import evaluate_overexpose, format_overexpose, gain_key, plot_method, write_per_frame_csv
     specs, skipped = _overexpose_specs(args)
-    frames = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
+    try:
+        frames = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
+    except ValueError:
+        raise ValueError(f"--frames expects frame indices separated by commas (e.g. 1,2,3), got {args.frames!r}") \
+            from None
     if args.profile is not None and not args.profile.is_file():
         raise FileNotFoundError(f"--profile {args.profile} does not exist")
     folder = AtomicFolder(args.out, outputs=OVEREXPOSE_OUTPUTS, command="evaluate overexpose",

@@ -240,10 +240,12 @@ def pixel_classes(over_codes, orig_codes, scored, *, clip_codes, well_exposed) -
 
 def _kept(rec):
     """Indices of the frames with τ_k up to the last event (the input's frames)."""
-    if rec.frames is None or len(rec.frames) < 2:
-        raise ValueError("overexpose needs at least 2 frames")
+    n = 0 if rec.frames is None else len(rec.frames)
+    if n < 2:
+        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frame(s)")
     if len(rec.events) == 0:
-        raise ValueError("overexpose needs events")
+        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frames "
+                         f"but no events")
     return np.flatnonzero(rec.frames.t_mid_us <= int(rec.events["t"][-1]))
 
 
