@@ -228,13 +228,12 @@ def k_sort_groups(start, n_pix, grp):
 
 @cuda.jit
 def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_la_step, seg_t0, seg_inv_t,
-               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, ccount, n_applied):
+               c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, ccount):
     """One thread per pixel: its window events in stream order, each as :func:`._kernels._akf_event`.
 
     ``te_in`` holds every pixel's last event time before the window (absolute µs, the start
     time where none); ``te_out`` receives it after the window. ``ccount`` (float32, or empty):
-    per-pixel event counts for the two-sided fusion's carried variance. ``n_applied[0]`` counts
-    the events applied.
+    per-pixel event counts for the two-sided fusion's carried variance.
     """
     n_pix = height * width
     has_px = con_px.shape[0] > 0
@@ -303,7 +302,6 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         te_out[pix] = te0
         if has_cc:
             ccount[pix] += np.float32(hi - lo)
-        cuda.atomic.add(n_applied, 0, hi - lo)
 
 
 @cuda.jit
@@ -432,7 +430,7 @@ def k_fill_i64(a, v, n):
 # -- CF ---------------------------------------------------------------------------------------
 
 @cuda.jit
-def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, coff_px, n_applied):
+def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, coff_px):
     """One thread per pixel: :func:`._kernels._cf_update` at each of its window events, in order."""
     has_px = con_px.shape[0] > 0
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
@@ -449,8 +447,6 @@ def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, c
             else:
                 C[pix, C_L] = lhat - (coff_px[pix] if has_px else c_off)
             C[pix, C_TU] = tif
-        if hi > lo:
-            cuda.atomic.add(n_applied, 0, hi - lo)
 
 
 @cuda.jit

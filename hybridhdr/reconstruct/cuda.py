@@ -211,17 +211,13 @@ class _CudaEngine:
         self.params = params
         self.k = -1
         self.grouper = _Grouper(self.n)
-        self._applied = cuda.to_device(np.zeros(1, np.int64))
+        self.n_events = 0  # every event of a window is applied (the serial filter's count)
         self._stage = None
         self.con_px = self.coff_px = self._empty(np.float64)
         self.device_line = f"device: cuda ({device_name()})"
 
     def _empty(self, dtype):
         return self.cuda.device_array(0, dtype)
-
-    @property
-    def n_events(self) -> int:
-        return int(self._applied.copy_to_host()[0])
 
     def set_thresholds(self, c_on, c_off) -> None:
         """Per-pixel ON and OFF thresholds, as :meth:`._engine.Engine.set_thresholds` (host
@@ -258,6 +254,7 @@ class _CudaEngine:
             if m > 0:
                 self.grouper.group(dx, dy, s, m, self.shape[1])
                 self._walk(dt, dx, dy, dp, s)
+                self.n_events += m
 
     def close(self) -> None:
         return None
@@ -398,7 +395,7 @@ class CudaAKFEngine(_CudaEngine):
             dt, dx, dy, dp, a, H, W, gr.start, gr.grp, self.te[0], self.te[1], self.S, self.has_la_step,
             self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s, pr.isolated_noise_per_s,
             pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form, self.con_px, self.coff_px,
-            self.ccount, self._applied)
+            self.ccount)
         self.te.reverse()
 
     # -- outputs ---------------------------------------------------------------------------
@@ -502,7 +499,7 @@ class CudaCFEngine(_CudaEngine):
         pr = self.params
         gr = self.grouper
         self.ck.k_cf_walk[_grid(self.n)](dt, dp, a, self.n, gr.start, gr.grp, self.C, pr.c_on, pr.c_off,
-                                         self.event_decay, self.con_px, self.coff_px, self._applied)
+                                         self.event_decay, self.con_px, self.coff_px)
 
     def output(self, t_us: int, with_state: bool = False):
         if self._lg is None:
