@@ -270,16 +270,28 @@ def main(argv=None) -> int:
     from akf import HD_H, HD_W, synth_events_hd, synth_frames
     t_all = time.perf_counter()
     # warm-up: compile every kernel on a small case (reported: numba.cuda compiles on first launch)
-    log("compiling the kernels (small case) ...")
-    t0 = time.perf_counter()
-    tw, xw, yw, pw, durw = synth_events_hd(200_000)
-    frw = synth_frames(durw, h=HD_H, w=HD_W)
-    gpu_akf_cf(tw, xw, yw, pw, frw, (HD_H, HD_W), 1, "warmup", {}, 1, run_cpu=False)
-    res["compile_and_warmup_s"] = round(time.perf_counter() - t0, 1)
+    def section(name, fn):
+        """Run one part; an error is reported in the JSON (the other parts still run)."""
+        try:
+            fn()
+        except Exception as e:  # noqa: BLE001 - reported, not hidden
+            import traceback
+            res.setdefault("errors", {})[name] = f"{type(e).__name__}: {e}"
+            log(f"ERROR in {name}:\n{traceback.format_exc()}")
+
+    def warmup():
+        log("compiling the kernels (small case) ...")
+        t0 = time.perf_counter()
+        tw, xw, yw, pw, durw = synth_events_hd(200_000)
+        frw = synth_frames(durw, h=HD_H, w=HD_W)
+        gpu_akf_cf(tw, xw, yw, pw, frw, (HD_H, HD_W), 1, "warmup", {}, 1, run_cpu=False)
+        res["compile_and_warmup_s"] = round(time.perf_counter() - t0, 1)
+    section("warmup", warmup)
     if "agreement" not in skip:
         log("agreement with the CPU path ...")
-        agreement(res)
-    if "hd" not in skip:
+        section("agreement", lambda: agreement(res))
+
+    def hd_part():
         n = 5_000_000 if args.quick else 20_000_000
         log(f"1280x720: {n} events ...")
         t, x, y, p, dur = synth_events_hd(n)
@@ -289,13 +301,14 @@ def main(argv=None) -> int:
         res["goals"] = {"akf_forward_hd_mev_s": 1000, "akf_two_sided_hd_mev_s": 400,
                         "forward_met": hd["akf_forward_resident"]["mev_s"] >= 1000,
                         "two_sided_met": hd["akf_two_sided_resident"]["mev_s"] >= 400}
-        del t, x, y, p, fr
+    if "hd" not in skip:
+        section("hd", hd_part)
     if "firenet" not in skip:
         try:
             import torch
             if torch.cuda.is_available():
                 log("FireNet ...")
-                firenet(res, args.quick)
+                section("firenet", lambda: firenet(res, args.quick))
             else:
                 res["firenet"] = {"skipped": "PyTorch sees no CUDA device"}
         except ImportError as e:
