@@ -390,20 +390,6 @@ def k_akf_output_state32(S, seg_t0, seg_inv_t, t_out, out_l, out_p, ccount, q, s
 
 
 @cuda.jit
-def k_fuse_log32(l_f, p_f, l_b, p_b, out, n, n_zero):
-    """:func:`._kernels.fuse_log32`: ``(L_f P_b + L_b P_f)/(P_f + P_b)`` in float64, to float32."""
-    for i in range(cuda.grid(1), n, cuda.gridsize(1)):
-        pf = np.float64(p_f[i])
-        pb = np.float64(p_b[i])
-        den = pf + pb
-        if den == 0.0:
-            cuda.atomic.add(n_zero, 0, 1)
-            out[i] = np.float32(math.nan)
-        else:
-            out[i] = np.float32((np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / den)
-
-
-@cuda.jit
 def k_reverse_events(t, x, y, p, n, t_mirror_m1, rt, rx, ry, rp):
     """:func:`.smoother.reverse_events` on the device: ``t' = mirror - 1 - t``, order reversed,
     polarity negated."""
@@ -465,3 +451,40 @@ def k_cf_output(C, t_out, out_log, n_pix):
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
         lfv = C[pix, C_LF]
         out_log[pix] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_out - C[pix, C_TU]) * US))
+
+
+@cuda.jit(device=True, inline=True)
+def d_log_to_linear(l32, offset32):
+    """:func:`._kernels.log_to_linear` of one float32 L̂: exp rounded to float32, then the float32
+    offset subtracted (the CPU's numpy float32 exp is within an ulp of this correctly rounded one)."""
+    return np.float32(math.exp(np.float64(l32))) - offset32
+
+
+@cuda.jit
+def k_akf_output_linear(S, seg_t0, seg_inv_t, t_out, offset32, out_lin, n_pix):
+    """:func:`._kernels.akf_output` then :func:`._kernels.log_to_linear`: the linear float32 image."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        lhat, pv = d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
+        out_lin[pix] = d_log_to_linear(np.float32(lhat), offset32)
+
+
+@cuda.jit
+def k_fuse_linear(l_f, p_f, l_b, p_b, offset32, floor32, out, n, counts):
+    """:func:`._kernels.fuse_to_linear` on the device: ``(L_f P_b + L_b P_f)/(P_f + P_b)`` in
+    float64 from the float32 pass estimates, rounded to float32 (:func:`._kernels.fuse_log32`),
+    the linear value, and the clamp at ``floor32`` (``counts[0]``: zero denominators,
+    ``counts[1]``: clamped pixels, as :func:`._kernels.clamp_linear` counts them: below the floor
+    or NaN)."""
+    for i in range(cuda.grid(1), n, cuda.gridsize(1)):
+        pf = np.float64(p_f[i])
+        pb = np.float64(p_b[i])
+        den = pf + pb
+        if den == 0.0:
+            cuda.atomic.add(counts, 0, 1)
+            v = np.float32(math.nan)
+        else:
+            v = d_log_to_linear(np.float32((np.float64(l_f[i]) * pb + np.float64(l_b[i]) * pf) / den), offset32)
+        if not (v >= floor32):
+            v = floor32
+            cuda.atomic.add(counts, 1, 1)
+        out[i] = v

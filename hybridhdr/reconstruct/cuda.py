@@ -10,8 +10,8 @@ Schedule (kernels in :mod:`._cuda_kernels`): the driver's time windows (between 
 and output times, as the CPU engines see them) are grouped by pixel on the device and filtered
 by one thread per pixel; frame switches, outputs, the isolated-pixel term, the two-sided
 filter's reversal, carried variance and fusion all run on the device. Only the output images
-come back (float32 L̂, turned into linear intensity by the CPU path's own
-:func:`._kernels.log_to_linear`), plus the backward pass's estimates when they outgrow the
+come back (linear float32, the exp of the float32-rounded L̂ taken on the device, within an
+ulp of the CPU's numpy float32 exp), plus the backward pass's estimates when they outgrow the
 device budget :data:`DEVICE_STORE_BYTES`. Events stream through a bounded staging buffer, or stay
 resident on the device for the two-sided filter when they fit.
 
@@ -411,10 +411,18 @@ class CudaAKFEngine(_CudaEngine):
         return self._out, lg, var
 
     def output(self, t_us: int, with_state: bool = False):
-        """As :meth:`._engine.AKFEngine.output`: linear float32 image (H, W) [, float64 L̂, P]."""
-        d32, lg, var = self.output_device(t_us, with_state)
-        out = d32.copy_to_host()
-        K.log_to_linear(out, self.params.intensity_offset)
+        """As :meth:`._engine.AKFEngine.output`: linear float32 image (H, W) [, float64 L̂, P],
+        computed on the device (:func:`._cuda_kernels.k_akf_output_linear`); one copy back."""
+        if with_state:
+            d32, lg, var = self.output_device(t_us, True)
+            out = d32.copy_to_host()
+            K.log_to_linear(out, self.params.intensity_offset)
+        else:
+            if self._out is None:
+                self._out = self.cuda.device_array(self.n, np.float32)
+            self.ck.k_akf_output_linear[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
+                                                       np.float32(self.params.intensity_offset), self._out, self.n)
+            out = self._out.copy_to_host()
         if with_state:
             return out.reshape(self.shape), lg.copy_to_host().reshape(self.shape), var.copy_to_host().reshape(self.shape)
         return out.reshape(self.shape)
@@ -574,7 +582,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
     """:func:`.smoother.two_sided_iter` on the GPU, in its serial order: the backward pass (on the
     reversed recording) keeps its float32 (L̂, P) per output on the device (host memory beyond
     :data:`DEVICE_STORE_BYTES`), then the forward pass streams, each output fused on the device
-    (:func:`._cuda_kernels.k_fuse_log32`) and only the fused L̂ copied back.
+    (:func:`._cuda_kernels.k_fuse_linear`) and only the fused linear image copied back.
 
     ``make_engine(frames, events, backward)`` builds a :class:`CudaAKFEngine`; ``events`` is the
     host :class:`.event_arrays.EventArrays` of the pass (reversed for the backward pass) when
@@ -631,15 +639,18 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
             eng.close()
 
     out = cuda.device_array(n_pix, np.float32)
-    nz = cuda.to_device(np.zeros(1, np.int64))
+    counts = cuda.to_device(np.zeros(2, np.int64))
+    zeros2 = np.zeros(2, np.int64)
 
     def fuse_one(l1, p1, l2, p2):
-        CK.k_fuse_log32[g](l1, p1, l2, p2, out, n_pix, nz)
+        """Fused linear image on the device (fusion, exp, clamp: _kernels.fuse_to_linear's steps)."""
+        counts.copy_to_device(zeros2)
+        CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
         img = out.copy_to_host()
-        if int(nz.copy_to_host()[0]):
+        nz, ncl = (int(v) for v in counts.copy_to_host())
+        if nz:
             raise ZeroDivisionError("fuse_log32: P_f + P_b is 0")
-        K.log_to_linear(img, offset)  # the CPU path's own exp and clamp: same bits for the same L̂
-        stats["n_clamped"] += K.clamp_linear(img, K.MIN_INTENSITY)
+        stats["n_clamped"] += ncl
         stats["n_output_pixels"] += img.size
         return img.reshape(shape)
 
