@@ -360,7 +360,7 @@ def run(args) -> int:
                 writer.on_written = bars[1].update
             info: dict = {}
             from .cuda import resolve_device
-            device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
+            _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
             print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None:
@@ -372,7 +372,7 @@ def run(args) -> int:
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
                                                augment=augment, thresholds=args.thresholds, cfa=args.cfa,
-                                               demosaic=args.demosaic, device=device):
+                                               demosaic=args.demosaic, device=getattr(args, "device", "cpu")):
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
