@@ -50,8 +50,19 @@ def _cuda():
     return cuda
 
 
+def _driver_present() -> bool:
+    """An NVIDIA driver is visible (device nodes or libcuda): checked before importing numba.cuda,
+    so that a CPU-only machine answers "auto" at no import cost."""
+    if os.path.exists("/dev/nvidiactl") or os.path.exists("/dev/nvidia0"):
+        return True
+    import ctypes.util
+    return ctypes.util.find_library("cuda") is not None
+
+
 def cuda_unavailable_reason() -> str | None:
     """None when the CUDA path can run here, else why not (one line)."""
+    if os.environ.get("NUMBA_ENABLE_CUDASIM") != "1" and not _driver_present():
+        return "no NVIDIA driver here (no /dev/nvidiactl, no libcuda)"
     try:
         cuda = _cuda()
     except Exception as e:  # noqa: BLE001 - any import failure means no CUDA path
