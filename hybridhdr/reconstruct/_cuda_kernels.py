@@ -47,7 +47,7 @@ SCAN_TILE = SCAN_BLOCK * SCAN_ITEMS
 
 # -- device functions: the serial kernels' per-pixel arithmetic --------------------------------
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
     """:func:`._kernels.rinv_integral`, the same operations."""
     dt = t1 - tu0
@@ -62,7 +62,7 @@ def d_rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
     return klog * math.log1p(x)
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
     """:func:`._kernels._pull_integral` (0 where a censored frame's bound holds)."""
     beta = S[pix, A_BETA]
@@ -75,7 +75,7 @@ def d_pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
     return d_rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, t_to, seg_t0, seg_inv_t)
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
     """:func:`._kernels._akf_propagate_pixel`."""
     integ = d_pull_integral(S, pix, t_to, seg_t0, seg_inv_t)
@@ -87,7 +87,7 @@ def d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
     S[pix, A_TU] = t_to
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_frame_update(S, pix, r_log, cz, lf):
     """:func:`._kernels._frame_update`."""
     lh = S[pix, A_L]
@@ -100,7 +100,7 @@ def d_frame_update(S, pix, r_log, cz, lf):
         S[pix, A_P] = pp - g * pp
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out):
     """:func:`._kernels._output_pixel`: (L̂, P) at ``t_out`` without changing the state."""
     beta = S[pix, A_BETA]
@@ -119,7 +119,7 @@ def d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out):
     return lav + (lh - lav) * d, (pp if cens else pp * d)
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_lower_bound(grp, lo, hi, key):
     """First position in ``grp[lo:hi]`` (ascending) whose value is >= ``key`` (``hi`` if none)."""
     while lo < hi:
@@ -131,7 +131,7 @@ def d_lower_bound(grp, lo, hi, key):
     return lo
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_latest_before(t, a, grp, start, te_in, q, i):
     """Pixel ``q``'s latest event time before window event ``i``: in the window, else from before it."""
     s0 = start[q]
@@ -453,7 +453,7 @@ def k_cf_output(C, t_out, out_log, n_pix):
         out_log[pix] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_out - C[pix, C_TU]) * US))
 
 
-@cuda.jit(device=True, inline=True)
+@cuda.jit(device=True)
 def d_log_to_linear(l32, offset32):
     """:func:`._kernels.log_to_linear` of one float32 L̂: exp rounded to float32, then the float32
     offset subtracted (the CPU's numpy float32 exp is within an ulp of this correctly rounded one)."""
