@@ -105,7 +105,8 @@ def _drive_engines(make, t, x, y, p, cuts):
     return res
 
 
-def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous", step=False, thresholds=False):
+def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous", step=False, thresholds=False,
+                     max_window=None):
     from hybridhdr.camera import default_profile
     from hybridhdr.reconstruct import AKFParams, FrameMeasurements
     from hybridhdr.reconstruct._engine import AKFEngine
@@ -128,7 +129,13 @@ def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous
             e.set_thresholds(*thr)
         return e
     n = t.shape[0]
-    (cpu, n_cpu), (gpu, n_gpu) = _drive_engines(make, t, x, y, p, [0, n // 3, 2 * n // 3, n])
+    import hybridhdr.reconstruct.cuda as C
+    if max_window is not None:  # windows split inside the engine (staging and grouping limits)
+        C.MAX_WINDOW = max_window
+    try:
+        (cpu, n_cpu), (gpu, n_gpu) = _drive_engines(make, t, x, y, p, [0, n // 3, 2 * n // 3, n])
+    finally:
+        C.MAX_WINDOW = 1 << 24
     rel = max(max(_rel(g[1], c[1]), _rel(g[2], c[2])) for c, g in zip(cpu, gpu))
     return rel, STATE_TOL, f"L and P at {len(cpu)} outputs; events {n_gpu} vs {n_cpu}", n_cpu == n_gpu
 
@@ -206,6 +213,7 @@ CHECKS = {
     "akf_reference_hold": lambda: check_akf_engine("reference_code", "hold"),
     "akf_discrete_thresholds": lambda: check_akf_engine(frame_update="discrete", thresholds=True),
     "akf_la_step_generic": lambda: check_akf_engine(step=True, thresholds=True),
+    "akf_windows_split": lambda: check_akf_engine(max_window=97),
     "cf": lambda: check_cf_engine("cf"),
     "highpass": lambda: check_cf_engine("highpass"),
     "reconstruct_forward": lambda: check_reconstruct("forward", fps=100.0),
