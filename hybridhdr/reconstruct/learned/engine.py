@@ -164,8 +164,9 @@ class LearnedEngine(E.Engine):
         if self.on_device:
             torch = _torch()
             dev = self.rec.device
-            self._buf.append(tuple(torch.from_numpy(np.ascontiguousarray(a[i0:i1])).to(dev, non_blocking=False)
-                                   for a in (t, x, y, p)))
+            # x, y as int32 (PyTorch's uint16 has few kernels), t int64, p int8
+            self._buf.append(tuple(torch.from_numpy(np.ascontiguousarray(a[i0:i1], dtype=dt)).to(dev)
+                                   for a, dt in ((t, np.int64), (x, np.int32), (y, np.int32), (p, np.int8))))
         else:
             self._buf.append((t[i0:i1].copy(), x[i0:i1].copy(), y[i0:i1].copy(), p[i0:i1].copy()))
         self.n_events += i1 - i0
