@@ -240,6 +240,7 @@ def firenet(res, quick):
             log(f"  FireNet {key}: GPU {o['gpu_end_to_end_ms_per_frame']} ms/frame end to end, "
                 f"{o['gpu_network_step_ms']} ms network step; CPU {o['cpu_end_to_end_ms_per_frame']} ms/frame")
     out["goal_ms_per_frame_1280x720"] = 5.0
+    out["cudnn_benchmark"] = True  # set by this script (the library leaves PyTorch's global flags alone)
     res["firenet"] = out
 
 
