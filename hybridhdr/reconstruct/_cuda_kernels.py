@@ -131,16 +131,6 @@ def d_lower_bound(grp, lo, hi, key):
     return lo
 
 
-@cuda.jit(device=True)
-def d_latest_before(t, a, grp, start, te_in, q, i):
-    """Pixel ``q``'s latest event time before window event ``i``: in the window, else from before it."""
-    s0 = start[q]
-    k = d_lower_bound(grp, s0, start[q + 1], i)
-    if k > s0:
-        return t[a + grp[k - 1]]
-    return te_in[q]
-
-
 # -- grouping -------------------------------------------------------------------------------
 
 @cuda.jit
@@ -251,6 +241,27 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         xlo = max(xx - 1, 0)
         xhi = min(xx + 1, width - 1)
         te0 = te_in[pix]
+        # neighbours without events in this window contribute their time from before it, the same
+        # for every event of p: folded into one maximum; only the others are searched per event
+        nb_lo = cuda.local.array(8, np.int32)
+        nb_hi = cuda.local.array(8, np.int32)
+        nb_te = cuda.local.array(8, np.int64)
+        n_nb = 0
+        t_quiet = te0
+        for qy in range(ylo, yhi + 1):
+            for qx in range(xlo, xhi + 1):
+                q = qy * width + qx
+                if q != pix:
+                    q_lo = start[q]
+                    q_hi = start[q + 1]
+                    if q_lo == q_hi:
+                        if te_in[q] > t_quiet:
+                            t_quiet = te_in[q]
+                    else:
+                        nb_lo[n_nb] = q_lo
+                        nb_hi[n_nb] = q_hi
+                        nb_te[n_nb] = te_in[q]
+                        n_nb += 1
         for g in range(lo, hi):
             i = grp[g]
             ti = t[a + i]
@@ -264,14 +275,13 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
             if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:
                 pp = pp * d
             # t*: the latest event time in the 3x3 window before this event (p itself: te0)
-            tstar = te0
-            for qy in range(ylo, yhi + 1):
-                for qx in range(xlo, xhi + 1):
-                    q = qy * width + qx
-                    if q != pix:
-                        tq = d_latest_before(t, a, grp, start, te_in, q, i)
-                        if tq > tstar:
-                            tstar = tq
+            tstar = te0 if te0 > t_quiet else t_quiet
+            for k in range(n_nb):
+                s0 = nb_lo[k]
+                kk = d_lower_bound(grp, s0, nb_hi[k], i)
+                tq = t[a + grp[kk - 1]] if kk > s0 else nb_te[k]
+                if tq > tstar:
+                    tstar = tq
             dte = ti - te0
             q_ = s_iso * ((ti - tstar) * US)
             if noise_form == 0:
