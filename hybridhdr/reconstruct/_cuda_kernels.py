@@ -498,3 +498,16 @@ def k_fuse_linear(l_f, p_f, l_b, p_b, offset32, floor32, out, n, counts):
             v = floor32
             cuda.atomic.add(counts, 1, 1)
         out[i] = v
+
+
+@cuda.jit
+def k_cf_load(C, lf, alpha, reset_l, set_tu, t_tu, n_pix):
+    """Load L^F and α of a CF segment (computed on the host as :class:`._engine.CFEngine` does);
+    optionally L̂ = L^F (start, direct integration) and tu."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        C[pix, C_LF] = lf[pix]
+        C[pix, C_ALPHA] = alpha[pix]
+        if reset_l:
+            C[pix, C_L] = lf[pix]
+        if set_tu:
+            C[pix, C_TU] = t_tu

@@ -471,25 +471,22 @@ class CudaCFEngine(_CudaEngine):
         self._lg = None
 
     def _columns(self, k: int | None, reset_l: bool, t_tu: float | None) -> None:
-        """Load L^F and α of segment ``k`` (host arithmetic of the CPU engine), optionally L̂ = L^F
-        and tu; one copy of the record array each way."""
+        """Load L^F and α of segment ``k`` (the CPU engine's host arithmetic, then uploaded),
+        optionally L̂ = L^F and tu (:func:`._cuda_kernels.k_cf_load`)."""
         from ._engine import CFEngine
-        C = self.C.copy_to_host()
         host = CFEngine.__new__(CFEngine)
         host.mode, host.params, host.n = self.mode, self.params, self.n
         if k is None:
-            C[:, K.C_LF] = 0.0
-            C[:, K.C_ALPHA] = host._alpha(None)
+            lf = np.zeros(self.n)
+            alpha = np.ascontiguousarray(host._alpha(None), dtype=np.float64)
         else:
             seg = self.m.segment(k)
-            C[:, K.C_LF] = np.log(seg.intensity + self.offset)
-            C[:, K.C_ALPHA] = host._alpha(seg)
+            lf = np.ascontiguousarray(np.log(seg.intensity + self.offset), dtype=np.float64).reshape(-1)
+            alpha = np.ascontiguousarray(host._alpha(seg), dtype=np.float64).reshape(-1)
             self.k = k
-        if reset_l:
-            C[:, K.C_L] = C[:, K.C_LF]
-        if t_tu is not None:
-            C[:, K.C_TU] = t_tu
-        self.C.copy_to_device(C)
+        cuda = self.cuda
+        self.ck.k_cf_load[_grid(self.n)](self.C, cuda.to_device(lf), cuda.to_device(alpha), bool(reset_l),
+                                         t_tu is not None, float(t_tu) if t_tu is not None else 0.0, self.n)
 
     def start(self, t_start_us=None) -> int:
         if self.mode == "highpass":

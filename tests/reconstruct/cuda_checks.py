@@ -148,7 +148,8 @@ def check_cf_engine(mode="cf"):
     h, w = 12, 16
     t, x, y, p = _stream(900, h, w, seed=9)
     fr = _frames(h, w, [0, 70_000, 140_000, 210_000])
-    params = HighPassParams() if mode == "highpass" else CFParams(cutoff_hz=4.0)
+    from hybridhdr.reconstruct import DirectParams
+    params = {"highpass": HighPassParams(), "direct": DirectParams()}.get(mode) or CFParams(cutoff_hz=4.0)
 
     def make(dev):
         m = None if mode == "highpass" else FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0,
@@ -216,6 +217,7 @@ CHECKS = {
     "akf_windows_split": lambda: check_akf_engine(max_window=97),
     "cf": lambda: check_cf_engine("cf"),
     "highpass": lambda: check_cf_engine("highpass"),
+    "direct": lambda: check_cf_engine("direct"),
     "reconstruct_forward": lambda: check_reconstruct("forward", fps=100.0),
     "reconstruct_causal": lambda: check_reconstruct("causal"),
     "reconstruct_two_sided": lambda: check_reconstruct("offline", fps=100.0),
