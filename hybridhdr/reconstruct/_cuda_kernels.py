@@ -511,3 +511,21 @@ def k_cf_load(C, lf, alpha, reset_l, set_tu, t_tu, n_pix):
             C[pix, C_L] = lf[pix]
         if set_tu:
             C[pix, C_TU] = t_tu
+
+
+@cuda.jit
+def k_akf_init(S, p0, p_cens, has_off, log_off, t_init, n_pix):
+    """:meth:`._engine.AKFEngine.start`'s initialisation from the loaded first frame: L̂ = L^A,
+    P = ``p0``; a censored pixel ``p_cens``, a clipped dark one (bounded on both sides, with an
+    offset) the square of its interval's width, at least ``p0``; tu = ``t_init``."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        S[pix, A_L] = S[pix, A_LA]
+        p = p0
+        cens = (S[pix, A_BETA] == 0.0) and (S[pix, A_KLOG] != 0.0)
+        if cens:
+            p = p_cens
+            if has_off and S[pix, A_KLOG] < 0.0:
+                w = S[pix, A_LA] - log_off
+                p = max(w * w, p0)
+        S[pix, A_P] = p
+        S[pix, A_TU] = t_init

@@ -371,25 +371,19 @@ class CudaAKFEngine(_CudaEngine):
 
     def start(self, t_start_us=None) -> int:
         """:meth:`._engine.AKFEngine.start`: the first frame loaded and the state initialised
-        from it on the host (once), then copied to the device."""
+        from it, on the device (:func:`._cuda_kernels.k_akf_init`)."""
         times = self.m.times_us
         k0 = 0 if t_start_us is None else max(int(np.searchsorted(times, t_start_us, side="right")) - 1, 0)
         t_init = int(times[k0])
         from ._engine import check_time_range
         check_time_range(times, "frame timestamps")
         self._load(k0)
-        S = self.S.copy_to_host()
-        S[:, K.A_L] = S[:, K.A_LA]
-        S[:, K.A_P] = self.params.initial_covariance
-        cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)
-        S[cens, K.A_P] = getattr(self.params, "censored_initial_covariance", self.params.initial_covariance)
-        off = getattr(self.params, "intensity_offset", None)
-        if off is not None:
-            dark = cens & (S[:, K.A_KLOG] < 0.0)
-            w = S[dark, K.A_LA] - math.log(off)
-            S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
-        S[:, K.A_TU] = float(t_init)
-        self.S.copy_to_device(S)
+        pr = self.params
+        off = getattr(pr, "intensity_offset", None)
+        self.ck.k_akf_init[_grid(self.n)](self.S, float(pr.initial_covariance),
+                                          float(getattr(pr, "censored_initial_covariance", pr.initial_covariance)),
+                                          off is not None, math.log(off) if off is not None else 0.0,
+                                          float(t_init), self.n)
         g = _grid(self.n)
         for te in self.te:
             self.ck.k_fill_i64[g](te, np.int64(t_init), self.n)
