@@ -40,7 +40,7 @@ US = 1e-6  # seconds per microsecond (as _kernels.US)
 
 #: scan tile: threads per block and items per thread; the simulator runs each thread as a Python
 #: thread, so it gets a small block (same algorithm)
-SCAN_BLOCK = 32 if _nb_config.ENABLE_CUDASIM else 512
+SCAN_BLOCK = 32 if getattr(_nb_config, "ENABLE_CUDASIM", 0) else 512
 SCAN_ITEMS = 4
 SCAN_TILE = SCAN_BLOCK * SCAN_ITEMS
 

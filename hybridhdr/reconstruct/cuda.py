@@ -92,7 +92,7 @@ def device_name() -> str:
 
 def _simulated() -> bool:
     from numba import config
-    return bool(config.ENABLE_CUDASIM)
+    return bool(getattr(config, "ENABLE_CUDASIM", 0))
 
 
 def resolve_device(device: str, method: str = "akf") -> tuple[str, str]:
