@@ -4,7 +4,7 @@ Usage: ``python benchmarks/learned.py [--quick]``. Prints progress, then ONE JSO
 
 Same synthetic stream as ``benchmarks/akf.py`` (346×260 sensor, drifting Gaussian blobs, about
 1 Mev/s here (about 33k events per 30 Hz window), frames every 1/30 s). In one run: E2VID and FireNet end to end through
-``reconstruct`` at 30 Hz output (voxel grids + network, PyTorch on the CPU, ``torch`` threads
+``reconstruct`` at 30 Hz output (voxel grids + network, PyTorch on ``--device``: the CPU here, a GPU where PyTorch sees one, with the voxel grids built there; ``torch`` threads
 = its default), reported as events/s and ms per output frame, and the AKF (``mode="forward"``,
 one worker) on the same events and output times. The networks' weights are **random**
 (seeded), written by this script in the released checkpoints' layout: speed does not depend on
@@ -39,8 +39,15 @@ def _recording(n, rate_mev_s):
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a short stream (finishes in under 60 s)")
+    ap.add_argument("--device", default="auto", choices=("auto", "cpu", "cuda"),
+                    help="PyTorch device of the networks (auto: CUDA when PyTorch sees it); on a GPU the voxel grids "
+                         "are built there too (learned.voxel.voxel_grid_torch)")
     args = ap.parse_args(argv)
     import torch
+
+    from hybridhdr.reconstruct.learned.engine import resolve_device
+    device = resolve_device(args.device)
+    dev_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
 
     from hybridhdr.reconstruct import reconstruct
     from hybridhdr.reconstruct.learned.networks import E2VIDRecurrent, FireNet
@@ -52,7 +59,8 @@ def main(argv=None) -> int:
                       dtype=np.int64)
     res: dict = {"sensor": f"{W}x{H}", "n_events": n, "rate_mev_s": rate, "duration_s": dur / 1e6, "quick": bool(args.quick),
                  "output_hz": fps, "n_outputs": int(len(times)), "cpu_count": os.cpu_count(),
-                 "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "device": "cpu",
+                 "torch": torch.__version__, "torch_threads": torch.get_num_threads(), "device": str(device),
+                 "device_name": dev_name,
                  "weights": "random (seeded, written by this script in the released layout): speed only"}
     print(f"{n} events over {dur / 1e6:.2f} s, {len(times)} outputs at {fps:g} Hz", file=sys.stderr)
     with tempfile.TemporaryDirectory() as d:
@@ -61,13 +69,15 @@ def main(argv=None) -> int:
             net = cls()
             path = Path(d) / f"{method}.pth.tar"
             torch.save({"arch": arch, "model": net.config, "state_dict": net.state_dict()}, path)
+            if device.type == "cuda":  # warm-up: CUDA context, cuDNN autotuning
+                reconstruct(rec, method, {"weights": str(path), "device": str(device)}, times_us=times[:3])
             t0 = time.perf_counter()
-            v = reconstruct(rec, method, {"weights": str(path), "device": "cpu"}, times_us=times)
+            v = reconstruct(rec, method, {"weights": str(path), "device": str(device)}, times_us=times)
             el = time.perf_counter() - t0
             ne = int(v.info["n_events_used"])
             res[method] = {"seconds": round(el, 3), "events_per_s": round(ne / el), "ms_per_frame": round(1e3 * el / len(v), 2),
                            "n_frames": len(v), "n_params": int(sum(p.numel() for p in net.parameters()))}
-            print(f"{method}: {ne / el / 1e6:.3f} Mev/s, {1e3 * el / len(v):.1f} ms/frame", file=sys.stderr)
+            print(f"{method} on {device}: {ne / el / 1e6:.3f} Mev/s, {1e3 * el / len(v):.1f} ms/frame", file=sys.stderr)
     t0 = time.perf_counter()
     v = reconstruct(rec, "akf", None, times_us=times, mode="forward")
     el = time.perf_counter() - t0

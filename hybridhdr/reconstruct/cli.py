@@ -85,6 +85,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--workers", type=positive_int, default=1,
                    help="threads for the row-band parallel kernels (the two-sided AKF with >= 2 runs its backward and "
                         "forward passes at once, each with half); the output is the same bit for bit")
+    p.add_argument("--device", choices=("auto", "cuda", "cpu"), default="auto",
+                   help="where the AKF and CF family run: cuda (NVIDIA GPU through numba.cuda), cpu, or auto (the GPU "
+                        "when numba.cuda sees one, else the CPU; default); one line on stderr and run.json say which")
     p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
@@ -427,6 +430,9 @@ def run(args) -> int:
                 progress = bars[0].update
                 writer.on_written = bars[1].update
             info: dict = {}
+            from .cuda import resolve_device
+            _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
+            print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None:
                 from ..formats import open_reader
@@ -437,7 +443,8 @@ def run(args) -> int:
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
                                                augment=augment, thresholds=args.thresholds, cfa=args.cfa,
-                                               demosaic=args.demosaic, frame_time_offset_us=frame_dt):
+                                               demosaic=args.demosaic, frame_time_offset_us=frame_dt,
+                                               device=getattr(args, "device", "cpu")):
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
@@ -451,7 +458,8 @@ def run(args) -> int:
                         "method_description": METHODS[method][3], "mode": args.mode,
                         "params": info.get("params", params.to_dict()),
                         "profile": str(args.profile) if args.profile else info.get("profile", "built-in 8-bit"),
-                        "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written}
+                        "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written,
+                        "device": info.get("device", device_line)}
             n_pix = int(info.get("n_output_pixels") or 0)
             run_info["clamped_pixels"] = {"count": int(info.get("n_clamped", 0)), "of": n_pix,
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}

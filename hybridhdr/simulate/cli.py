@@ -36,8 +36,9 @@ def add_parser(subparsers) -> None:
     p.add_argument("--spp", type=positive_int, default=None, help="Mitsuba samples per pixel (default: the scene's)")
     p.add_argument("--render-seed", type=int, default=None,
                    help="Mitsuba sampler seed, the same for every render (default: the scene's)")
-    p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb"],
-                   help="Mitsuba variant (default: llvm_ad_mono if LLVM works, else scalar_rgb)")
+    p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_mono"],
+                   help="Mitsuba variant (default: cuda_ad_mono on an NVIDIA GPU, else llvm_ad_mono if LLVM works, else "
+                        "scalar_rgb)")
     p.add_argument("--width", type=positive_int, default=None, help="image width in pixels (intrinsics scale with it)")
     p.add_argument("--height", type=positive_int, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")

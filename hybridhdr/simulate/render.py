@@ -6,7 +6,8 @@ rewrites the vertex positions of moving objects, rescales blinking emitters thro
 ``mi.traverse`` parameters, and renders with a fixed sampler seed, so a static pixel gets the same
 bits in every render (no render-noise events). Output is linear float32 radiance (H, W).
 
-Variants (``docs/simulate.md``, "Rendering"): ``llvm_ad_mono`` when Dr.Jit
+Variants (``docs/simulate.md``, "Rendering"): ``cuda_ad_mono`` when an NVIDIA driver is present and a
+test render with it passes in a child process (the GPU); else ``llvm_ad_mono`` when Dr.Jit
 loaded libLLVM >= 17 (15/16 abort the process when compiling real scenes' kernels, 14 is refused)
 and a test render of the operations real scenes use passes in a child process; otherwise
 ``scalar_rgb``, whose RGB output is converted to luminance Y = 0.2126 R + 0.7152 G + 0.0722 B
@@ -37,7 +38,7 @@ __all__ = ["MitsubaSource", "select_variant", "llvm_available", "LUMINANCE_RGB",
 #: Rec. ITU-R BT.709 luminance weights used to convert ``scalar_rgb`` renders to radiance.
 LUMINANCE_RGB = (0.2126, 0.7152, 0.0722)
 
-_VARIANTS = ("llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb")
+_VARIANTS = ("llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_mono")
 
 #: Oldest libLLVM whose code generation the pinned Mitsuba 3.9 / Dr.Jit 1.5 kernels survive: LLVM
 #: 15 and 16 abort the process on real scenes ("LLVM ERROR: Cannot select: ... fminimum"), 14 is
@@ -131,6 +132,34 @@ print('OK', flush=True)
 """
 
 
+def _cuda_driver_present() -> bool:
+    """Whether an NVIDIA driver is visible (device nodes or libcuda), without loading Dr.Jit: the
+    CUDA probe's child process is started only then."""
+    if os.environ.get("HYBRIDHDR_MITSUBA_CUDA", "1") in ("0", "off", "no"):
+        return False
+    if os.path.exists("/dev/nvidiactl") or os.path.exists("/dev/nvidia0"):
+        return True
+    import ctypes.util
+    return ctypes.util.find_library("cuda") is not None
+
+
+def _probe_cuda(timeout_s: float = 180.0) -> tuple[bool, str]:
+    """:data:`_PROBE_CODE` with ``cuda_ad_mono`` in a child process: (works, why not)."""
+    env = dict(os.environ)
+    env.pop("HYBRIDHDR_MITSUBA_VARIANT", None)
+    try:
+        r = subprocess.run([sys.executable, "-c", _PROBE_CODE, "cuda_ad_mono", "force"], capture_output=True,
+                           text=True, timeout=timeout_s, env=env)
+    except subprocess.TimeoutExpired:
+        return False, f"the CUDA test render did not finish in {timeout_s:g} s"
+    except OSError as e:
+        return False, f"the CUDA test render could not start ({e})"
+    if r.returncode == 0 and r.stdout.strip().endswith("OK"):
+        return True, ""
+    err = [ln.strip() for ln in (r.stderr or "").splitlines() if ln.strip()]
+    return False, f"the CUDA test render failed (exit code {r.returncode}{': ' + err[-1][:160] if err else ''})"
+
+
 def _probe_llvm(timeout_s: float = 180.0, check_version: bool = True) -> tuple[bool, str]:
     """Run :data:`_PROBE_CODE` with ``llvm_ad_mono`` in a child process: (works, why not).
     ``check_version=False`` renders even with an LLVM below :data:`MIN_LLVM_VERSION` (tests)."""
@@ -209,7 +238,7 @@ def _cache_read(key: str):
     try:
         with open(f, encoding="utf-8") as fh:
             d = json.load(fh).get(key)
-        if d and d[0] in ("llvm_ad_mono", "scalar_rgb"):
+        if d and d[0] in ("llvm_ad_mono", "scalar_rgb", "cuda_ad_mono"):
             return d[0], str(d[1])
     except (OSError, ValueError, TypeError, AttributeError, IndexError):
         pass
@@ -241,6 +270,20 @@ def _auto_variant() -> tuple[str, str]:
     """The automatic (variant, reason), decided once per process (and remembered on disk, see
     :func:`_cache_key`); prints one line to stderr when it falls back to ``scalar_rgb``."""
     global _DECISION
+    if _DECISION is None and _cuda_driver_present():  # the GPU first: cuda_ad_mono if its test render passes
+        ckey = _cache_key(("cuda",))
+        dec = _cache_read(ckey)
+        if dec is None:
+            ok, why = _probe_cuda()
+            dec = ("cuda_ad_mono", "") if ok else ("", why)
+            _cache_write(ckey, dec if ok else ("scalar_rgb", why))  # a failed probe is remembered too
+        elif dec[0] != "cuda_ad_mono":
+            dec = ("", dec[1])
+        if dec[0] == "cuda_ad_mono":
+            _DECISION = dec
+        else:
+            print(f"hybridhdr: an NVIDIA driver is present but Mitsuba's cuda_ad_mono variant does not work: {dec[1]}",
+                  file=sys.stderr, flush=True)
     if _DECISION is None:
         ver = _drjit_llvm_version()
         key = _cache_key(ver) if ver >= MIN_LLVM_VERSION else None
@@ -257,6 +300,12 @@ def _auto_variant() -> tuple[str, str]:
     return _DECISION
 
 
+def cuda_available() -> bool:
+    """Whether ``cuda_ad_mono`` is usable: an NVIDIA driver is present and a test render passed
+    in a child process. Decided once per process (remembered on disk)."""
+    return _auto_variant()[0] == "cuda_ad_mono"
+
+
 def llvm_available() -> bool:
     """Whether ``llvm_ad_mono`` is usable: Dr.Jit loaded LLVM >= :data:`MIN_LLVM_VERSION` and a test
     render of the operations real scenes use passed in a child process (a failing LLVM aborts the
@@ -266,12 +315,21 @@ def llvm_available() -> bool:
 
 def select_variant(variant: str | None = None) -> str:
     """The Mitsuba variant to use: ``variant`` if given, else ``$HYBRIDHDR_MITSUBA_VARIANT``, else
-    ``llvm_ad_mono`` when :func:`llvm_available`, else ``scalar_rgb``."""
+    ``cuda_ad_mono`` when :func:`cuda_available` (an NVIDIA GPU), else ``llvm_ad_mono`` when
+    :func:`llvm_available`, else ``scalar_rgb``."""
     v = variant or os.environ.get("HYBRIDHDR_MITSUBA_VARIANT") or None
     if v is not None and v not in _VARIANTS:
         raise ValueError(f"Mitsuba variant: expected one of {', '.join(_VARIANTS)}, found {v!r}")
     if v is None:
         return _auto_variant()[0]
+    if v.startswith("cuda") and not _IN_PROBE and not cuda_available():
+        raise ImportError(f"Mitsuba variant {v!r} is not usable here (no NVIDIA driver, or its test render failed); "
+                          f"use llvm_ad_mono or scalar_rgb")
+    if v.startswith("llvm") and not _IN_PROBE and _auto_variant()[0] == "cuda_ad_mono":
+        if _drjit_llvm_version() < MIN_LLVM_VERSION:
+            raise ImportError(f"Mitsuba variant {v!r} is not usable here (Dr.Jit has no LLVM >= "
+                              f"{MIN_LLVM_VERSION[0]}); use cuda_ad_mono or scalar_rgb")
+        return v
     if v.startswith("llvm") and not _IN_PROBE and not llvm_available():
         raise ImportError(f"Mitsuba variant {v!r} is not usable here ({_auto_variant()[1]}); use scalar_rgb, "
                           f"or: {_FAST_PATH_HINT}")

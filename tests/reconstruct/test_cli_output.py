@@ -315,3 +315,21 @@ def test_previews_linear_for_a_low_range_video_log_for_hdr(tmp_path, hdr):
         assert d == {"mode": "linear", "hi": 1.0, "gamma": 2.2}
         want = np.round(255 * np.clip(frames[0], 0, 1) ** (1 / 2.2)).astype(np.uint8)
         np.testing.assert_array_equal(png, want)  # the log map put this video's darkest pixel at 0, its p99 at 255
+
+
+def test_cli_device_line_and_run_json(rec_path, tmp_path, capsys):
+    """--device: one line on stderr says which device ran, and run.json records it; without a GPU
+    'auto' runs on the CPU and 'cuda' is a usage error naming why."""
+    from hybridhdr.reconstruct.cuda import cuda_unavailable_reason
+    out = tmp_path / "d"
+    assert _run([rec_path, "--out", out, "--device", "cpu", "--no-exr"]) == 0
+    err = capsys.readouterr().err
+    assert [ln for ln in err.splitlines() if ln.startswith("device:")] == ["device: cpu (requested)"]
+    assert json.loads((out / "run.json").read_text())["device"] == "device: cpu (requested)"
+    if cuda_unavailable_reason() is not None:
+        assert _run([rec_path, "--out", tmp_path / "a", "--device", "auto", "--no-exr"]) == 0
+        line = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("device:")]
+        assert len(line) == 1 and line[0].startswith("device: cpu (auto: ")
+        assert json.loads((tmp_path / "a" / "run.json").read_text())["device"] == line[0]
+        assert _run([rec_path, "--out", tmp_path / "c", "--device", "cuda", "--no-exr"]) != 0
+        assert "device 'cuda' requested but" in capsys.readouterr().err

@@ -341,3 +341,46 @@ def test_cli_runs_with_weights(torch, weights, tmp_path):
     import json
     run = json.loads((tmp_path / "o" / "run.json").read_text())
     assert run["method"] == "e2vid" and run["n_frames"] >= 5
+
+
+def test_voxel_grid_torch_matches_numpy():
+    """The device-side voxel grid (used on a GPU; here on the CPU) equals the numpy one to float32
+    precision, normalised or not, including an empty window and a window of one timestamp."""
+    torch = pytest.importorskip("torch")
+    from hybridhdr.reconstruct.learned.voxel import voxel_grid_torch
+    rng = np.random.default_rng(3)
+    n = 5000
+    t = np.sort(rng.integers(1000, 40_000, n)).astype(np.int64)
+    x = rng.integers(0, 17, n).astype(np.uint16)
+    y = rng.integers(0, 11, n).astype(np.uint16)
+    p = rng.choice(np.array([-1, 1], np.int8), n)
+    for sl in (slice(0, n), slice(0, 0), slice(7, 8)):
+        for norm in (False, True):
+            want = events_to_voxel_grid(t[sl], x[sl], y[sl], p[sl], 5, (11, 17))
+            if norm:
+                want = normalize_voxel_grid(want)
+            got = voxel_grid_torch(*(torch.from_numpy(a[sl].astype(np.int64)) for a in (t, x, y, p)), 5, (11, 17),
+                                   normalize=norm)
+            assert got.dtype == torch.float32 and tuple(got.shape) == (5, 11, 17)
+            # float64 sums in another order, then float32: equal to a few float32 ulps
+            np.testing.assert_allclose(got.numpy(), want, rtol=1e-5, atol=1e-6)
+
+
+def test_device_side_windows_match_host_windows(torch, weights):
+    """The GPU schedule (events kept as tensors, voxel grids built with voxel_grid_torch) run on the
+    CPU gives the host schedule's images to float32 precision (same network, same windows)."""
+    from hybridhdr.reconstruct.learned.engine import LearnedEngine
+    from hybridhdr.reconstruct._engine import OutputClock, drive
+    rec = ideal_recording(height=20, width=28)
+    ev = rec.events
+    imgs = []
+    for on_device in (False, True):
+        eng = LearnedEngine((20, 28), FireNetParams(weights=str(weights["firenet"]), device="cpu"), "firenet")
+        eng.on_device = on_device  # the device-side path, on the CPU device
+        chunks = [(ev["t"][i:i + 500], ev["x"][i:i + 500], ev["y"][i:i + 500], ev["p"][i:i + 500])
+                  for i in range(0, len(ev), 500)]
+        out = list(drive(eng, chunks, OutputClock(fps=100.0), t_start_us=int(ev["t"][0])))
+        imgs.append(np.stack([im for _, im in out]))
+    assert imgs[0].shape == imgs[1].shape and len(imgs[0]) >= 15
+    # voxel sums in another order (float64, then float32), through the same network: float32 noise
+    np.testing.assert_allclose(imgs[1], imgs[0], rtol=1e-4, atol=1e-5)

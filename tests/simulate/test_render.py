@@ -62,6 +62,7 @@ def fresh_choice(monkeypatch, tmp_path):
     monkeypatch.delenv("HYBRIDHDR_MITSUBA_VARIANT", raising=False)
     monkeypatch.delenv("_HYBRIDHDR_VARIANT_NOTED", raising=False)
     monkeypatch.delenv("HYBRIDHDR_VARIANT_CACHE", raising=False)
+    monkeypatch.setenv("HYBRIDHDR_MITSUBA_CUDA", "0")  # the LLVM/scalar choice, whether or not a GPU is here
     return monkeypatch
 
 
@@ -338,3 +339,34 @@ def test_table1_scores_agree_between_variants(monkeypatch):
     a, b = np.array(score["llvm_ad_mono"]), np.array(score["scalar_rgb"])
     bound = 5 * math.sqrt((a.var(ddof=1) + b.var(ddof=1)) / 3) + 0.01 * a.mean()
     assert abs(a.mean() - b.mean()) <= bound, (score, bound)
+
+
+def test_cuda_variant_chosen_when_a_gpu_renders(fresh_choice, capsys):
+    """With an NVIDIA driver and a passing CUDA test render, cuda_ad_mono is chosen (before LLVM is
+    even asked), remembered on disk; a failing CUDA probe falls back to the LLVM/scalar choice with
+    one line saying why."""
+    fresh_choice.delenv("HYBRIDHDR_MITSUBA_CUDA")
+    fresh_choice.setattr(R, "_cuda_driver_present", lambda: True)
+    calls = []
+    fresh_choice.setattr(R, "_probe_cuda", lambda: calls.append(1) or (True, ""))
+    fresh_choice.setattr(R, "_drjit_llvm_version", lambda: pytest.fail("LLVM asked"))
+    assert select_variant() == "cuda_ad_mono" and R.cuda_available() and len(calls) == 1
+    assert select_variant("cuda_ad_mono") == "cuda_ad_mono"
+    fresh_choice.setattr(R, "_DECISION", None)  # a new process: read from disk
+    assert select_variant() == "cuda_ad_mono" and len(calls) == 1
+    assert capsys.readouterr().err == ""
+    # the probe fails: the LLVM choice, and one line naming the CUDA failure
+    fresh_choice.setattr(R, "_DECISION", None)
+    fresh_choice.setenv("HYBRIDHDR_VARIANT_CACHE", "0")
+    fresh_choice.setattr(R, "_probe_cuda", lambda: (False, "the CUDA test render failed (exit code 1: jit_cuda_init)"))
+    fresh_choice.setattr(R, "_drjit_llvm_version", lambda: (19, 1, 7))
+    fresh_choice.setattr(R, "_probe_llvm", lambda: (True, ""))
+    assert select_variant() == "llvm_ad_mono" and not R.cuda_available()
+    assert "jit_cuda_init" in capsys.readouterr().err
+    with pytest.raises(ImportError, match="cuda_ad_mono"):
+        select_variant("cuda_ad_mono")
+    # no driver: no CUDA probe at all
+    fresh_choice.setattr(R, "_DECISION", None)
+    fresh_choice.setattr(R, "_cuda_driver_present", lambda: False)
+    fresh_choice.setattr(R, "_probe_cuda", lambda: pytest.fail("probed CUDA"))
+    assert select_variant() == "llvm_ad_mono"

@@ -9,7 +9,7 @@ import numpy as np
 
 from .. import _engine as E
 from .params import WEIGHTS_HELP, LearnedParams, WeightsRequiredError
-from .voxel import events_to_voxel_grid, normalize_voxel_grid
+from .voxel import events_to_voxel_grid, normalize_voxel_grid, voxel_grid_torch
 
 __all__ = ["load_checkpoint", "load_network", "Reconstructor", "LearnedEngine", "resolve_device", "export_onnx"]
 
@@ -110,10 +110,14 @@ class Reconstructor:
     def reset(self) -> None:
         self.states = None
 
-    def step(self, grid: np.ndarray) -> np.ndarray:
+    def step(self, grid) -> np.ndarray:
+        """One recurrent step on a voxel grid (numpy array, or a tensor already on the device)."""
         torch = _torch()
         with torch.inference_mode():
-            x = torch.from_numpy(np.ascontiguousarray(grid, np.float32))[None].to(self.device)
+            if isinstance(grid, torch.Tensor):
+                x = grid.to(self.device, torch.float32)[None]
+            else:
+                x = torch.from_numpy(np.ascontiguousarray(grid, np.float32))[None].to(self.device)
             l, r, t, b = self.pad
             if any(self.pad):
                 mode = "reflect" if max(l, r) < x.shape[3] and max(t, b) < x.shape[2] else "replicate"
@@ -141,6 +145,9 @@ class LearnedEngine(E.Engine):
         self._buf: list = []
         self._last = None
         self.n_windows = 0
+        # on a GPU the events go to the device as they arrive and the voxel grids are built there
+        # (voxel_grid_torch): per window only the output image comes back
+        self.on_device = getattr(device, "type", "cpu") == "cuda"
 
     def set_thresholds(self, c_on, c_off) -> None:
         raise ValueError(f"method {self.method!r} does not take a per-pixel threshold map")
@@ -154,11 +161,26 @@ class LearnedEngine(E.Engine):
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        self._buf.append((t[i0:i1].copy(), x[i0:i1].copy(), y[i0:i1].copy(), p[i0:i1].copy()))
+        if self.on_device:
+            torch = _torch()
+            dev = self.rec.device
+            # x, y as int32 (PyTorch's uint16 has few kernels), t int64, p int8
+            self._buf.append(tuple(torch.from_numpy(np.ascontiguousarray(a[i0:i1], dtype=dt)).to(dev)
+                                   for a, dt in ((t, np.int64), (x, np.int32), (y, np.int32), (p, np.int8))))
+        else:
+            self._buf.append((t[i0:i1].copy(), x[i0:i1].copy(), y[i0:i1].copy(), p[i0:i1].copy()))
         self.n_events += i1 - i0
 
-    def window_grid(self) -> np.ndarray:
-        """The (normalised) voxel grid of the buffered events."""
+    def window_grid(self):
+        """The (normalised) voxel grid of the buffered events (a tensor on the GPU when
+        :attr:`on_device`, else a numpy array)."""
+        if self.on_device:
+            torch = _torch()
+            if self._buf:
+                t, x, y, p = (torch.cat(c) for c in zip(*self._buf))
+            else:
+                t = x = y = p = torch.zeros(0, dtype=torch.int64, device=self.rec.device)
+            return voxel_grid_torch(t, x, y, p, self.params.num_bins, self.shape, self.params.normalize)
         if self._buf:
             t, x, y, p = (np.concatenate(c) for c in zip(*self._buf))
         else:

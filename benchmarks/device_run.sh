@@ -1,0 +1,34 @@
+#!/usr/bin/env bash
+# The GPU checks of issue 30 in one run, on a host with an NVIDIA GPU (python3 with numba,
+# numba-cuda and torch preinstalled; no network; hybridhdr not installed). From the repo root:
+#     bash benchmarks/device_run.sh [--quick]
+# Logs go to $OUT (default /tmp/hybridhdr-device): env.txt (versions, nvidia-smi),
+# cuda_checks.jsonl (GPU vs CPU agreement, one JSON line per check), gpu.json (benchmarks/gpu.py's
+# JSON) and gpu_stderr.txt (its progress lines: every figure, even if it is cut short). About 5 min.
+set -u
+OUT=${OUT:-/tmp/hybridhdr-device}
+mkdir -p "$OUT"
+export PYTHONPATH=$PWD PYTHONUNBUFFERED=1
+if ls .whl/*.whl >/dev/null 2>&1; then  # carried wheels (/work/.library/device/README.md's recipe)
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
+    && export PYTHONPATH=$PWD:/tmp/site
+fi
+{
+  date -u; nvidia-smi; uname -a
+  python3 -c "import sys, numpy, numba; print(sys.version); print('numpy', numpy.__version__, 'numba', numba.__version__)"
+  python3 -m pip list 2>/dev/null | grep -i -E "^(numba|numba-cuda|cupy|torch|llvmlite|h5py|scipy|isal|openexr|mitsuba|tqdm) "
+  python3 -c "from hybridhdr.reconstruct.cuda import resolve_device; print(resolve_device('auto')[1])"
+} 2>&1 | tee "$OUT/env.txt"
+echo "== GPU vs CPU agreement (tests/reconstruct/cuda_checks.py --real, as test_cuda.py runs it)"
+timeout 200 python3 tests/reconstruct/cuda_checks.py --real 2> "$OUT/cuda_checks_stderr.txt" | tee "$OUT/cuda_checks.jsonl"
+python3 -c "
+import json, sys
+d = [json.loads(s) for s in open(sys.argv[1]) if s.startswith('{')]
+bad = [x.get('check') for x in d if not x.get('ok') and 'skip' not in x]
+print('agreement: skipped' if d and 'skip' in d[0] else f'agreement: {len(d) - len(bad)} of {len(d)} checks ok',
+      ('FAILED: ' + ', '.join(map(str, bad))) if bad else '')
+" "$OUT/cuda_checks.jsonl"
+tail -n 5 "$OUT/cuda_checks_stderr.txt"
+echo "== benchmarks/gpu.py $*"
+timeout 330 python3 benchmarks/gpu.py "$@" 2> "$OUT/gpu_stderr.txt" | tee "$OUT/gpu.json"
+cat "$OUT/gpu_stderr.txt" | grep -v -i warning | tail -n 40
