@@ -158,8 +158,6 @@ def self_calibrate_run(args, params, method: str, given: bool):
         return params, 0, None, None
     if mode == "auto" and (given or args.thresholds is not None or args.contrast_threshold is not None):
         return params, 0, None, None
-    if _SELF_CALIBRATOR is None:
-        raise ValueError("--self-calibrate needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command")
     from ..formats import read
     from .api import _declared_thresholds, _open_source, _stored_thresholds
     if mode == "auto":
@@ -170,6 +168,11 @@ def self_calibrate_run(args, params, method: str, given: bool):
             close()
         if declared or frames is None or len(frames) < 3:
             return params, 0, None, None
+    if _SELF_CALIBRATOR is None:
+        msg = "--self-calibrate needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command"
+        if mode == "on":
+            raise ValueError(msg)
+        return params, 0, None, f"self-calibration skipped: {msg}"
     enc = getattr(args, "frame_encoding", None)
     rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
     own_i0 = None if method == "akf" else float(params.intensity_offset)
