@@ -9,6 +9,7 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
+from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.prefetch import Prefetcher
 from . import _kernels as K
@@ -125,6 +126,13 @@ class Engine:
 
     def output(self, t_us: int) -> np.ndarray:
         raise NotImplementedError
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        """``(image, n)``: :meth:`output` with every value below ``K.MIN_INTENSITY`` (or NaN) raised
+        to it, ``n`` of them (:func:`clamped_output`). The row-band engines clamp each band in its
+        worker; this default clamps the whole image in the caller."""
+        img = self.output(t_us)
+        return img, K.clamp_linear(img)
 
 
 class AKFEngine(Engine):
@@ -327,11 +335,20 @@ class AKFEngine(Engine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        if tm is not None and self._pending is not None:  # two switches with no call in between
+            self._flush()
+            c0 = tm.add("switch", c0, "parallel")
         self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
+        if tm is not None:
+            tm.add("load_segment", c0, "serial")
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         pr = self.params
         H, W = self.shape
         self._te_fit(int(t[i0]), int(t[i1 - 1]))
@@ -340,7 +357,14 @@ class AKFEngine(Engine):
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form, self.con_px, self.coff_px)
         if len(self.bands) == 1:
+            if tm is not None:
+                c0 = tm.add("plan_bands", c0, "serial")
+                if self._pending is not None:
+                    self._flush()
+                    c0 = tm.add("switch", c0, "parallel")
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], tb, *args)
+            if tm is not None:
+                tm.add("filter", c0, "parallel")
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
             # a 1-in-8 sample of the rows balances as well, 8x cheaper
@@ -352,7 +376,11 @@ class AKFEngine(Engine):
                 idx = self._index_buffer(("band", b), i1 - i0)[0]
                 m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
                 return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], tb, *args)
+            if tm is not None:
+                c0 = tm.add("plan_bands", c0, "serial")
             self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+            if tm is not None:
+                tm.add("filter_small", c0, "parallel")
             return
         # threaded (every band has its own thread): worker w splits part w of the batch for all
         # bands (own rows plus the two ghost rows), then, once all parts are split, each band
@@ -366,18 +394,30 @@ class AKFEngine(Engine):
         barrier = threading.Barrier(nb)
 
         def band_threaded(b, lo, hi):
+            tm = PH.ACTIVE
+            c0 = PH.now() if tm is not None else 0
             try:
                 K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                if tm is not None:
+                    c0 = tm.add("worker_split", c0, "worker")
                 barrier.wait()
             except BaseException:
                 barrier.abort()  # release the other workers (they raise BrokenBarrierError)
                 raise
+            if tm is not None:
+                c0 = tm.add("worker_wait_split", c0, "worker")
             n = 0
             for w in range(nb):
                 n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
                                           self.te[b], tb, *args)
+            if tm is not None:
+                tm.add("worker_filter", c0, "worker")
             return n
+        tm = PH.ACTIVE
+        c0 = tm.add("plan_bands", c0, "serial") if tm is not None else 0
         self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
+        if tm is not None:
+            tm.add("filter", c0, "parallel")
 
     def _rebalance(self, hist) -> None:
         """Move the band edges so each band gets about the same number of this batch's events
@@ -412,6 +452,15 @@ class AKFEngine(Engine):
         self.bands = new
 
     def output(self, t_us: int, with_state: bool = False):
+        return self._output(t_us, with_state)[0]
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        return self._output(t_us, False, clamp=True)
+
+    def _output(self, t_us: int, with_state: bool, clamp: bool = False):
+        """(image or (image, L̂, P), clamped count); each band clamps its own rows when ``clamp``."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
         lg = np.empty(self.n if with_state else 0)
@@ -421,10 +470,13 @@ class AKFEngine(Engine):
         def band(b, lo, hi):
             K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us), out, lg, var, lo * W, hi * W)
             K.log_to_linear(out[lo * W:hi * W], off)  # numpy's ufunc loop releases the GIL
-        self._map_bands(band, self.n)
+            return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
+        n_clamped = int(sum(self._map_bands(band, self.n)))
+        if tm is not None:
+            tm.add("output", c0, "parallel")
         if with_state:
-            return out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)
-        return out.reshape(self.shape)
+            return (out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)), n_clamped
+        return out.reshape(self.shape), n_clamped
 
 
 class CFEngine(Engine):
@@ -491,17 +543,27 @@ class CFEngine(Engine):
             self.C[:, K.C_L] = self.C[:, K.C_LF]
             self.C[:, K.C_TU] = t_to
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
+        if tm is not None:
+            c0 = tm.add("switch", c0, "parallel")
         self._load(self.k + 1)
+        if tm is not None:
+            tm.add("load_segment", c0, "serial")
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         pr = self.params
         W = self.shape[1]
         if len(self.bands) == 1:
             self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
                                          self.event_decay, self.con_px, self.coff_px)
+            if tm is not None:
+                tm.add("filter", c0, "parallel")
             return
 
         def band(b, lo, hi):
@@ -510,13 +572,29 @@ class CFEngine(Engine):
             return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay,
                                        self.con_px, self.coff_px)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+        if tm is not None:
+            tm.add("filter", c0, "parallel")
 
     def output(self, t_us: int) -> np.ndarray:
+        return self._output(t_us)[0]
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        return self._output(t_us, clamp=True)
+
+    def _output(self, t_us: int, clamp: bool = False):
+        """(image, clamped count); each band clamps its own rows when ``clamp``."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
-        self._map_bands(lambda b, lo, hi: K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W),
-                        self.n)
-        return out.reshape(self.shape)
+
+        def band(b, lo, hi):
+            K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W)
+            return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
+        n_clamped = int(sum(self._map_bands(band, self.n)))
+        if tm is not None:
+            tm.add("output", c0, "parallel")
+        return out.reshape(self.shape), n_clamped
 
 
 class FramesEngine(Engine):
@@ -612,8 +690,8 @@ def clamped_output(engine, t_us: int) -> np.ndarray:
     """``engine.output(t_us)`` with every value below ``K.MIN_INTENSITY`` (or NaN) raised to it,
     counted in ``engine.n_clamped`` (of ``engine.n_output_pixels``): no method ever hands out a
     non-positive or NaN linear intensity, and the count shows when the clamp acted."""
-    img = engine.output(t_us)
-    engine.n_clamped = getattr(engine, "n_clamped", 0) + K.clamp_linear(img)
+    img, n = engine.output_clamped(t_us)
+    engine.n_clamped = getattr(engine, "n_clamped", 0) + n
     engine.n_output_pixels = getattr(engine, "n_output_pixels", 0) + img.size
     return img
 
@@ -655,7 +733,16 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
     def limit_ok(to):
         return to is not None and to < end_excl
 
-    for t, x, y, p in chunks:
+    it = iter(chunks)
+    while True:
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        c = next(it, None)
+        if tm is not None:
+            tm.add("read_wait", c0, "serial")
+        if c is None:
+            break
+        t, x, y, p = c
         n = t.shape[0]
         if n == 0:
             continue
