@@ -291,26 +291,30 @@ class AKFEngine(Engine):
         t_init = int(times[k0])
         check_time_range(times, "frame timestamps")
         self._load(k0)
-        S = self.S  # applies the load
-        S[:, K.A_L] = S[:, K.A_LA]  # initialise from the frame, never from t = 0
-        S[:, K.A_P] = self.params.initial_covariance
-        # a pixel clipped in the first frame is known only to lie beyond its bound
-        cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)
-        S[cens, K.A_P] = getattr(self.params, "censored_initial_covariance", self.params.initial_covariance)
-        # ... except that a clipped dark code bounds it on both sides: the state is ln(I + I0)
-        # with I >= 0, so ln I0 <= L <= L_dark, an interval of width w = L_dark - ln I0 (1e-3
-        # at code 0 of a gamma-2.2 8-bit camera with I0 = 1e-3; 4.9 for AHDR's codes < 100): its
-        # P is w² (the interval as one standard deviation), at least the unclipped initial P
+        # initialise from the frame, never from t = 0 (K.akf_start, each band its rows, after its
+        # part of the load): L̂ = L^A, P = the initial covariance; a pixel clipped in the first
+        # frame is known only to lie beyond its bound (the censored initial P) ... except that a
+        # clipped dark code bounds it on both sides: the state is ln(I + I0) with I >= 0, so
+        # ln I0 <= L <= L_dark, an interval of width w = L_dark - ln I0 (1e-3 at code 0 of a
+        # gamma-2.2 8-bit camera with I0 = 1e-3; 4.9 for AHDR's codes < 100): its P is w² (the
+        # interval as one standard deviation), at least the unclipped initial P
+        p0 = float(self.params.initial_covariance)
+        p_cens = float(getattr(self.params, "censored_initial_covariance", p0))
         off = getattr(self.params, "intensity_offset", None)
-        if off is not None:
-            dark = cens & (S[:, K.A_KLOG] < 0.0)
-            w = S[dark, K.A_LA] - math.log(off)
-            S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
-        S[:, K.A_TU] = float(t_init)
+        log_off = math.log(off) if off is not None else 0.0
         if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
             self.te = self._int32_te()
-        for te in self.te:
-            te[:] = 0
+        W = self.shape[1]
+        te = self.te
+
+        def band(b, lo, hi):
+            K.akf_start(self._S, p0, p_cens, log_off, off is not None, float(t_init), lo * W, hi * W)
+            te[b][:] = 0  # each worker its own last-event times (first touch of their pages)
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("start", c0, "parallel")
         self.te_base = t_init
         return t_init
 
@@ -690,7 +694,12 @@ def clamped_output(engine, t_us: int) -> np.ndarray:
     """``engine.output(t_us)`` with every value below ``K.MIN_INTENSITY`` (or NaN) raised to it,
     counted in ``engine.n_clamped`` (of ``engine.n_output_pixels``): no method ever hands out a
     non-positive or NaN linear intensity, and the count shows when the clamp acted."""
-    img, n = engine.output_clamped(t_us)
+    fn = getattr(engine, "output_clamped", None)  # the row-band engines clamp in their workers
+    if fn is not None:
+        img, n = fn(t_us)
+    else:
+        img = engine.output(t_us)
+        n = K.clamp_linear(img)
     engine.n_clamped = getattr(engine, "n_clamped", 0) + n
     engine.n_output_pixels = getattr(engine, "n_output_pixels", 0) + img.size
     return img

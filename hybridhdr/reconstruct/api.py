@@ -9,6 +9,7 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.limits import check_fps_outputs, check_output_count, check_sensor_size
 from ..camera import CameraProfile
@@ -420,7 +421,16 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                      and frames is not None and len(frames) > 0)
         if two_sided:
             if events is None:
-                events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+                tm = PH.ACTIVE
+                c0 = PH.now() if tm is not None else 0
+                if isinstance(opened, Recording):  # in memory: columns split in n_workers threads
+                    events = EventArrays.from_structured(opened.events, shape, n_workers=int(n_workers))
+                    if tm is not None:
+                        tm.add("read_all", c0, "parallel")
+                else:
+                    events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+                    if tm is not None:
+                        tm.add("read_all", c0, "serial")
             prof = load_profile(profile)
             if info is not None:
                 info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict(),
@@ -432,12 +442,16 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
             engines = []
 
             def make_engine(fr, ev, backward, n_workers=n_workers):  # a pass's share of the workers
+                tm = PH.ACTIVE
+                c0 = PH.now() if tm is not None else 0
                 pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
                 e = _build_engine(method, pp, shape, fr, "forward", prof, n_workers, None, events=ev,
                                   augment=aug if use_aug else None)[0]
                 if thr is not None:
                     e.set_thresholds(*((thr[1], thr[0]) if backward else thr))
                 engines.append(e)
+                if tm is not None:
+                    tm.add("build", c0, "serial")
                 return e
             yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                       chunk_events=int(chunk_events), progress=progress, info=info,
@@ -448,8 +462,12 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 if use_aug and len(stats) == 2 and all(s is not None for s in stats):
                     info["augmentation"] = dict(stats[1].to_dict(), backward=stats[0].to_dict())
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None)
+        if tm is not None:
+            tm.add("build", c0, "serial")
         if thr is not None:
             if not hasattr(engine, "set_thresholds"):
                 raise ValueError(f"method {method!r} does not take a per-pixel threshold map")
