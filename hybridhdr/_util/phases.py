@@ -62,6 +62,10 @@ class PhaseTimer:
             raise ValueError(f"phase {name!r} was timed as {prev!r}, now as {kind!r}")
         return t
 
+    def add_ns(self, name: str, ns: int, kind: str = "serial") -> None:
+        """Add ``ns`` nanoseconds to phase ``name`` (e.g. a wait less the phases nested in it)."""
+        self.add(name, now() - max(int(ns), 0), kind)
+
     def stop(self) -> None:
         self.t1 = now()
 

@@ -717,7 +717,8 @@ def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=No
     thread while the current one is filtered (one chunk ahead, so memory stays bounded).
     """
     pf = None
-    if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
+    if (prefetch and engine.uses_events and not isinstance(chunks, (list, tuple))
+            and getattr(chunks, "prefetch", True)):
         chunks = pf = Prefetcher(chunks)
     try:
         yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
@@ -745,10 +746,11 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
     it = iter(chunks)
     while True:
         tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        c = next(it, None)
         if tm is not None:
-            tm.add("read_wait", c0, "serial")
+            c0, par0 = PH.now(), tm.total("parallel")
+        c = next(it, None)
+        if tm is not None:  # less a parallel read nested in it (in-memory records split by the workers)
+            tm.add_ns("read_wait", PH.now() - c0 - (tm.total("parallel") - par0), "serial")
         if c is None:
             break
         t, x, y, p = c

@@ -19,11 +19,13 @@ from . import _kernels as K
 PARALLEL_MIN_EVENTS = 1 << 18
 
 
-def map_ranges(n: int, n_workers: int, fn) -> list:
+def map_ranges(n: int, n_workers: int, fn, min_part: int | None = None) -> list:
     """``fn(i0, i1)`` over ``n_workers`` contiguous parts of ``range(n)``, in threads (the Numba
-    kernels it calls release the GIL); the last part runs in the caller. Parts below
-    :data:`PARALLEL_MIN_EVENTS` are merged, so short arrays take one thread."""
-    k = max(1, min(int(n_workers), n // PARALLEL_MIN_EVENTS))
+    kernels or numpy copies it calls release the GIL); the last part runs in the caller. Parts
+    below ``min_part`` (default :data:`PARALLEL_MIN_EVENTS`) are merged, so short arrays take
+    one thread."""
+    min_part = PARALLEL_MIN_EVENTS if min_part is None else int(min_part)
+    k = max(1, min(int(n_workers), n // max(min_part, 1)))
     edges = [round(i * n / k) for i in range(k + 1)]
     if k == 1:
         return [fn(0, n)]
