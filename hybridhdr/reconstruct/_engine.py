@@ -501,6 +501,8 @@ class CFEngine(Engine):
         self.k = -1
         self.event_decay = float(getattr(params, "event_decay", 0.0))
         self.offset = 0.0 if mode == "highpass" else float(params.intensity_offset)
+        self._ahead = None  # (k, Future of segment k) computed in the background
+        self._ahead_pool = None
 
     def _alpha(self, seg) -> np.ndarray:
         pr = self.params
@@ -513,10 +515,47 @@ class CFEngine(Engine):
         return a
 
     def _load(self, k: int) -> None:
-        seg = self.m.segment(k)
-        self.C[:, K.C_LF] = np.log(seg.intensity + self.offset)
-        self.C[:, K.C_ALPHA] = self._alpha(seg)
+        """Load segment ``k``: each row band its pixels' L^F = ln(I + offset) and gain (the same
+        elementwise numpy operations, on slices); segment ``k + 1`` is then computed in the
+        background (as :meth:`AKFEngine._segment`), off the critical path."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == k:
+            seg = ahead[1].result()
+        else:
+            if ahead is not None:
+                ahead[1].exception()  # wait for the stale one (providers are not re-entrant)
+            seg = self.m.segment(k)
+        if k + 1 < len(self.m):
+            if self._ahead_pool is None:
+                self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
+            self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
+        pr = self.params
+        W = self.shape[1]
+        inten = seg.intensity
+        off = self.offset
+        C = self.C
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            C[a:z, K.C_LF] = np.log(inten[a:z] + off)
+            if self.mode == "direct":
+                C[a:z, K.C_ALPHA] = 0.0
+                return
+            al = np.full(z - a, pr.alpha_rad_per_s)
+            if self.mode == "cf" and pr.adaptive_gain:
+                bad = (inten[a:z] < pr.adaptive_low) | (inten[a:z] > pr.adaptive_high)
+                al[bad] *= pr.adaptive_gain_scale
+            C[a:z, K.C_ALPHA] = al
+        self._map_bands(band, self.n)
         self.k = k
+
+    def close(self):
+        """Stop the worker threads; wait for a measurement being computed ahead (idempotent)."""
+        if self._ahead_pool is not None:
+            self._ahead_pool.shutdown(wait=True)
+            self._ahead_pool = None
+            self._ahead = None
+        super().close()
 
     def start(self, t_start_us=None) -> int:
         if self.mode == "highpass":
