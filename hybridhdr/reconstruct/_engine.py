@@ -449,10 +449,13 @@ class AKFEngine(Engine):
             owner[lo:hi] = b
         views = [K.te_view(te, H, W) for te in self.te]
         for b, (lo, hi) in enumerate(new):
-            for r in range(max(lo - 1, 0), min(hi + 1, H)):
-                src = owner[r]
-                if src != b:  # only rows owned by others are written: owners' rows stay intact
-                    views[b][r] = views[src][r]
+            # rows b now reads that it did not keep exact (its old rows and two ghost rows are):
+            # copied from their old owner; at most the few rows an edge moved by, not every row
+            olo, ohi = self.bands[b]
+            n0, n1 = max(lo - 1, 0), min(hi + 1, H)
+            h0, h1 = max(olo - 1, 0), min(ohi + 1, H)
+            for r in (*range(n0, min(n1, h0)), *range(max(n0, h1), n1)):
+                views[b][r] = views[owner[r]][r]  # owner[r] != b: b's own rows stay intact
         self.bands = new
 
     def output(self, t_us: int, with_state: bool = False):
