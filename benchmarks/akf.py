@@ -302,10 +302,11 @@ def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: d
     (one run of each count in turn, ``reps`` rounds; the best round per count is kept, its phases
     reported).
 
-    The serial fraction is measured on the single-worker run: ``f = 1 - parallel / wall``, where
+    The serial fraction is measured on the single-worker runs: ``f = 1 - parallel / wall``, where
     ``parallel`` is the wall time of the row-band calls (the work that the workers split), so
     ``f`` holds every other thing on the critical path, timed or not (reading or waiting for the
-    next chunk, planning the bands, Python between calls). Amdahl's law then projects the
+    next chunk, planning the bands, Python between calls); the least of the rounds is the headline
+    (every round's is printed; the phases shown are those of the fastest run). Amdahl's law then projects the
     speed-up to 8 and 16 workers; the measured speed-ups and the serial fraction they imply
     (Karp-Flatt) are printed beside it as a cross-check: above the machine's core count the
     measured figures are meaningless (threads share cores), and on a loaded machine they are low.
@@ -337,21 +338,31 @@ def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: d
         ref = run(1)[1]  # warm-up (JIT cache, first touch) and the reference frames
         best: dict = {}
         walls: dict = {w: [] for w in workers}
+        f_runs = []
         identical = True
         for _ in range(reps):
             for w in workers:
                 rep_, fr = run(w)
                 walls[w].append(rep_["wall_s"])
+                if w == 1:
+                    f_runs.append(1.0 - rep_["parallel_s"] / rep_["wall_s"])
+                    if f_runs[-1] == min(f_runs):
+                        r_f = rep_
                 identical &= bool(np.array_equal(fr, ref))
                 if w not in best or rep_["wall_s"] < best[w]["wall_s"]:
                     best[w] = rep_
         r1 = best[workers[0]]
         if workers[0] != 1:
             raise ValueError("--workers must start with 1 (the serial fraction is measured there)")
-        f = 1.0 - r1["parallel_s"] / r1["wall_s"]
+        # the least disturbed one-worker run's fraction (as timeit's minimum: a descheduled thread
+        # or another tenant only ever adds time, to whichever phase it hits); every run's beside it
+        f = min(f_runs)
         c = {"events": n_ev, "bit_identical": identical, "serial_fraction": round(f, 4),
-             "serial_fraction_named": round(r1["serial_s"] / r1["wall_s"], 4),
-             "untimed_fraction": round(r1["untimed_s"] / r1["wall_s"], 4),
+             "serial_fraction_runs": [round(v, 4) for v in f_runs],
+             "serial_fraction_of_best_run": round(1.0 - r1["parallel_s"] / r1["wall_s"], 4),
+             # the same run's split: named serial phases, and time in no phase (Python in between)
+             "serial_fraction_named": round(r_f["serial_s"] / r_f["wall_s"], 4),
+             "untimed_fraction": round(r_f["untimed_s"] / r_f["wall_s"], 4),
              "projected_speedup": {str(k): round(amdahl(f, k), 2) for k in (2, 8, 16)},
              "mev_s": {str(w): round(n_ev / best[w]["wall_s"] / 1e6, 2) for w in workers},
              "mev_s_median": {str(w): round(n_ev / float(np.median(walls[w])) / 1e6, 2) for w in workers},

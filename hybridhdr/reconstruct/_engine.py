@@ -521,6 +521,14 @@ class CFEngine(Engine):
         """Load segment ``k``: each row band its pixels' L^F = ln(I + offset) and gain (the same
         elementwise numpy operations, on slices); segment ``k + 1`` is then computed in the
         background (as :meth:`AKFEngine._segment`), off the critical path."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        codes_fn = getattr(self.m, "segment_codes", None)
+        sc = codes_fn(k) if codes_fn is not None else None
+        if sc is not None and sc.intensity is not None:  # per-code tables: each band looks its pixels up
+            self._load_codes(sc, c0)
+            self.k = k
+            return
         ahead, self._ahead = self._ahead, None
         if ahead is not None and ahead[0] == k:
             seg = ahead[1].result()
@@ -532,6 +540,8 @@ class CFEngine(Engine):
             if self._ahead_pool is None:
                 self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
             self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
+        if tm is not None:
+            c0 = tm.add("load_segment", c0, "serial")
         pr = self.params
         W = self.shape[1]
         inten = seg.intensity
@@ -550,7 +560,37 @@ class CFEngine(Engine):
                 al[bad] *= pr.adaptive_gain_scale
             C[a:z, K.C_ALPHA] = al
         self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("load_bands", c0, "parallel")
         self.k = k
+
+    def _load_codes(self, sc, c0) -> None:
+        """:meth:`_load` from a segment's codes: I = the per-code intensity of each pixel's
+        clipped code, exactly what ``FrameMeasurements.segment`` holds, then the same operations."""
+        tm = PH.ACTIVE
+        if tm is not None:
+            c0 = tm.add("load_segment", c0, "serial")
+        pr = self.params
+        W = self.shape[1]
+        C = self.C
+        code, table, mx = sc.code, sc.intensity, int(sc.max_code)
+        if code.shape[0] != self.n:
+            raise ValueError(f"measurement codes have {code.shape[0]} values, expected {self.n} (H*W)")
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            inten = table[np.clip(code[a:z].astype(np.int64), 0, mx)]
+            C[a:z, K.C_LF] = np.log(inten + self.offset)
+            if self.mode == "direct":
+                C[a:z, K.C_ALPHA] = 0.0
+                return
+            al = np.full(z - a, pr.alpha_rad_per_s)
+            if self.mode == "cf" and pr.adaptive_gain:
+                al[(inten < pr.adaptive_low) | (inten > pr.adaptive_high)] *= pr.adaptive_gain_scale
+            C[a:z, K.C_ALPHA] = al
+        self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("load_bands", c0, "parallel")
 
     def close(self):
         """Stop the worker threads; wait for a measurement being computed ahead (idempotent)."""
@@ -593,10 +633,8 @@ class CFEngine(Engine):
         c0 = PH.now() if tm is not None else 0
         self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
         if tm is not None:
-            c0 = tm.add("switch", c0, "parallel")
+            tm.add("switch", c0, "parallel")
         self._load(self.k + 1)
-        if tm is not None:
-            tm.add("load_segment", c0, "serial")
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
