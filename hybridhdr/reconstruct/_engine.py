@@ -16,7 +16,10 @@ from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
 PARALLEL_MIN_WORK = 20_000  # events or pixels per call below which bands run in the caller
-TE32_MAX = int(np.iinfo(np.int32).max)  # the int32 last-event times' reach, µs (about 35 minutes)
+TE32_MAX = int(np.iinfo(np.int32).max)
+#: above this many bands, the threaded AKF splits batches by row look-up (band_split_lut), whose
+#: cost per event does not grow with the bands, instead of testing every band (band_split)
+SPLIT_LUT_MIN_BANDS = 4  # the int32 last-event times' reach, µs (about 35 minutes)
 
 
 def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:
@@ -396,12 +399,16 @@ class AKFEngine(Engine):
         bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
         counts = np.zeros((nb, nb), np.int64)
         barrier = threading.Barrier(nb)
+        lut = self._band_lut() if nb > SPLIT_LUT_MIN_BANDS else None
 
         def band_threaded(b, lo, hi):
             tm = PH.ACTIVE
             c0 = PH.now() if tm is not None else 0
             try:
-                K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                if lut is None:
+                    K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                else:
+                    K.band_split_lut(y, i0, parts[b], parts[b + 1], lut[0], lut[1], bufs[b], counts[b])
                 if tm is not None:
                     c0 = tm.add("worker_split", c0, "worker")
                 barrier.wait()
@@ -422,6 +429,23 @@ class AKFEngine(Engine):
         self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
         if tm is not None:
             tm.add("filter", c0, "parallel")
+
+    def _band_lut(self):
+        """(band of each row, edge flags of each row) for :func:`_kernels.band_split_lut`,
+        rebuilt when the bands move."""
+        if getattr(self, "_lut_bands", None) != self.bands:
+            H = self.shape[0]
+            bor = np.empty(H, np.int32)
+            edge = np.zeros(H, np.uint8)
+            for b, (lo, hi) in enumerate(self.bands):
+                bor[lo:hi] = b
+                if b > 0:
+                    edge[lo] |= 1  # ghost row hi of band b - 1
+                if b + 1 < len(self.bands):
+                    edge[hi - 1] |= 2  # ghost row lo - 1 of band b + 1
+            self._lut = (bor, edge)
+            self._lut_bands = list(self.bands)
+        return self._lut
 
     def _rebalance(self, hist) -> None:
         """Move the band edges so each band gets about the same number of this batch's events

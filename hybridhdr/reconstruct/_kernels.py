@@ -123,6 +123,36 @@ def band_split(y, i0, j0, j1, row_lo, row_hi, out, counts):
 
 
 @njit(cache=True, nogil=True)
+def band_split_lut(y, i0, j0, j1, band_of_row, edge_of_row, out, counts):
+    """:func:`band_split` by table look-up, for many bands: the same lists in the same order.
+
+    ``band_of_row[r]`` is the band owning row ``r``; ``edge_of_row[r]`` has bit 1 when row ``r``
+    is also the ghost row of the band before (its ``hi``) and bit 2 when it is the ghost row of
+    the band after (its ``lo - 1``). Each event is appended to its band's list and, in the rare
+    edge rows, to its neighbour's: a few operations per event whatever the number of bands,
+    where :func:`band_split` tests every band (a worker's share of the split then stops
+    shrinking as workers are added: ``nb`` tests for each of its ``1/nb`` of the events).
+    """
+    nb = counts.shape[0]
+    for b in range(nb):
+        counts[b] = 0
+    for i in range(j0, j1):
+        yy = np.int64(y[i])
+        b = np.int64(band_of_row[yy])
+        r = np.int32(i - i0)
+        e = edge_of_row[yy]
+        if e & 1:  # the band before reads this row as its ghost row hi
+            out[b - 1, counts[b - 1]] = r
+            counts[b - 1] += 1
+        out[b, counts[b]] = r
+        counts[b] += 1
+        if e & 2:
+            out[b + 1, counts[b + 1]] = r
+            counts[b + 1] += 1
+    return j1 - j0
+
+
+@njit(cache=True, nogil=True)
 def row_histogram(y, i0, i1, step, hist):
     """Count the rows of every ``step``-th event of ``[i0, i1)`` into ``hist`` (zeroed first).
 

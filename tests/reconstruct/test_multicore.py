@@ -157,3 +157,59 @@ def test_phase_timer_rejects_a_phase_timed_as_two_kinds():
         pt.add("x", PH.now(), "serial")
     with pytest.raises(ValueError, match="kind must be one of"):
         pt.add("y", PH.now(), "sideways")
+
+
+@pytest.mark.parametrize("jit", [True, False])
+@pytest.mark.parametrize("h,nb", [(30, 5), (30, 9), (12, 12), (40, 16)])
+def test_band_split_lut_equals_band_select_per_band(jit, h, nb):
+    """The look-up split (many bands, single-row bands included) = band_select of each band's
+    rows and two ghost rows, in order."""
+    from hybridhdr.reconstruct._engine import row_bands
+    rng = np.random.default_rng(nb)
+    y = rng.integers(0, h, 6_000).astype(np.uint16)
+    bands = row_bands(h, nb)
+    bor = np.empty(h, np.int32)
+    edge = np.zeros(h, np.uint8)
+    for b, (lo, hi) in enumerate(bands):
+        bor[lo:hi] = b
+        if b > 0:
+            edge[lo] |= 1
+        if b + 1 < len(bands):
+            edge[hi - 1] |= 2
+    fn = K.band_split_lut if jit else getattr(K.band_split_lut, "py_func")
+    i0, j0, j1 = 100, 1_300, 5_100
+    out = np.full((len(bands), j1 - j0), -1, np.int32)
+    counts = np.full(len(bands), -5, np.int64)
+    assert fn(y, i0, j0, j1, bor, edge, out, counts) == j1 - j0
+    for b, (lo, hi) in enumerate(bands):
+        idx = np.empty(j1 - j0, np.int32)
+        m = K.band_select(y, j0, j1, lo - 1, hi + 1, idx)
+        assert counts[b] == m
+        np.testing.assert_array_equal(out[b, :m], idx[:m] + (j0 - i0))
+
+
+@pytest.mark.parametrize("n_workers", [5, 8])
+def test_many_band_engine_gives_the_serial_bits(n_workers):
+    """The threaded AKF with more than SPLIT_LUT_MIN_BANDS bands (the look-up split), band
+    edges moving between batches, against one worker."""
+    from hybridhdr.camera import default_profile
+    from hybridhdr.reconstruct import _engine as EN
+    assert n_workers > EN.SPLIT_LUT_MIN_BANDS
+    rec = _rec(n=90_000, h=40, w=30, seed=n_workers)
+    ev = rec.events
+    t, x, y, p = (np.ascontiguousarray(ev[k]) for k in ("t", "x", "y", "p"))
+    y[: len(y) // 2] = np.minimum(y[: len(y) // 2], 9)  # first half clustered in 10 rows: edges move
+    params = AKFParams()
+    states = []
+    for nw in (1, n_workers):
+        m = FrameMeasurements(rec.frames, (40, 30), default_profile(), intensity_offset=params.intensity_offset)
+        eng = AKFEngine((40, 30), m, params, n_workers=nw)
+        eng.start(None)
+        cuts = [0, 30_000, 45_000, 90_000]
+        for a, b in zip(cuts[:-1], cuts[1:]):
+            eng.process(t, x, y, p, a, b)
+            if nw > 1:
+                assert len(eng.bands) == nw
+        states.append(eng.S.copy())
+        eng.close()
+    assert np.array_equal(states[0].view(np.int64), states[1].view(np.int64))
