@@ -390,15 +390,17 @@ class AKFEngine(Engine):
                 tm.add("filter_small", c0, "parallel")
             return
         # threaded (every band has its own thread): worker w splits part w of the batch for all
-        # bands (own rows plus the two ghost rows), then, once all parts are split, each band
-        # filters its events part by part, in time order
+        # bands (own rows plus the two ghost rows), then each band filters its events part by
+        # part, in time order, waiting only for the part it reaches next to be split (no barrier
+        # for all the parts: a band filters part 0 while part 1 is still being split)
         nb = len(self.bands)
         parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
         los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
         his = np.array([hi + 1 for _, hi in self.bands], np.int64)
         bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
         counts = np.zeros((nb, nb), np.int64)
-        barrier = threading.Barrier(nb)
+        ready = [threading.Event() for _ in range(nb)]
+        failed: list = []
         lut = self._band_lut() if nb > SPLIT_LUT_MIN_BANDS else None
 
         def band_threaded(b, lo, hi):
@@ -409,16 +411,24 @@ class AKFEngine(Engine):
                     K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
                 else:
                     K.band_split_lut(y, i0, parts[b], parts[b + 1], lut[0], lut[1], bufs[b], counts[b])
-                if tm is not None:
-                    c0 = tm.add("worker_split", c0, "worker")
-                barrier.wait()
             except BaseException:
-                barrier.abort()  # release the other workers (they raise BrokenBarrierError)
+                failed.append(b)
+                for e in ready:  # release the other workers (they raise BrokenBarrierError)
+                    e.set()
                 raise
+            ready[b].set()
             if tm is not None:
-                c0 = tm.add("worker_wait_split", c0, "worker")
+                c0 = tm.add("worker_split", c0, "worker")
             n = 0
             for w in range(nb):
+                if not ready[w].is_set():
+                    if tm is not None:
+                        c0 = tm.add("worker_filter", c0, "worker")
+                    ready[w].wait()
+                    if tm is not None:
+                        c0 = tm.add("worker_wait_split", c0, "worker")
+                if failed:
+                    raise threading.BrokenBarrierError(f"worker {failed[0]} failed")
                 n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
                                           self.te[b], tb, *args)
             if tm is not None:
