@@ -9,13 +9,17 @@ from typing import Callable, Iterable, Iterator
 
 import numpy as np
 
+from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.prefetch import Prefetcher
 from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
 PARALLEL_MIN_WORK = 20_000  # events or pixels per call below which bands run in the caller
-TE32_MAX = int(np.iinfo(np.int32).max)  # the int32 last-event times' reach, µs (about 35 minutes)
+TE32_MAX = int(np.iinfo(np.int32).max)
+#: above this many bands, the threaded AKF splits batches by row look-up (band_split_lut), whose
+#: cost per event does not grow with the bands, instead of testing every band (band_split)
+SPLIT_LUT_MIN_BANDS = 4  # the int32 last-event times' reach, µs (about 35 minutes)
 
 
 def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:
@@ -125,6 +129,13 @@ class Engine:
 
     def output(self, t_us: int) -> np.ndarray:
         raise NotImplementedError
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        """``(image, n)``: :meth:`output` with every value below ``K.MIN_INTENSITY`` (or NaN) raised
+        to it, ``n`` of them (:func:`clamped_output`). The row-band engines clamp each band in its
+        worker; this default clamps the whole image in the caller."""
+        img = self.output(t_us)
+        return img, K.clamp_linear(img)
 
 
 class AKFEngine(Engine):
@@ -283,26 +294,30 @@ class AKFEngine(Engine):
         t_init = int(times[k0])
         check_time_range(times, "frame timestamps")
         self._load(k0)
-        S = self.S  # applies the load
-        S[:, K.A_L] = S[:, K.A_LA]  # initialise from the frame, never from t = 0
-        S[:, K.A_P] = self.params.initial_covariance
-        # a pixel clipped in the first frame is known only to lie beyond its bound
-        cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)
-        S[cens, K.A_P] = getattr(self.params, "censored_initial_covariance", self.params.initial_covariance)
-        # ... except that a clipped dark code bounds it on both sides: the state is ln(I + I0)
-        # with I >= 0, so ln I0 <= L <= L_dark, an interval of width w = L_dark - ln I0 (1e-3
-        # at code 0 of a gamma-2.2 8-bit camera with I0 = 1e-3; 4.9 for AHDR's codes < 100): its
-        # P is w² (the interval as one standard deviation), at least the unclipped initial P
+        # initialise from the frame, never from t = 0 (K.akf_start, each band its rows, after its
+        # part of the load): L̂ = L^A, P = the initial covariance; a pixel clipped in the first
+        # frame is known only to lie beyond its bound (the censored initial P) ... except that a
+        # clipped dark code bounds it on both sides: the state is ln(I + I0) with I >= 0, so
+        # ln I0 <= L <= L_dark, an interval of width w = L_dark - ln I0 (1e-3 at code 0 of a
+        # gamma-2.2 8-bit camera with I0 = 1e-3; 4.9 for AHDR's codes < 100): its P is w² (the
+        # interval as one standard deviation), at least the unclipped initial P
+        p0 = float(self.params.initial_covariance)
+        p_cens = float(getattr(self.params, "censored_initial_covariance", p0))
         off = getattr(self.params, "intensity_offset", None)
-        if off is not None:
-            dark = cens & (S[:, K.A_KLOG] < 0.0)
-            w = S[dark, K.A_LA] - math.log(off)
-            S[dark, K.A_P] = np.maximum(w * w, self.params.initial_covariance)
-        S[:, K.A_TU] = float(t_init)
+        log_off = math.log(off) if off is not None else 0.0
         if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
             self.te = self._int32_te()
-        for te in self.te:
-            te[:] = 0
+        W = self.shape[1]
+        te = self.te
+
+        def band(b, lo, hi):
+            K.akf_start(self._S, p0, p_cens, log_off, off is not None, float(t_init), lo * W, hi * W)
+            te[b][:] = 0  # each worker its own last-event times (first touch of their pages)
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("start", c0, "parallel")
         self.te_base = t_init
         return t_init
 
@@ -327,11 +342,20 @@ class AKFEngine(Engine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        if tm is not None and self._pending is not None:  # two switches with no call in between
+            self._flush()
+            c0 = tm.add("switch", c0, "parallel")
         self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
+        if tm is not None:
+            tm.add("load_segment", c0, "serial")
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         pr = self.params
         H, W = self.shape
         self._te_fit(int(t[i0]), int(t[i1 - 1]))
@@ -340,7 +364,14 @@ class AKFEngine(Engine):
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form, self.con_px, self.coff_px)
         if len(self.bands) == 1:
+            if tm is not None:
+                c0 = tm.add("plan_bands", c0, "serial")
+                if self._pending is not None:
+                    self._flush()
+                    c0 = tm.add("switch", c0, "parallel")
             self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], tb, *args)
+            if tm is not None:
+                tm.add("filter", c0, "parallel")
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
             # a 1-in-8 sample of the rows balances as well, 8x cheaper
@@ -352,32 +383,79 @@ class AKFEngine(Engine):
                 idx = self._index_buffer(("band", b), i1 - i0)[0]
                 m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
                 return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], tb, *args)
+            if tm is not None:
+                c0 = tm.add("plan_bands", c0, "serial")
             self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+            if tm is not None:
+                tm.add("filter_small", c0, "parallel")
             return
         # threaded (every band has its own thread): worker w splits part w of the batch for all
-        # bands (own rows plus the two ghost rows), then, once all parts are split, each band
-        # filters its events part by part, in time order
+        # bands (own rows plus the two ghost rows), then each band filters its events part by
+        # part, in time order, waiting only for the part it reaches next to be split (no barrier
+        # for all the parts: a band filters part 0 while part 1 is still being split)
         nb = len(self.bands)
         parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
         los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
         his = np.array([hi + 1 for _, hi in self.bands], np.int64)
         bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
         counts = np.zeros((nb, nb), np.int64)
-        barrier = threading.Barrier(nb)
+        ready = [threading.Event() for _ in range(nb)]
+        failed: list = []
+        lut = self._band_lut() if nb > SPLIT_LUT_MIN_BANDS else None
 
         def band_threaded(b, lo, hi):
+            tm = PH.ACTIVE
+            c0 = PH.now() if tm is not None else 0
             try:
-                K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
-                barrier.wait()
+                if lut is None:
+                    K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                else:
+                    K.band_split_lut(y, i0, parts[b], parts[b + 1], lut[0], lut[1], bufs[b], counts[b])
             except BaseException:
-                barrier.abort()  # release the other workers (they raise BrokenBarrierError)
+                failed.append(b)
+                for e in ready:  # release the other workers (they raise BrokenBarrierError)
+                    e.set()
                 raise
+            ready[b].set()
+            if tm is not None:
+                c0 = tm.add("worker_split", c0, "worker")
             n = 0
             for w in range(nb):
+                if not ready[w].is_set():
+                    if tm is not None:
+                        c0 = tm.add("worker_filter", c0, "worker")
+                    ready[w].wait()
+                    if tm is not None:
+                        c0 = tm.add("worker_wait_split", c0, "worker")
+                if failed:
+                    raise threading.BrokenBarrierError(f"worker {failed[0]} failed")
                 n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
                                           self.te[b], tb, *args)
+            if tm is not None:
+                tm.add("worker_filter", c0, "worker")
             return n
+        tm = PH.ACTIVE
+        c0 = tm.add("plan_bands", c0, "serial") if tm is not None else 0
         self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
+        if tm is not None:
+            tm.add("filter", c0, "parallel")
+
+    def _band_lut(self):
+        """(band of each row, edge flags of each row) for :func:`_kernels.band_split_lut`,
+        rebuilt when the bands move."""
+        if getattr(self, "_lut_bands", None) != self.bands:
+            H = self.shape[0]
+            bor = np.empty(H, np.int32)
+            edge = np.zeros(H, np.uint8)
+            for b, (lo, hi) in enumerate(self.bands):
+                bor[lo:hi] = b
+                if b > 0:
+                    edge[lo] |= 1  # ghost row hi of band b - 1
+                if b + 1 < len(self.bands):
+                    edge[hi - 1] |= 2  # ghost row lo - 1 of band b + 1
+            self._lut = (bor, edge)
+            self._lut_bands = list(self.bands)
+        return self._lut
 
     def _rebalance(self, hist) -> None:
         """Move the band edges so each band gets about the same number of this batch's events
@@ -405,13 +483,25 @@ class AKFEngine(Engine):
             owner[lo:hi] = b
         views = [K.te_view(te, H, W) for te in self.te]
         for b, (lo, hi) in enumerate(new):
-            for r in range(max(lo - 1, 0), min(hi + 1, H)):
-                src = owner[r]
-                if src != b:  # only rows owned by others are written: owners' rows stay intact
-                    views[b][r] = views[src][r]
+            # rows b now reads that it did not keep exact (its old rows and two ghost rows are):
+            # copied from their old owner; at most the few rows an edge moved by, not every row
+            olo, ohi = self.bands[b]
+            n0, n1 = max(lo - 1, 0), min(hi + 1, H)
+            h0, h1 = max(olo - 1, 0), min(ohi + 1, H)
+            for r in (*range(n0, min(n1, h0)), *range(max(n0, h1), n1)):
+                views[b][r] = views[owner[r]][r]  # owner[r] != b: b's own rows stay intact
         self.bands = new
 
     def output(self, t_us: int, with_state: bool = False):
+        return self._output(t_us, with_state)[0]
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        return self._output(t_us, False, clamp=True)
+
+    def _output(self, t_us: int, with_state: bool, clamp: bool = False):
+        """(image or (image, L̂, P), clamped count); each band clamps its own rows when ``clamp``."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
         lg = np.empty(self.n if with_state else 0)
@@ -421,10 +511,13 @@ class AKFEngine(Engine):
         def band(b, lo, hi):
             K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us), out, lg, var, lo * W, hi * W)
             K.log_to_linear(out[lo * W:hi * W], off)  # numpy's ufunc loop releases the GIL
-        self._map_bands(band, self.n)
+            return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
+        n_clamped = int(sum(self._map_bands(band, self.n)))
+        if tm is not None:
+            tm.add("output", c0, "parallel")
         if with_state:
-            return out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)
-        return out.reshape(self.shape)
+            return (out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)), n_clamped
+        return out.reshape(self.shape), n_clamped
 
 
 class CFEngine(Engine):
@@ -445,6 +538,8 @@ class CFEngine(Engine):
         self.k = -1
         self.event_decay = float(getattr(params, "event_decay", 0.0))
         self.offset = 0.0 if mode == "highpass" else float(params.intensity_offset)
+        self._ahead = None  # (k, Future of segment k) computed in the background
+        self._ahead_pool = None
 
     def _alpha(self, seg) -> np.ndarray:
         pr = self.params
@@ -457,10 +552,87 @@ class CFEngine(Engine):
         return a
 
     def _load(self, k: int) -> None:
-        seg = self.m.segment(k)
-        self.C[:, K.C_LF] = np.log(seg.intensity + self.offset)
-        self.C[:, K.C_ALPHA] = self._alpha(seg)
+        """Load segment ``k``: each row band its pixels' L^F = ln(I + offset) and gain (the same
+        elementwise numpy operations, on slices); segment ``k + 1`` is then computed in the
+        background (as :meth:`AKFEngine._segment`), off the critical path."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
+        codes_fn = getattr(self.m, "segment_codes", None)
+        sc = codes_fn(k) if codes_fn is not None else None
+        if sc is not None and sc.intensity is not None:  # per-code tables: each band looks its pixels up
+            self._load_codes(sc, c0)
+            self.k = k
+            return
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == k:
+            seg = ahead[1].result()
+        else:
+            if ahead is not None:
+                ahead[1].exception()  # wait for the stale one (providers are not re-entrant)
+            seg = self.m.segment(k)
+        if k + 1 < len(self.m):
+            if self._ahead_pool is None:
+                self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
+            self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
+        if tm is not None:
+            c0 = tm.add("load_segment", c0, "serial")
+        pr = self.params
+        W = self.shape[1]
+        inten = seg.intensity
+        off = self.offset
+        C = self.C
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            C[a:z, K.C_LF] = np.log(inten[a:z] + off)
+            if self.mode == "direct":
+                C[a:z, K.C_ALPHA] = 0.0
+                return
+            al = np.full(z - a, pr.alpha_rad_per_s)
+            if self.mode == "cf" and pr.adaptive_gain:
+                bad = (inten[a:z] < pr.adaptive_low) | (inten[a:z] > pr.adaptive_high)
+                al[bad] *= pr.adaptive_gain_scale
+            C[a:z, K.C_ALPHA] = al
+        self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("load_bands", c0, "parallel")
         self.k = k
+
+    def _load_codes(self, sc, c0) -> None:
+        """:meth:`_load` from a segment's codes: I = the per-code intensity of each pixel's
+        clipped code, exactly what ``FrameMeasurements.segment`` holds, then the same operations."""
+        tm = PH.ACTIVE
+        if tm is not None:
+            c0 = tm.add("load_segment", c0, "serial")
+        pr = self.params
+        W = self.shape[1]
+        C = self.C
+        code, table, mx = sc.code, sc.intensity, int(sc.max_code)
+        if code.shape[0] != self.n:
+            raise ValueError(f"measurement codes have {code.shape[0]} values, expected {self.n} (H*W)")
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            inten = table[np.clip(code[a:z].astype(np.int64), 0, mx)]
+            C[a:z, K.C_LF] = np.log(inten + self.offset)
+            if self.mode == "direct":
+                C[a:z, K.C_ALPHA] = 0.0
+                return
+            al = np.full(z - a, pr.alpha_rad_per_s)
+            if self.mode == "cf" and pr.adaptive_gain:
+                al[(inten < pr.adaptive_low) | (inten > pr.adaptive_high)] *= pr.adaptive_gain_scale
+            C[a:z, K.C_ALPHA] = al
+        self._map_bands(band, self.n)
+        if tm is not None:
+            tm.add("load_bands", c0, "parallel")
+
+    def close(self):
+        """Stop the worker threads; wait for a measurement being computed ahead (idempotent)."""
+        if self._ahead_pool is not None:
+            self._ahead_pool.shutdown(wait=True)
+            self._ahead_pool = None
+            self._ahead = None
+        super().close()
 
     def start(self, t_start_us=None) -> int:
         if self.mode == "highpass":
@@ -491,17 +663,25 @@ class CFEngine(Engine):
             self.C[:, K.C_L] = self.C[:, K.C_LF]
             self.C[:, K.C_TU] = t_to
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
+        if tm is not None:
+            tm.add("switch", c0, "parallel")
         self._load(self.k + 1)
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         pr = self.params
         W = self.shape[1]
         if len(self.bands) == 1:
             self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
                                          self.event_decay, self.con_px, self.coff_px)
+            if tm is not None:
+                tm.add("filter", c0, "parallel")
             return
 
         def band(b, lo, hi):
@@ -510,13 +690,29 @@ class CFEngine(Engine):
             return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay,
                                        self.con_px, self.coff_px)
         self.n_events += int(sum(self._map_bands(band, i1 - i0)))
+        if tm is not None:
+            tm.add("filter", c0, "parallel")
 
     def output(self, t_us: int) -> np.ndarray:
+        return self._output(t_us)[0]
+
+    def output_clamped(self, t_us: int) -> tuple[np.ndarray, int]:
+        return self._output(t_us, clamp=True)
+
+    def _output(self, t_us: int, clamp: bool = False):
+        """(image, clamped count); each band clamps its own rows when ``clamp``."""
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
-        self._map_bands(lambda b, lo, hi: K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W),
-                        self.n)
-        return out.reshape(self.shape)
+
+        def band(b, lo, hi):
+            K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W)
+            return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
+        n_clamped = int(sum(self._map_bands(band, self.n)))
+        if tm is not None:
+            tm.add("output", c0, "parallel")
+        return out.reshape(self.shape), n_clamped
 
 
 class FramesEngine(Engine):
@@ -612,8 +808,13 @@ def clamped_output(engine, t_us: int) -> np.ndarray:
     """``engine.output(t_us)`` with every value below ``K.MIN_INTENSITY`` (or NaN) raised to it,
     counted in ``engine.n_clamped`` (of ``engine.n_output_pixels``): no method ever hands out a
     non-positive or NaN linear intensity, and the count shows when the clamp acted."""
-    img = engine.output(t_us)
-    engine.n_clamped = getattr(engine, "n_clamped", 0) + K.clamp_linear(img)
+    fn = getattr(engine, "output_clamped", None)  # the row-band engines clamp in their workers
+    if fn is not None:
+        img, n = fn(t_us)
+    else:
+        img = engine.output(t_us)
+        n = K.clamp_linear(img)
+    engine.n_clamped = getattr(engine, "n_clamped", 0) + n
     engine.n_output_pixels = getattr(engine, "n_output_pixels", 0) + img.size
     return img
 
@@ -630,7 +831,8 @@ def drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=No
     thread while the current one is filtered (one chunk ahead, so memory stays bounded).
     """
     pf = None
-    if prefetch and engine.uses_events and not isinstance(chunks, (list, tuple)):
+    if (prefetch and engine.uses_events and not isinstance(chunks, (list, tuple))
+            and getattr(chunks, "prefetch", True)):
         chunks = pf = Prefetcher(chunks)
     try:
         yield from _drive(engine, chunks, clock, t_start_us=t_start_us, t_end_us=t_end_us, progress=progress,
@@ -655,7 +857,17 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
     def limit_ok(to):
         return to is not None and to < end_excl
 
-    for t, x, y, p in chunks:
+    it = iter(chunks)
+    while True:
+        tm = PH.ACTIVE
+        if tm is not None:
+            c0, par0 = PH.now(), tm.total("parallel")
+        c = next(it, None)
+        if tm is not None:  # less a parallel read nested in it (in-memory records split by the workers)
+            tm.add_ns("read_wait", PH.now() - c0 - (tm.total("parallel") - par0), "serial")
+        if c is None:
+            break
+        t, x, y, p = c
         n = t.shape[0]
         if n == 0:
             continue

@@ -123,6 +123,36 @@ def band_split(y, i0, j0, j1, row_lo, row_hi, out, counts):
 
 
 @njit(cache=True, nogil=True)
+def band_split_lut(y, i0, j0, j1, band_of_row, edge_of_row, out, counts):
+    """:func:`band_split` by table look-up, for many bands: the same lists in the same order.
+
+    ``band_of_row[r]`` is the band owning row ``r``; ``edge_of_row[r]`` has bit 1 when row ``r``
+    is also the ghost row of the band before (its ``hi``) and bit 2 when it is the ghost row of
+    the band after (its ``lo - 1``). Each event is appended to its band's list and, in the rare
+    edge rows, to its neighbour's: a few operations per event whatever the number of bands,
+    where :func:`band_split` tests every band (a worker's share of the split then stops
+    shrinking as workers are added: ``nb`` tests for each of its ``1/nb`` of the events).
+    """
+    nb = counts.shape[0]
+    for b in range(nb):
+        counts[b] = 0
+    for i in range(j0, j1):
+        yy = np.int64(y[i])
+        b = np.int64(band_of_row[yy])
+        r = np.int32(i - i0)
+        e = edge_of_row[yy]
+        if e & 1:  # the band before reads this row as its ghost row hi
+            out[b - 1, counts[b - 1]] = r
+            counts[b - 1] += 1
+        out[b, counts[b]] = r
+        counts[b] += 1
+        if e & 2:
+            out[b + 1, counts[b + 1]] = r
+            counts[b + 1] += 1
+    return j1 - j0
+
+
+@njit(cache=True, nogil=True)
 def row_histogram(y, i0, i1, step, hist):
     """Count the rows of every ``step``-th event of ``[i0, i1)`` into ``hist`` (zeroed first).
 
@@ -217,6 +247,68 @@ def _akf_event(S, te, te_base, pix, tp, wp, ti, positive, has_la_step, seg_t0, s
     te[tp] = tr
 
 
+@njit(cache=True, nogil=True)
+def akf_start(S, p0, p_cens, log_off, has_off, t_init, pix_lo, pix_hi):
+    """Initialise pixels ``[pix_lo, pix_hi)`` from the loaded first frame (``AKFEngine.start``):
+    L̂ = L^A, P = ``p0``, tu = ``t_init``; a pixel clipped in that frame (β = 0, ``A_KLOG`` ≠ 0)
+    P = ``p_cens``, and a clipped dark one (``A_KLOG`` < 0, ``has_off``) P = max(w², ``p0``)
+    with w = L^A - ``log_off`` (the interval ln I0 <= L <= L^A as one standard deviation).
+    The numpy column operations it replaces, in one pass per row band: the same bits."""
+    for pix in range(pix_lo, pix_hi):
+        la = S[pix, A_LA]
+        S[pix, A_L] = la
+        pp = p0
+        kl = S[pix, A_KLOG]
+        if S[pix, A_BETA] == 0.0 and kl != 0.0:
+            pp = p_cens
+            if has_off and kl < 0.0:
+                w = la - log_off
+                ww = w * w
+                pp = p0 if ww < p0 else ww  # np.maximum's result, NaN included
+        S[pix, A_P] = pp
+        S[pix, A_TU] = t_init
+    return pix_hi - pix_lo
+
+
+@njit(cache=True, nogil=True)
+def split_records(s64, i0, i1, t, x, y, p, width, height):
+    """Columns ``t, x, y, p`` of the ``EVENT_DTYPE`` records ``[i0, i1)``, from their int64 view
+    ``s64`` (two words per record: t, then x | y << 16 | p << 32, little-endian); returns 1
+    when a record of the range is out of time order (against the record before it, ``i0 - 1``
+    included) or off the (``height``, ``width``) sensor, else 0. Ranges in parallel threads
+    fill the columns of a whole recording (``EventArrays.from_structured``)."""
+    bad = 0
+    if i0 > 0 and i0 < i1:
+        bad |= s64[2 * i0] < s64[2 * i0 - 2]
+    for i in range(i0, i1):
+        tv = s64[2 * i]
+        v = s64[2 * i + 1]
+        xx = v & 0xFFFF
+        yy = (v >> 16) & 0xFFFF
+        t[i] = tv
+        x[i] = np.uint16(xx)
+        y[i] = np.uint16(yy)
+        p[i] = np.int8((v << 24) >> 56)  # byte 4, sign-extended
+        bad |= (xx >= width) | (yy >= height)
+    for i in range(i0 + 1, i1):
+        bad |= s64[2 * i] < s64[2 * i - 2]
+    return bad
+
+
+@njit(cache=True, nogil=True)
+def reverse_columns(t, x, y, p, m1, i0, i1, rt, rx, ry, rp):
+    """Events ``[i0, i1)`` reversed into ``rt, rx, ry, rp`` at ``n - 1 - i``: time ``m1 - t``,
+    polarity negated (the two-sided filter's backward pass, :func:`..smoother.reverse_events`)."""
+    n = t.shape[0]
+    for i in range(i0, i1):
+        j = n - 1 - i
+        rt[j] = m1 - t[i]
+        rx[j] = x[i]
+        ry[j] = y[i]
+        rp[j] = -p[i]
+    return i1 - i0
+
+
 def padded_te(height: int, width: int, t_init: int, dtype=np.int64) -> np.ndarray:
     """Last-event times for the AKF kernels: ``(height + 2) * (width + 2)``, all ``t_init``.
 
@@ -228,6 +320,8 @@ def padded_te(height: int, width: int, t_init: int, dtype=np.int64) -> np.ndarra
     border is never written and holds the start time, which no in-sensor time is below, so the
     3×3 maximum over the padded window equals the maximum over the window clipped at the border.
     """
+    if t_init == 0:  # pages mapped on first touch: by the worker that zeroes or fills its own array
+        return np.zeros((height + 2) * (width + 2), dtype=dtype)
     return np.full((height + 2) * (width + 2), t_init, dtype=dtype)
 
 
@@ -710,6 +804,14 @@ def aligned_state(n_pixels: int, n_fields: int) -> np.ndarray:
     raw = np.zeros(n_pixels * n_fields + 8, dtype=np.float64)
     off = (-raw.ctypes.data % 64) // 8
     return raw[off:off + n_pixels * n_fields].reshape(n_pixels, n_fields)
+
+
+@njit(cache=True, nogil=True)
+def count_pixel_events_indexed(y, x, i0, idx, m, width, cnt):
+    """``cnt[y·width + x] += 1`` for the events ``i0 + idx[:m]`` (one row band, :func:`band_select`)."""
+    for k in range(m):
+        i = i0 + np.int64(idx[k])
+        cnt[np.int64(y[i]) * width + np.int64(x[i])] += np.float32(1.0)
 
 
 @njit(cache=True, nogil=True)

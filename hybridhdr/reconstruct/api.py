@@ -10,11 +10,12 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.limits import check_fps_outputs, check_output_count, check_sensor_size
 from ..camera import CameraProfile
 from ..camera.profile import load_profile
-from ..events import SensorSize, events_fields
+from ..events import EVENT_DTYPE, SensorSize, events_fields
 from ..model import Frames, Recording
 from . import _engine as E
 from .augment import AugmentedMeasurements, AugmentParams
@@ -135,7 +136,7 @@ def make_params(method: str, params=None):
 
 # -- sources ------------------------------------------------------------------------------------
 
-def _open_source(source):
+def _open_source(source, n_workers: int = 1):
     """(sensor_size, frames, chunk iterator factory, closer, declared event count or None, the
     opened source: the Recording or the reader, whose metadata, time range and stored threshold
     map are read once) for a Recording, reader or path."""
@@ -144,8 +145,7 @@ def _open_source(source):
         ss = source.sensor_size
 
         def chunks(n):
-            for i in range(0, ev.shape[0], n):
-                yield events_fields(ev[i:i + n])
+            return _RecordChunks(ev, n, n_workers)
         return ss, source.frames, chunks, (lambda: None), _declared_event_count(source), source
     reader = source
     close = (lambda: None)
@@ -170,6 +170,46 @@ def _open_source(source):
                 if len(ev):
                     yield events_fields(ev)
     return ss, frames, chunks, close, _declared_event_count(reader), reader
+
+
+class _RecordChunks:
+    """``(t, x, y, p)`` chunks of ``n`` in-memory structured events, each split into columns by
+    ``n_workers`` threads in the consumer's thread when it asks for it (``prefetch = False``: the
+    driver starts no reading thread, which on a many-core machine would be one thread copying
+    for all the workers, and a hand-off per chunk)."""
+
+    prefetch = False
+
+    def __init__(self, ev, n: int, n_workers: int):
+        self.ev, self.n, self.n_workers = ev, int(n), int(n_workers)
+
+    def __iter__(self):
+        ev, n = self.ev, self.n
+        for i in range(0, ev.shape[0], n):
+            yield _record_columns(ev[i:i + n], self.n_workers)
+
+
+def _record_columns(ev, n_workers: int = 1):
+    """Contiguous ``(t, x, y, p)`` of structured events: contiguous ``EVENT_DTYPE`` records in one
+    pass, split over ``n_workers`` threads (:func:`~hybridhdr.reconstruct._kernels.split_records`;
+    the checks come later, in the driver), anything else through :func:`events_fields`."""
+    from . import _kernels as K
+    from .event_arrays import map_ranges
+    n = ev.shape[0]
+    if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
+        return events_fields(ev)
+    tm = PH.ACTIVE
+    c0 = PH.now() if tm is not None else 0
+    t = np.empty(n, np.int64)
+    x = np.empty(n, np.uint16)
+    y = np.empty(n, np.uint16)
+    p = np.empty(n, np.int8)
+    s64 = ev.view(np.int64)
+    big = np.iinfo(np.int64).max  # no bounds here: the driver and engines check what they use
+    map_ranges(n, n_workers, lambda i0, i1: K.split_records(s64, i0, i1, t, x, y, p, big, big))
+    if tm is not None:
+        tm.add("read_split", c0, "parallel")  # split over the workers, in the driving thread
+    return t, x, y, p
 
 
 def _declared_event_count(source) -> int | None:
@@ -396,7 +436,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
         check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
     if isinstance(frame_time_offset_us, bool) or not isinstance(frame_time_offset_us, (int, np.integer)):
         raise TypeError(f"frame_time_offset_us must be an int (µs), got {type(frame_time_offset_us).__name__}")
-    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source)
+    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source, int(n_workers))
     events = None
     try:
         if frame_time_offset_us and frames is not None and len(frames):
@@ -442,7 +482,16 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                      and frames is not None and len(frames) > 0)
         if two_sided:
             if events is None:
-                events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+                tm = PH.ACTIVE
+                c0 = PH.now() if tm is not None else 0
+                if isinstance(opened, Recording):  # in memory: columns split in n_workers threads
+                    events = EventArrays.from_structured(opened.events, shape, n_workers=int(n_workers))
+                    if tm is not None:
+                        tm.add("read_all", c0, "parallel")
+                else:
+                    events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
+                    if tm is not None:
+                        tm.add("read_all", c0, "serial")
             prof = load_profile(profile)
             if info is not None:
                 info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict(),
@@ -454,12 +503,16 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
             engines = []
 
             def make_engine(fr, ev, backward, n_workers=n_workers):  # a pass's share of the workers
+                tm = PH.ACTIVE
+                c0 = PH.now() if tm is not None else 0
                 pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
                 e = _build_engine(method, pp, shape, fr, "forward", prof, n_workers, None, events=ev,
                                   augment=aug if use_aug else None, device=device)[0]
                 if thr is not None:
                     e.set_thresholds(*((thr[1], thr[0]) if backward else thr))
                 engines.append(e)
+                if tm is not None:
+                    tm.add("build", c0, "serial")
                 return e
             if device == "cuda":  # the same two-filter smoother on the GPU (reconstruct.cuda)
                 from .cuda import cuda_two_sided_iter
@@ -476,8 +529,12 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 if use_aug and len(stats) == 2 and all(s is not None for s in stats):
                     info["augmentation"] = dict(stats[1].to_dict(), backward=stats[0].to_dict())
             return
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
                                      events=events, augment=aug if use_aug else None, device=device)
+        if tm is not None:
+            tm.add("build", c0, "serial")
         if thr is not None:
             if not hasattr(engine, "set_thresholds"):
                 raise ValueError(f"method {method!r} does not take a per-pixel threshold map")
@@ -635,5 +692,19 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         imgs.append(img)
     method = resolve_method(method)
     shape = imgs[0].shape if imgs else (0, 0)
-    frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
+    tm = PH.ACTIVE
+    c0 = PH.now() if tm is not None else 0
+    if imgs and all(im.shape == imgs[0].shape and im.dtype == np.float32 for im in imgs):
+        # one array of all outputs, each worker copying its rows of every image
+        from .event_arrays import map_ranges
+        frames = np.empty((len(imgs),) + imgs[0].shape, np.float32)
+
+        def rows(r0, r1):
+            for k, im in enumerate(imgs):
+                frames[k, r0:r1] = im[r0:r1]
+        map_ranges(shape[0], n_workers, rows, min_part=8)
+    else:
+        frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
+    if tm is not None:
+        tm.add("collect", c0, "parallel")
     return Video(frames, np.asarray(ts, np.int64), method, info.pop("params", {}), info)

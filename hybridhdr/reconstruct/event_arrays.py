@@ -11,7 +11,29 @@ from __future__ import annotations
 import numpy as np
 
 from .._util.checks import check_shape
+from ..events import EVENT_DTYPE
 from . import _augment_kernels as AK
+from . import _kernels as K
+
+#: events per thread below which the whole-array passes (split, reversal) stay in one thread
+PARALLEL_MIN_EVENTS = 1 << 18
+
+
+def map_ranges(n: int, n_workers: int, fn, min_part: int | None = None) -> list:
+    """``fn(i0, i1)`` over ``n_workers`` contiguous parts of ``range(n)``, in threads (the Numba
+    kernels or numpy copies it calls release the GIL); the last part runs in the caller. Parts
+    below ``min_part`` (default :data:`PARALLEL_MIN_EVENTS`) are merged, so short arrays take
+    one thread."""
+    min_part = PARALLEL_MIN_EVENTS if min_part is None else int(min_part)
+    k = max(1, min(int(n_workers), n // max(min_part, 1)))
+    edges = [round(i * n / k) for i in range(k + 1)]
+    if k == 1:
+        return [fn(0, n)]
+    from concurrent.futures import ThreadPoolExecutor
+    with ThreadPoolExecutor(k - 1, thread_name_prefix="hybridhdr-ranges") as ex:
+        futs = [ex.submit(fn, edges[i], edges[i + 1]) for i in range(k - 1)]
+        last = fn(edges[k - 1], edges[k])
+        return [f.result() for f in futs] + [last]
 
 __all__ = ["EventArrays", "StreamingEventArrays"]
 
@@ -43,9 +65,30 @@ class EventArrays:
         _check_order_and_bounds(self.t, self.x, self.y, self.shape)
 
     @classmethod
-    def from_structured(cls, events, shape) -> "EventArrays":
-        """From an ``EVENT_DTYPE`` structured array."""
-        return cls(events["t"], events["x"], events["y"], events["p"], shape)
+    def from_structured(cls, events, shape, n_workers: int = 1) -> "EventArrays":
+        """From an ``EVENT_DTYPE`` structured array; contiguous records are split into columns and
+        checked in one pass by ``n_workers`` threads (:func:`_kernels.split_records`)."""
+        n = int(events.shape[0]) if getattr(events, "ndim", 0) == 1 else -1
+        if n <= 0 or events.dtype != EVENT_DTYPE or not events.flags.c_contiguous:
+            return cls(events["t"], events["x"], events["y"], events["p"], shape)
+        h, w = int(shape[0]), int(shape[1])
+        t = np.empty(n, np.int64)
+        x = np.empty(n, np.uint16)
+        y = np.empty(n, np.uint16)
+        p = np.empty(n, np.int8)
+        s64 = events.view(np.int64)
+        bad = map_ranges(n, n_workers, lambda i0, i1: K.split_records(s64, i0, i1, t, x, y, p, w, h))
+        if any(bad):  # the plain constructor names the fault
+            return cls(events["t"], events["x"], events["y"], events["p"], shape)
+        return cls._trusted(t, x, y, p, shape)
+
+    @classmethod
+    def _trusted(cls, t, x, y, p, shape) -> "EventArrays":
+        """Arrays already contiguous, of the right dtypes, time-sorted and on the sensor."""
+        self = cls.__new__(cls)
+        self.t, self.x, self.y, self.p = t, x, y, p
+        self.shape = (int(shape[0]), int(shape[1]))
+        return self
 
     @classmethod
     def from_chunks(cls, chunks, shape) -> "EventArrays":

@@ -90,6 +90,7 @@ class SegmentCodes:
     rinv: np.ndarray
     censor: np.ndarray
     la_step: float = 0.0
+    intensity: np.ndarray | None = None  # per-code linear intensity (eq. 3), when known
 
 
 def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
@@ -225,7 +226,8 @@ class FrameMeasurements:
                if self.interpolate_covariance and not last else code[:0])
         _, rbar_l, logf_l, rinv_l, cens_l = self._lut
         return SegmentCodes(code, nxt, int(self.profile.max_code), rbar_l, logf_l, rinv_l,
-                            cens_l if self.saturation == "bound" else cens_l[:0], self.event_step)
+                            cens_l if self.saturation == "bound" else cens_l[:0], self.event_step,
+                            intensity=self._lut[0])
 
     def segment(self, k: int) -> Segment:
         """Measurement on ``[τ_k, τ_{k+1})``: L^F (eq. 8), 1/R (eq. 9), β of eq. 7."""

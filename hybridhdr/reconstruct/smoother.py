@@ -45,10 +45,11 @@ from typing import Callable, Iterator
 
 import numpy as np
 
+from .._util import phases as PH
 from ..model import Frames
 from . import _engine as E
 from . import _kernels as K
-from .event_arrays import EventArrays
+from .event_arrays import EventArrays, map_ranges
 
 __all__ = ["reverse_events", "reverse_frames", "fuse", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
 
@@ -121,10 +122,20 @@ class _Store:
         self.block = None
 
 
-def reverse_events(ev: EventArrays, t_mirror_us: int) -> EventArrays:
-    """Events in reversed time ``t' = t_mirror_us - 1 - t``, reversed order, negated polarity."""
-    t = (np.int64(t_mirror_us) - 1) - ev.t[::-1]
-    return EventArrays(t, ev.x[::-1], ev.y[::-1], (-ev.p[::-1]).astype(np.int8), ev.shape)
+def reverse_events(ev: EventArrays, t_mirror_us: int, n_workers: int = 1) -> EventArrays:
+    """Events in reversed time ``t' = t_mirror_us - 1 - t``, reversed order, negated polarity
+    (``n_workers`` threads, each a contiguous part: :func:`_kernels.reverse_columns`)."""
+    n = len(ev)
+    m1 = int(t_mirror_us) - 1
+    if n and (ev.t[0] < m1 - (1 << 62) or ev.t[-1] > m1 + (1 << 62)):  # keep m1 - t inside int64
+        raise ValueError(f"cannot reverse event times {int(ev.t[0])}..{int(ev.t[-1])} about {m1} µs")
+    rt = np.empty(n, np.int64)
+    rx = np.empty(n, np.uint16)
+    ry = np.empty(n, np.uint16)
+    rp = np.empty(n, np.int8)
+    map_ranges(n, n_workers, lambda i0, i1: K.reverse_columns(ev.t, ev.x, ev.y, ev.p, np.int64(m1), i0, i1,
+                                                                rt, rx, ry, rp))
+    return EventArrays._trusted(rt, rx, ry, rp, ev.shape)  # a reversed sorted stream is sorted
 
 
 def reverse_frames(frames: Frames, t_mirror_us: int) -> Frames:
@@ -199,8 +210,12 @@ class _StateEngine:
             var = np.empty(e.n, np.float32)
         else:
             lg, var = self.dest(int(t_us))
+        tm = PH.ACTIVE
+        c0 = PH.now() if tm is not None else 0
         e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
                                                               lo * W, hi * W), e.n)
+        if tm is not None:
+            tm.add("output", c0, "parallel")
         self.last = (lg, var)
         return lg
 
@@ -230,24 +245,51 @@ class _CarriedVariance:
         self.cnt = np.zeros(self.n_pix, np.float32)  # exact up to 2**24 events per pixel and frame
         self.j = -1  # the frame the counts run from
         self.pos = 0  # events counted up to this index
+        self._bufs: dict = {}  # per band: reused int32 index buffers
 
-    def add_to(self, t_us: int, var: np.ndarray) -> np.ndarray:
+    def add_to(self, t_us: int, var: np.ndarray, engine=None) -> np.ndarray:
         """``var + q·n + s·Δt`` at ``t_us``, in place (float32 ``var``, this output's own array);
-        calls come in increasing time."""
+        calls come in increasing time. With ``engine`` (a row-band engine: its ``_map_bands``),
+        each band counts and adds its own rows (:func:`_kernels.band_select`, then
+        :func:`_kernels.count_pixel_events_indexed`): the same float32 sums, as each pixel's
+        count is exact and added in the same order."""
         j = int(np.searchsorted(self.tau, t_us, side="right")) - 1
         if j < 0:
             return var
         t_ev = self.ev.t
-        if j != self.j:
+        reset = j != self.j
+        if reset:
             self.j = j
-            self.cnt[:] = 0.0
             self.pos = int(np.searchsorted(t_ev, self.tau[j], side="left"))
+        pos = self.pos
         end = int(np.searchsorted(t_ev, t_us, side="left"))
-        if end > self.pos:
-            K.count_pixel_events(self.ev.y, self.ev.x, self.pos, end, self.ev.shape[1], self.cnt)
-            self.pos = end
         age_s = (int(t_us) - int(self.tau[j])) * 1e-6
-        K.add_carried_variance(var, self.cnt, self.q, self.s * age_s)  # in place: var is this output's own
+        W = self.ev.shape[1]
+        ev, cnt, q, sa = self.ev, self.cnt, self.q, self.s * age_s
+        bufs = self._bufs
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            if reset:
+                cnt[a:z] = 0.0
+            if end > pos:
+                if lo == 0 and hi == ev.shape[0]:
+                    K.count_pixel_events(ev.y, ev.x, pos, end, W, cnt)
+                else:
+                    idx = bufs.get(b)
+                    if idx is None or idx.shape[0] < end - pos:
+                        idx = bufs[b] = np.empty(max(end - pos, 2 * (0 if idx is None else idx.shape[0])),
+                                                 np.int32)
+                    m = K.band_select(ev.y, pos, end, lo, hi, idx)
+                    K.count_pixel_events_indexed(ev.y, ev.x, pos, idx, m, W, cnt)
+            K.add_carried_variance(var[a:z], cnt[a:z], q, sa)  # in place: var is this output's own
+        if engine is None:
+            band(0, 0, self.ev.shape[0])
+        else:
+            if end - pos >= 1 << 31:
+                raise ValueError(f"{end - pos} events between two outputs: too many for the parallel count (< 2**31)")
+            engine._map_bands(band, self.n_pix + (end - pos))
+        self.pos = max(end, pos)
         return var
 
 
@@ -266,9 +308,18 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
         if times.size == 0:
             return
         clock = E.OutputClock(times_us=times)
-        for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress, clamp=False):
+        # no prefetching thread: a chunk of events in memory is a slice, nothing to read ahead (a
+        # StreamingEventArrays fills itself in its own thread)
+        for t, _ in E.drive(eng, events.chunks(int(chunk_events)), clock, progress=progress, clamp=False,
+                            prefetch=False):
             lg, var = eng.last
-            yield t, lg, (var if acc is None else acc.add_to(int(t), var))
+            if acc is not None:
+                tm = PH.ACTIVE
+                c0 = PH.now() if tm is not None else 0
+                var = acc.add_to(int(t), var, eng)
+                if tm is not None:
+                    tm.add("carried_variance", c0, "parallel")
+            yield t, lg, var
     finally:
         eng.close()
 
@@ -299,8 +350,14 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
     t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
     mirror = t_lo + t_hi + 1  # reversed times stay in [t_lo, t_hi]
-    rev_ev = reverse_events(events, mirror)
+    tm = PH.ACTIVE
+    c0 = PH.now() if tm is not None else 0
+    rev_ev = reverse_events(events, mirror, n_workers=int(n_workers or 1))
+    if tm is not None:
+        c0 = tm.add("reverse", c0, "parallel")
     rev_fr = reverse_frames(frames, mirror)
+    if tm is not None:
+        tm.add("reverse_frames", c0, "serial")
     times = np.asarray(times, dtype=np.int64)
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
     cv_b = cv_f = None
@@ -324,12 +381,23 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
         info["n_output_pixels"] = stats["n_output_pixels"]
 
 
-def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None) -> np.ndarray:
-    """The fused linear image (float32, flat) of two pass estimates; counts the clamped pixels."""
+def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None, engine=None) -> np.ndarray:
+    """The fused linear image (float32, flat) of two pass estimates; counts the clamped pixels.
+    With ``engine`` (idle in the calling thread), each of its row bands fuses its own pixels."""
+    tm = PH.ACTIVE
+    c0 = PH.now() if tm is not None else 0
     img = np.empty(lf.shape[0], np.float32)
-    n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
+    if engine is None:
+        n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
+    else:
+        W = engine.shape[1]
+        n = sum(engine._map_bands(lambda b, lo, hi: K.fuse_to_linear(
+            lf[lo * W:hi * W], pf[lo * W:hi * W], lb[lo * W:hi * W], pb[lo * W:hi * W], offset, K.MIN_INTENSITY,
+            img[lo * W:hi * W]), lf.shape[0]))
     if stats is not None:
-        stats["n_clamped"] += n
+        stats["n_clamped"] += int(n)
+    if tm is not None:
+        tm.add("fuse", c0, "serial" if engine is None else "parallel")
     return img
 
 
@@ -349,7 +417,9 @@ def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, pro
             have_b[i] = True
             stats["backward_outputs"] += 1
         fr, ev, tms, cv = passes[False]
-        fwd = _run_pass(lambda: make_engine(fr, ev, False), ev, tms, chunk_events, progress, cv)
+        held: dict = {}  # the forward engine: its row bands fuse each output (idle between its outputs)
+        fwd = _run_pass(lambda: held.setdefault("e", make_engine(fr, ev, False)), ev, tms, chunk_events, progress,
+                        cv)
         nxt = next(fwd, None)
         for i, t in enumerate(times):
             t = int(t)
@@ -360,7 +430,7 @@ def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, pro
                 lf = pf = None
             if lf is not None and have_b[i]:
                 lb, pb = store.get(i)
-                img = _fuse(lf, pf, lb, pb, offset, stats)
+                img = _fuse(lf, pf, lb, pb, offset, stats, held.get("e"))
                 stats["outputs_fused"] += 1
             elif lf is not None or have_b[i]:  # one pass only: fusing it with itself is the identity
                 l1, p1 = (lf, pf) if lf is not None else store.get(i)
@@ -416,7 +486,7 @@ def _concurrent(shape, passes, make_engine, times, mirror, offset, chunk_events,
 
         def fuse_store(i, lg, var, o):
             lf, pf, lb, pb = (o[0], o[1], lg, var) if backward else (lg, var, o[0], o[1])
-            imgs.put(i, _fuse(lf, pf, lb, pb, offset, st))
+            imgs.put(i, _fuse(lf, pf, lb, pb, offset, st, eng))  # this pass's bands
             est[not backward].drop(i)
             with lock:
                 state[i] |= 4

@@ -190,3 +190,40 @@ def test_parallel_chunk_read_equals_h5py(tmp_path):
         w.write_events(ev[:100])
     with h5py.File(p2) as f:
         assert read_columns({"t": f["events/t"]}, 0, 100) is None  # another filter: h5py reads it
+
+
+def test_events_ok_fused_check_names_the_first_bad_record():
+    """The one-pass check (``_write_kernels.events_ok``) against numpy's per-record flags: every
+    kind of fault (time order, polarity, x, y), alone and with a second fault after it, at
+    random places including the first and last record, with and without a sensor size."""
+    rng = np.random.default_rng(7)
+    n = 20_000
+    ev = hh.make_events(np.sort(rng.integers(0, 10**6, n)), rng.integers(0, 64, n), rng.integers(0, 48, n),
+                               rng.choice([-1, 1], n))
+
+    def first_bad(e, w, h):
+        bad = np.zeros(len(e), bool)
+        bad[1:] = e["t"][1:] < e["t"][:-1]
+        bad |= (e["p"] != 1) & (e["p"] != -1)
+        if w > 0:
+            bad |= (e["x"] >= w) | (e["y"] >= h)
+        return int(np.argmax(bad)) if bad.any() else -1
+
+    assert WK.events_ok(ev.view(np.int64), 64, 48) == -1
+    assert WK.events_ok(ev[:0].view(np.int64), 64, 48) == -1
+    for k in range(60):
+        e = ev.copy()
+        i = (0, n - 1)[k % 2] if k < 10 else int(rng.integers(0, n))
+        kind = k % 5
+        if kind == 0:
+            e["t"][i] = -1 if i else e["t"][1] + 1  # record 0 fails through record 1's order
+        elif kind == 1:
+            e["x"][i] = 64
+        elif kind == 2:
+            e["y"][i] = 48
+        else:
+            e["p"][i] = (0, 2)[kind - 3]
+        if k % 3 == 0:
+            e["y"][min(n - 1, i + 5)] = 60
+        for w, h in ((64, 48), (0, 0), (70, 61)):
+            assert WK.events_ok(e.view(np.int64), w, h) == first_bad(e, w, h), (k, i, w, h)

@@ -387,7 +387,7 @@ def test_band_split_equals_band_select_per_band(jit, nb):
 
 
 def test_akf_worker_error_does_not_hang_the_other_workers(monkeypatch):
-    """If one worker fails before the split barrier, the others are released and the error is raised."""
+    """If one worker fails in its split, the others (waiting for its part) are released and the error is raised."""
     import threading
     h, w, n = 20, 10, 60_000
     t, x, y, p = _stream(n, h, w, seed=41)

@@ -368,7 +368,7 @@ def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call
     rec = _rec(8)
     before = threading.active_count()
 
-    def boom(self, t_us, var):
+    def boom(self, t_us, var, engine=None):
         raise RuntimeError("boom in a pass")
     monkeypatch.setattr(sm._CarriedVariance, "add_to", boom)
     with pytest.raises(RuntimeError, match="boom in a pass"):
