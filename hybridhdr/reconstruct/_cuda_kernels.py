@@ -31,8 +31,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import config as _nb_config
-from numba import cuda
+
+if not hasattr(np, "row_stack"):  # numba-cuda 0.30 with NumPy >= 2.5 (cuda.numpy_compat, which imports us)
+    np.row_stack = np.vstack
+from numba import config as _nb_config  # noqa: E402
+from numba import cuda  # noqa: E402
 
 from ._kernels import (A_BETA, A_KLOG, A_L, A_LA, A_LASTEP, A_P, A_RINV, A_TU, C_ALPHA, C_L, C_LF, C_TU)
 

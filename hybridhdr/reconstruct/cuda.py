@@ -45,7 +45,17 @@ MAX_WINDOW = 1 << 24
 _STAGE_MIN = 1 << 16
 
 
+def numpy_compat() -> None:
+    """numba-cuda 0.30 (the GPU host's) registers an overload of ``np.row_stack`` when its typing
+    context first loads, and NumPy 2.5 removed that alias (it was ``np.vstack``): every kernel
+    compile then failed with AttributeError on an H200 with numpy 2.5.2. Restore the alias, only
+    when it is missing, before anything compiles."""
+    if not hasattr(np, "row_stack"):
+        np.row_stack = np.vstack
+
+
 def _cuda():
+    numpy_compat()
     from numba import config, cuda
     # small images launch few blocks on purpose (the grid-stride loops are correct for any size):
     # no NumbaPerformanceWarning per launch (which a warnings-as-errors test run would raise)
