@@ -217,6 +217,7 @@ def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPL
     anchor : {"max", "p99.9"}
         Which reference level maps to the display's peak luminance.
     """
+    _import_pycvvdp()  # CVVDPNotAvailable (an ImportError) first when cvvdp or PyTorch is missing
     import torch
     t = np.asarray(test, np.float64)
     r = np.asarray(reference, np.float64)
