@@ -44,3 +44,24 @@ def test_demo_note_says_the_perceptual_score_was_skipped(no_torch):
 def test_demo_note_is_silent_when_cvvdp_is_available(monkeypatch):
     monkeypatch.setattr(cvvdp_metric, "cvvdp_available", lambda: True)
     assert demo.perceptual_score_note() is None
+
+
+def _jod_rows(note, jods):
+    return [{"dataset": "d", "method_name": m, "status": "ok", "ds.noise": x, "jod": j, "jod_note": note,
+             "n_nonfinite": 0} for m in ("akf", "cf") for x, j in enumerate(jods)]
+
+
+def test_stability_of_an_uncomputed_jod_is_na_not_a_failure(tmp_path):
+    from hybridhdr.evaluate import charts
+
+    na = charts.stability_curves(_jod_rows(metrics.JOD_NA, [math.nan] * 3), dataset="d", axis="noise",
+                                 metric="jod", relative_bound=0.8)
+    assert all(c["failed_at"] is None and c["reason"] == metrics.JOD_NA for c in na.values()), na
+    fig, ax = charts.plot_stability(_jod_rows(metrics.JOD_NA, [math.nan] * 3), dataset="d", axis="noise",
+                                    metric="jod", relative_bound=0.8)
+    assert any(metrics.JOD_NA in t.get_text() for t in ax.texts) and not ax.lines   # said, not drawn
+    fig.savefig(tmp_path / "na.png")
+    # a JOD that was computed and came out NaN (non-finite pixels) is still a failure, at its point
+    bad = charts.stability_curves(_jod_rows("non-finite pixels", [9.5, math.nan, 9.0]), dataset="d",
+                                  axis="noise", metric="jod", relative_bound=0.8)
+    assert all(c["failed_at"] == 1 for c in bad.values()), bad
