@@ -1,24 +1,38 @@
 # Two commands set everything up on a fresh machine:
-#   make demo   - create .venv, install hybridhdr, run the main job on a built-in default
-#   make test   - create .venv, install with test extras, run the test suite
+#   make demo   - create .venv, install hybridhdr[demo] (no PyTorch), run the main job on a built-in default
+#   make test   - create .venv, install with test extras (CPU PyTorch), run the test suite
+# Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PIP := $(VENV)/bin/pip
+CONSTRAINTS ?= constraints/ci.txt
+# torch and torchvision come together from the PyTorch CPU index (matched CPU builds); where it cannot
+# be reached pip takes them from its other sources (a local wheel cache); TORCH_INDEX= skips it
+TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
+PIPC := $(PIP) install --quiet -c $(CONSTRAINTS)
 
-.PHONY: demo test venv install install-test bench clean
+.PHONY: demo test venv install install-test bench clean constraints
 
 $(VENV)/.created:
 	$(PYTHON) -m venv $(VENV)
-	$(PIP) install --quiet --upgrade pip
+	$(PIPC) --upgrade pip
 	touch $@
 
-$(VENV)/.installed: $(VENV)/.created pyproject.toml
-	$(PIP) install --quiet -e ".[all]"
+$(VENV)/.installed: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
+	$(PIPC) -e ".[demo]"
 	touch $@
 
-$(VENV)/.installed-test: $(VENV)/.created pyproject.toml
-	$(PIP) install --quiet -e ".[test,bench]"
+$(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
+	@idx="$(TORCH_INDEX)"; \
+	if [ -n "$$idx" ] && ! $(PY) tools/reachable.py "$$idx/torch/"; then \
+	    echo "$$idx cannot be reached: torch and torchvision from pip's other sources (versions as constrained)"; idx=; fi; \
+	echo $(PIPC) $${idx:+--extra-index-url $$idx} torch torchvision; \
+	$(PIPC) $${idx:+--extra-index-url $$idx} torch torchvision
+	touch $@
+
+$(VENV)/.installed-test: $(VENV)/.torch pyproject.toml $(CONSTRAINTS)
+	$(PIPC) -e ".[test,bench]"
 	touch $@
 
 install: $(VENV)/.installed
@@ -32,6 +46,10 @@ test: $(VENV)/.installed-test
 
 bench: $(VENV)/.installed-test
 	for b in benchmarks/*.py; do $(PY) $$b --quick || exit 1; done
+
+# regenerate constraints/ci.txt from pyproject.toml's ranges (tools/update_constraints.py)
+constraints:
+	$(PYTHON) tools/update_constraints.py
 
 clean:
 	rm -rf $(VENV) demo_out .pytest_cache .hypothesis *.egg-info

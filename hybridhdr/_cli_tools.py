@@ -235,7 +235,7 @@ def run_convert(args) -> int:
 def run_demo(args) -> int:
     import warnings
 
-    from .evaluate.demo import demo_step
+    from .evaluate.demo import demo_step, perceptual_score_note
     from .evaluate.paper import demo_evaluate
     from .formats import DataDropWarning, formats, read, write
     from .formats.container import write_recording
@@ -284,6 +284,8 @@ def run_demo(args) -> int:
     print("\nreconstruction:")
     print(demo_step(rec, out))
     print("\nevaluation (simulate, reconstruct, score):", flush=True)
+    if (note := perceptual_score_note()) is not None:
+        print(note, flush=True)
     try:  # the renderer is chosen here, once: its one-line note (if any) is not repeated by the workers
         select_variant()
     except ImportError:  # no Mitsuba: demo_evaluate says so

@@ -57,6 +57,14 @@ def _ok(r) -> bool:
     return str(r.get("status", "")) == "ok"
 
 
+def _not_computed(r, metric: str) -> str:
+    """Why an ok row has no ``metric`` by design (its package is not installed: JOD without
+    cvvdp/PyTorch), else ''. Such points are n/a, not failures."""
+    from .metrics import JOD_NA
+    note = str(r.get(f"{metric}_note") or "") if _ok(r) else ""
+    return note if note == JOD_NA else ""
+
+
 def outside_legend(ax, **kw):
     """Legend below the axes, outside the plotting area, so it never covers data or failure
     markers (``loc="best"`` did); callers' ``tight_layout`` / ``bbox_inches="tight"`` make room."""
@@ -202,7 +210,9 @@ def stability_curves(rows, *, dataset: str, axis: str, metric: str = "ssim", bou
 
     Returns
     -------
-    dict method_name -> {"x", "y", "nonfinite", "failed_at", "reason"}
+    dict method_name -> {"x", "y", "nonfinite", "failed_at", "reason"}; points whose metric was
+    not computed by design (JOD without PyTorch) are NaN without a failure, and a curve made only
+    of them has that note as its ``reason``.
     """
     if stress not in ("increasing", "decreasing"):
         raise ValueError(f"stress must be 'increasing' or 'decreasing', got {stress!r}")
@@ -237,11 +247,16 @@ def stability_curves(rows, *, dataset: str, axis: str, metric: str = "ssim", bou
                     failed_at, reason = x, str(r.get("status", "error"))
                 elif n_bad > 0:
                     failed_at, reason = x, f"{n_bad} NaN/Inf pixels"
+                elif _not_computed(r, metric):
+                    pass
                 elif not math.isfinite(y):
                     failed_at, reason = x, f"{metric} is NaN"
                 elif b is not None and ((y > b) if lower else (y < b)):
                     how = f"{relative_bound:g}× unstressed = {b:.4g}" if relative_bound is not None else f"{b:g}"
                     failed_at, reason = x, f"{metric} {y:.4g} {'>' if lower else '<'} bound {how}"
+        na = {_not_computed(r, metric) for _, r in pts}
+        if failed_at is None and len(na) == 1 and "" not in na:
+            reason = na.pop()
         out[name] = {"x": xs, "y": ys, "nonfinite": nf, "failed_at": failed_at, "reason": reason, "bound": b}
     return out
 
@@ -257,6 +272,17 @@ def plot_stability(rows, *, dataset: str, axis: str, metric: str = "ssim", bound
         fig = ax.figure
     curves = stability_curves(rows, dataset=dataset, axis=axis, metric=metric, bound=bound, better=better,
                               stress=stress, relative_bound=relative_bound)
+    # no curve has a value or a failure: the metric was not computed here (e.g. JOD without PyTorch)
+    na = bool(curves) and all(c["failed_at"] is None and not np.isfinite(np.asarray(c["y"], float)).any()
+                              for c in curves.values())
+    if na and (note := "; ".join(sorted({c["reason"] for c in curves.values()}))):
+        ax.text(0.5, 0.5, f"{_LABELS.get(metric, metric)}\n{note}", transform=ax.transAxes, ha="center",
+                va="center", fontsize=9, color="0.35")
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlabel(axis)
+        ax.set_title(title or f"stability: {axis}", fontsize=9)
+        return fig, ax
     cmap = plt.get_cmap("tab10")
     for i, (name, c) in enumerate(curves.items()):
         xs, ys = np.asarray(c["x"], float), np.asarray(c["y"], float)

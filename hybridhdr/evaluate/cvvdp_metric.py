@@ -16,10 +16,13 @@ frame as an image (the mean of their JODs).
 
 Only cvvdp's base metric is used; it needs no download (its ML variants would fetch weights
 and are never called). ``pip install 'hybridhdr[evaluate]'`` installs it (``cvvdp`` on PyPI,
-on the CPU build of PyTorch). PyPI's torchvision is linked against CUDA PyTorch and cannot
-load beside the CPU build; cvvdp uses only torchvision's Gaussian blur (and imports, unused,
-an MLP class for its ML variant), so when torchvision cannot be imported this module supplies
-those two names from a small pure-PyTorch stand-in for the duration of cvvdp's import.
+with PyTorch >= 2.1). torchvision is used whenever it loads (torch and torchvision from one
+source at matched versions, e.g. the PyTorch CPU index). PyPI's torchvision is linked against
+CUDA PyTorch and cannot load beside a CPU build (a local wheel cache's ``+cpu`` torch, where
+the CPU index cannot be reached); cvvdp uses only torchvision's Gaussian blur (and imports,
+unused, an MLP class for its ML variant), so when torchvision cannot be imported this module
+supplies those two names from a small pure-PyTorch stand-in for the duration of cvvdp's import
+(tests/evaluate/test_cvvdp_torchvision.py runs both paths).
 """
 
 from __future__ import annotations
@@ -217,6 +220,7 @@ def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPL
     anchor : {"max", "p99.9"}
         Which reference level maps to the display's peak luminance.
     """
+    _import_pycvvdp()  # CVVDPNotAvailable (an ImportError) first when cvvdp or PyTorch is missing
     import torch
     t = np.asarray(test, np.float64)
     r = np.asarray(reference, np.float64)

@@ -10,7 +10,7 @@ from ..formats.images import tone_map, write_png_previews
 from ..reconstruct.api import reconstruct
 from .metrics import ssim
 
-__all__ = ["demo_step"]
+__all__ = ["demo_step", "perceptual_score_note"]
 
 
 def demo_step(recording, out_dir) -> str:
@@ -59,3 +59,17 @@ def demo_step(recording, out_dir) -> str:
         lines.append(f"  {method:4s} MSE {mse:.4g}  SSIM {ssim_ab:.3f}  (gain {gain:.3g}) -> "
                      f"{out / ('reconstruct_' + method)}")
     return "\n".join(lines)
+
+
+def perceptual_score_note() -> str | None:
+    """The line ``hybridhdr demo`` prints when it cannot compute the perceptual score, else None.
+
+    ColorVideoVDP (the JOD row of Table 1, the JOD panels of the charts) runs on PyTorch, which
+    ``make demo`` does not install (the ``demo`` extra); those cells then read ``n/a``.
+    """
+    from .cvvdp_metric import cvvdp_available
+
+    if cvvdp_available():
+        return None
+    return ("perceptual score skipped: the JOD (ColorVideoVDP) column and chart panels are n/a, since cvvdp "
+            "and PyTorch are not installed (pip install -e '.[evaluate]' adds them)")

@@ -21,7 +21,7 @@ def _torch():
         import torch
     except ImportError as e:
         raise ImportError("the learned methods (e2vid, firenet) need PyTorch: "
-                          "pip install 'hybridhdr[learned]' (torch==2.13.0)") from e
+                          "pip install 'hybridhdr[learned]' (torch>=2.1)") from e
     return torch
 
 
