@@ -213,3 +213,24 @@ def test_many_band_engine_gives_the_serial_bits(n_workers):
         states.append(eng.S.copy())
         eng.close()
     assert np.array_equal(states[0].view(np.int64), states[1].view(np.int64))
+
+
+@pytest.mark.parametrize("n_workers", [4, 6])
+def test_threaded_carried_variance_count_gives_the_serial_bits(monkeypatch, n_workers):
+    """Two-sided with threaded row bands in each pass (the count split by band, waiting per part)
+    against one worker; bands thread from 2,000 events or pixels on instead of 20,000."""
+    from hybridhdr.reconstruct import _engine as EN
+    from hybridhdr.reconstruct import smoother as SM
+    rec = _rec(n=40_000, h=40, w=30, seed=3)
+    ref = reconstruct(rec, "akf", fps=30.0, n_workers=1)
+    monkeypatch.setattr(EN, "PARALLEL_MIN_WORK", 2000)
+    calls = []
+    real = SM._CarriedVariance._split_count
+
+    def spy(self, *a, **k):
+        calls.append(1)
+        return real(self, *a, **k)
+    monkeypatch.setattr(SM._CarriedVariance, "_split_count", spy)
+    got = reconstruct(rec, "akf", fps=30.0, n_workers=n_workers)
+    assert calls, "the threaded count did not run"
+    assert np.array_equal(got.frames, ref.frames) and got.info["n_clamped"] == ref.info["n_clamped"]
