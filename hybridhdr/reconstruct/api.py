@@ -171,31 +171,23 @@ def _open_source(source, n_workers: int = 1):
 
 
 class _RecordChunks:
-    """``(t, x, y, p)`` chunks of ``n`` in-memory structured events.
+    """``(t, x, y, p)`` chunks of ``n`` in-memory structured events, each split into columns by
+    ``n_workers`` threads in the consumer's thread when it asks for it (``prefetch = False``: the
+    driver starts no reading thread, which on a many-core machine would be one thread copying
+    for all the workers, and a hand-off per chunk)."""
 
-    With two or more workers each chunk is split into columns by the ``n_workers`` threads, in
-    the consumer's thread when it asks for it (``prefetch`` False: the driver starts no reading
-    thread, which on a many-core machine would be one thread copying for all the workers, and a
-    hand-off per chunk). With one worker the driver's reading thread copies the chunks beside
-    it, on a core the filter leaves idle, the first ones short (n/16, n/8, ... n) so the filter
-    starts after a short copy.
-    """
+    prefetch = False
 
     def __init__(self, ev, n: int, n_workers: int):
         self.ev, self.n, self.n_workers = ev, int(n), int(n_workers)
-        self.prefetch = self.n_workers == 1
 
     def __iter__(self):
         ev, n = self.ev, self.n
-        i = 0
-        m = max(1, n // 16) if self.prefetch else n
-        while i < ev.shape[0]:
-            yield _record_columns(ev[i:i + m], self.n_workers, background=self.prefetch)
-            i += m
-            m = min(n, 2 * m)
+        for i in range(0, ev.shape[0], n):
+            yield _record_columns(ev[i:i + n], self.n_workers)
 
 
-def _record_columns(ev, n_workers: int = 1, background: bool = False):
+def _record_columns(ev, n_workers: int = 1):
     """Contiguous ``(t, x, y, p)`` of structured events: contiguous ``EVENT_DTYPE`` records in one
     pass, split over ``n_workers`` threads (:func:`~hybridhdr.reconstruct._kernels.split_records`;
     the checks come later, in the driver), anything else through :func:`events_fields`."""
@@ -213,8 +205,8 @@ def _record_columns(ev, n_workers: int = 1, background: bool = False):
     s64 = ev.view(np.int64)
     big = np.iinfo(np.int64).max  # no bounds here: the driver and engines check what they use
     map_ranges(n, n_workers, lambda i0, i1: K.split_records(s64, i0, i1, t, x, y, p, big, big))
-    if tm is not None:  # split over the workers in the driving thread, or beside it in the reading thread
-        tm.add("reader_busy", c0, "worker") if background else tm.add("read_split", c0, "parallel")
+    if tm is not None:
+        tm.add("read_split", c0, "parallel")  # split over the workers, in the driving thread
     return t, x, y, p
 
 
