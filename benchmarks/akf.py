@@ -20,8 +20,8 @@ two-sided and forward AKF in memory.
 
 Issue 30 adds the per-phase scaling study (:func:`scaling_study`): ``--workers 1,2,4,8,16``
 runs only it (10 M events at 346x260 and 6 M at 1280x720, 3 interleaved rounds: a few minutes on a
-16-core host), ``--quick`` runs it after the rest with 1 and 2 workers on 1 M events. Per case
-(forward, causal and two-sided AKF and CF at 346x260, forward and two-sided AKF at 1280x720, in
+16-core host), ``--quick`` runs it after the rest with 1 and 2 workers on 1 M events (3 rounds
+too). Per case (forward, causal and two-sided AKF and CF at 346x260, forward and two-sided AKF at 1280x720, in
 memory, 30 Hz outputs) it prints each phase's time, the measured serial fraction, Amdahl's
 projection to 8 and 16 workers, the measured speed-ups with the serial fraction they imply
 (Karp-Flatt), and whether every worker count gave the one-worker frames bit for bit; all of it
@@ -436,7 +436,7 @@ def main(argv=None) -> int:
         sc_n = [1_000_000, 1_000_000] if args.quick else [10_000_000, 6_000_000]
     if args.workers is not None:
         res = {"cpu_count": os.cpu_count(), "loadavg_start": loadavg(), "quick": bool(args.quick)}
-        scaling_study(workers, sc_n[0], sc_n[1], 2 if args.quick else 3, res)
+        scaling_study(workers, sc_n[0], sc_n[1], 3, res)
         res["loadavg_end"] = loadavg()
         print(json.dumps(res))
         return 0
@@ -609,7 +609,7 @@ def main(argv=None) -> int:
     except ImportError as e:  # container not available
         res["end_to_end_error"] = str(e)
     if args.quick:
-        scaling_study([1, 2], sc_n[0], sc_n[1], 2, res)
+        scaling_study([1, 2], sc_n[0], sc_n[1], 3, res)
     res["loadavg_end"] = loadavg()
     res["goals"] = {"akf_kernel_mev_s": 30, "akf_parallel_speedup": 1.7, "end_to_end_mev_s": 10, "cf_kernel_mev_s": 40,
                     "two_sided_over_forward": 0.45, "default_akf_2w_mev_s": 20, "hd_akf_kernel_mev_s": 20,

@@ -16,10 +16,10 @@ from . import _kernels as K
 
 T_EXACT_LIMIT_US = 1 << 53  # float64 holds every integer µs below this
 PARALLEL_MIN_WORK = 20_000  # events or pixels per call below which bands run in the caller
-TE32_MAX = int(np.iinfo(np.int32).max)
+TE32_MAX = int(np.iinfo(np.int32).max)  # the int32 last-event times' reach, µs (about 35 minutes)
 #: above this many bands, the threaded AKF splits batches by row look-up (band_split_lut), whose
 #: cost per event does not grow with the bands, instead of testing every band (band_split)
-SPLIT_LUT_MIN_BANDS = 4  # the int32 last-event times' reach, µs (about 35 minutes)
+SPLIT_LUT_MIN_BANDS = 4
 
 
 def check_time_range(t: np.ndarray, what: str = "event timestamps") -> None:

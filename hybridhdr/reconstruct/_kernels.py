@@ -271,31 +271,6 @@ def akf_start(S, p0, p_cens, log_off, has_off, t_init, pix_lo, pix_hi):
 
 
 @njit(cache=True, nogil=True)
-def split_records(s64, i0, i1, t, x, y, p, width, height):
-    """Columns ``t, x, y, p`` of the ``EVENT_DTYPE`` records ``[i0, i1)``, from their int64 view
-    ``s64`` (two words per record: t, then x | y << 16 | p << 32, little-endian); returns 1
-    when a record of the range is out of time order (against the record before it, ``i0 - 1``
-    included) or off the (``height``, ``width``) sensor, else 0. Ranges in parallel threads
-    fill the columns of a whole recording (``EventArrays.from_structured``)."""
-    bad = 0
-    if i0 > 0 and i0 < i1:
-        bad |= s64[2 * i0] < s64[2 * i0 - 2]
-    for i in range(i0, i1):
-        tv = s64[2 * i]
-        v = s64[2 * i + 1]
-        xx = v & 0xFFFF
-        yy = (v >> 16) & 0xFFFF
-        t[i] = tv
-        x[i] = np.uint16(xx)
-        y[i] = np.uint16(yy)
-        p[i] = np.int8((v << 24) >> 56)  # byte 4, sign-extended
-        bad |= (xx >= width) | (yy >= height)
-    for i in range(i0 + 1, i1):
-        bad |= s64[2 * i] < s64[2 * i - 2]
-    return bad
-
-
-@njit(cache=True, nogil=True)
 def reverse_columns(t, x, y, p, m1, i0, i1, rt, rx, ry, rp):
     """Events ``[i0, i1)`` reversed into ``rt, rx, ry, rp`` at ``n - 1 - i``: time ``m1 - t``,
     polarity negated (the two-sided filter's backward pass, :func:`..smoother.reverse_events`)."""

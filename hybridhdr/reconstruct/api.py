@@ -190,11 +190,10 @@ class _RecordChunks:
 
 
 def _record_columns(ev, n_workers: int = 1):
-    """Contiguous ``(t, x, y, p)`` of structured events: contiguous ``EVENT_DTYPE`` records in one
-    pass, split over ``n_workers`` threads (:func:`~hybridhdr.reconstruct._kernels.split_records`;
-    the checks come later, in the driver), anything else through :func:`events_fields`."""
-    from . import _kernels as K
-    from .event_arrays import map_ranges
+    """Contiguous ``(t, x, y, p)`` of structured events: ``EVENT_DTYPE`` records copied by
+    ``n_workers`` threads, each a contiguous part (:func:`.event_arrays.split_range`), anything
+    else through :func:`events_fields`."""
+    from .event_arrays import map_ranges, split_range
     n = ev.shape[0]
     if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
         return events_fields(ev)
@@ -204,9 +203,7 @@ def _record_columns(ev, n_workers: int = 1):
     x = np.empty(n, np.uint16)
     y = np.empty(n, np.uint16)
     p = np.empty(n, np.int8)
-    s64 = ev.view(np.int64)
-    big = np.iinfo(np.int64).max  # no bounds here: the driver and engines check what they use
-    map_ranges(n, n_workers, lambda i0, i1: K.split_records(s64, i0, i1, t, x, y, p, big, big))
+    map_ranges(n, n_workers, lambda i0, i1: split_range(ev, i0, i1, t, x, y, p))
     if tm is not None:
         tm.add("read_split", c0, "parallel")  # split over the workers, in the driving thread
     return t, x, y, p

@@ -19,6 +19,19 @@ from . import _kernels as K
 PARALLEL_MIN_EVENTS = 1 << 18
 
 
+def split_range(ev, i0: int, i1: int, t, x, y, p, shape=None) -> bool:
+    """Copy the columns of structured events ``ev[i0:i1]`` into ``t, x, y, p`` at ``[i0, i1)``
+    (numpy's strided copies, which release the GIL: ranges in threads fill a recording's columns
+    in parallel); with ``shape`` (H, W) also return True when the range is out of time order
+    (against the event before ``i0`` too) or off the sensor, else False."""
+    for dst, name in ((t, "t"), (x, "x"), (y, "y"), (p, "p")):
+        dst[i0:i1] = ev[name][i0:i1]
+    if shape is None or i1 <= i0:
+        return False
+    tt = t[max(i0 - 1, 0):i1]
+    return bool(np.any(tt[1:] < tt[:-1])) or int(x[i0:i1].max()) >= shape[1] or int(y[i0:i1].max()) >= shape[0]
+
+
 def map_ranges(n: int, n_workers: int, fn, min_part: int | None = None) -> list:
     """``fn(i0, i1)`` over ``n_workers`` contiguous parts of ``range(n)``, in threads (the Numba
     kernels or numpy copies it calls release the GIL); the last part runs in the caller. Parts
@@ -66,8 +79,8 @@ class EventArrays:
 
     @classmethod
     def from_structured(cls, events, shape, n_workers: int = 1) -> "EventArrays":
-        """From an ``EVENT_DTYPE`` structured array; contiguous records are split into columns and
-        checked in one pass by ``n_workers`` threads (:func:`_kernels.split_records`)."""
+        """From an ``EVENT_DTYPE`` structured array, split into columns and checked by
+        ``n_workers`` threads, each a contiguous part (:func:`split_range`)."""
         n = int(events.shape[0]) if getattr(events, "ndim", 0) == 1 else -1
         if n <= 0 or events.dtype != EVENT_DTYPE or not events.flags.c_contiguous:
             return cls(events["t"], events["x"], events["y"], events["p"], shape)
@@ -76,8 +89,7 @@ class EventArrays:
         x = np.empty(n, np.uint16)
         y = np.empty(n, np.uint16)
         p = np.empty(n, np.int8)
-        s64 = events.view(np.int64)
-        bad = map_ranges(n, n_workers, lambda i0, i1: K.split_records(s64, i0, i1, t, x, y, p, w, h))
+        bad = map_ranges(n, n_workers, lambda i0, i1: split_range(events, i0, i1, t, x, y, p, (h, w)))
         if any(bad):  # the plain constructor names the fault
             return cls(events["t"], events["x"], events["y"], events["p"], shape)
         return cls._trusted(t, x, y, p, shape)

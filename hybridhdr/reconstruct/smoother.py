@@ -288,9 +288,61 @@ class _CarriedVariance:
         else:
             if end - pos >= 1 << 31:
                 raise ValueError(f"{end - pos} events between two outputs: too many for the parallel count (< 2**31)")
-            engine._map_bands(band, self.n_pix + (end - pos))
+            threaded = (getattr(engine, "_pool", None) is not None and len(engine.bands) > 1
+                        and end - pos >= E.PARALLEL_MIN_WORK)
+            engine._map_bands(self._split_count(engine, pos, end, reset, var, q, sa) if threaded else band,
+                              self.n_pix + (end - pos))
         self.pos = max(end, pos)
         return var
+
+    def _split_count(self, engine, pos: int, end: int, reset: bool, var, q: float, sa: float):
+        """The per-band function of :meth:`add_to` for threaded bands: worker ``w`` splits part
+        ``w`` of the events ``[pos, end)`` by band (own rows, :func:`_kernels.band_split_lut`),
+        then each band counts its events part by part, waiting only for the part it reaches:
+        every event's row is read once in all, not once per band (a band's scan of the whole
+        window would not shrink as workers are added). Same counts (each is exact)."""
+        import threading
+        ev, cnt, W = self.ev, self.cnt, self.ev.shape[1]
+        bands = list(engine.bands)
+        nb = len(bands)
+        bor = np.empty(ev.shape[0], np.int32)
+        for b, (lo, hi) in enumerate(bands):
+            bor[lo:hi] = b
+        no_edges = np.zeros(ev.shape[0], np.uint8)  # own rows only: no ghost rows to count
+        parts = np.linspace(pos, end, nb + 1).astype(np.int64)
+        bufs = []
+        for w in range(nb):
+            key = ("split", w)
+            buf = self._bufs.get(key)
+            n = int(parts[w + 1] - parts[w])
+            if buf is None or buf.shape[0] != nb or buf.shape[1] < n:
+                buf = self._bufs[key] = np.empty((nb, max(n, 2 * (0 if buf is None else buf.shape[1]))), np.int32)
+            bufs.append(buf)
+        counts = np.zeros((nb, nb), np.int64)
+        ready = [threading.Event() for _ in range(nb)]
+        failed: list = []
+
+        def band(b, lo, hi):
+            if (lo, hi) != bands[b]:
+                raise RuntimeError("the row bands moved during a count")
+            try:
+                K.band_split_lut(ev.y, pos, parts[b], parts[b + 1], bor, no_edges, bufs[b], counts[b])
+            except BaseException:
+                failed.append(b)
+                for e in ready:
+                    e.set()
+                raise
+            ready[b].set()
+            a, z = lo * W, hi * W
+            if reset:
+                cnt[a:z] = 0.0
+            for v in range(nb):
+                ready[v].wait()
+                if failed:
+                    raise threading.BrokenBarrierError(f"worker {failed[0]} failed")
+                K.count_pixel_events_indexed(ev.y, ev.x, pos, bufs[v][b], counts[v, b], W, cnt)
+            K.add_carried_variance(var[a:z], cnt[a:z], q, sa)
+        return band
 
 
 def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events: int,

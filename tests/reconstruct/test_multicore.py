@@ -39,7 +39,7 @@ def _rec(n=6000, h=24, w=30, seed=0, n_frames=7):
     return Recording(ev, SensorSize(h, w), Frames(codes, ft, ft, encoding="raw"))
 
 
-def test_split_records_and_from_structured_match_the_columns(small_parts):
+def test_from_structured_in_parts_matches_the_columns(small_parts):
     rec = _rec()
     ev = rec.events
     ref = EventArrays.from_chunks([events_fields(ev)], (24, 30))
@@ -56,15 +56,11 @@ def test_split_records_and_from_structured_match_the_columns(small_parts):
     bad["y"][5999] = 24
     with pytest.raises(ValueError, match="exceed the sensor size"):
         EventArrays.from_structured(bad, (24, 30), n_workers=4)
-    # the kernel's flag, part by part, at a part's first record too (compared with the one before)
-    s64 = ev.view(np.int64)
-    cols = [np.empty(len(ev), d) for d in (np.int64, np.uint16, np.uint16, np.int8)]
-    assert K.split_records(s64, 0, len(ev), *cols, 30, 24) == 0
-    tt = ev.copy()
-    tt["t"][2000] = tt["t"][1999] - 1
-    s64 = tt.view(np.int64)
-    assert K.split_records(s64, 2000, 2500, *cols, 30, 24) == 1
-    assert K.split_records(s64, 0, 2000, *cols, 30, 24) == 0
+    # a fault at a part's first event (compared with the event before it, in the part before)
+    bad = ev.copy()
+    bad["t"][3000] = bad["t"][2999] - 1
+    with pytest.raises(ValueError, match="non-decreasing; index 3000"):
+        EventArrays.from_structured(bad, (24, 30), n_workers=6)  # parts of 1,000 events
 
 
 def test_parallel_reversal_equals_numpy(small_parts):
@@ -213,3 +209,24 @@ def test_many_band_engine_gives_the_serial_bits(n_workers):
         states.append(eng.S.copy())
         eng.close()
     assert np.array_equal(states[0].view(np.int64), states[1].view(np.int64))
+
+
+@pytest.mark.parametrize("n_workers", [4, 6])
+def test_threaded_carried_variance_count_gives_the_serial_bits(monkeypatch, n_workers):
+    """Two-sided with threaded row bands in each pass (the count split by band, waiting per part)
+    against one worker; bands thread from 2,000 events or pixels on instead of 20,000."""
+    from hybridhdr.reconstruct import _engine as EN
+    from hybridhdr.reconstruct import smoother as SM
+    rec = _rec(n=40_000, h=40, w=30, seed=3)
+    ref = reconstruct(rec, "akf", fps=30.0, n_workers=1)
+    monkeypatch.setattr(EN, "PARALLEL_MIN_WORK", 2000)
+    calls = []
+    real = SM._CarriedVariance._split_count
+
+    def spy(self, *a, **k):
+        calls.append(1)
+        return real(self, *a, **k)
+    monkeypatch.setattr(SM._CarriedVariance, "_split_count", spy)
+    got = reconstruct(rec, "akf", fps=30.0, n_workers=n_workers)
+    assert calls, "the threaded count did not run"
+    assert np.array_equal(got.frames, ref.frames) and got.info["n_clamped"] == ref.info["n_clamped"]
