@@ -280,7 +280,7 @@ def main() -> int:
     summary = {name: _mean_rows(rows) for name, rows in all_rows.items()}
     res["per_dataset"] = {name: [{k: v for k, v in r.items() if k in ("dataset", "method", "status", "mse", "ssim",
                                                                       "log_rmse_recoverable_causal",
-                                                                      "nonpositive_frac")}
+                                                                      "nonpositive_frac", "mse_share_worst_0p1pct")}
                                  for r in rows] for name, rows in all_rows.items()}
     res["summary"] = summary
     res["targets"] = _targets(summary)
@@ -306,7 +306,8 @@ def main() -> int:
                 rn = f", {dd['renders']} renders" if "renders" in dd else ""
                 print(f"  {dname} (clipped {dd['saturated_fraction']:.0%}{rn}): MSE / SSIM " + ", ".join(
                     f"{m} {rr[m]['mse']:.3e} / {rr[m]['ssim']:.3f}" for m in ("frames_zoh", "cf", "akf", "akf_causal")
-                    if m in rr))
+                    if m in rr) + (f"; akf MSE share of its worst 0.1 % px {rr['akf']['mse_share_worst_0p1pct']:.0%}"
+                                   if "mse_share_worst_0p1pct" in rr.get("akf", {}) else ""))
         errs = {m: d["status"] for m, d in summary[name].items() if d.get("status") != "ok"}
         for m, e in errs.items():
             print(f"  {m}: {e[:300]}")

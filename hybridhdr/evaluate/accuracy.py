@@ -9,6 +9,8 @@ Scoring (:func:`score_run`), per method and suite:
   the reference maximum over the sequence; the reconstruction is not clipped, so overshoot and
   undershoot cost alike, as in the AKF authors' evaluation);
 - the fraction of **non-positive** (or non-finite) reconstructed pixels, before any clipping;
+- ``mse_share_worst_0p1pct``: the share of the MSE that the worst 0.1 % of pixels (over all
+  frames) make (symmetric scoring lets a few overshooting pixels decide a linear MSE);
 - **log-domain errors that separate HDR recovery from tracking**: ``log r ≈ a·log x + b``
   (``x = max(recon, 1e-6)``) fitted by least squares, once per sequence, on the pixels the
   current frame sees unclipped, then the RMSE of ``log r − (a·log x + b)`` on
@@ -206,6 +208,10 @@ def score_run(recon, reference, masks: dict, *, valid=None, peak_luminance_cd_m2
     pmap, _ = ssim_map(*(_pu(v * peak_luminance_cd_m2) for v in (t01, r01)), 256.0)
     if valid is None:
         out["mse"] = float(np.mean((t01 - r01) ** 2))
+        # how fragile the MSE is: the share of it from the worst 0.1 % of pixels (over frames)
+        se = np.sort(((t01 - r01) ** 2).ravel())[::-1]
+        tot = float(se.sum())
+        out["mse_share_worst_0p1pct"] = float(se[:max(1, se.size // 1000)].sum() / tot) if tot > 0 else 0.0
         out["ssim"] = float(np.mean(smap[:, bw:-bw, bw:-bw]))
         out["pu_ssim"] = float(pu_ssim(t01 * peak_luminance_cd_m2, r01 * peak_luminance_cd_m2))
     else:

@@ -5,7 +5,7 @@ camera sees it), >= 0, relative to 1 (a :class:`~hybridhdr.simulate.scene.Patter
 its ``value``). Same name and seed, same bits (NumPy's PCG64 and SciPy's spline zoom only).
 
 Bright-region textures (``scenery``: six window panes, ``lampshade``: four panels of a shade,
-``facade``: a facade between four pillars) have **soft borders**: towards the edges of each
+``facade``: a facade between six pillars) have **soft borders**: towards the edges of each
 pane the radiance falls log-linearly (a smoothstep in log intensity) to ``BORDER_FLOOR`` of its
 level over ``BORDER_MARGIN`` of the pane's size, and the bars between panes (mullions, ribs,
 pillars) sit at ``BORDER_FLOOR``. Narrow panes with dark bars are what a hand-held camera can
@@ -138,7 +138,7 @@ def _facade(rng, shape=(160, 224)) -> np.ndarray:
     img = img / img.max()
     # seen between the dark pillars of an arcade (pure camera rotation: no parallax, so
     # pillars at any depth look the same as dark bars in the facade's plane)
-    return img * _soft_border(shape, BORDER_FLOOR["facade"], cells=(1, 4), bar=0.06)
+    return img * _soft_border(shape, BORDER_FLOOR["facade"], cells=(1, 6), bar=0.06)
 
 
 def _plaster(rng, shape=(96, 128)) -> np.ndarray:
