@@ -313,7 +313,8 @@ def main() -> int:
             print(f"  {m}: {e[:300]}")
     print("\n* whole-image log-RMSE after its own a·log x + b fit: reported, but misleading (the fit trades the "
           "clipped pixels against the rest). Unaltered MSE/SSIM/PU21-SSIM: both divided by the reference maximum, "
-          "reconstruction not clipped (symmetric, as the AKF authors' anal_hdr_results.m). Mev/s of frames-only methods is not an event rate that matters.")
+          "reconstruction not clipped (symmetric, as the AKF authors' anal_hdr_results.m). Mev/s of frames-only "
+          "methods is not an event rate that matters.")
     print("\ntargets (measured, not tuned for):")
     for k, v in res["targets"].items():
         print(f"  {'PASS' if v['pass'] else 'FAIL'} {k}: " + ", ".join(

@@ -93,7 +93,8 @@ import numpy as np
 from .._util.checks import check_shape
 from . import cvvdp_metric
 
-__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "CLIP_POLICIES", "DEFAULT_CLIP", "default_normalise", "mse", "psnr", "ssim", "ssim_map", "global_ssim",
+__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "CLIP_POLICIES", "DEFAULT_CLIP", "default_normalise", "mse", "psnr",
+           "ssim", "ssim_map", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
            "normalise_pair", "apply_normalisation", "log_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
            "find_hdrvdp", "HDRVDPNotFound", "JOD_MAX_FRAMES", "JOD_NA", "jod_frame_indices", "jod_score",

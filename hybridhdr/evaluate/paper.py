@@ -301,10 +301,9 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
 def scene_diagnostics(bench, seed: int = 0) -> dict:
     """Per simulated HDR dataset of ``bench`` (``HDR:`` and ``HDR-stress:``): the renders the
     time sampler needed, events, the frames' clipped fraction, the sensor tiers in use and the
-    ``event_log_change`` diagnostic (:func:`hybridhdr.evaluate.accuracy.event_log_change`). The
+    ``event_log_change`` diagnostic (:func:`hybridhdr.evaluate.datasets.event_log_change`). The
     datasets come from the bench's cache (built by the run), so this costs a read each."""
-    from .accuracy import event_log_change
-    from .datasets import load_dataset
+    from .datasets import event_log_change, load_dataset
     out = {}
     for spec in bench.datasets:
         name = str(spec.get("name", ""))

@@ -13,7 +13,8 @@ The reference is frame k itself in frame-linear units (the camera profile's ``CR
 codes 20-235 of 8 bits scaled to the bit depth (:func:`well_exposed_range`): elsewhere the frame
 is no measurement of the scene. Scoring follows ``docs/evaluate.md``'s policy (unaltered, then
 reconstruction and reference both divided by the references' maximum over the held-out frames,
-the reconstruction not clipped: symmetric, ``metrics.DEFAULT_CLIP``; data range 1), per held-out frame (:func:`score_frame`,
+the reconstruction not clipped: symmetric, ``metrics.DEFAULT_CLIP``; data range 1), per held-out
+frame (:func:`score_frame`,
 luminance for colour output): on the well-exposed pixels MSE, PSNR and SSIM (the Gaussian SSIM map of :func:`hybridhdr.evaluate.metrics.ssim_map`,
 averaged over the well-exposed pixels outside the map's border). Means over the held-out frames
 (PSNR: the mean of the per-frame PSNRs).
