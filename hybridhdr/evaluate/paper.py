@@ -280,7 +280,8 @@ def run_paper(out_dir, *, quick: bool = True, workers=None, scheduler=None, hdrv
             "HDR-stress = the former HDR scenes; AHDR via hybridhdr.simulate.ahdr")
     missing = [m["method"] for m in LEARNED_METHODS if m["method"] not in weights]
     header = (f"Table 1 (shape of Wang et al., ICCV 2021) on simulated sets ({'quick' if quick else 'full'}; "
-              f"{sets}); linear MSE/SSIM, data range 1 after dividing by the reference maximum; Q "
+              f"{sets}); linear MSE/SSIM, data range 1 after dividing by the reference maximum, the reconstruction "
+              f"not clipped (symmetric scoring); Q "
               f"{'from HDR-VDP' if hdrvdp_dir else 'n/a (no HDR-VDP 3 given)'}.\n{jod_label(rows)}.\n")
     if missing:
         header += (f"{', '.join(_TITLES[m] for m in missing)} omitted: no weights given (--weights-"
