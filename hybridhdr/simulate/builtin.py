@@ -238,8 +238,21 @@ def _handheld(T: int, position, look_at, *, sweep_rad: float, seed: int, shake_r
         yaw = yaw0 + sweep_rad * (t / T - 0.5) + shake[0]
         pitch = pitch0 + shake[1]
         d = np.array([math.sin(yaw) * math.cos(pitch), math.sin(pitch), math.cos(yaw) * math.cos(pitch)])
-        kfs.append(_kf(t, tuple(p), tuple(p + d)))
+        k = _kf(t, tuple(p), tuple(p + d))
+        kfs.append(Keyframe(k.t_us, k.position, _unit(k.quaternion)))
     return _cam(kfs)
+
+
+def _unit(q):
+    """``q`` divided by its norm until that no longer changes it (a scene file's reader
+    normalises every quaternion: this makes the TOML round trip exact)."""
+    for _ in range(8):
+        n = math.sqrt(sum(c * c for c in q))
+        q2 = tuple(c / n for c in q)
+        if q2 == q:
+            break
+        q = q2
+    return q
 
 
 def _window_scenery(T: int) -> Scene:
