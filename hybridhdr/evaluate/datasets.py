@@ -60,7 +60,8 @@ from ..model import Frames, HDRReferences, Recording
 from ..simulate.datasets import profile_from_provenance, simulated_dataset
 from ..simulate.procedural import ProceduralScene, procedural_recording
 
-__all__ = ["DATASET_KINDS", "Dataset", "load_dataset", "requantise", "add_noise_events", "PROCEDURAL_KEYS"]
+__all__ = ["DATASET_KINDS", "Dataset", "load_dataset", "event_log_change", "requantise", "add_noise_events",
+           "PROCEDURAL_KEYS"]
 
 DATASET_KINDS = ("procedural", "file", "sim_procedural", "ahdr", "builtin")
 
@@ -299,3 +300,29 @@ def load_dataset(spec: dict, *, seed: int = 0, cache_dir=None) -> Dataset:
     if cache_dir is not None:
         return _cached(spec, seed, cache_dir)
     return _simulated(spec, seed)
+
+
+def event_log_change(recording, contrast_threshold, min_rise: float = 2.0) -> dict | None:
+    """How much of a large brightening the events report (a diagnostic of a dataset, not of a
+    method): on the pixels whose reference rises by more than ``min_rise`` ln units between the
+    first reference at or after the first event and the last one (references floored at 1e-6),
+    the mean true ln change and the mean net change the events carry (ON minus OFF events times
+    ``contrast_threshold``). A refractory period that re-references the pixel loses the rest; no
+    method can recover it where every frame clips. None without events, threshold or such pixels."""
+    rec, c = recording, contrast_threshold
+    ev = rec.events
+    if not len(ev) or c is None or rec.hdr is None or not len(rec.hdr):
+        return None
+    h, w = rec.sensor_size.shape
+    ref = rec.hdr.images if rec.hdr.images.ndim == 3 else rec.hdr.images.mean(axis=3)
+    k0 = int(np.searchsorted(rec.hdr.t_us, int(ev["t"][0])))
+    lr = np.log(np.maximum(ref[[min(k0, len(ref) - 1), -1]].astype(np.float64), 1e-6))
+    rise = (lr[1] - lr[0]).ravel()
+    net = np.bincount(ev["y"].astype(np.int64) * w + ev["x"], weights=np.where(ev["p"] > 0, 1.0, -1.0),
+                      minlength=h * w)
+    big = rise > float(min_rise)
+    if not big.any():
+        return None
+    return {"pixels": int(big.sum()), "true_ln_rise": float(rise[big].mean()),
+            "events_ln_rise": float(c * net[big].mean()),
+            "fraction_reported": float(c * net[big].mean() / rise[big].mean())}

@@ -27,8 +27,15 @@ each stated in the result:
    events-only ``highpass``, whose output is relative, or for references in other units.
 2. **Range**: both are divided by the reference's maximum over the sequence (one common
    constant, so an unaltered reconstruction keeps its units relative to the reference), so
-   the reference lies in [0, 1]; the reconstruction is clipped to [0, 1] (as EVREAL does,
-   ``ercanburak/EVREAL:utils/eval_metrics.py``). MSE, PSNR and SSIM then use **data range 1**.
+   the reference lies in [0, 1]. By default (``clip="none"``, :data:`DEFAULT_CLIP`) the
+   reconstruction is **not clipped**: scoring is symmetric, an overshoot costs as much as an
+   undershoot of the same size, as in the AKF authors' evaluation
+   (``ziweiWWANG/Event-Asynchronous-Filter: code/eval/anal_hdr_results.m`` scores the raw
+   output ``td_img*255`` against the reference, ``computeMSE_range01.m`` divides both by 255
+   and clips neither). ``clip="reference_max"`` keeps the former policy by name: the
+   reconstruction clipped to [0, 1] (as EVREAL does, ``ercanburak/EVREAL:utils/eval_metrics.py``),
+   which makes overshoot above the reference maximum free. MSE, PSNR and SSIM then use
+   **data range 1**; PU21 clips luminance at 10 000 cd/m² whatever the policy.
 3. **Absolute luminance** for PU21 and HDR-VDP: the [0, 1] images are multiplied by
    ``peak_luminance_cd_m2`` (default 4000 cd/m², as ``I/max·4000`` in the PU21 usage notes)
    before encoding.
@@ -86,7 +93,8 @@ import numpy as np
 from .._util.checks import check_shape
 from . import cvvdp_metric
 
-__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "default_normalise", "mse", "psnr", "ssim", "ssim_map", "global_ssim",
+__all__ = ["NORMALISE_MODES", "DEFAULT_NORMALISE", "CLIP_POLICIES", "DEFAULT_CLIP", "default_normalise", "mse", "psnr",
+           "ssim", "ssim_map", "global_ssim",
            "PU21_PARAMS", "pu21_encode", "pu_psnr", "pu_ssim", "match_frames", "fit_normalisation",
            "normalise_pair", "apply_normalisation", "log_pair", "score_video", "pixels_per_degree", "HDRVDPResult", "hdrvdp_q",
            "find_hdrvdp", "HDRVDPNotFound", "JOD_MAX_FRAMES", "JOD_NA", "jod_frame_indices", "jod_score",
@@ -98,6 +106,12 @@ NORMALISE_MODES = ("none", "scale", "affine", "scale_linear", "affine_linear")
 #: [0, 1] (the display-referred scale of their training frames), so they are scored after a
 #: fitted gain ("scale"); reports label such runs.
 DEFAULT_NORMALISE: dict = {"e2vid": "scale", "firenet": "scale"}
+
+
+#: Range policies of :func:`normalise_pair`: ``"none"`` (default: the reconstruction as it is,
+#: symmetric) and ``"reference_max"`` (the reconstruction clipped to [0, 1] of the reference maximum).
+CLIP_POLICIES = ("none", "reference_max")
+DEFAULT_CLIP = "none"
 
 
 def default_normalise(method: str) -> str:
@@ -382,44 +396,53 @@ def apply_normalisation(test, gain: float, second: float, mode: str) -> np.ndarr
     return gain * x + second
 
 
-def normalise_pair(test, reference, mode: str = "none"):
-    """Apply the policy of the module docstring: fit, divide by the reference max, clip.
+def normalise_pair(test, reference, mode: str = "none", clip: str = DEFAULT_CLIP):
+    """Apply the policy of the module docstring: fit, divide by the reference max, clip by ``clip``.
 
-    Returns ``(test01, ref01, info)`` with both in [0, 1] (NaN kept) and ``info`` holding the
-    gain, offset and the reference maximum (the unit of the [0, 1] range).
+    Returns ``(test01, ref01, info)``: the reference in [0, 1], the test as the fit and the
+    division leave it (``clip="none"``, default: symmetric scoring) or clipped to [0, 1]
+    (``clip="reference_max"``), NaN kept; ``info`` holds the gain, offset, the reference maximum
+    (the unit of the [0, 1] range) and the clip policy.
     """
+    if clip not in CLIP_POLICIES:
+        raise ValueError(f"clip must be one of {CLIP_POLICIES}, got {clip!r}")
     a, b = _pair(test, reference, "normalise")
     g, o = fit_normalisation(a, b, mode)
     ref_max = float(np.nanmax(b)) if np.isfinite(b).any() else float("nan")
     if not ref_max > 0:
         raise ValueError(f"the reference must have a positive maximum, got {ref_max}")
     t = apply_normalisation(a, g, o, mode) / ref_max
-    with np.errstate(invalid="ignore"):
-        t = np.where(np.isnan(t), np.nan, np.clip(t, 0.0, 1.0))
+    if clip == "reference_max":
+        with np.errstate(invalid="ignore"):
+            t = np.where(np.isnan(t), np.nan, np.clip(t, 0.0, 1.0))
     second = "exponent" if mode == "affine" else "offset"
     return t, np.clip(b / ref_max, 0.0, 1.0), {"gain": g, "offset": o if second == "offset" else 0.0,
                                                 "exponent": o if second == "exponent" else 1.0,
-                                                "reference_max": ref_max, "normalise": mode}
+                                                "reference_max": ref_max, "normalise": mode, "clip": clip}
 
 
-def log_pair(test01, ref01, floor: float = 1e-4):
+def log_pair(test01, ref01, floor: float = 1e-4, clip: str = DEFAULT_CLIP):
     """Log intensity of [0, 1] images mapped to [0, 1] by the reference's log range.
 
     ``v = (log max(I, floor) − lo)/(hi − lo)`` with ``lo``, ``hi`` the min and max of the
-    reference's ``log max(I, floor)``; the test is clipped to [0, 1] (NaN kept). This is the
-    HDR-aware scoring of ``hybridhdr demo`` (every decade of intensity weighs alike), used for
-    ``log_mse`` and ``log_ssim``.
+    reference's ``log max(I, floor)``; the test is floored at ``lo`` (a log needs a floor) and,
+    with ``clip="reference_max"`` only, clipped at 1; NaN kept. This is the HDR-aware scoring of
+    ``hybridhdr demo`` (every decade of intensity weighs alike), used for ``log_mse`` and
+    ``log_ssim``.
     """
     if not 0 < floor < 1:
         raise ValueError(f"log floor must be in (0, 1), got {floor}")
+    if clip not in CLIP_POLICIES:
+        raise ValueError(f"clip must be one of {CLIP_POLICIES}, got {clip!r}")
     a, b = _pair(test01, ref01, "log_pair")
     lr = np.log(np.maximum(b, floor))
     with np.errstate(invalid="ignore"):
         lt = np.log(np.where(np.isnan(a), np.nan, np.maximum(a, floor)))
     lo, hi = float(lr.min()), float(lr.max())
     span = (hi - lo) or 1.0
+    top = 1.0 if clip == "reference_max" else np.inf
     with np.errstate(invalid="ignore"):
-        t = np.where(np.isnan(lt), np.nan, np.clip((lt - lo) / span, 0.0, 1.0))
+        t = np.where(np.isnan(lt), np.nan, np.clip((lt - lo) / span, 0.0, top))
     return t, (lr - lo) / span
 
 
@@ -467,7 +490,7 @@ def jod_score(test01, ref01, *, max_frames: int = JOD_MAX_FRAMES, display: str |
 
 def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_luminance_cd_m2: float = 4000.0,
                 pu21: bool = True, hdrvdp: dict | None = None, log_floor: float = 1e-4,
-                jod: dict | bool | None = None, per_frame: bool = False) -> dict:
+                jod: dict | bool | None = None, per_frame: bool = False, clip: str = DEFAULT_CLIP) -> dict:
     """All metrics on matched sequences (K, H, W) of linear intensity.
 
     Parameters
@@ -480,6 +503,9 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
         exponent) first (:func:`fit_normalisation`).
     peak_luminance_cd_m2 : float
         Luminance of the reference maximum for PU21 and HDR-VDP (cd/m²).
+    clip : {"none", "reference_max"}
+        ``"none"`` (default): the reconstruction is not clipped (symmetric scoring, as the AKF
+        authors' evaluation); ``"reference_max"``: clipped to [0, 1] of the reference maximum.
     hdrvdp : dict, optional
         Keyword arguments for :func:`hdrvdp_q` (e.g. ``{"hdrvdp_dir": ...}``); when given, Q is
         the mean over frames and its settings are stored under ``q_*``.
@@ -510,14 +536,14 @@ def score_video(test_frames, reference_frames, *, normalise: str = "none", peak_
     if not peak_luminance_cd_m2 > 0:
         raise ValueError(f"peak_luminance_cd_m2 must be > 0, got {peak_luminance_cd_m2}")
     n_bad = int(np.count_nonzero(~np.isfinite(a)))
-    t01, r01, info = normalise_pair(a, b, normalise)
+    t01, r01, info = normalise_pair(a, b, normalise, clip)
     out = {"n_frames": int(a.shape[0]), "n_nonfinite": n_bad}
     out.update(info)
     out["mse"] = mse(t01, r01)
     out["psnr_db"] = psnr(t01, r01, 1.0) if np.isfinite(out["mse"]) else float("nan")
     out["ssim"] = ssim(t01, r01, 1.0)
     out["global_ssim"] = global_ssim(t01 * 255.0, r01 * 255.0, 255.0, variant="eaf")
-    lt_, lr_ = log_pair(t01, r01, log_floor)
+    lt_, lr_ = log_pair(t01, r01, log_floor, clip)
     out["log_mse"] = mse(lt_, lr_)
     out["log_ssim"] = ssim(lt_, lr_, 1.0)
     if pu21:

@@ -13,7 +13,8 @@ The reference is frame k itself in frame-linear units (the camera profile's ``CR
 codes 20-235 of 8 bits scaled to the bit depth (:func:`well_exposed_range`): elsewhere the frame
 is no measurement of the scene. Scoring follows ``docs/evaluate.md``'s policy (unaltered, then
 reconstruction and reference both divided by the references' maximum over the held-out frames,
-the reconstruction clipped to [0, 1], data range 1), per held-out frame (:func:`score_frame`,
+the reconstruction not clipped: symmetric, ``metrics.DEFAULT_CLIP``; data range 1), per held-out
+frame (:func:`score_frame`,
 luminance for colour output): on the well-exposed pixels MSE, PSNR and SSIM (the Gaussian SSIM map of :func:`hybridhdr.evaluate.metrics.ssim_map`,
 averaged over the well-exposed pixels outside the map's border). Means over the held-out frames
 (PSNR: the mean of the per-frame PSNRs).
@@ -56,7 +57,7 @@ from ..model import Recording
 from ..reconstruct import reconstruct
 from ..reconstruct.api import make_params, resolve_method
 from ..reconstruct.measurement import frames_to_codes
-from .metrics import ssim_map
+from .metrics import DEFAULT_CLIP, ssim_map
 
 __all__ = ["TASKS", "HoldoutSpec", "BASELINES", "default_held_frames", "holdout_input", "holdout_reconstructions",
            "input_thresholds", "THRESHOLD_SOURCES", "score_frame", "evaluate_holdout", "format_holdout"]
@@ -281,7 +282,9 @@ def score_frame(recon, reference, valid) -> dict:
     r = np.asarray(reference, np.float64)
     v = np.asarray(valid, bool)
     n_nonfinite = int(np.count_nonzero(~np.isfinite(x)))
-    x = np.clip(np.where(np.isfinite(x), x, 0.0), 0.0, 1.0)
+    x = np.where(np.isfinite(x), x, 0.0)
+    if DEFAULT_CLIP == "reference_max":
+        x = np.clip(x, 0.0, 1.0)
     out = {"n_valid": int(v.sum()), "n_nonfinite": n_nonfinite}
     if not v.any():
         return {**out, "mse": float("nan"), "psnr_db": float("nan"), "ssim": float("nan")}

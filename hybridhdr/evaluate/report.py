@@ -349,7 +349,7 @@ def write_report(rows, out, bench=None, *, charts: bool = True) -> dict:
                        f"{load[2]:.2f} (timings are noisy on a shared machine). {len(rows)} runs.")],
         "scoring": _md_runs(
             f"Scoring (see docs/evaluate.md): {scoring_label(rows)}; both divided by the reference "
-            "maximum, reconstruction clipped to [0, 1]; MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
+            "maximum, reconstruction not clipped (symmetric); MSE and SSIM (Gaussian σ = 1.5, data range 1) on that; "
             f"PU21 on ×{getattr(bench, 'peak_luminance_cd_m2', 4000.0):g} cd/m²; frames matched to references within "
             f"{getattr(bench, 'tolerance_us', 1000)} µs. {jod_label(rows)}. Q (HDR-VDP 3, for comparison with the "
             "paper's Q) is n/a without an HDR-VDP 3 installation."),

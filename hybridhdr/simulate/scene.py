@@ -277,7 +277,8 @@ class Blink:
 
 @dataclass(frozen=True)
 class Pattern:
-    """A scalar surface quantity over the mesh's UV square: a constant, an image file or a checkerboard.
+    """A scalar surface quantity over the mesh's UV square: a constant, an image file, a checkerboard
+    or a procedural texture.
 
     Parameters
     ----------
@@ -292,6 +293,11 @@ class Pattern:
         else ``low``.
     low, high : float
         Checkerboard values.
+    procedural : str or None
+        A texture generated in code (:data:`hybridhdr.simulate.textures.TEXTURES`, relative values
+        up to 1) times ``value``; ``seed`` picks the instance.
+    seed : int
+        Seed of the procedural texture.
     """
 
     value: float = 1.0
@@ -299,11 +305,19 @@ class Pattern:
     checkerboard: tuple[int, int] | None = None
     low: float = 0.0
     high: float = 1.0
+    procedural: str | None = None
+    seed: int = 0
 
     def __post_init__(self):
         _floats(self, "value", "low", "high")
-        if self.texture is not None and self.checkerboard is not None:
-            raise SceneError("a pattern has either 'texture' or 'checkerboard', not both")
+        if sum(x is not None for x in (self.texture, self.checkerboard, self.procedural)) > 1:
+            raise SceneError("a pattern has one of 'texture', 'checkerboard' or 'procedural', not several")
+        if self.procedural is not None:
+            from .textures import TEXTURES
+            if self.procedural not in TEXTURES:
+                raise SceneError(f"procedural: expected one of {', '.join(TEXTURES)}, found {self.procedural!r}")
+        if isinstance(self.seed, bool) or not isinstance(self.seed, (int, np.integer)) or self.seed < 0:
+            raise SceneError(f"seed: expected an int >= 0, found {self.seed!r}")
         if self.checkerboard is not None and (len(self.checkerboard) != 2 or min(self.checkerboard) < 1):
             raise SceneError(f"checkerboard: expected two integers >= 1, found {self.checkerboard}")
         if min(self.value, self.low, self.high) < 0:
@@ -311,7 +325,7 @@ class Pattern:
 
     @property
     def is_constant(self) -> bool:
-        return self.texture is None and self.checkerboard is None
+        return self.texture is None and self.checkerboard is None and self.procedural is None
 
     def image(self, base_dir: Path | None = None) -> np.ndarray:
         """The pattern as float32 (rows, cols) texels (row 0 at v = 0, the top edge of a plane), or a 1×1 constant."""
@@ -322,6 +336,9 @@ class Pattern:
             return img.astype(np.float32)
         if self.texture is not None:
             return (_read_texture(self.texture, base_dir) * self.value).astype(np.float32)
+        if self.procedural is not None:
+            from .textures import texture
+            return (texture(self.procedural, int(self.seed)) * self.value).astype(np.float32)
         return np.full((1, 1), self.value, np.float32)
 
     @classmethod
@@ -331,8 +348,9 @@ class Pattern:
                 raise _err(where.rstrip("."), "a finite number >= 0", v)
             return cls(value=float(v))
         if not isinstance(v, dict):
-            raise _err(where.rstrip("."), "a number or a table {texture=..} / {checkerboard=[nu, nv], low, high}", v)
-        _check_keys(v, ("value", "texture", "checkerboard", "low", "high"), where)
+            raise _err(where.rstrip("."), "a number or a table {texture=..} / {checkerboard=[nu, nv], low, high} / "
+                       "{procedural=NAME, seed}", v)
+        _check_keys(v, ("value", "texture", "checkerboard", "low", "high", "procedural", "seed"), where)
         cb = None
         if "checkerboard" in v:
             c = v["checkerboard"]
@@ -340,8 +358,10 @@ class Pattern:
                 raise _err(where + "checkerboard", "two integers >= 1 (squares along u and v)", c)
             cb = (int(c[0]), int(c[1]))
         tex = _str(v, "texture", where) if "texture" in v else None
+        proc = _str(v, "procedural", where) if "procedural" in v else None
         return cls(value=_num(v, "value", where, 1.0, nonneg=True), texture=tex, checkerboard=cb,
-                   low=_num(v, "low", where, 0.0, nonneg=True), high=_num(v, "high", where, 1.0, nonneg=True))
+                   low=_num(v, "low", where, 0.0, nonneg=True), high=_num(v, "high", where, 1.0, nonneg=True),
+                   procedural=proc, seed=_int(v, "seed", where, 0, minimum=0))
 
     def to_value(self):
         if self.is_constant:
@@ -355,6 +375,9 @@ class Pattern:
             d["checkerboard"] = list(self.checkerboard)
             d["low"] = self.low
             d["high"] = self.high
+        if self.procedural is not None:
+            d["procedural"] = self.procedural
+            d["seed"] = int(self.seed)
         return d
 
 

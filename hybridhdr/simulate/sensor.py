@@ -52,7 +52,7 @@ from .._util.checks import check_shape
 from ..events import EVENT_DTYPE, SensorSize
 
 __all__ = ["EventSensorParams", "EventSensor", "PRESETS", "sensor_preset", "generate_events", "BUILTIN_PROFILES",
-           "sensor_from_profile", "load_profile_spec"]
+           "sensor_from_profile", "load_profile_spec", "SENSOR_TIERS", "restrict_to_tiers"]
 
 #: Longest step (µs) handled in one kernel call; longer steps are cut into equal pieces on the
 #: same linear interpolation, which bounds the counting-sort histogram (8 bytes per µs).
@@ -176,6 +176,32 @@ PRESETS: dict[str, EventSensorParams] = {
     "noisy": EventSensorParams(threshold_mismatch_sigma=0.05, refractory_period_us=500,
                                shot_noise_rate_hz=5.0, leak_rate_hz=0.1, photoreceptor_cutoff_hz=30.0),
 }
+
+
+#: The optional tiers of the model (simulator.md; tier 0, exact crossings at the nominal
+#: thresholds, is always on) and the fields that switch each one on.
+SENSOR_TIERS: dict[int, tuple[str, ...]] = {
+    1: ("threshold_mismatch_sigma",),                # per-pixel threshold mismatch
+    2: ("refractory_period_us",),                    # refractory period
+    3: ("shot_noise_rate_hz", "leak_rate_hz"),       # shot and leak noise
+    4: ("photoreceptor_cutoff_hz",),                 # photoreceptor bandwidth
+}
+
+
+def restrict_to_tiers(params, tiers) -> dict:
+    """``params`` (an :class:`EventSensorParams` or a dict of its fields) with every optional tier
+    not in ``tiers`` switched off (its fields 0 / None), as a dict: a scene models no more of the
+    sensor than it needs."""
+    d = params.to_dict() if isinstance(params, EventSensorParams) else dict(params)
+    bad = sorted(set(tiers) - set(SENSOR_TIERS))
+    if bad:
+        raise ValueError(f"sensor tiers: expected some of {sorted(SENSOR_TIERS)}, found {bad}")
+    for tier, fields in SENSOR_TIERS.items():
+        if tier not in tiers:
+            for f in fields:
+                if f in d:
+                    d[f] = None if f == "photoreceptor_cutoff_hz" else type(d[f])(0) if d[f] is not None else 0
+    return d
 
 
 #: Built-in sensor profiles (``builtin:NAME``), package data in ``simulate/profiles/``; each was

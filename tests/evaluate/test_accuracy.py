@@ -197,3 +197,23 @@ def test_augmentation_does_not_drag_well_exposed_pixels_to_the_previous_clip():
     well = (scores[True]["log_rmse_well_exposed"], scores[False]["log_rmse_well_exposed"])
     assert well[0] <= 2.0 * well[1], well
     assert scores[True]["log_rmse_recoverable_offline"] <= 1.05 * scores[False]["log_rmse_recoverable_offline"]
+
+
+def test_event_log_change_by_hand():
+    # 1x3 pixels: pixel 0 brightens by ln(e^3) = 3 and fires 10 ON events at c = 0.25 (2.5 of
+    # 3 ln reported); pixel 1 brightens by 1 (below the 2 ln cut); pixel 2 stays
+    from hybridhdr.evaluate.accuracy import event_log_change
+    from hybridhdr.events import EVENT_DTYPE, SensorSize
+    from hybridhdr.model import Frames, HDRReferences, Recording
+    ev = np.zeros(11, EVENT_DTYPE)
+    ev["t"] = np.arange(11) * 10 + 5
+    ev["p"] = 1
+    ev["x"][10] = 1
+    ref = np.ones((2, 1, 3), np.float32)
+    ref[1, 0, 0], ref[1, 0, 1] = np.exp(3.0), np.exp(1.0)
+    fr = Frames(np.zeros((2, 1, 3), np.uint8), np.array([0, 100]), np.array([1, 101]), encoding="gamma")
+    rec = Recording(ev, SensorSize(1, 3), fr, hdr=HDRReferences(ref, np.array([5, 110])))
+    r = event_log_change(rec, 0.25)
+    assert r["pixels"] == 1 and r["true_ln_rise"] == pytest.approx(3.0, rel=1e-6)
+    assert r["events_ln_rise"] == pytest.approx(2.5) and r["fraction_reported"] == pytest.approx(2.5 / 3, rel=1e-6)
+    assert event_log_change(rec, None) is None and event_log_change(rec, 0.25, min_rise=5) is None

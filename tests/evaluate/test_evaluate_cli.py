@@ -199,3 +199,21 @@ def test_ahdr_dataset_and_clipped_camera_profile():
     assert im.min() >= 100 and im.max() <= 160 and len(d.recording.events) > 0
     assert d.contrast_threshold == pytest.approx(0.2)  # from the recording's provenance (clean preset)
     assert d.profile is not None and d.profile.weighting[100] == 0
+
+
+def test_paper_table_labels_the_stress_set():
+    # HDR set v2 ("HDR:"), the former scenes as "HDR-stress:", AHDR: three labelled sets; the
+    # stress set has no paper column value and its own reductions in the numbers
+    rows = []
+    for ds, (a, c, f) in (("HDR:w", (0.01, 0.04, 0.05)), ("HDR-stress:d", (0.03, 0.03, 0.03)),
+                          ("AHDR:c", (0.01, 0.02, 0.02))):
+        for lab, m in (("akf", a), ("cf", c), ("frames", f)):
+            rows.append({"dataset": ds, "method_label": lab, "status": "ok", "mse": m, "ssim": 0.9 if lab == "akf"
+                         else 0.6, "q": math.nan, "log_mse": m, "log_ssim": 0.5})
+    text, nums = paper_table(rows)
+    assert "| HDR-stress | MSE | 3.000e-02 | 3.000e-02 | — |" in text
+    assert "| HDR | MSE | 4.000e-02 | 1.000e-02 | 1.710e-02 |" in text
+    assert nums["mse_reduction_pct"] == pytest.approx(75.0) and nums["stress_mse_reduction_pct"] == pytest.approx(0.0)
+    assert nums["mse_reduction_vs_frames_pct"] == pytest.approx(80.0)
+    assert nums["ssim_improvement_vs_frames_pct"] == pytest.approx(50.0)
+    assert "on the HDR-stress set" in text and "on the HDR set (v2)" in text

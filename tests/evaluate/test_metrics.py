@@ -138,8 +138,19 @@ def test_normalisation_policy():
     ref = np.array([[2e-3, 2e-3, 1000.0, 1000.0]])  # dim part x2, bright part x1000 (a saturated frame)
     assert M.fit_normalisation(x, ref, "scale")[0] == pytest.approx(math.sqrt(2 * 1000), rel=1e-12)
     assert M.fit_normalisation(x, ref, "scale_linear")[0] == pytest.approx(1000, rel=1e-5)
-    t01, _, _ = M.normalise_pair(r * 10, r, "none")
-    assert t01.max() == 1.0  # clipped
+    # symmetric by default (the AKF authors' anal_hdr_results.m scores the raw output): an
+    # overshoot is kept, and costs as much as the same undershoot
+    t01, r01, info = M.normalise_pair(r * 10, r, "none")
+    assert info["clip"] == "none" and t01.max() == pytest.approx(10.0, rel=1e-12)
+    over = M.score_video(r * 1.5, r, pu21=False)["mse"]
+    under = M.score_video(r * 0.5, r, pu21=False)["mse"]
+    assert over == pytest.approx(under, rel=1e-12) and over > 0
+    # the former policy by name: clipped at the reference maximum, where overshoot is cheaper
+    t01, _, info = M.normalise_pair(r * 10, r, "none", clip="reference_max")
+    assert t01.max() == 1.0 and info["clip"] == "reference_max"
+    assert M.score_video(r * 1.5, r, pu21=False, clip="reference_max")["mse"] < over
+    with pytest.raises(ValueError, match="clip"):
+        M.normalise_pair(r, r, "none", clip="max")
     with pytest.raises(ValueError, match="normalise"):
         M.fit_normalisation(r, r, "log")
     # unaltered scoring by default (the paper's Table 1), for every method
@@ -170,7 +181,9 @@ def test_log_pair_by_hand():
     # the reference log range is [log 1e-4, 0] (floored), so v = 1 + log10(I)/4
     np.testing.assert_allclose(r, [[1.0, 0.5], [0.75, 0.0]], atol=1e-15)
     assert t[0, 0] == pytest.approx(1.0) and t[0, 1] == pytest.approx(0.75) and np.isnan(t[1, 0])
-    assert t[1, 1] == 1.0  # clipped
+    assert t[1, 1] == pytest.approx(1 + math.log10(2) / 4)  # symmetric: above the reference max kept
+    t, _ = M.log_pair(test, ref, 1e-4, clip="reference_max")
+    assert t[1, 1] == 1.0  # the former policy: clipped
 
 
 def test_score_video_perfect_and_nan():

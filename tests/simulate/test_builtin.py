@@ -105,3 +105,31 @@ def test_blinking_checkerboard_poses():
     kfs = sc.camera.trajectory.keyframes
     assert len({k.position for k in kfs}) == 3
     assert len(sc.info["camera_pose_change_times_us"]) == 4  # hold/move keyframes between 3 views
+
+
+@pytest.mark.parametrize("name", ["window_scenery", "lamp_shade", "sunlit_facade"])
+def test_hdr_v2_scene_carries_recoverable_hdr(name):
+    # HDR set v2's design: bright textured panes 10^2-10^3x the shadows that the 10 ms frames
+    # clip (radiance 2 = the clip level of the set's camera), and every bright pixel seen
+    # unclipped at some time while the hand-held camera sweeps (renders every 50 ms at 87x65)
+    from hybridhdr.simulate.builtin import REALISTIC_SENSOR, SCENE_TIERS, scene_sensor
+    sc = builtin_scene(name, width=87, height=65, spp=1)
+    assert sc.info["sensor_tiers"] == list(SCENE_TIERS[name][0])
+    src = MitsubaSource(sc)
+    imgs = np.stack([src.render(t) for t in range(0, 1_000_001, 50_000)])
+    clip = 2.0
+    bright = imgs > clip
+    shadow = np.quantile(imgs[imgs > 0], 0.05)
+    assert 0.1 < bright.mean() < 0.5  # a good part of the view clips
+    assert np.quantile(imgs[bright], 0.9) / shadow > 100  # 10^2-10^3x the shadows
+    # seen unclipped at another time: >= 90 % of the pixel-times that clip (the rest: the view's
+    # edges, where panes enter and leave the frame)
+    seen = (~bright).any(axis=0)
+    assert np.mean(seen[None].repeat(len(imgs), 0)[bright]) > 0.9
+    # the scene's event sensor: the realistic profile restricted to its tiers
+    s = scene_sensor(name)
+    assert s["threshold_mismatch_sigma"] == REALISTIC_SENSOR["threshold_mismatch_sigma"]
+    if 3 not in SCENE_TIERS[name][0]:
+        assert s["shot_noise_rate_hz"] == 0 and s["leak_rate_hz"] == 0
+    with pytest.raises(ValueError, match="scene_sensor"):
+        scene_sensor("dark_room_window")
