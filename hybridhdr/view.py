@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._util.atomic import atomic_path
-from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
+from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, image_side
 from ._util.timearg import add_time_window, time_arg
 from .formats.images import apply_display_map, display_map
 
@@ -63,7 +63,7 @@ def add_parser(sub) -> None:
     p.add_argument("--playback-fps", type=positive_float, default=30.0, help="frame rate the MP4 plays at")
     p.add_argument("--until", choices=("events", "frames", "last"), default="events",
                    help="where the clip stops: the last event, the last frame, or whichever is later")
-    p.add_argument("--height", type=positive_int, default=None,
+    p.add_argument("--height", type=image_side, default=None,
                    help="panel height in pixels (default: the sensor's, doubled until at least 360)")
     p.add_argument("--still", type=Path, default=None, metavar="PNG",
                    help="also write the clip's middle frame as a PNG (e.g. for documentation)")

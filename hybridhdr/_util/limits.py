@@ -34,6 +34,7 @@ from ..errors import FormatError
 __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_sensor_size", "check_frame_shape",
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
            "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
+           "check_h5_self_contained",
            "OVERRIDE_HINT"]
 
 LIMITS = {
@@ -83,6 +84,8 @@ def _exceeded(path, what: str, value, limit, offset=None, record=None):
 def check_sensor_size(height, width, path=None, what: str = "sensor") -> tuple[int, int]:
     """Validate a sensor (or frame, ROI) size from a header: positive integers up to ``max_side``."""
     try:
+        if any(isinstance(v, (float, np.floating)) and not float(v).is_integer() for v in (height, width)):
+            raise ValueError("not integral")  # 33.5 is not a size (it used to become 33)
         h, w = int(height), int(width)
     except (TypeError, ValueError, OverflowError):
         raise FormatError(path, f"{what} size {height!r} x {width!r} is not a pair of integers") from None
@@ -242,3 +245,40 @@ def open_image(path, what: str = "image"):
     w, h = im.size
     check_sensor_size(h, w, path, what)
     return im
+
+
+def check_h5_self_contained(f, path=None, max_objects: int = 1_000_000) -> None:
+    """An HDF5 file must hold all its data itself: external links, external raw storage and
+    virtual datasets are refused (they make a reader open other files: ``/etc/passwd`` as frames,
+    fill values for a missing source). Never lifted (``docs/security.md``)."""
+    import h5py
+    seen = [0]
+
+    def walk(g, prefix):
+        for name in g:
+            seen[0] += 1
+            if seen[0] > max_objects:
+                raise FormatError(path, f"holds more than {max_objects:,} HDF5 objects; refusing to walk it")
+            full = f"{prefix}/{name}"
+            link = g.get(name, getlink=True)
+            if isinstance(link, h5py.ExternalLink):
+                raise FormatError(path, f"{full} is an HDF5 external link to {link.filename}:{link.path}; links to "
+                                        f"other files are not followed (docs/security.md)")
+            if isinstance(link, h5py.SoftLink):
+                continue  # points inside this file; the target is checked where it lives
+            obj = g.get(name)
+            if isinstance(obj, h5py.Group):
+                walk(obj, full)
+            elif isinstance(obj, h5py.Dataset):
+                if obj.is_virtual:
+                    raise FormatError(path, f"{full} is an HDF5 virtual dataset (data mapped from other files); "
+                                            f"not read (docs/security.md)")
+                if obj.external:
+                    raise FormatError(path, f"{full} stores its data in external file(s) "
+                                            f"{[e[0] for e in obj.external][:3]}; not read (docs/security.md)")
+    try:
+        walk(f, "")
+    except FormatError:
+        raise
+    except (KeyError, OSError, RuntimeError, ValueError) as e:
+        raise FormatError(path, f"cannot walk the HDF5 structure ({type(e).__name__}: {e})") from None

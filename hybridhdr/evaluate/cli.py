@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
+from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float, worker_count
 
 
 def add_parser(sub) -> None:
@@ -57,7 +57,7 @@ def add_parser(sub) -> None:
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
                                                      "processes")
-    b.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes (0 = in this process; "
+    b.add_argument("--workers", type=worker_count, default=None, help="local worker processes (0 = in this process; "
                                                              "default min(2, CPUs))")
     b.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder for Q (default $HYBRIDHDR_HDRVDP_DIR; never read from the bench file)")
@@ -71,7 +71,7 @@ def add_parser(sub) -> None:
                                     "method, print a table shaped like the paper's Table 1.")
     q.add_argument("--out", type=Path, required=True, help="output folder")
     q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
-    q.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes")
+    q.add_argument("--workers", type=worker_count, default=None, help="local worker processes")
     q.add_argument("--scheduler", default=None, help="Dask scheduler address")
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
     q.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],

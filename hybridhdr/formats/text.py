@@ -649,16 +649,12 @@ class EcdWriter(EventFileWriter):
 
     format_name = "ecd"
     supports = frozenset({"frames"})
+    partial_is_dir = True
 
     def _open(self) -> None:
         if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
             raise FileExistsError(f"{self.path}: exists and is not an empty folder; refusing to overwrite")
-        if self.tmp_path.exists():
-            if self.tmp_path.is_dir():
-                shutil.rmtree(self.tmp_path)
-            else:
-                self.tmp_path.unlink()
-        self.tmp_path.mkdir(parents=True)
+        # self.tmp_path was created (exclusively, with a marker) by EventFileWriter
         self._ev = open(self.tmp_path / "events.txt", "w", encoding="ascii", newline="\n")
         self._img = None
         self._n_frames = 0

@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, positive_float
+from .._util.cliargs import chunk_events_count, positive_worker_count, worker_count
 from .._util.timearg import add_time_window
 
 _FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
@@ -77,10 +78,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
                    help="declare the frames' encoding (default: as the recording states)")
     add_time_window(p, "outputs")
-    p.add_argument("--workers", type=positive_int, default=1,
+    p.add_argument("--workers", type=positive_worker_count, default=1,
                    help="threads for the row-band parallel kernels (the two-sided AKF with >= 2 runs its backward and "
                         "forward passes at once, each with half); the output is the same bit for bit")
-    p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
+    p.add_argument("--chunk-events", type=chunk_events_count, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
     o.add_argument("--mp4", action="store_true", help="also write a tone-mapped MP4 preview (every output frame)")
@@ -91,7 +92,7 @@ def add_parser(subparsers) -> None:
                    help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
                         f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: none: lossless and the fastest; "
                         f"zip saves about 6 %% of the bytes for 4x the encoding time]")
-    o.add_argument("--writers", type=nonneg_int, default=None,
+    o.add_argument("--writers", type=worker_count, default=None,
                    help="writer processes encoding files while the filter runs; 0 writes in the main thread "
                         "(same bytes) [default: min(2, CPUs)]")
     o.add_argument("--overwrite", action="store_true",

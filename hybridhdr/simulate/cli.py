@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .._util.cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
-    positive_int
+    positive_int, image_side
 
 
 def add_parser(subparsers) -> None:
@@ -38,8 +38,8 @@ def add_parser(subparsers) -> None:
                    help="Mitsuba sampler seed, the same for every render (default: the scene's)")
     p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb"],
                    help="Mitsuba variant (default: llvm_ad_mono if LLVM works, else scalar_rgb)")
-    p.add_argument("--width", type=positive_int, default=None, help="image width in pixels (intrinsics scale with it)")
-    p.add_argument("--height", type=positive_int, default=None, help="image height in pixels")
+    p.add_argument("--width", type=image_side, default=None, help="image width in pixels (intrinsics scale with it)")
+    p.add_argument("--height", type=image_side, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
     f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
     f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=20.0,
