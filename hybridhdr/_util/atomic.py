@@ -28,7 +28,7 @@ from pathlib import Path
 
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
            "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
-           "atomic_outputs"]
+           "atomic_outputs", "remap_paths"]
 
 _log = logging.getLogger(__name__)
 
@@ -326,3 +326,46 @@ def current_umask() -> int:
 def umask_file_mode() -> int:
     """The mode ``open()`` gives a new file: ``0o666 & ~umask`` (``mkstemp`` gives 0o600)."""
     return 0o666 & ~current_umask()
+
+
+@contextlib.contextmanager
+def atomic_outputs(out_dir, last: tuple[str, ...] = ()):
+    """Several files of one command, all or none: yield a hidden staging folder inside ``out_dir``
+    (created exclusively); when the block succeeds its entries are renamed into ``out_dir``
+    (folders merged, the names in ``last`` moved last, so a report appears only with what it
+    describes); when it fails (a full disk, an interrupt) the staging folder is removed and
+    ``out_dir`` holds none of the new files. Renames within one folder need no space."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".hybridhdr-staging.", dir=out))
+    try:
+        yield stage
+
+        def move(src: Path, dst: Path):
+            entries = sorted(src.iterdir(), key=lambda p: (p.name in last, last.index(p.name) if p.name in last else 0))
+            for p in entries:
+                q = dst / p.name
+                if p.is_dir() and not p.is_symlink() and q.is_dir() and not q.is_symlink():
+                    move(p, q)
+                else:
+                    if q.is_dir() and not q.is_symlink():
+                        raise IsADirectoryError(errno.EISDIR, f"{q} is a folder; not replacing it with a file")
+                    os.replace(p, q)
+        move(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def remap_paths(obj, stage, out):
+    """``obj`` (a dict/list of paths, as writers return them) with paths under ``stage`` moved to ``out``."""
+    stage, out = Path(stage), Path(out)
+    if isinstance(obj, dict):
+        return {k: remap_paths(v, stage, out) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(remap_paths(v, stage, out) for v in obj)
+    if isinstance(obj, Path):
+        try:
+            return out / obj.relative_to(stage)
+        except ValueError:
+            return obj
+    return obj

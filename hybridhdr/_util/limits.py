@@ -34,7 +34,8 @@ from ..errors import FormatError
 __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_sensor_size", "check_frame_shape",
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
            "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
-           "check_h5_self_contained",
+           "check_h5_self_contained", "check_number", "check_input_file", "read_bytes_bounded",
+           "read_text_bounded",
            "OVERRIDE_HINT"]
 
 LIMITS = {
@@ -42,6 +43,11 @@ LIMITS = {
     "max_frame_bytes": 4 << 30,
     "max_packet_bytes": 256 << 20,
     "max_outputs": 1_000_000,
+    "max_duration_us": 3_600_000_000,   # simulated time of a scene / bench dataset: 1 hour
+    "max_runs": 10_000,                 # runs of one bench after grids are expanded
+    "max_spp": 4096,                    # renderer samples per pixel
+    "max_subdivisions": 8,              # icosphere subdivisions (20 * 4^8 = 1.3 M faces)
+    "max_text_bytes": 64 << 20,         # a config / profile / CRF / --times-us file read whole
 }
 
 OVERRIDE_HINT = "if the data really is that large, pass --allow-huge (or set HYBRIDHDR_ALLOW_HUGE=1)"
@@ -245,6 +251,66 @@ def open_image(path, what: str = "image"):
     w, h = im.size
     check_sensor_size(h, w, path, what)
     return im
+
+
+def check_number(value, what: str, *, lo=None, limit: str | None = None, hi=None, integer: bool = False,
+                 path=None):
+    """A number from a scene, bench or option: finite, ``>= lo``, an integer if ``integer``, at
+    most ``hi`` (never lifted) and at most ``LIMITS[limit]`` (lifted by ``--allow-huge``).
+    Checked before anything is allocated (a duration of 9e18 µs used to end in a segfault)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{what} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (lo is not None and v < lo):
+        raise ValueError(f"{what} must be finite" + (f" and >= {lo:g}" if lo is not None else "") + f", got {value!r}")
+    if integer and not v.is_integer():
+        raise ValueError(f"{what} must be a whole number, got {value!r}")
+    if hi is not None and v > hi:
+        raise ValueError(f"{what} must be at most {hi:g}, got {value!r}")
+    if limit is not None and v > LIMITS[limit] and not huge_allowed():
+        raise LimitExceeded(path, f"{what} = {value!r} exceeds the limit of {LIMITS[limit]:,}; {OVERRIDE_HINT}")
+    return int(v) if integer else v
+
+
+def check_input_file(path, what: str = "input") -> None:
+    """``path`` must be a regular file (or a folder, for folder formats) - never a FIFO, a device
+    or a socket, which would hang the reader (a FIFO) or never end (``/dev/zero``)."""
+    import stat
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {path} does not exist") from None
+    except OSError as e:
+        raise OSError(e.errno, f"cannot access {what} {path}: {e.strerror}") from None
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else "a character device" if stat.S_ISCHR(st.st_mode)
+                else "a block device" if stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode)
+                else "not a regular file")
+        raise FormatError(path, f"{what} is {kind}; only regular files (and folders) are read")
+
+
+def read_bytes_bounded(path, what: str = "file", limit: int | None = None) -> bytes:
+    """The bytes of a small input file (config, profile, CRF, time list), refused when it is not a
+    regular file or larger than ``max_text_bytes`` (64 MiB; ``--allow-huge`` lifts it)."""
+    check_input_file(path, what)
+    lim = LIMITS["max_text_bytes"] if limit is None else int(limit)
+    with open(path, "rb") as f:
+        data = f.read(lim + 1)
+    if len(data) > lim and not huge_allowed():
+        raise LimitExceeded(path, f"{what} is larger than {lim:,} bytes; {OVERRIDE_HINT}")
+    if len(data) > lim:
+        with open(path, "rb") as f:
+            data = f.read()
+    return data
+
+
+def read_text_bounded(path, what: str = "file", encoding: str = "utf-8", limit: int | None = None) -> str:
+    """:func:`read_bytes_bounded` decoded (a decoding error names the file)."""
+    data = read_bytes_bounded(path, what, limit)
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as e:
+        raise FormatError(path, f"{what} is not {encoding} text ({e.reason} at byte {e.start})") from None
 
 
 def check_h5_self_contained(f, path=None, max_objects: int = 1_000_000) -> None:

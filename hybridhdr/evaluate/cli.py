@@ -322,11 +322,16 @@ def run_bench_cmd(args) -> int:
     bad = sum(1 for r in rows if r.get("status") != "ok")
     if bad:
         print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)
+
     args.emit_json({"bench": bench.name, "runs": len(rows), "failed": bad, "summary": summary_table(rows),
                     "akf_vs_cf": akf_vs_cf(rows), "stability_failures": w.get("failures", []),
                     "errors": [{"dataset": r.get("dataset"), "method": r.get("method_label"),
                                 "status": r.get("status")} for r in rows if r.get("status") != "ok"],
                     "written": _written(w)})
+    if rows and bad == len(rows):  # nothing was measured: a failure, not a result (docs/security.md)
+        print(f"{getattr(args, '_prog', 'hybridhdr evaluate bench')}: error: every run failed ({bad} of {len(rows)}); "
+              f"the reasons are in {w['report_md']}", file=sys.stderr)
+        return 1
     return 0
 
 
