@@ -82,7 +82,8 @@ def main(argv=None) -> int:
                         format="%(name)s: %(message)s")
     try:
         # SIGTERM/SIGHUP end a command as Ctrl-C does: partial outputs and temp files are removed
-        with signals_exit(), contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
+        from ._util.limits import allow_huge
+        with signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

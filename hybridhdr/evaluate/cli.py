@@ -64,6 +64,8 @@ def add_parser(sub) -> None:
     b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
                    help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
                         "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
+    b.add_argument("--allow-huge", action="store_true",
+                   help="lift the limits on the number of runs and dataset sizes/durations (docs/security.md)")
     b.set_defaults(func=run_bench_cmd)
 
     q = esub.add_parser("paper", formatter_class=fmt, help="Table 1 of the paper on simulated HDR and AHDR sets",
@@ -132,6 +134,8 @@ def _read_timestamps(path: Path):
                 ts.append(int(parts[0]))
             except ValueError:
                 raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
+            from .._util.confine import inside_folder
+            inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
             names.append(parts[1])
     return np.asarray(ts, np.int64), names
 

@@ -563,7 +563,9 @@ class EcdReader(EventFileReader):
                 raise FormatError(self.images_txt, f"line {k}: frame timestamps must be non-decreasing; "
                                                    f"{t_us} µs after {last} µs", record=k)
             last = t_us
-            out.append((t_us, self.folder / rel, k))
+            from .._util.confine import inside_folder
+            # an absolute name or one leading out of the folder is refused (untrusted data)
+            out.append((t_us, inside_folder(rel, self.folder, what=f"line {k}: image", source=self.images_txt), k))
         return out
 
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:

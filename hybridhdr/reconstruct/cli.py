@@ -329,7 +329,10 @@ def run(args) -> int:
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
-            times = np.loadtxt(args.times_us, dtype=np.int64, ndmin=1, comments="#")
+            import io
+            from .._util.limits import read_text_bounded
+            times = np.loadtxt(io.StringIO(read_text_bounded(args.times_us, "--times-us file")), dtype=np.int64,
+                               ndmin=1, comments="#")
         compression = (args.exr_compression or DEFAULT_EXR_COMPRESSION).lower()
         if compression not in exr_compressions():
             raise ValueError(f"--exr-compression {args.exr_compression!r}: expected one of {exr_compressions()}")

@@ -38,6 +38,8 @@ def add_parser(subparsers) -> None:
                    help="Mitsuba sampler seed, the same for every render (default: the scene's)")
     p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb"],
                    help="Mitsuba variant (default: llvm_ad_mono if LLVM works, else scalar_rgb)")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the limits on scene sizes, durations and sample counts (docs/security.md)")
     p.add_argument("--width", type=image_side, default=None, help="image width in pixels (intrinsics scale with it)")
     p.add_argument("--height", type=image_side, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
