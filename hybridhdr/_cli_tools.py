@@ -199,8 +199,10 @@ def run_convert(args) -> int:
     from ._util.limits import allow_huge
     from ._util.timearg import check_window, empty_window_error, resolve_window, window_given
     from .formats.span import recording_span
+    from ._util.atomic import refuse_overwriting_inputs
     windowed = window_given(args)
     check_window(args)
+    refuse_overwriting_inputs({"OUTPUT": args.output}, [args.input])
     with allow_huge(args.allow_huge):
         t0 = t1 = None
         if windowed:

@@ -193,6 +193,9 @@ def run(args) -> int:
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
         raise ValueError(f"--out {args.out}: expected an .mp4 file name")
+    from ._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({"--out": args.out, "--still": args.still},
+                              [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []))
     recon = _Recon(args.recon) if args.recon is not None else None
     span = recording_span(args.recording, args.format)
     if span.origin_us is None:
@@ -266,6 +269,12 @@ def run(args) -> int:
                 if stream is not None:
                     stream.close()
                     stream = None
+                if args.still is not None and still is not None:
+                    # the still and the MP4 are written both or neither: the PNG is committed while
+                    # the MP4 is still at its temporary name, which a failure here removes
+                    args.still.parent.mkdir(parents=True, exist_ok=True)
+                    with atomic_path(args.still, ".png") as tmp_still:
+                        _write_png(tmp_still, still)
             except BaseException:
                 if stream is not None:
                     try:
@@ -276,9 +285,6 @@ def run(args) -> int:
             finally:
                 if bar is not None:
                     bar.close()
-    if args.still is not None and still is not None:
-        args.still.parent.mkdir(parents=True, exist_ok=True)
-        _write_png(args.still, still)
     res = {"out": str(out), "frames": len(times), "fps": fps, "playback_fps": args.playback_fps,
            "accumulate_us": acc, "t_first_us": int(times[0]), "t_last_us": int(times[-1]),
            "panels": ["events"] + (["frames"] if frames is not None else []) + (["reconstruction"] if recon else []),

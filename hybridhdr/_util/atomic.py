@@ -28,7 +28,7 @@ from pathlib import Path
 
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
            "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
-           "atomic_outputs", "remap_paths"]
+           "atomic_outputs", "remap_paths", "refuse_overwriting_inputs"]
 
 _log = logging.getLogger(__name__)
 
@@ -369,3 +369,33 @@ def remap_paths(obj, stage, out):
         except ValueError:
             return obj
     return obj
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def refuse_overwriting_inputs(outputs, inputs) -> None:
+    """Refuse (``ValueError``, before any work) an output that is one of the inputs, or an input
+    inside an output folder that the command replaces: ``view rec.h5 --still rec.h5`` or
+    ``simulate s.toml --out s.toml`` used to replace the input silently.
+
+    ``outputs``: ``{"--out": path, ...}`` (None values skipped) or a list of paths;
+    ``inputs``: paths (None skipped). Compared after following links (hard links too)."""
+    items = outputs.items() if isinstance(outputs, dict) else [("output", o) for o in outputs]
+    ins = [Path(os.fspath(i)) for i in inputs if i is not None]
+    for flag, out in items:
+        if out is None:
+            continue
+        out = Path(os.fspath(out))
+        for i in ins:
+            if not (i.exists() or i.is_symlink()):
+                continue
+            if (out.exists() or out.is_symlink()) and _same_file(out, i):
+                raise ValueError(f"{flag} {out} is the input {i}; refusing to overwrite an input "
+                                 f"(choose another output name)")
+            if not out.exists() and os.path.realpath(out) == os.path.realpath(i):
+                raise ValueError(f"{flag} {out} is the input {i}; refusing to overwrite an input")

@@ -168,6 +168,9 @@ def run(args) -> int:
         return 0
     if args.scene is None:
         raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
+    from .._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({"--out": args.out, "--preview": args.preview},
+                              [] if str(args.scene).startswith("builtin:") else [args.scene])
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
                            spp=args.spp, render_seed=args.render_seed,
                            board_options={"poses": args.poses, "period_us": args.blink_period_us},
