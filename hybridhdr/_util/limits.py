@@ -35,7 +35,7 @@ __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_senso
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
            "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
            "check_h5_self_contained", "check_number", "check_input_file", "read_bytes_bounded",
-           "read_text_bounded",
+           "read_text_bounded", "check_memory", "memory_budget_bytes",
            "OVERRIDE_HINT"]
 
 LIMITS = {
@@ -270,6 +270,42 @@ def check_number(value, what: str, *, lo=None, limit: str | None = None, hi=None
     if limit is not None and v > LIMITS[limit] and not huge_allowed():
         raise LimitExceeded(path, f"{what} = {value!r} exceeds the limit of {LIMITS[limit]:,}; {OVERRIDE_HINT}")
     return int(v) if integer else v
+
+
+def memory_budget_bytes() -> int:
+    """Memory one working set may take: half the machine's RAM, and no more than the address
+    space this process may still map (``RLIMIT_AS``) minus 256 MiB of headroom."""
+    budget = 1 << 62
+    try:
+        with open("/proc/meminfo") as f:
+            for ln in f:
+                if ln.startswith("MemTotal:"):
+                    budget = int(ln.split()[1]) * 1024 // 2
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            vm = 0
+            with open("/proc/self/status") as f:
+                for ln in f:
+                    if ln.startswith("VmSize:"):
+                        vm = int(ln.split()[1]) * 1024
+            budget = min(budget, max(0, soft - vm - (256 << 20)))
+    except (ImportError, OSError, ValueError):
+        pass
+    return int(budget)
+
+
+def check_memory(n_bytes, path=None, what: str = "working set") -> None:
+    """``n_bytes`` (an estimate made before allocating) within :func:`memory_budget_bytes`."""
+    n_bytes = int(n_bytes)
+    budget = memory_budget_bytes()
+    if n_bytes > budget and not huge_allowed():
+        raise LimitExceeded(path, f"{what} would take about {n_bytes:,} bytes of memory, more than the "
+                                  f"{budget:,} available to it; {OVERRIDE_HINT}")
 
 
 def check_input_file(path, what: str = "input") -> None:

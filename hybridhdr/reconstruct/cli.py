@@ -81,6 +81,8 @@ def add_parser(subparsers) -> None:
     p.add_argument("--workers", type=positive_worker_count, default=1,
                    help="threads for the row-band parallel kernels (the two-sided AKF with >= 2 runs its backward and "
                         "forward passes at once, each with half); the output is the same bit for bit")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the size limits on the input's frames and outputs (docs/security.md)")
     p.add_argument("--chunk-events", type=chunk_events_count, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
