@@ -429,8 +429,10 @@ def run(args) -> int:
             raise
         print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
         from .._util.timearg import EmptyWindowError
+        from ..errors import FormatError
+        # a bad or oversized input file (FormatError, LimitExceeded, a FIFO) is not a usage error: 1
         usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
-                 and not isinstance(e, EmptyWindowError))
+                 and not isinstance(e, (EmptyWindowError, FormatError)))
         return 2 if usage else 1
 
 
