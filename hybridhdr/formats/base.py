@@ -307,6 +307,8 @@ class EventFileWriter:
     def abort(self) -> None:
         """Drop the partial output."""
         self._closed = True
+        if getattr(self, "_partial_fd", None) is None:
+            return  # the partial name was never ours (another run holds it) or is already renamed
         try:
             self._cleanup()
         finally:

@@ -368,7 +368,7 @@ class _MP4Stream:
             self._log.seek(0)
             lines = [ln.strip() for ln in self._log.read().decode("utf-8", "replace").splitlines() if ln.strip()]
             msg = lines[-1] if lines else ""
-        except OSError:
+        except (OSError, ValueError):
             pass
         return OSError(errno.EIO, f"ffmpeg failed while writing {self.path.name} ({what})"
                                   + (f": {msg[:200]}" if msg else ""))
@@ -381,6 +381,9 @@ class _MP4Stream:
             raise self._failed("it stopped reading frames") from None
 
     def close(self) -> None:
+        if getattr(self, "_done", False):  # a second close (an error path) does nothing
+            return
+        self._done = True
         try:
             try:
                 self.gen.close()

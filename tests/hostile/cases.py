@@ -775,8 +775,8 @@ def bench_unknown_charts_table(d):
 
 @case("bench")
 def bench_every_run_failed_exits_1(d):
-    t = _BENCH_HEAD + '[[methods]]\nmethod = "e2vid"\nparams = { weights = "broken.pth" }\n'
-    return _bench(d, t, ["broken.pth"]), None
+    t = _BENCH_HEAD + '[[methods]]\nmethod = "akf"\nparams = { contrast_threshold = -1.0 }\n'
+    return _bench(d, t), None
 
 
 @case("bench", "usage")
