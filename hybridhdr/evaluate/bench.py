@@ -86,15 +86,22 @@ class RunSpec:
     grid_values: dict
 
 
+def _check_grid(grid, where: str) -> None:
+    """A grid's shape (a table of non-empty lists), checked without expanding it."""
+    if grid is None:
+        return
+    if not isinstance(grid, dict):
+        raise TypeError(f"{where}.grid must be a table of name = [values], got {type(grid).__name__}")
+    for n in grid:
+        if not isinstance(grid[n], list) or not grid[n]:
+            raise ValueError(f"{where}.grid.{n} must be a non-empty list, got {grid[n]!r}")
+
+
 def _grid(grid: dict, where: str):
     if grid is None:
         return [{}]
-    if not isinstance(grid, dict):
-        raise TypeError(f"{where}.grid must be a table of name = [values], got {type(grid).__name__}")
+    _check_grid(grid, where)
     names = list(grid)
-    for n in names:
-        if not isinstance(grid[n], list) or not grid[n]:
-            raise ValueError(f"{where}.grid.{n} must be a non-empty list, got {grid[n]!r}")
     return [dict(zip(names, vals)) for vals in itertools.product(*(grid[n] for n in names))]
 
 
@@ -256,8 +263,8 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
         if x["name"] in names:
             raise ValueError(f"datasets[{i}]: duplicate name {x['name']!r}")
         names.add(x["name"])
-        _grid(x.get("grid"), f"datasets[{i}]")
-        _grid(x.get("method_grid"), f"datasets[{i}].method_grid")
+        _check_grid(x.get("grid"), f"datasets[{i}]")
+        _check_grid(x.get("method_grid"), f"datasets[{i}].method_grid")
     labels = set()
     for i, m in enumerate(ms):
         if not isinstance(m, dict) or "method" not in m:
@@ -270,7 +277,7 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
         if m["name"] in labels:
             raise ValueError(f"methods[{i}]: duplicate name {m['name']!r}")
         labels.add(m["name"])
-        _grid(m.get("grid"), f"methods[{i}]")
+        _check_grid(m.get("grid"), f"methods[{i}]")
     charts = d.get("charts", {})
     if not isinstance(charts, dict) or sorted(set(charts) - _CHART_KEYS):
         raise ValueError(f"{source or 'bench'}: unknown [charts] table(s) "

@@ -263,6 +263,11 @@ def _toml_fields(cls, path) -> dict:
     if cls._toml_table in d and isinstance(d[cls._toml_table], dict):
         d = d[cls._toml_table]
     d = {k: v for k, v in d.items() if not isinstance(v, dict)}
+    if d.get("allow_pickle"):  # unpickling runs code from the checkpoint: only the user's own command line
+        from ..errors import FormatError
+        raise FormatError(path, "allow_pickle is not accepted in a --config file (it lets a checkpoint run Python "
+                                "code); give --set allow_pickle=true yourself if you trust the checkpoint "
+                                "(docs/security.md)")
     cls.from_dict(d)  # validates names
     return d
 

@@ -1205,6 +1205,13 @@ def hdr_reference_crf_dev_zero(d):
         _nothing_at(d / "ref.exr")
 
 
+@case("special")
+def reconstruct_config_sets_allow_pickle(d):
+    (d / "evil.pth").write_bytes(b"payload")
+    (d / "run.toml").write_text('weights = "evil.pth"\nallow_pickle = true\n')
+    return _rec_argv(d, "--fps", "10", "--method", "e2vid", "--config", str(d / "run.toml")), _nothing_at(d / "o")
+
+
 # -- runner (fork server) -----------------------------------------------------------------------
 def _preload():
     import hybridhdr.cli  # noqa: F401
