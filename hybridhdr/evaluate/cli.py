@@ -232,16 +232,15 @@ def _json_safe(v):
 def write_frames_csv(frames: list[dict], path) -> Path:
     """Per-frame scores as CSV (csv module, one header of the union of keys in first-seen order)."""
     import csv
-    import os
+
+    from .._util.atomic import atomic_path
     path = Path(path)
     cols = list(dict.fromkeys(k for f in frames for k in f))
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:  # unique temp name
         w = csv.DictWriter(fh, fieldnames=cols, restval="")
         w.writeheader()
         for f in frames:
             w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in f.items()})
-    os.replace(tmp, path)
     return path
 
 
