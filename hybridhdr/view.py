@@ -277,10 +277,7 @@ def run(args) -> int:
                         _write_png(tmp_still, still)
             except BaseException:
                 if stream is not None:
-                    try:
-                        stream.close()
-                    except OSError:
-                        pass
+                    stream.abort()  # ffmpeg killed and waited for before the temporary MP4 is removed
                 raise
             finally:
                 if bar is not None:

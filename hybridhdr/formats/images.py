@@ -352,15 +352,52 @@ class _MP4Stream:
         self.gen = imageio_ffmpeg.write_frames(str(path), size, pix_fmt_in="rgb24" if self.colour else "gray",
                                                fps=float(fps), codec="libx264", macro_block_size=1,
                                                ffmpeg_log_level="error")
+        import signal
+        import threading
+        self._proc = None
+        main = threading.current_thread() is threading.main_thread()
+        sigs = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
+        # no interrupt while ffmpeg starts: one that lands between its start and our handle on it
+        # would leave it running, to write the output file after this process has removed it
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs) if main else None
         saved = os.dup(2)
-        try:  # ffmpeg inherits stderr when it starts (in the first send): give it the log file
-            os.dup2(self._log.fileno(), 2)
-            self.gen.send(None)
+        try:
+            try:  # ffmpeg inherits stderr when it starts (in the first send): give it the log file
+                os.dup2(self._log.fileno(), 2)
+                self.gen.send(None)
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            frame = getattr(self.gen, "gi_frame", None)
+            self._proc = frame.f_locals.get("p") if frame is not None else None
         finally:
-            os.dup2(saved, 2)
-            os.close(saved)
-        frame = getattr(self.gen, "gi_frame", None)
-        self._proc = frame.f_locals.get("p") if frame is not None else None
+            if old is not None:
+                try:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a pending signal is raised here
+                except BaseException:
+                    self.abort()
+                    raise
+
+    def abort(self) -> None:
+        """Stop ffmpeg now (killed and waited for, so it writes nothing more); never raises."""
+        if getattr(self, "_done", False):
+            return
+        self._done = True
+        try:
+            if self._proc is not None and self._proc.poll() is None:
+                self._proc.kill()
+            if self._proc is not None:
+                self._proc.wait()
+        except Exception:
+            pass
+        try:
+            self.gen.close()
+        except Exception:
+            pass
+        try:
+            self._log.close()
+        except Exception:
+            pass
 
     def _failed(self, what: str) -> OSError:
         msg = ""

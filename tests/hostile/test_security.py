@@ -150,6 +150,18 @@ def test_sigterm_convert_removes_its_partial_file(tmp_path):
     assert sorted(x.name for x in tmp_path.iterdir()) == ["r.h5"]
 
 
+def test_sigterm_view_removes_its_temporary_mp4(tmp_path):
+    pytest.importorskip("imageio_ffmpeg")
+    src = _recording(tmp_path / "r.h5", n=20_000)
+    p = _start_and_wait([sys.executable, "-m", "hybridhdr", "view", str(src), "--out", str(tmp_path / "v.mp4"),
+                         "--fps", "3000", "--no-progress"], lambda: bool(list(tmp_path.glob(".v.mp4.*partial*"))))
+    time.sleep(0.3)
+    p.send_signal(signal.SIGTERM)
+    err = p.communicate(timeout=60)[1]
+    assert p.returncode == 128 + signal.SIGTERM, err[-2000:]
+    assert sorted(x.name for x in tmp_path.iterdir()) == ["r.h5"]
+
+
 def test_kill9_reconstruct_leaves_no_writers_and_a_rerun_cleans_the_stale_folder(tmp_path):
     src = _recording(tmp_path / "r.h5", n=20_000, span_us=2_000_000)
     out = tmp_path / "o"
