@@ -8,7 +8,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ._util.cliargs import HelpFormatter, json_output, positive_int
+from ._util.cliargs import HelpFormatter, json_output, chunk_events_count
 from ._util.timearg import add_time_window
 
 
@@ -29,7 +29,7 @@ def add_parsers(sub) -> None:
     p.add_argument("output", type=Path)
     p.add_argument("--from", dest="from_format", default=None, help="input format (default: detect)")
     p.add_argument("--to", dest="to_format", default=None, help="output format (default: from extension)")
-    p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
+    p.add_argument("--chunk-events", type=chunk_events_count, default=1 << 20, help="events per streamed chunk")
     from .camera.encoding import ENCODING_CHOICES
     p.add_argument("--frame-encoding", choices=ENCODING_CHOICES, default=None,
                    help="declare the frames' transfer function (linear; gamma2.2: code = max*I^(1/2.2); srgb: "
@@ -199,8 +199,10 @@ def run_convert(args) -> int:
     from ._util.limits import allow_huge
     from ._util.timearg import check_window, empty_window_error, resolve_window, window_given
     from .formats.span import recording_span
+    from ._util.atomic import refuse_overwriting_inputs
     windowed = window_given(args)
     check_window(args)
+    refuse_overwriting_inputs({"OUTPUT": args.output}, [args.input])
     with allow_huge(args.allow_huge):
         t0 = t1 = None
         if windowed:

@@ -12,6 +12,7 @@ import logging
 import sys
 
 from . import _cli_tools, view
+from ._util.procs import signals_exit
 from ._util.cliargs import HelpFormatter, UsageError, cli_wording, finalise
 from ._version import __version__
 from .calibrate import cli as calibrate_cli
@@ -87,7 +88,9 @@ def main(argv=None) -> int:
     logging.basicConfig(level=logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)],
                         format="%(name)s: %(message)s")
     try:
-        with contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
+        # SIGTERM/SIGHUP end a command as Ctrl-C does: partial outputs and temp files are removed
+        from ._util.limits import allow_huge
+        with signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._util.atomic import atomic_path
-from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
+from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, image_side
 from ._util.timearg import add_time_window, time_arg
 from .formats.images import apply_display_map, display_map
 
@@ -63,7 +63,7 @@ def add_parser(sub) -> None:
     p.add_argument("--playback-fps", type=positive_float, default=30.0, help="frame rate the MP4 plays at")
     p.add_argument("--until", choices=("events", "frames", "last"), default="events",
                    help="where the clip stops: the last event, the last frame, or whichever is later")
-    p.add_argument("--height", type=positive_int, default=None,
+    p.add_argument("--height", type=image_side, default=None,
                    help="panel height in pixels (default: the sensor's, doubled until at least 360)")
     p.add_argument("--still", type=Path, default=None, metavar="PNG",
                    help="also write the clip's middle frame as a PNG (e.g. for documentation)")
@@ -193,6 +193,9 @@ def run(args) -> int:
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
         raise ValueError(f"--out {args.out}: expected an .mp4 file name")
+    from ._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({"--out": args.out, "--still": args.still},
+                              [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []))
     recon = _Recon(args.recon) if args.recon is not None else None
     span = recording_span(args.recording, args.format)
     if span.origin_us is None:
@@ -266,19 +269,19 @@ def run(args) -> int:
                 if stream is not None:
                     stream.close()
                     stream = None
+                if args.still is not None and still is not None:
+                    # the still and the MP4 are written both or neither: the PNG is committed while
+                    # the MP4 is still at its temporary name, which a failure here removes
+                    args.still.parent.mkdir(parents=True, exist_ok=True)
+                    with atomic_path(args.still, ".png") as tmp_still:
+                        _write_png(tmp_still, still)
             except BaseException:
                 if stream is not None:
-                    try:
-                        stream.close()
-                    except OSError:
-                        pass
+                    stream.abort()  # ffmpeg killed and waited for before the temporary MP4 is removed
                 raise
             finally:
                 if bar is not None:
                     bar.close()
-    if args.still is not None and still is not None:
-        args.still.parent.mkdir(parents=True, exist_ok=True)
-        _write_png(args.still, still)
     res = {"out": str(out), "frames": len(times), "fps": fps, "playback_fps": args.playback_fps,
            "accumulate_us": acc, "t_first_us": int(times[0]), "t_last_us": int(times[-1]),
            "panels": ["events"] + (["frames"] if frames is not None else []) + (["reconstruction"] if recon else []),

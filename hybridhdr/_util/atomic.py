@@ -18,6 +18,7 @@ import contextlib
 import errno
 import fnmatch
 import json
+import logging
 import os
 import shutil
 import socket
@@ -26,7 +27,123 @@ import time
 from pathlib import Path
 
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
-           "current_umask", "umask_file_mode"]
+           "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
+           "atomic_outputs", "remap_paths", "refuse_overwriting_inputs"]
+
+_log = logging.getLogger(__name__)
+
+
+class PartialInUse(FileExistsError):
+    """``NAME.partial`` is held by another running writer, or is not ours (a symlink, a user's file)."""
+
+
+def _pid_alive(pid: int) -> bool:
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:
+        return True
+    return True
+
+
+def _try_lock(fd: int) -> bool:
+    """An exclusive lock on the open file (non-blocking): an open-file-description lock where Linux
+    has one (independent of the ``flock`` HDF5 takes on the same file, and not dropped when another
+    descriptor of the file is closed), else ``flock``."""
+    import fcntl
+    import struct
+    try:
+        if hasattr(fcntl, "F_OFD_SETLK"):
+            fcntl.fcntl(fd, fcntl.F_OFD_SETLK, struct.pack("hhqqi4x", fcntl.F_WRLCK, 0, 0, 0, 0))
+        else:  # pragma: no cover - not Linux
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        return True
+    except (BlockingIOError, PermissionError):
+        return False
+    except OSError as e:
+        if e.errno in (errno.EAGAIN, errno.EACCES):
+            return False
+        return True  # no locking on this filesystem: the exclusive creation still holds
+
+
+_MARK = ".hybridhdr-partial"
+
+
+def _marker_text() -> str:
+    return (f"pid {os.getpid()} host {socket.gethostname()} "
+            f"started {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
+
+
+def _marker_owner_dead(marker: Path) -> bool:
+    """True when the marker names a process of this host that no longer exists."""
+    try:
+        words = marker.read_text(encoding="utf-8", errors="replace").split()
+        pid, host = int(words[1]), words[3]
+    except (OSError, ValueError, IndexError):
+        return False
+    return host == socket.gethostname() and not _pid_alive(pid)
+
+
+def claim_partial(tmp, *, directory: bool = False) -> int:
+    """Create ``tmp`` (a file, or a folder with a marker file) exclusively and lock it; returns the
+    locked descriptor (keep it open while writing; :func:`release_partial` closes it).
+
+    * Never through a symbolic link (``O_EXCL | O_NOFOLLOW``): a link at ``tmp`` is refused.
+    * A ``tmp`` of the other kind (a user's folder where a file goes, or a file where a folder
+      goes), or a folder without our marker, is refused and never deleted.
+    * A ``tmp`` whose lock another live writer holds is refused (:class:`PartialInUse`): two runs
+      writing the same output never share a partial file.
+    * A ``tmp`` left by an interrupted run (ours, lock free) is removed with a warning, then claimed.
+    """
+    tmp = Path(tmp)
+    mode = umask_file_mode()
+    for attempt in (0, 1):
+        try:
+            if directory:
+                os.mkdir(tmp)
+                fd = os.open(tmp / _MARK, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+                os.write(fd, _marker_text().encode())
+            else:
+                fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+            _try_lock(fd)
+            return fd
+        except FileExistsError:
+            if attempt:
+                raise PartialInUse(errno.EEXIST, f"{tmp} was created by another run at the same moment; "
+                                                 f"not writing the same output twice") from None
+        if tmp.is_symlink():
+            raise PartialInUse(errno.EEXIST, f"{tmp} exists and is a symbolic link; refusing to write through it "
+                                             f"(remove it if it is yours)")
+        if directory != tmp.is_dir() or (directory and not (tmp / _MARK).is_file()):
+            raise PartialInUse(errno.EEXIST, f"{tmp} exists and was not made by hybridhdr (a "
+                                             f"{'folder' if tmp.is_dir() else 'file'}); it is never deleted: "
+                                             f"move it away or choose another output name")
+        lock_path = tmp / _MARK if directory else tmp
+        try:
+            fd = os.open(lock_path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
+        except OSError as e:
+            raise PartialInUse(errno.EEXIST, f"{tmp} exists and cannot be checked ({e.strerror}); remove it "
+                                             f"first") from None
+        try:
+            if not _try_lock(fd):
+                raise PartialInUse(errno.EEXIST, f"{tmp} is being written by another running hybridhdr command; "
+                                                 f"wait for it or choose another output name")
+            if directory:
+                shutil.rmtree(tmp)
+            else:
+                os.unlink(tmp)
+        finally:
+            os.close(fd)
+        _log.warning("removed %s, left by an interrupted run", tmp)
+    raise AssertionError("unreachable")
+
+
+def release_partial(fd) -> None:
+    """Close the descriptor :func:`claim_partial` returned (drops the lock); never raises."""
+    if fd is not None:
+        with contextlib.suppress(OSError):
+            os.close(fd)
 
 
 @contextlib.contextmanager
@@ -80,18 +197,20 @@ def atomic_folder(folder):
     """
     folder = Path(folder)
     tmp = folder.with_name(folder.name + ".partial")
-    if tmp.exists():
-        shutil.rmtree(tmp)
-    tmp.mkdir(parents=True)
+    tmp.parent.mkdir(parents=True, exist_ok=True)
+    fd = claim_partial(tmp, directory=True)  # exclusive; a stale one of ours is removed, anything else refused
     try:
         yield tmp
+        os.unlink(tmp / _MARK)
         os.replace(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
         raise
+    finally:
+        release_partial(fd)
 
 
-_MARKER = ".hybridhdr-partial"
+_MARKER = _MARK
 
 
 class AtomicFolder:
@@ -123,17 +242,20 @@ class AtomicFolder:
                 raise ValueError(f"--out {out} exists and is not empty; choose another folder or pass --overwrite "
                                  f"(replaces the files a {command} run writes, keeps everything else)")
         self.path = self.target.with_name(self.target.name + ".partial")
-        if self.path.exists() or self.path.is_symlink():
-            raise ValueError(f"{self.path} exists (left by an interrupted run?); remove it first")
         self.target.parent.mkdir(parents=True, exist_ok=True)
-        os.mkdir(self.path)  # exclusive: fails if another run took the name meanwhile
-        self._created = True
+        self._created = False
+        self._lock = None
+        if (self.path.exists() and not self.path.is_symlink() and self.path.is_dir()
+                and (self.path / _MARKER).is_file() and _marker_owner_dead(self.path / _MARKER)):
+            # left by a run that was killed (kill -9, power loss): its process is gone; clean and proceed
+            shutil.rmtree(self.path, ignore_errors=True)
+            _log.warning("removed %s, left by an interrupted %s run (its process is gone)", self.path, command)
         try:
-            (self.path / _MARKER).write_text(f"pid {os.getpid()} host {socket.gethostname()} "
-                                              f"started {time.strftime('%Y-%m-%dT%H:%M:%S')}\n")
-        except BaseException:
-            self.abort()
-            raise
+            # exclusive and locked: a symlink, a user's folder or a live run's folder is refused, never deleted
+            self._lock = claim_partial(self.path, directory=True)
+        except PartialInUse as e:
+            raise ValueError(f"{e.strerror if e.strerror else e}; remove it first if it is not in use") from None
+        self._created = True
 
     def _ours(self, rel: str) -> bool:
         """Names the command writes (the only files ``overwrite`` replaces or removes)."""
@@ -142,6 +264,8 @@ class AtomicFolder:
     def commit(self) -> Path:
         """Move the finished output to OUT (see the class docstring); returns OUT."""
         os.unlink(self.path / _MARKER)
+        release_partial(self._lock)
+        self._lock = None
         if not self.target.exists():
             try:
                 os.rename(self.path, self.target)
@@ -180,6 +304,8 @@ class AtomicFolder:
         if self._created and self.path.is_dir() and not self.path.is_symlink():
             shutil.rmtree(self.path, ignore_errors=True)
         self._created = False
+        release_partial(self._lock)
+        self._lock = None
 
 
 def current_umask() -> int:
@@ -200,3 +326,76 @@ def current_umask() -> int:
 def umask_file_mode() -> int:
     """The mode ``open()`` gives a new file: ``0o666 & ~umask`` (``mkstemp`` gives 0o600)."""
     return 0o666 & ~current_umask()
+
+
+@contextlib.contextmanager
+def atomic_outputs(out_dir, last: tuple[str, ...] = ()):
+    """Several files of one command, all or none: yield a hidden staging folder inside ``out_dir``
+    (created exclusively); when the block succeeds its entries are renamed into ``out_dir``
+    (folders merged, the names in ``last`` moved last, so a report appears only with what it
+    describes); when it fails (a full disk, an interrupt) the staging folder is removed and
+    ``out_dir`` holds none of the new files. Renames within one folder need no space."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    stage = Path(tempfile.mkdtemp(prefix=".hybridhdr-staging.", dir=out))
+    try:
+        yield stage
+
+        def move(src: Path, dst: Path):
+            entries = sorted(src.iterdir(), key=lambda p: (p.name in last, last.index(p.name) if p.name in last else 0))
+            for p in entries:
+                q = dst / p.name
+                if p.is_dir() and not p.is_symlink() and q.is_dir() and not q.is_symlink():
+                    move(p, q)
+                else:
+                    if q.is_dir() and not q.is_symlink():
+                        raise IsADirectoryError(errno.EISDIR, f"{q} is a folder; not replacing it with a file")
+                    os.replace(p, q)
+        move(stage, out)
+    finally:
+        shutil.rmtree(stage, ignore_errors=True)
+
+
+def remap_paths(obj, stage, out):
+    """``obj`` (a dict/list of paths, as writers return them) with paths under ``stage`` moved to ``out``."""
+    stage, out = Path(stage), Path(out)
+    if isinstance(obj, dict):
+        return {k: remap_paths(v, stage, out) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return type(obj)(remap_paths(v, stage, out) for v in obj)
+    if isinstance(obj, Path):
+        try:
+            return out / obj.relative_to(stage)
+        except ValueError:
+            return obj
+    return obj
+
+
+def _same_file(a: Path, b: Path) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.realpath(a) == os.path.realpath(b)
+
+
+def refuse_overwriting_inputs(outputs, inputs) -> None:
+    """Refuse (``ValueError``, before any work) an output that is one of the inputs, or an input
+    inside an output folder that the command replaces: ``view rec.h5 --still rec.h5`` or
+    ``simulate s.toml --out s.toml`` used to replace the input silently.
+
+    ``outputs``: ``{"--out": path, ...}`` (None values skipped) or a list of paths;
+    ``inputs``: paths (None skipped). Compared after following links (hard links too)."""
+    items = outputs.items() if isinstance(outputs, dict) else [("output", o) for o in outputs]
+    ins = [Path(os.fspath(i)) for i in inputs if i is not None]
+    for flag, out in items:
+        if out is None:
+            continue
+        out = Path(os.fspath(out))
+        for i in ins:
+            if not (i.exists() or i.is_symlink()):
+                continue
+            if (out.exists() or out.is_symlink()) and _same_file(out, i):
+                raise ValueError(f"{flag} {out} is the input {i}; refusing to overwrite an input "
+                                 f"(choose another output name)")
+            if not out.exists() and os.path.realpath(out) == os.path.realpath(i):
+                raise ValueError(f"{flag} {out} is the input {i}; refusing to overwrite an input")

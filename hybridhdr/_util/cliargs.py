@@ -123,6 +123,41 @@ def nonneg_int(text):
     return _number(int, text, lambda v: v >= 0, "an integer >= 0")
 
 
+def max_workers() -> int:
+    """The most worker processes a command may start: 4 per CPU (at least 16); more only thrashes."""
+    import os
+    return max(16, 4 * (os.cpu_count() or 1))
+
+
+def worker_count(text):
+    """``--workers``/``--writers``: an integer from 0 to :func:`max_workers` (``docs/security.md``)."""
+    return _number(int, text, lambda v: 0 <= v <= max_workers(), f"an integer from 0 to {max_workers()} "
+                                                                   f"(4 per CPU)")
+
+
+def positive_worker_count(text):
+    return _number(int, text, lambda v: 1 <= v <= max_workers(), f"an integer from 1 to {max_workers()} "
+                                                                   f"(4 per CPU)")
+
+
+#: ``--chunk-events`` at least this: tiny chunks cost a fixed overhead each and keep buffers alive
+MIN_CHUNK_EVENTS = 1024
+
+
+def chunk_events_count(text):
+    return _number(int, text, lambda v: MIN_CHUNK_EVENTS <= v <= 1 << 30,
+                   f"an integer from {MIN_CHUNK_EVENTS} to {1 << 30} (events per chunk)")
+
+
+def image_side(text):
+    """An image width or height in pixels: 1 to the side limit (8192; ``--allow-huge`` is not read
+    here, so larger sizes need the Python API with ``allow_huge``)."""
+    from .limits import LIMITS, huge_allowed
+    lim = LIMITS["max_side"]
+    return _number(int, text, lambda v: v >= 1 and (v <= lim or huge_allowed()),
+                   f"an integer from 1 to {lim} pixels (set HYBRIDHDR_ALLOW_HUGE=1 for more)")
+
+
 def fraction(text):
     return _number(float, text, lambda v: 0 < v < 1, "a number between 0 and 1 (exclusive)")
 

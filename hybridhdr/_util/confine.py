@@ -17,7 +17,7 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
-__all__ = ["OutsideFolderError", "confine", "allowed_roots"]
+__all__ = ["OutsideFolderError", "confine", "allowed_roots", "inside_folder"]
 
 
 class OutsideFolderError(PermissionError):
@@ -56,3 +56,20 @@ def confine(value, base_dir, allow_outside=(), *, what: str, source: str = "") -
         f"{where}{what} = {os.fspath(value)!r} resolves to {str(real)!r}, outside the file's folder {str(roots[0])!r}"
         + (f" and the allowed {', '.join(repr(str(r)) for r in roots[1:])}" if len(roots) > 1 else "")
         + f"; if you trust this file, pass --allow-outside {str(real.parent)!r} (docs/security.md)")
+
+
+def inside_folder(name, folder, *, what: str, source=None) -> Path:
+    """A file named by a data file (a list of images, ``timestamps.txt``) as a path inside
+    ``folder``: absolute names, ``..`` and symbolic links that lead out of the folder are refused
+    with a :class:`~hybridhdr.errors.FormatError` naming ``source`` (data files are untrusted;
+    there is no ``--allow-outside`` for them)."""
+    from ..errors import FormatError
+    text = os.fspath(name)
+    p = Path(text)
+    root = Path(os.path.realpath(folder))
+    real = Path(os.path.realpath(root / p)) if not p.is_absolute() else Path(os.path.realpath(p))
+    if p.is_absolute() or not _inside(real, root):
+        raise FormatError(source if source is not None else folder,
+                          f"{what} {text!r} lies outside the folder {str(root)!r} (resolves to {str(real)!r}); "
+                          f"files named by a data file must be inside its folder (docs/security.md)")
+    return real

@@ -34,6 +34,8 @@ from ..errors import FormatError
 __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_sensor_size", "check_frame_shape",
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
            "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
+           "check_h5_self_contained", "check_number", "check_input_file", "read_bytes_bounded",
+           "read_text_bounded", "check_memory", "memory_budget_bytes",
            "OVERRIDE_HINT"]
 
 LIMITS = {
@@ -41,6 +43,11 @@ LIMITS = {
     "max_frame_bytes": 4 << 30,
     "max_packet_bytes": 256 << 20,
     "max_outputs": 1_000_000,
+    "max_duration_us": 3_600_000_000,   # simulated time of a scene / bench dataset: 1 hour
+    "max_runs": 10_000,                 # runs of one bench after grids are expanded
+    "max_spp": 4096,                    # renderer samples per pixel
+    "max_subdivisions": 8,              # icosphere subdivisions (20 * 4^8 = 1.3 M faces)
+    "max_text_bytes": 64 << 20,         # a config / profile / CRF / --times-us file read whole
 }
 
 OVERRIDE_HINT = "if the data really is that large, pass --allow-huge (or set HYBRIDHDR_ALLOW_HUGE=1)"
@@ -83,6 +90,8 @@ def _exceeded(path, what: str, value, limit, offset=None, record=None):
 def check_sensor_size(height, width, path=None, what: str = "sensor") -> tuple[int, int]:
     """Validate a sensor (or frame, ROI) size from a header: positive integers up to ``max_side``."""
     try:
+        if any(isinstance(v, (float, np.floating)) and not float(v).is_integer() for v in (height, width)):
+            raise ValueError("not integral")  # 33.5 is not a size (it used to become 33)
         h, w = int(height), int(width)
     except (TypeError, ValueError, OverflowError):
         raise FormatError(path, f"{what} size {height!r} x {width!r} is not a pair of integers") from None
@@ -242,3 +251,136 @@ def open_image(path, what: str = "image"):
     w, h = im.size
     check_sensor_size(h, w, path, what)
     return im
+
+
+def check_number(value, what: str, *, lo=None, limit: str | None = None, hi=None, integer: bool = False,
+                 path=None):
+    """A number from a scene, bench or option: finite, ``>= lo``, an integer if ``integer``, at
+    most ``hi`` (never lifted) and at most ``LIMITS[limit]`` (lifted by ``--allow-huge``).
+    Checked before anything is allocated (a duration of 9e18 µs used to end in a segfault)."""
+    if isinstance(value, bool) or not isinstance(value, (int, float, np.integer, np.floating)):
+        raise ValueError(f"{what} must be a number, got {type(value).__name__} {value!r}")
+    v = float(value)
+    if not math.isfinite(v) or (lo is not None and v < lo):
+        raise ValueError(f"{what} must be finite" + (f" and >= {lo:g}" if lo is not None else "") + f", got {value!r}")
+    if integer and not v.is_integer():
+        raise ValueError(f"{what} must be a whole number, got {value!r}")
+    if hi is not None and v > hi:
+        raise ValueError(f"{what} must be at most {hi:g}, got {value!r}")
+    if limit is not None and v > LIMITS[limit] and not huge_allowed():
+        raise LimitExceeded(path, f"{what} = {value!r} exceeds the limit of {LIMITS[limit]:,}; {OVERRIDE_HINT}")
+    return int(v) if integer else v
+
+
+def memory_budget_bytes() -> int:
+    """Memory one working set may take: half the machine's RAM, and no more than the address
+    space this process may still map (``RLIMIT_AS``) minus 256 MiB of headroom."""
+    budget = 1 << 62
+    try:
+        with open("/proc/meminfo") as f:
+            for ln in f:
+                if ln.startswith("MemTotal:"):
+                    budget = int(ln.split()[1]) * 1024 // 2
+                    break
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        import resource
+        soft = resource.getrlimit(resource.RLIMIT_AS)[0]
+        if soft != resource.RLIM_INFINITY:
+            vm = 0
+            with open("/proc/self/status") as f:
+                for ln in f:
+                    if ln.startswith("VmSize:"):
+                        vm = int(ln.split()[1]) * 1024
+            budget = min(budget, max(0, soft - vm - (256 << 20)))
+    except (ImportError, OSError, ValueError):
+        pass
+    return int(budget)
+
+
+def check_memory(n_bytes, path=None, what: str = "working set") -> None:
+    """``n_bytes`` (an estimate made before allocating) within :func:`memory_budget_bytes`."""
+    n_bytes = int(n_bytes)
+    budget = memory_budget_bytes()
+    if n_bytes > budget and not huge_allowed():
+        raise LimitExceeded(path, f"{what} would take about {n_bytes:,} bytes of memory, more than the "
+                                  f"{budget:,} available to it; {OVERRIDE_HINT}")
+
+
+def check_input_file(path, what: str = "input") -> None:
+    """``path`` must be a regular file (or a folder, for folder formats) - never a FIFO, a device
+    or a socket, which would hang the reader (a FIFO) or never end (``/dev/zero``)."""
+    import stat
+    try:
+        st = os.stat(path)
+    except FileNotFoundError:
+        raise FileNotFoundError(f"{what} {path} does not exist") from None
+    except OSError as e:
+        raise OSError(e.errno, f"cannot access {what} {path}: {e.strerror}") from None
+    if not (stat.S_ISREG(st.st_mode) or stat.S_ISDIR(st.st_mode)):
+        kind = ("a FIFO (named pipe)" if stat.S_ISFIFO(st.st_mode) else "a character device" if stat.S_ISCHR(st.st_mode)
+                else "a block device" if stat.S_ISBLK(st.st_mode) else "a socket" if stat.S_ISSOCK(st.st_mode)
+                else "not a regular file")
+        raise FormatError(path, f"{what} is {kind}; only regular files (and folders) are read")
+
+
+def read_bytes_bounded(path, what: str = "file", limit: int | None = None) -> bytes:
+    """The bytes of a small input file (config, profile, CRF, time list), refused when it is not a
+    regular file or larger than ``max_text_bytes`` (64 MiB; ``--allow-huge`` lifts it)."""
+    check_input_file(path, what)
+    lim = LIMITS["max_text_bytes"] if limit is None else int(limit)
+    with open(path, "rb") as f:
+        data = f.read(lim + 1)
+    if len(data) > lim and not huge_allowed():
+        raise LimitExceeded(path, f"{what} is larger than {lim:,} bytes; {OVERRIDE_HINT}")
+    if len(data) > lim:
+        with open(path, "rb") as f:
+            data = f.read()
+    return data
+
+
+def read_text_bounded(path, what: str = "file", encoding: str = "utf-8", limit: int | None = None) -> str:
+    """:func:`read_bytes_bounded` decoded (a decoding error names the file)."""
+    data = read_bytes_bounded(path, what, limit)
+    try:
+        return data.decode(encoding)
+    except UnicodeDecodeError as e:
+        raise FormatError(path, f"{what} is not {encoding} text ({e.reason} at byte {e.start})") from None
+
+
+def check_h5_self_contained(f, path=None, max_objects: int = 1_000_000) -> None:
+    """An HDF5 file must hold all its data itself: external links, external raw storage and
+    virtual datasets are refused (they make a reader open other files: ``/etc/passwd`` as frames,
+    fill values for a missing source). Never lifted (``docs/security.md``)."""
+    import h5py
+    seen = [0]
+
+    def walk(g, prefix):
+        for name in g:
+            seen[0] += 1
+            if seen[0] > max_objects:
+                raise FormatError(path, f"holds more than {max_objects:,} HDF5 objects; refusing to walk it")
+            full = f"{prefix}/{name}"
+            link = g.get(name, getlink=True)
+            if isinstance(link, h5py.ExternalLink):
+                raise FormatError(path, f"{full} is an HDF5 external link to {link.filename}:{link.path}; links to "
+                                        f"other files are not followed (docs/security.md)")
+            if isinstance(link, h5py.SoftLink):
+                continue  # points inside this file; the target is checked where it lives
+            obj = g.get(name)
+            if isinstance(obj, h5py.Group):
+                walk(obj, full)
+            elif isinstance(obj, h5py.Dataset):
+                if obj.is_virtual:
+                    raise FormatError(path, f"{full} is an HDF5 virtual dataset (data mapped from other files); "
+                                            f"not read (docs/security.md)")
+                if obj.external:
+                    raise FormatError(path, f"{full} stores its data in external file(s) "
+                                            f"{[e[0] for e in obj.external][:3]}; not read (docs/security.md)")
+    try:
+        walk(f, "")
+    except FormatError:
+        raise
+    except (KeyError, OSError, RuntimeError, ValueError) as e:
+        raise FormatError(path, f"cannot walk the HDF5 structure ({type(e).__name__}: {e})") from None

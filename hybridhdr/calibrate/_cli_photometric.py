@@ -6,6 +6,8 @@ Heavy imports happen inside the command functions.
 from __future__ import annotations
 
 import argparse
+import contextlib
+import errno
 import sys
 import time
 from pathlib import Path
@@ -107,9 +109,6 @@ def _mask(bs, colour):
 
 @json_command
 def run_crf(args) -> int:
-    import numpy as np
-
-    from .._version import __version__
     from ..formats.brackets import read_bracket_set
     from .crf import DebevecParams, RobertsonParams, estimate_crf
     from .noise_profile import estimate_sigma2_im, noise_profile, plot_profile
@@ -133,10 +132,21 @@ def run_crf(args) -> int:
     prof = noise_profile(crf, sigma2_im=s2, floor=args.floor, domain=args.domain, name=args.name, source=src,
                          extra={"noise": noise})
     out = args.out
-    out.mkdir(parents=True, exist_ok=True)
-    crf.save(out / "crf.json")
-    prof.save(out / "camera_profile.json")
-    plot_profile(crf, prof, out / "crf_profile.png")
+    # the four files appear together or not at all (a full disk used to leave crf.json alone)
+    with _staged(out, last=("report.json",)) as stage:
+        crf.save(stage / "crf.json")
+        prof.save(stage / "camera_profile.json")
+        plot_profile(crf, prof, stage / "crf_profile.png")
+        report = _write_crf_report(stage, args, bs, crf, prof, s2, noise, t0)
+    print(f"crf ({args.method}): sigma2_im {s2:.3g} (precision {prof.frame_precision_scale:.3g}) -> {out}")
+    args.emit_json({**report, "out": str(out)})
+    return 0
+
+
+def _write_crf_report(out, args, bs, crf, prof, s2, noise, t0) -> None:
+    import numpy as np
+
+    from .._version import __version__
     z = np.arange(crf.max_code + 1)
     report = {"hybridhdr_version": __version__, "command": sys.argv, "brackets": str(args.brackets),
               "n_images": len(bs), "shape": list(bs.shape), "encoding": bs.encoding,
@@ -147,9 +157,20 @@ def run_crf(args) -> int:
               "time_s": time.perf_counter() - t0,
               "written": ["crf.json", "camera_profile.json", "crf_profile.png", "report.json"]}
     _write_json(out / "report.json", report)
-    print(f"crf ({args.method}): sigma2_im {s2:.3g} (precision {prof.frame_precision_scale:.3g}) -> {out}")
-    args.emit_json({**report, "out": str(out)})
-    return 0
+    return report
+
+
+@contextlib.contextmanager
+def _staged(folder, last=()):
+    """All-or-none outputs in ``folder`` (:func:`~hybridhdr._util.atomic.atomic_outputs`); a writer
+    library's ``RuntimeError`` (OpenEXR, libpng on a full disk) becomes one ``OSError`` line."""
+    from .._util.atomic import atomic_outputs
+    try:
+        with atomic_outputs(folder, last=tuple(last)) as stage:
+            yield stage
+    except RuntimeError as e:
+        raise OSError(errno.EIO, f"cannot write the outputs in {folder}: {str(e).splitlines()[0] if str(e) else e!r}; "
+                                 f"nothing was written") from None
 
 
 @json_command
@@ -162,6 +183,14 @@ def run_hdr_reference(args) -> int:
     from .hdr_reference import RegistrationParams, align_brackets, merge_brackets, register_recording, write_exr
 
     t0 = time.perf_counter()
+    if args.out.suffix.lower() in (".png", ".json"):
+        raise ValueError(f"--out {args.out}: the reference is an EXR (its .json report and .png plot are written "
+                         f"beside it); give a name ending in .exr")
+    from .._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({"--out": args.out, "--out (report)": args.out.with_suffix(".json"),
+                               "--out (plot)": args.out.with_suffix(".png"), "--out-recording": args.out_recording},
+                              [args.brackets, args.crf, args.register]
+                              + (sorted(Path(args.brackets).iterdir()) if Path(args.brackets).is_dir() else []))
     if args.register is not None and args.out_recording is None:
         raise ValueError("--register needs --out-recording (the input recording is never modified)")
     if args.out_recording is not None and args.register is None:
@@ -207,10 +236,12 @@ def run_hdr_reference(args) -> int:
             fr = r.read_frames()
         frame = fr.images[frames[0]["frame"]]
         H = np.asarray(frames[0]["homography"])
-    write_exr(args.out, E)
     report["time_s"] = time.perf_counter() - t0
-    _write_json(args.out.with_suffix(".json"), report)
-    _plot_reference(E, frame, H, args.out.with_suffix(".png"))
+    # EXR, JSON and PNG together or not at all (a full disk used to leave the EXR and JSON alone)
+    with _staged(args.out.parent or Path("."), last=(args.out.name,)) as stage:
+        write_exr(stage / args.out.name, E)
+        _write_json(stage / args.out.with_suffix(".json").name, report)
+        _plot_reference(E, frame, H, stage / args.out.with_suffix(".png").name)
     msg = f"hdr-reference: {E.shape} -> {args.out}"
     if args.register is not None:
         msg += (f"; {len(report['registration'])} frames registered (mean {report['mean_time_s']:.2f} s/frame) "

@@ -217,7 +217,8 @@ class CRF:
     def load(cls, path) -> "CRF":
         path = Path(path)
         try:
-            d = json.loads(path.read_text(encoding="utf-8"))
+            from .._util.limits import read_text_bounded
+            d = json.loads(read_text_bounded(path, "CRF file"))
         except json.JSONDecodeError as e:
             raise ValueError(f"{path}: not a JSON CRF file ({e})") from None
         return cls.from_dict(d)

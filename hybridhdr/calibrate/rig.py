@@ -705,8 +705,8 @@ def load_calibration(path_or_dict) -> RigCalibration:
         return RigCalibration.from_dict(path_or_dict)
     path = Path(path_or_dict)
     try:
-        with open(path) as f:
-            d = json.load(f)
+        from .._util.limits import read_text_bounded
+        d = json.loads(read_text_bounded(path, "calibration file"))
     except json.JSONDecodeError as e:
         raise ValueError(f"{path}: not valid JSON ({e})") from None
     try:

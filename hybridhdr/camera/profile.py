@@ -210,11 +210,11 @@ class CameraProfile:
     def load(cls, path) -> "CameraProfile":
         """Read a profile written by :meth:`save` (or by ``hybridhdr calibrate``)."""
         path = Path(path)
-        with open(path, encoding="utf-8") as f:
-            try:
-                d = json.load(f)
-            except json.JSONDecodeError as e:
-                raise ValueError(f"{path}: not a JSON camera profile ({e})") from None
+        from .._util.limits import read_text_bounded
+        try:  # regular files only, size-bounded (/dev/zero or a FIFO as --profile is one error line)
+            d = json.loads(read_text_bounded(path, "camera profile"))
+        except json.JSONDecodeError as e:
+            raise ValueError(f"{path}: not a JSON camera profile ({e})") from None
         return cls.from_dict(d)
 
 

@@ -752,9 +752,8 @@ def recover(path, out=None, *, compression="gzip", progress: bool = False) -> di
     if out.exists():
         raise FileExistsError(f"{out} already exists; pass another output name (if that recording was "
                               f"finished normally, {jp.name} is a left-over of an interrupted clean-up)")
-    partial = out.with_name(out.name + ".partial")
-    if partial.exists():
-        partial.unlink()  # a stale, unreadable container from an interrupted finish
+    # a stale REC.h5.partial of an interrupted finish is removed by the writer (its lock is free);
+    # one a live run holds, a symlink or a user's file there is refused (docs/security.md)
     state, contents = _convert(jp, out, compression=compression, progress=progress, recovered=True)
     return {"output": str(out), "events": state["events"], "triggers": state["triggers"],
             "frames": state["frames"], "flushes": contents.flushes,

@@ -24,7 +24,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._util.atomic import atomic_path
+from .._util.atomic import atomic_outputs, atomic_path, remap_paths
 from .._util.confine import confine
 from .._util.toml import load_toml, loads_toml
 from ..reconstruct.api import reconstruct, resolve_method
@@ -45,6 +45,7 @@ _BENCH_KEYS = {"name", "seed", "tolerance_us", "peak_luminance_cd_m2", "hdrvdp_d
                "warmup", "cache_dir", "jod", "jod_frames", "jod_display", "weights"}
 #: Methods whose ``params.weights`` a ``[bench] weights = { e2vid = PATH, firenet = PATH }`` table fills.
 LEARNED = ("e2vid", "firenet")
+_CHART_KEYS = {"speed_accuracy", "sampling", "stability"}
 _METHOD_KEYS = {"name", "method", "params", "augment", "mode", "normalise", "threshold_factor", "grid"}
 
 
@@ -85,15 +86,22 @@ class RunSpec:
     grid_values: dict
 
 
+def _check_grid(grid, where: str) -> None:
+    """A grid's shape (a table of non-empty lists), checked without expanding it."""
+    if grid is None:
+        return
+    if not isinstance(grid, dict):
+        raise TypeError(f"{where}.grid must be a table of name = [values], got {type(grid).__name__}")
+    for n in grid:
+        if not isinstance(grid[n], list) or not grid[n]:
+            raise ValueError(f"{where}.grid.{n} must be a non-empty list, got {grid[n]!r}")
+
+
 def _grid(grid: dict, where: str):
     if grid is None:
         return [{}]
-    if not isinstance(grid, dict):
-        raise TypeError(f"{where}.grid must be a table of name = [values], got {type(grid).__name__}")
+    _check_grid(grid, where)
     names = list(grid)
-    for n in names:
-        if not isinstance(grid[n], list) or not grid[n]:
-            raise ValueError(f"{where}.grid.{n} must be a non-empty list, got {grid[n]!r}")
     return [dict(zip(names, vals)) for vals in itertools.product(*(grid[n] for n in names))]
 
 
@@ -111,6 +119,83 @@ def _set_dotted(d: dict, key: str, value):
 _DATASET_PATH_KEYS = ("path", "profile", "image")
 
 
+def _confine_grid_params(grid, where: str, base: Path, source: str, allow_outside) -> None:
+    """Grids may not set what the method table itself may not: ``allow_pickle`` is refused in any
+    spelling (``params.allow_pickle``, a whole ``params`` table), and checkpoint ``weights`` set
+    by a grid are confined to the bench file's folder like ``params.weights``."""
+    if not isinstance(grid, dict):
+        return
+    for key, values in grid.items():
+        leaf = str(key).split(".")[-1]
+        if not isinstance(values, list):
+            continue
+        tables = [v for v in values if isinstance(v, dict)]
+        if leaf == "allow_pickle" or any(_mentions(t, "allow_pickle") for t in tables):
+            raise ValueError(f"{source}: {where}.{key} may not set allow_pickle in a bench file (it lets a checkpoint "
+                             f"run Python code); load such weights from Python yourself (docs/security.md)")
+        if leaf == "weights":
+            grid[key] = [str(confine(v, base, allow_outside, what=f"{where}.{key}", source=source))
+                         if isinstance(v, str) else v for v in values]
+        for t in tables:
+            if isinstance(t.get("weights"), str):
+                t["weights"] = str(confine(t["weights"], base, allow_outside, what=f"{where}.{key}.weights",
+                                           source=source))
+
+
+def _mentions(d, key: str) -> bool:
+    return isinstance(d, dict) and (key in d or any(_mentions(v, key) for v in d.values()))
+
+
+def _grid_size(grid) -> int:
+    n = 1
+    if isinstance(grid, dict):
+        for v in grid.values():
+            n *= len(v) if isinstance(v, list) else 1
+    return n
+
+
+def _count_runs(ds: list, ms: list) -> int:
+    """Runs a bench expands to (methods x method grids x dataset grids x method_grid), without expanding."""
+    per_method = {m.get("name", m["method"]): _grid_size(m.get("grid")) for m in ms}
+    total = 0
+    for x in ds:
+        names = x.get("methods") if isinstance(x.get("methods"), list) else list(per_method)
+        runs = sum(per_method.get(n, 0) for n in names)
+        total += runs * _grid_size(x.get("method_grid")) * _grid_size(x.get("grid"))
+    return total
+
+
+#: numbers of a dataset (or its grid) bounded before anything is built (docs/security.md)
+_DATASET_BOUNDS = {"width": ("max_side", 1, True), "height": ("max_side", 1, True),
+                   "duration_us": ("max_duration_us", 1, True)}
+
+
+def _check_dataset_numbers(i: int, x: dict) -> None:
+    from .._util.limits import check_number
+    for key, (limit, lo, integer) in _DATASET_BOUNDS.items():
+        values = [x[key]] if key in x else []
+        grid = x.get("grid")
+        if isinstance(grid, dict) and isinstance(grid.get(key), list):
+            values += grid[key]
+        for v in values:
+            check_number(v, f"datasets[{i}].{key}", lo=lo, limit=limit, integer=integer)
+
+
+def _check_runs(bench: "Bench", base: Path, allow_outside) -> None:
+    """The expanded runs of a bench file: none may unpickle, every checkpoint inside the allowed folders."""
+    for _, _, _, runs in expand(bench):
+        for r in runs:
+            if r.params.get("allow_pickle"):
+                raise ValueError(f"{bench.source}: run {r.label!r} sets allow_pickle, which a bench file may not "
+                                 f"(docs/security.md)")
+            w = r.params.get("weights")
+            if w is not None:
+                real = confine(w, base, allow_outside, what=f"run {r.label!r} weights", source=bench.source)
+                if not Path(os.fspath(w)).is_absolute() or os.path.realpath(os.fspath(w)) != str(real):
+                    raise ValueError(f"{bench.source}: run {r.label!r}: weights {w!r} set in a way the bench "
+                                     f"loader cannot confine; give it as params.weights or [bench].weights")
+
+
 def _confine_bench_file(d: dict, base: Path, source: str, allow_outside, out_dir) -> None:
     """A bench loaded from a file reads and writes only inside its folder (and ``out_dir`` for its
     cache) unless ``allow_outside`` folders are given; it never names code to run (HDR-VDP's
@@ -125,6 +210,11 @@ def _confine_bench_file(d: dict, base: Path, source: str, allow_outside, out_dir
         if isinstance(params, dict) and params.get("allow_pickle"):
             raise ValueError(f"{source}: methods[{i}].params.allow_pickle is not accepted in a bench file (it lets a "
                              f"checkpoint run Python code); load such weights from Python yourself (docs/security.md)")
+        if isinstance(m, dict):
+            _confine_grid_params(m.get("grid"), f"methods[{i}].grid", base, source, allow_outside)
+    for i, x in enumerate(d.get("datasets", [])):
+        if isinstance(x, dict):
+            _confine_grid_params(x.get("method_grid"), f"datasets[{i}].method_grid", base, source, allow_outside)
     for i, x in enumerate(d.get("datasets", [])):
         if not isinstance(x, dict):
             continue
@@ -173,8 +263,8 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
         if x["name"] in names:
             raise ValueError(f"datasets[{i}]: duplicate name {x['name']!r}")
         names.add(x["name"])
-        _grid(x.get("grid"), f"datasets[{i}]")
-        _grid(x.get("method_grid"), f"datasets[{i}].method_grid")
+        _check_grid(x.get("grid"), f"datasets[{i}]")
+        _check_grid(x.get("method_grid"), f"datasets[{i}].method_grid")
     labels = set()
     for i, m in enumerate(ms):
         if not isinstance(m, dict) or "method" not in m:
@@ -187,7 +277,19 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
         if m["name"] in labels:
             raise ValueError(f"methods[{i}]: duplicate name {m['name']!r}")
         labels.add(m["name"])
-        _grid(m.get("grid"), f"methods[{i}]")
+        _check_grid(m.get("grid"), f"methods[{i}]")
+    charts = d.get("charts", {})
+    if not isinstance(charts, dict) or sorted(set(charts) - _CHART_KEYS):
+        raise ValueError(f"{source or 'bench'}: unknown [charts] table(s) "
+                         f"{sorted(set(charts) - _CHART_KEYS) if isinstance(charts, dict) else charts!r}; "
+                         f"expected some of {sorted(_CHART_KEYS)}")
+    for i, x in enumerate(ds):
+        _check_dataset_numbers(i, x)
+    from .._util.limits import LIMITS, LimitExceeded, OVERRIDE_HINT, huge_allowed
+    n_runs = _count_runs(ds, ms)
+    if n_runs > LIMITS["max_runs"] and not huge_allowed():
+        raise LimitExceeded(source or None, f"the bench expands to {n_runs:,} runs (methods x grids x datasets), "
+                                            f"above the limit of {LIMITS['max_runs']:,}; {OVERRIDE_HINT}")
     tol = b.get("tolerance_us", 1000)
     if isinstance(tol, bool) or not isinstance(tol, int) or tol < 0:
         raise ValueError(f"[bench].tolerance_us must be an int >= 0 (µs), got {tol!r}")
@@ -219,12 +321,15 @@ def parse_bench(d: dict, source: str = "", *, allow_outside=(), out_dir=None) ->
                 params["weights"] = _path(params["weights"])
             elif resolve_method(m["method"]) in weights:
                 params["weights"] = weights[resolve_method(m["method"])]
-    return Bench(name=str(b.get("name", Path(source).stem if source else "bench")), seed=int(b.get("seed", 0)),
+    bench = Bench(name=str(b.get("name", Path(source).stem if source else "bench")), seed=int(b.get("seed", 0)),
                  tolerance_us=tol, peak_luminance_cd_m2=float(b.get("peak_luminance_cd_m2", 4000.0)),
                  datasets=ds, methods=ms, charts=d.get("charts", {}), hdrvdp_dir=b.get("hdrvdp_dir"),
                  strips=int(b.get("strips", 4)), warmup=bool(b.get("warmup", True)),
                  source=str(source), cache_dir=b.get("cache_dir"), jod=jod, jod_frames=jf, jod_display=jd,
                  weights=weights)
+    if base is not None:
+        _check_runs(bench, base, allow_outside)
+    return bench
 
 
 def bundled_bench(name: str) -> str:
@@ -442,6 +547,30 @@ def _bench_opts(bench: Bench) -> dict:
             "jod": bench.jod, "jod_frames": bench.jod_frames, "jod_display": bench.jod_display}
 
 
+def _bench_worker_init():
+    from .._util.procs import die_with_parent
+    die_with_parent()  # a kill -9 of the bench ends its workers too
+
+
+def _stop_pool(ex) -> None:
+    """Cancel queued tasks and end the worker processes (SIGTERM, then SIGKILL after 5 s)."""
+    procs = list((getattr(ex, "_processes", None) or {}).values())
+    ex.shutdown(wait=False, cancel_futures=True)
+    for p in procs:
+        try:
+            p.terminate()
+        except Exception:
+            pass
+    for p in procs:
+        try:
+            p.join(5)
+            if p.is_alive():
+                p.kill()
+                p.join(1)
+        except Exception:
+            pass
+
+
 def _pool_context():
     import multiprocessing as mp
     try:
@@ -503,12 +632,17 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
                         bar.update(1)
             else:
                 from concurrent.futures import ProcessPoolExecutor, as_completed as cf_done
-                with ProcessPoolExecutor(max_workers=n, mp_context=_pool_context()) as ex:
-                    futs = {ex.submit(run_task, t, opts): i for i, t in enumerate(tasks)}
-                    for f in cf_done(futs):
-                        results[futs[f]] = f.result()
-                        if bar is not None:
-                            bar.update(1)
+                with ProcessPoolExecutor(max_workers=n, mp_context=_pool_context(),
+                                         initializer=_bench_worker_init) as ex:
+                    try:
+                        futs = {ex.submit(run_task, t, opts): i for i, t in enumerate(tasks)}
+                        for f in cf_done(futs):
+                            results[futs[f]] = f.result()
+                            if bar is not None:
+                                bar.update(1)
+                    except BaseException:  # SIGTERM, Ctrl-C, an error: end the workers now, leave none behind
+                        _stop_pool(ex)
+                        raise
     finally:
         if bar is not None:
             bar.close()
@@ -545,17 +679,18 @@ def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = T
     Returns the paths written (name -> Path).
     """
     out = Path(out_dir)
-    out.mkdir(parents=True, exist_ok=True)
-    cols = _columns(rows)
-    path = out / "results.csv"
-    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
-        w = csv.writer(f)
-        w.writerow(cols)
-        for r in rows:
-            w.writerow([_fmt(r.get(c)) for c in cols])
-    written = {"csv": path}
-    written.update(write_report(rows, out, bench, charts=charts))
-    return written
+    # all or none (a full disk leaves no CSV and charts without their report): staged, then renamed in
+    with atomic_outputs(out, last=("results.csv", "report.html", "report.md")) as stage:
+        cols = _columns(rows)
+        path = stage / "results.csv"
+        with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(cols)
+            for r in rows:
+                w.writerow([_fmt(r.get(c)) for c in cols])
+        written = {"csv": path}
+        written.update(write_report(rows, stage, bench, charts=charts))
+    return remap_paths(written, stage, out)
 
 
 def read_results(path) -> list[dict]:

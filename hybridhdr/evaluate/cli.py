@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
+from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float, worker_count
 
 
 def add_parser(sub) -> None:
@@ -57,13 +57,15 @@ def add_parser(sub) -> None:
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
                                                      "processes")
-    b.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes (0 = in this process; "
+    b.add_argument("--workers", type=worker_count, default=None, help="local worker processes (0 = in this process; "
                                                              "default min(2, CPUs))")
     b.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder for Q (default $HYBRIDHDR_HDRVDP_DIR; never read from the bench file)")
     b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
                    help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
                         "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
+    b.add_argument("--allow-huge", action="store_true",
+                   help="lift the limits on the number of runs and dataset sizes/durations (docs/security.md)")
     b.set_defaults(func=run_bench_cmd)
 
     q = esub.add_parser("paper", formatter_class=fmt, help="Table 1 of the paper on simulated HDR and AHDR sets",
@@ -71,7 +73,7 @@ def add_parser(sub) -> None:
                                     "method, print a table shaped like the paper's Table 1.")
     q.add_argument("--out", type=Path, required=True, help="output folder")
     q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
-    q.add_argument("--workers", type=nonneg_int, default=None, help="local worker processes")
+    q.add_argument("--workers", type=worker_count, default=None, help="local worker processes")
     q.add_argument("--scheduler", default=None, help="Dask scheduler address")
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
     q.add_argument("--normalise", choices=["none", "scale", "affine", "scale_linear", "affine_linear"],
@@ -194,6 +196,8 @@ def _read_timestamps(path: Path):
                 ts.append(int(parts[0]))
             except ValueError:
                 raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
+            from .._util.confine import inside_folder
+            inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
             names.append(parts[1])
     return np.asarray(ts, np.int64), names
 
@@ -290,16 +294,15 @@ def _json_safe(v):
 def write_frames_csv(frames: list[dict], path) -> Path:
     """Per-frame scores as CSV (csv module, one header of the union of keys in first-seen order)."""
     import csv
-    import os
+
+    from .._util.atomic import atomic_path
     path = Path(path)
     cols = list(dict.fromkeys(k for f in frames for k in f))
-    tmp = path.with_name(path.name + ".partial")
-    with open(tmp, "w", newline="", encoding="utf-8") as fh:
+    with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as fh:  # unique temp name
         w = csv.DictWriter(fh, fieldnames=cols, restval="")
         w.writeheader()
         for f in frames:
             w.writerow({k: (repr(v) if isinstance(v, float) else v) for k, v in f.items()})
-    os.replace(tmp, path)
     return path
 
 
@@ -384,11 +387,16 @@ def run_bench_cmd(args) -> int:
     bad = sum(1 for r in rows if r.get("status") != "ok")
     if bad:
         print(f"{bad} of {len(rows)} runs failed; see the report", file=sys.stderr)
+
     args.emit_json({"bench": bench.name, "runs": len(rows), "failed": bad, "summary": summary_table(rows),
                     "akf_vs_cf": akf_vs_cf(rows), "stability_failures": w.get("failures", []),
                     "errors": [{"dataset": r.get("dataset"), "method": r.get("method_label"),
                                 "status": r.get("status")} for r in rows if r.get("status") != "ok"],
                     "written": _written(w)})
+    if rows and bad == len(rows):  # nothing was measured: a failure, not a result (docs/security.md)
+        print(f"{getattr(args, '_prog', 'hybridhdr evaluate bench')}: error: every run failed ({bad} of {len(rows)}); "
+              f"the reasons are in {w['report_md']}", file=sys.stderr)
+        return 1
     return 0
 
 

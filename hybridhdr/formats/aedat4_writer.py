@@ -77,6 +77,10 @@ class Aedat4Writer(EventFileWriter):
     format_name = "aedat4"
     supports = frozenset({"frames", "triggers"})
 
+    def _partial_path(self):
+        # dv-processing only writes names ending in '.aedat4' (others terminate the process)
+        return self.path.with_name("." + self.path.name + ".partial.aedat4")
+
     def _open(self) -> None:
         dv = _dv()  # fail before anything is created when dv-processing is missing
         comp = str(self.options.get("compression", "lz4")).lower()
@@ -90,10 +94,10 @@ class Aedat4Writer(EventFileWriter):
         cam = self.metadata.event_camera
         self._camera_name = str(self.options.get("camera_name") or (cam.model if cam is not None and cam.model
                                                                     else "hybridhdr"))
-        # dv-processing only writes names ending in '.aedat4' (others terminate the process)
-        self.tmp_path = self.path.with_name("." + self.path.name + ".partial.aedat4")
+        from .._util.atomic import claim_partial
         self._spool_path = self.path.with_name("." + self.path.name + ".events.partial")
-        self._spool = open(self._spool_path, "wb")
+        self._spool_fd = claim_partial(self._spool_path)  # exclusive, never through a symlink
+        self._spool = os.fdopen(os.dup(self._spool_fd), "wb")
         self._frames: list[Frames] = []
         self._triggers: list[np.ndarray] = []
 
@@ -157,8 +161,6 @@ class Aedat4Writer(EventFileWriter):
         if trig is not None and len(trig):
             cfg.addTriggerStream()
         cfg.compression = self._compression
-        if self.tmp_path.exists():
-            self.tmp_path.unlink()
         self._check_free_space(frames, 0 if trig is None else len(trig))
         writer = dv.io.MonoCameraWriter(str(self.tmp_path), cfg)
         try:
@@ -232,6 +234,9 @@ class Aedat4Writer(EventFileWriter):
             os.unlink(self._spool_path)
         except FileNotFoundError:
             pass
+        from .._util.atomic import release_partial
+        release_partial(getattr(self, "_spool_fd", None))
+        self._spool_fd = None
 
     def _cleanup(self) -> None:
         if hasattr(self, "_spool"):

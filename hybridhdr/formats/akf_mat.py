@@ -413,9 +413,16 @@ class AkfMatReader(EventFileReader):
     def _h5(self):
         import h5py
         try:
-            return h5py.File(self.path, "r")
+            f = h5py.File(self.path, "r")
         except Exception as exc:
             raise _wrap(self.path, "cannot open the MATLAB v7.3 (HDF5) file; corrupt or truncated?", exc) from None
+        try:
+            from .._util.limits import check_h5_self_contained
+            check_h5_self_contained(f, self.path)  # no external links / storage / virtual datasets
+        except BaseException:
+            f.close()
+            raise
+        return f
 
     def _h5_var(self, f, name: str, required: bool = False):
         import h5py

@@ -197,11 +197,17 @@ class EventFileWriter:
             raise ValueError(f"{self.format_name} writer for {self.path} needs sensor_size (height, width)")
         self.metadata = metadata or Metadata()
         self.options = options
-        self.tmp_path = self.path.with_name(self.path.name + ".partial")
+        self.tmp_path = self._partial_path()
         self._last_t = None
         self._closed = False
         self.n_events = 0
+        self._partial_fd = None
         try:
+            from .._util.atomic import claim_partial
+            # created exclusively (never through a symlink, never a user's folder) and locked while
+            # this writer lives: a concurrent run to the same output fails cleanly (docs/security.md)
+            self.tmp_path.parent.mkdir(parents=True, exist_ok=True)
+            self._partial_fd = claim_partial(self.tmp_path, directory=self.partial_is_dir)
             self._open()
         except BaseException:
             # a writer failing while creating its file (full disk, bad option) leaves nothing behind
@@ -210,6 +216,13 @@ class EventFileWriter:
             except Exception:
                 pass
             raise
+
+    #: the partial output is a folder (ECD), not a file
+    partial_is_dir: bool = False
+
+    def _partial_path(self) -> Path:
+        """Where the output is written until :meth:`close` renames it (``NAME.partial``)."""
+        return self.path.with_name(self.path.name + ".partial")
 
     def _open(self) -> None:
         raise NotImplementedError
@@ -276,21 +289,35 @@ class EventFileWriter:
         try:
             self._finish()
             self._closed = True
+            if self.partial_is_dir:
+                from .._util.atomic import _MARK
+                (self.tmp_path / _MARK).unlink(missing_ok=True)
             os.replace(self.tmp_path, self.path)
         except BaseException:
             self.abort()
             raise
+        finally:
+            self._release_partial()
+
+    def _release_partial(self) -> None:
+        from .._util.atomic import release_partial
+        release_partial(getattr(self, "_partial_fd", None))
+        self._partial_fd = None
 
     def abort(self) -> None:
         """Drop the partial output."""
         self._closed = True
+        if getattr(self, "_partial_fd", None) is None:
+            return  # the partial name was never ours (another run holds it) or is already renamed
         try:
             self._cleanup()
         finally:
-            if self.tmp_path.is_dir():
-                shutil.rmtree(self.tmp_path, ignore_errors=True)
-            elif self.tmp_path.exists():
-                self.tmp_path.unlink()
+            if getattr(self, "_partial_fd", None) is not None:  # only what this writer created
+                if self.tmp_path.is_dir() and not self.tmp_path.is_symlink():
+                    shutil.rmtree(self.tmp_path, ignore_errors=True)
+                elif self.tmp_path.exists() or self.tmp_path.is_symlink():
+                    self.tmp_path.unlink()
+            self._release_partial()
 
     def __enter__(self):
         return self

@@ -392,6 +392,9 @@ def read_bracket_set(folder) -> BracketSet:
                 listed = _read_list_file(folder / lf)
                 break
         if listed is not None:
+            from .._util.confine import inside_folder
+            for n in listed:  # absolute names and links out of the folder are refused, like '../'
+                inside_folder(n, folder, what="listed image", source=folder / lf)
             missing = [n for n in listed if not (folder / n).exists()]
             if missing:
                 raise FormatError(folder / lf, f"lists files that are not in the folder: {missing[:5]}")

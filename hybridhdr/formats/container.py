@@ -440,9 +440,22 @@ def _guarded(method):
 def _check_image_dataset(ds, path, name):
     """Size limits and stored chunks of an image stack before it is read."""
     check_shape(ds.shape, "K H W | K H W C", name, error=lambda m: FormatError(path, m))
+    dt = ds.dtype
+    if not ((dt.kind == "u" and dt.itemsize <= 2) or (dt.kind == "f" and dt.itemsize in (2, 4, 8))):
+        # signed codes (-5), uint64 (2^63 wraps to black) and compound records are not pixel values
+        raise FormatError(path, f"{name} must hold uint8, uint16 or floating-point pixels, got dtype {dt}")
     check_frame_shape(ds.shape, path, name)
     check_frame_bytes(float(np.prod(ds.shape, dtype=np.float64)) * ds.dtype.itemsize, path, name)
     check_h5_stored(ds, path, name)
+
+
+def _check_vector(ds, k, path, what):
+    """A per-image dataset must be (K,), K the number of images, and a numeric dtype (checked before reading)."""
+    if not hasattr(ds, "shape") or len(ds.shape) != 1 or ds.shape[0] != k:
+        raise FormatError(path, f"{what} must have shape ({k},), one value per image, got "
+                                f"{getattr(ds, 'shape', type(ds).__name__)}")
+    if ds.dtype.kind not in "iuf":
+        raise FormatError(path, f"{what} must be numeric, got dtype {ds.dtype}")
 
 
 def _require(f, name, path):
@@ -469,6 +482,8 @@ class RecordingFile(EventFileReader):
         except OSError as e:
             raise FormatError(self.path, f"not a readable HDF5 file ({e})") from None
         try:
+            from .._util.limits import check_h5_self_contained
+            check_h5_self_contained(self._f, self.path)  # no external links / storage / virtual datasets
             self._open_checked()
         except FormatError:
             self._f.close()
@@ -685,12 +700,20 @@ class RecordingFile(EventFileReader):
         if "triggers" not in self._f:
             return empty_triggers()
         g = self._f["triggers"]
-        n = g["t"].shape[0]
-        out = np.empty(n, dtype=TRIGGER_DTYPE)
+        t = _require(g, "t", self.path)
+        if len(t.shape) != 1:
+            raise FormatError(self.path, f"triggers/t must have shape (N,), got {t.shape}")
+        n = t.shape[0]
+        # declared sizes checked against what is stored and the limits before anything is allocated
         for name, _ in _TRIGGER_FIELDS:
             d = _require(g, name, self.path)
             check_shape(d.shape, "N", f"triggers/{name}", sizes={"N": n}, error=lambda m: FormatError(self.path, m))
-            out[name] = d[:]
+            check_h5_stored(d, self.path, f"triggers/{name}")
+        from .._util.limits import check_packet_size
+        check_packet_size(n * TRIGGER_DTYPE.itemsize, self.path, f"triggers ({n:,} declared)")
+        out = np.empty(n, dtype=TRIGGER_DTYPE)
+        for name, _ in _TRIGGER_FIELDS:
+            out[name] = g[name][:]
         try:
             return validate_triggers(out)
         except ValueError as e:
@@ -722,6 +745,11 @@ class RecordingFile(EventFileReader):
             return None
         g = self._f["frames"]
         try:
+            k = _require(g, "images", self.path).shape[0] if len(g["images"].shape) else -1
+            # per-frame vectors: (K,) like the images, checked before they are read
+            for name in ("t_start_us", "t_end_us", "gain", "iso"):
+                if name in g or name.startswith("t_"):
+                    _check_vector(_require(g, name, self.path), k, self.path, f"/frames/{name}")
             kw = {name: g[name][:] for name in ("gain", "iso") if name in g}
             enc = g.attrs.get("encoding", "unknown")
             enc = enc.decode() if isinstance(enc, bytes) else str(enc)
@@ -750,6 +778,8 @@ class RecordingFile(EventFileReader):
         try:
             ims = _require(g, "images", self.path)
             _check_image_dataset(ims, self.path, "/hdr/images")
+            _check_vector(_require(g, "t_us", self.path), ims.shape[0] if len(ims.shape) else -1, self.path,
+                          "/hdr/t_us")
             images = ims[:]
             check_finite(images, self.path, "/hdr/images", allow_nan=True)
             return HDRReferences(images, _require(g, "t_us", self.path)[:])

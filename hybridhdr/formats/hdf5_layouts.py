@@ -108,9 +108,16 @@ def _check_filters(path, ds) -> None:
 def _open(path):
     h5py = _h5py()
     try:
-        return h5py.File(path, "r")
+        f = h5py.File(path, "r")
     except OSError as exc:
         raise FormatError(path, f"cannot open as HDF5 (corrupt or truncated?): {exc}") from None
+    try:
+        from .._util.limits import check_h5_self_contained
+        check_h5_self_contained(f, path)  # no external links / storage / virtual datasets
+    except BaseException:
+        f.close()
+        raise
+    return f
 
 
 def _dataset(f, path, name: str, required: bool = True):

@@ -333,29 +333,106 @@ def write_png_previews(video, out_dir, *, every: int = 1, prefix: str = "preview
 
 class _MP4Stream:
     """H.264 through an ffmpeg process (``imageio-ffmpeg``), fed one tone-mapped frame at a time;
-    odd sizes are padded (edge) to even."""
+    odd sizes are padded (edge) to even.
+
+    ffmpeg's messages go to a temporary file (not the terminal) and its exit status is checked
+    on :meth:`close`: a failure (a full disk, a killed encoder) is one ``OSError`` line naming
+    ffmpeg's last message, and the caller's atomic writer then leaves nothing at the final name."""
 
     def __init__(self, path, shape, fps: float):
         import imageio_ffmpeg
+        import tempfile
         if fps <= 0:
             raise ValueError(f"fps must be > 0, got {fps}")
+        self.path = Path(path)
         self.h, self.w = int(shape[0]), int(shape[1])
         self.colour = len(shape) == 3
         size = (self.w + self.w % 2, self.h + self.h % 2)
+        self._log = tempfile.TemporaryFile()
         self.gen = imageio_ffmpeg.write_frames(str(path), size, pix_fmt_in="rgb24" if self.colour else "gray",
                                                fps=float(fps), codec="libx264", macro_block_size=1,
                                                ffmpeg_log_level="error")
-        self.gen.send(None)
+        import signal
+        import threading
+        self._proc = None
+        main = threading.current_thread() is threading.main_thread()
+        sigs = {getattr(signal, n) for n in ("SIGINT", "SIGTERM", "SIGHUP") if hasattr(signal, n)}
+        # no interrupt while ffmpeg starts: one that lands between its start and our handle on it
+        # would leave it running, to write the output file after this process has removed it
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs) if main else None
+        saved = os.dup(2)
+        try:
+            try:  # ffmpeg inherits stderr when it starts (in the first send): give it the log file
+                os.dup2(self._log.fileno(), 2)
+                self.gen.send(None)
+            finally:
+                os.dup2(saved, 2)
+                os.close(saved)
+            frame = getattr(self.gen, "gi_frame", None)
+            self._proc = frame.f_locals.get("p") if frame is not None else None
+        finally:
+            if old is not None:
+                try:
+                    signal.pthread_sigmask(signal.SIG_SETMASK, old)  # a pending signal is raised here
+                except BaseException:
+                    self.abort()
+                    raise
+
+    def abort(self) -> None:
+        """Stop ffmpeg now (killed and waited for, so it writes nothing more); never raises."""
+        if getattr(self, "_done", False):
+            return
+        self._done = True
+        try:
+            if self._proc is not None and self._proc.poll() is None:
+                self._proc.kill()
+            if self._proc is not None:
+                self._proc.wait()
+        except Exception:
+            pass
+        try:
+            self.gen.close()
+        except Exception:
+            pass
+        try:
+            self._log.close()
+        except Exception:
+            pass
+
+    def _failed(self, what: str) -> OSError:
+        msg = ""
+        try:
+            self._log.seek(0)
+            lines = [ln.strip() for ln in self._log.read().decode("utf-8", "replace").splitlines() if ln.strip()]
+            msg = lines[-1] if lines else ""
+        except (OSError, ValueError):
+            pass
+        return OSError(errno.EIO, f"ffmpeg failed while writing {self.path.name} ({what})"
+                                  + (f": {msg[:200]}" if msg else ""))
 
     def write(self, u8) -> None:
         pad = ((0, self.h % 2), (0, self.w % 2)) + (((0, 0),) if self.colour else ())
-        self.gen.send(np.ascontiguousarray(np.pad(u8, pad, mode="edge")))
+        try:
+            self.gen.send(np.ascontiguousarray(np.pad(u8, pad, mode="edge")))
+        except OSError:
+            raise self._failed("it stopped reading frames") from None
 
     def close(self) -> None:
+        if getattr(self, "_done", False):  # a second close (an error path) does nothing
+            return
+        self._done = True
         try:
-            self.gen.close()
-        except (RuntimeError, BrokenPipeError) as e:
-            raise OSError(errno.EIO, f"ffmpeg failed while writing the MP4 preview: {e}") from None
+            try:
+                self.gen.close()
+            except (RuntimeError, OSError) as e:
+                raise self._failed(str(e).splitlines()[0] if str(e) else type(e).__name__) from None
+            rc = None
+            if self._proc is not None:
+                rc = self._proc.wait()
+            if rc not in (0, None):
+                raise self._failed(f"exit status {rc}")
+        finally:
+            self._log.close()
 
 
 def write_mp4(video, path, *, fps: float = 30.0, **tone) -> Path:

@@ -58,6 +58,8 @@ def detect_format(path) -> str:
     path = Path(path)
     if not path.exists():
         raise FileNotFoundError(f"{path}: no such file or directory")
+    from .._util.limits import check_input_file
+    check_input_file(path)  # a FIFO, a device or a socket would hang the sniffing read
     head = b""
     if path.is_file():
         with open(path, "rb") as f:
@@ -73,6 +75,9 @@ def detect_format(path) -> str:
 
 def open_reader(path, format: str | None = None, **options) -> EventFileReader:
     """Open a streaming reader; ``format`` overrides detection."""
+    if format is not None and Path(path).exists():
+        from .._util.limits import check_input_file
+        check_input_file(path)  # a FIFO, a device or a socket would hang the reader
     fmt = detect_format(path) if format is None else _check_format(format)
     cls = formats()[fmt].reader
     if cls is None:

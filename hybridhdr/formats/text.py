@@ -563,7 +563,9 @@ class EcdReader(EventFileReader):
                 raise FormatError(self.images_txt, f"line {k}: frame timestamps must be non-decreasing; "
                                                    f"{t_us} µs after {last} µs", record=k)
             last = t_us
-            out.append((t_us, self.folder / rel, k))
+            from .._util.confine import inside_folder
+            # an absolute name or one leading out of the folder is refused (untrusted data)
+            out.append((t_us, inside_folder(rel, self.folder, what=f"line {k}: image", source=self.images_txt), k))
         return out
 
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
@@ -649,16 +651,12 @@ class EcdWriter(EventFileWriter):
 
     format_name = "ecd"
     supports = frozenset({"frames"})
+    partial_is_dir = True
 
     def _open(self) -> None:
         if self.path.exists() and (not self.path.is_dir() or any(self.path.iterdir())):
             raise FileExistsError(f"{self.path}: exists and is not an empty folder; refusing to overwrite")
-        if self.tmp_path.exists():
-            if self.tmp_path.is_dir():
-                shutil.rmtree(self.tmp_path)
-            else:
-                self.tmp_path.unlink()
-        self.tmp_path.mkdir(parents=True)
+        # self.tmp_path was created (exclusively, with a marker) by EventFileWriter
         self._ev = open(self.tmp_path / "events.txt", "w", encoding="ascii", newline="\n")
         self._img = None
         self._n_frames = 0

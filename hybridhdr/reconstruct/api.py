@@ -158,6 +158,12 @@ def _open_source(source, n_workers: int = 1):
                         f"got {type(source).__name__}")
     ss = SensorSize.from_any(getattr(reader, "sensor_size", None))
     frames = reader.read_frames() if hasattr(reader, "read_frames") else None
+    if frames is not None and len(frames):
+        # the filters hold the frames as float64 log intensities (8 bytes a pixel, plus work copies):
+        # a 1 MB container of 1 GiB of compressed zero frames used to take the AKF to 7.2 GB
+        from .._util.limits import check_memory
+        check_memory(int(frames.images.size) * 8, getattr(reader, "path", None),
+                     "the frames as the filter holds them (8 bytes a pixel)")
 
     if hasattr(reader, "iter_event_columns"):  # the container: columns straight from HDF5
         # (read ahead in a thread by the consumer: the driver's prefetcher or StreamingEventArrays)

@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, positive_float
+from .._util.cliargs import chunk_events_count, positive_worker_count, worker_count
 from .._util.timearg import add_time_window
 
 _FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
@@ -82,13 +83,15 @@ def add_parser(subparsers) -> None:
     p.add_argument("--frame-encoding", choices=("linear", "gamma2.2", "srgb"), default=None,
                    help="declare the frames' encoding (default: as the recording states)")
     add_time_window(p, "outputs")
-    p.add_argument("--workers", type=positive_int, default=1,
+    p.add_argument("--workers", type=positive_worker_count, default=1,
                    help="threads for the row-band parallel kernels (the two-sided AKF with >= 2 runs its backward and "
                         "forward passes at once, each with half); the output is the same bit for bit")
     p.add_argument("--device", choices=("auto", "cuda", "cpu"), default="auto",
                    help="where the AKF and CF family run: cuda (NVIDIA GPU through numba.cuda), cpu, or auto (the GPU "
                         "when numba.cuda sees one, else the CPU; default); one line on stderr and run.json say which")
-    p.add_argument("--chunk-events", type=positive_int, default=1 << 20, help="events per streamed chunk")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the size limits on the input's frames and outputs (docs/security.md)")
+    p.add_argument("--chunk-events", type=chunk_events_count, default=1 << 20, help="events per streamed chunk")
     o = p.add_argument_group("outputs (written into OUT.partial/, renamed to OUT when complete)")
     o.add_argument("--png", action="store_true", help="also write tone-mapped PNG previews")
     o.add_argument("--mp4", action="store_true", help="also write a tone-mapped MP4 preview (every output frame)")
@@ -99,7 +102,7 @@ def add_parser(subparsers) -> None:
                    help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
                         f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: none: lossless and the fastest; "
                         f"zip saves about 6 %% of the bytes for 4x the encoding time]")
-    o.add_argument("--writers", type=nonneg_int, default=None,
+    o.add_argument("--writers", type=worker_count, default=None,
                    help="writer processes encoding files while the filter runs; 0 writes in the main thread "
                         "(same bytes) [default: min(2, CPUs)]")
     o.add_argument("--overwrite", action="store_true",
@@ -331,6 +334,11 @@ def _toml_fields(cls, path) -> dict:
     if cls._toml_table in d and isinstance(d[cls._toml_table], dict):
         d = d[cls._toml_table]
     d = {k: v for k, v in d.items() if not isinstance(v, dict)}
+    if d.get("allow_pickle"):  # unpickling runs code from the checkpoint: only the user's own command line
+        from ..errors import FormatError
+        raise FormatError(path, "allow_pickle is not accepted in a --config file (it lets a checkpoint run Python "
+                                "code); give --set allow_pickle=true yourself if you trust the checkpoint "
+                                "(docs/security.md)")
     cls.from_dict(d)  # validates names
     return d
 
@@ -405,7 +413,10 @@ def run(args) -> int:
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
-            times = np.loadtxt(args.times_us, dtype=np.int64, ndmin=1, comments="#")
+            import io
+            from .._util.limits import read_text_bounded
+            times = np.loadtxt(io.StringIO(read_text_bounded(args.times_us, "--times-us file")), dtype=np.int64,
+                               ndmin=1, comments="#")
         compression = (args.exr_compression or DEFAULT_EXR_COMPRESSION).lower()
         if compression not in exr_compressions():
             raise ValueError(f"--exr-compression {args.exr_compression!r}: expected one of {exr_compressions()}")
@@ -507,8 +518,10 @@ def run(args) -> int:
             raise
         print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
         from .._util.timearg import EmptyWindowError
+        from ..errors import FormatError
+        # a bad or oversized input file (FormatError, LimitExceeded, a FIFO) is not a usage error: 1
         usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
-                 and not isinstance(e, EmptyWindowError))
+                 and not isinstance(e, (EmptyWindowError, FormatError)))
         return 2 if usage else 1
 
 

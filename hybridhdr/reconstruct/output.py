@@ -61,6 +61,8 @@ def _read_spill(spill, shape, index) -> np.ndarray:
 
 def _worker_init(umask: int | None = None):
     import signal
+    from .._util.procs import die_with_parent
+    die_with_parent()  # a kill -9 of the command ends its writers too (no orphans blocked on a pipe)
     if umask is not None:  # a forkserver child inherits the server's umask, not this run's
         os.umask(umask)
     signal.signal(signal.SIGINT, signal.SIG_IGN)  # the parent handles Ctrl-C and shuts the pool down

@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .._util.cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
-    positive_int
+    positive_int, image_side
 
 
 def add_parser(subparsers) -> None:
@@ -39,8 +39,10 @@ def add_parser(subparsers) -> None:
     p.add_argument("--variant", default=None, choices=["llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_mono"],
                    help="Mitsuba variant (default: cuda_ad_mono on an NVIDIA GPU, else llvm_ad_mono if LLVM works, else "
                         "scalar_rgb)")
-    p.add_argument("--width", type=positive_int, default=None, help="image width in pixels (intrinsics scale with it)")
-    p.add_argument("--height", type=positive_int, default=None, help="image height in pixels")
+    p.add_argument("--allow-huge", action="store_true",
+                   help="lift the limits on scene sizes, durations and sample counts (docs/security.md)")
+    p.add_argument("--width", type=image_side, default=None, help="image width in pixels (intrinsics scale with it)")
+    p.add_argument("--height", type=image_side, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
     f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
     f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=20.0,
@@ -175,6 +177,9 @@ def run(args) -> int:
         return 0
     if args.scene is None:
         raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
+    from .._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({"--out": args.out, "--preview": args.preview},
+                              [] if str(args.scene).startswith("builtin:") else [args.scene])
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
                            spp=args.spp, render_seed=args.render_seed,
                            board_options={"poses": args.poses, "period_us": args.blink_period_us},

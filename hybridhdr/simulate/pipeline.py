@@ -306,11 +306,9 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
 
     _check_source(source)
     path = Path(path)
-    try:
-        w = _Writer(path, sensor_size=source.sensor_size, compression=compression)
-    except BaseException:  # a writer that fails while creating its file leaves no .partial
-        path.with_name(path.name + ".partial").unlink(missing_ok=True)
-        raise
+    # a writer that fails while creating its file leaves no .partial (EventFileWriter aborts), and
+    # one that finds another run's partial there leaves that alone
+    w = _Writer(path, sensor_size=source.sensor_size, compression=compression)
     try:
         renders, stats, meta = _run(source, w, sensor=sensor, camera=camera, sampling=sampling,
                                     gt_times_us=gt_times_us, seed=seed, progress=progress, cfa=cfa)

@@ -381,6 +381,19 @@ class Pattern:
         return d
 
 
+def _bounded(value, what: str, *, limit: str | None = None, hi=None) -> None:
+    """Scene numbers that size memory or work are bounded before anything is built (a duration of
+    9e18 µs used to end in a segfault, subdivisions = 30 or spp = 1e9 in hours of work); the
+    ``limit`` ones are lifted by ``HYBRIDHDR_ALLOW_HUGE=1`` (``docs/security.md``)."""
+    from .._util.limits import LimitExceeded, check_number
+    try:
+        check_number(value, what, lo=0, limit=limit, hi=hi)
+    except LimitExceeded as e:
+        raise SceneError(str(e)) from None
+    except ValueError as e:
+        raise SceneError(str(e)) from None
+
+
 def _read_texture(name: str, base_dir: Path | None) -> np.ndarray:
     p = Path(name)
     if not p.is_absolute() and base_dir is not None:
@@ -388,7 +401,15 @@ def _read_texture(name: str, base_dir: Path | None) -> np.ndarray:
     if not p.exists():
         raise FileNotFoundError(f"texture file {str(p)!r} not found")
     import imageio.v3 as iio
-    img = np.asarray(iio.imread(p))
+    from .._util.limits import LimitExceeded, check_input_file, open_image
+    from ..errors import FormatError
+    check_input_file(p, "texture")  # a FIFO or device would hang the decoder
+    try:  # the header's size checked first: a decompression bomb is one error line
+        img = np.asarray(open_image(p, "texture"))
+    except LimitExceeded as e:
+        raise SceneError(f"texture {str(p)!r}: {e}") from None
+    except FormatError:  # not a format PIL reads (EXR ...): imageio
+        img = np.asarray(iio.imread(p))
     if img.dtype == np.uint8 or img.dtype == np.uint16:
         x = img.astype(np.float64) / np.iinfo(img.dtype).max
         x = np.where(x <= 0.04045, x / 12.92, ((x + 0.055) / 1.055) ** 2.4)  # sRGB EOTF (IEC 61966-2-1)
@@ -472,6 +493,8 @@ class MeshSpec:
 
     def __post_init__(self):
         _floats(self, "extents", "radius", "height", "size")
+        _bounded(self.subdivisions, "mesh.subdivisions", limit="max_subdivisions")
+        _bounded(self.sections, "mesh.sections", hi=65536)
         if self.kind not in MESH_KINDS:
             raise SceneError(f"mesh.type: expected one of {', '.join(MESH_KINDS)}, found {self.kind!r}")
         need = {"box": ("extents",), "sphere": ("radius",), "icosphere": ("radius",), "plane": ("size",),
@@ -547,6 +570,8 @@ class MeshSpec:
                 p = Path(base_dir) / p
             if not p.exists():
                 raise FileNotFoundError(f"mesh file {str(p)!r} not found")
+            from .._util.limits import check_input_file
+            check_input_file(p, "mesh file")  # a FIFO or device would hang the parser
             ext = p.suffix.lower().lstrip(".")
             if ext not in trimesh.available_formats():
                 raise SceneError(f"mesh file {str(p)!r}: format {ext or '(no extension)'!r} is not one trimesh reads; "
@@ -740,7 +765,8 @@ def load_calibration(path) -> tuple[float, float, float, float, int, int]:
     """
     p = Path(path)
     try:
-        d = json.loads(p.read_text())
+        from .._util.limits import read_text_bounded
+        d = json.loads(read_text_bounded(p, "calibration file"))
     except json.JSONDecodeError as e:
         raise SceneError(f"calibration file {str(p)!r}: not valid JSON ({e})") from None
     K = d.get("K") if isinstance(d, dict) else None
@@ -775,6 +801,8 @@ class CameraSpec:
         _floats(self, "fx", "fy", "cx", "cy")
         if self.width < 1 or self.height < 1:
             raise SceneError(f"camera size: expected positive width and height, found {self.width}x{self.height}")
+        _bounded(self.width, "camera.width", limit="max_side")
+        _bounded(self.height, "camera.height", limit="max_side")
         if self.fx <= 0 or self.fy <= 0:
             raise SceneError(f"camera fx, fy: expected > 0, found {self.fx}, {self.fy}")
         if abs(self.fx - self.fy) > 1e-3 * self.fx:
@@ -975,6 +1003,7 @@ class RenderSettings:
     def __post_init__(self):
         if self.spp < 1:
             raise SceneError(f"render.spp: expected >= 1, found {self.spp}")
+        _bounded(self.spp, "render.spp", limit="max_spp")
         if self.integrator not in INTEGRATORS:
             raise SceneError(f"render.integrator: expected one of {', '.join(INTEGRATORS)}, found {self.integrator!r}")
 
@@ -1009,6 +1038,7 @@ class Scene:
     def __post_init__(self):
         if self.duration_us <= 0:
             raise SceneError(f"duration_us: expected > 0, found {self.duration_us}")
+        _bounded(self.duration_us, "duration_us", limit="max_duration_us")
         names = [o.name for o in self.objects]
         dup = {n for n in names if names.count(n) > 1}
         if dup:

@@ -50,10 +50,15 @@ def test_text_and_json(tmp_path):
 
 def test_atomic_folder(tmp_path, umask_027):
     out = tmp_path / "set"
-    (tmp_path / "set.partial").mkdir()  # stale, from an interrupted run
+    (tmp_path / "set.partial").mkdir()  # not made by hybridhdr (no marker): refused, never deleted
     (tmp_path / "set.partial" / "junk").write_text("x")
+    with pytest.raises(FileExistsError, match="never deleted"):
+        with atomic_folder(out):
+            pass
+    assert (tmp_path / "set.partial" / "junk").read_text() == "x"
+    (tmp_path / "set.partial" / ".hybridhdr-partial").write_text("pid 1 host h\n")  # ours, no live writer: stale
     with atomic_folder(out) as tmp:
-        assert tmp == tmp_path / "set.partial" and not any(tmp.iterdir())
+        assert tmp == tmp_path / "set.partial" and [p.name for p in tmp.iterdir()] == [".hybridhdr-partial"]
         (tmp / "a.txt").write_text("a")
     assert sorted(os.listdir(tmp_path)) == ["set"] and (out / "a.txt").read_text() == "a"
     assert _mode(out) == 0o750
