@@ -85,6 +85,17 @@ def _marker_owner_dead(marker: Path) -> bool:
     return host == socket.gethostname() and not _pid_alive(pid)
 
 
+def _marker_in_use(marker: Path) -> bool:
+    """True when a folder's marker is not written yet (a run creating it now) or names a live
+    process of this host."""
+    try:
+        words = marker.read_text(encoding="utf-8", errors="replace").split()
+        pid, host = int(words[1]), words[3]
+    except (OSError, ValueError, IndexError):
+        return True
+    return host == socket.gethostname() and _pid_alive(pid) and pid != os.getpid()
+
+
 def claim_partial(tmp, *, directory: bool = False) -> int:
     """Create ``tmp`` (a file, or a folder with a marker file) exclusively and lock it; returns the
     locked descriptor (keep it open while writing; :func:`release_partial` closes it).
@@ -104,9 +115,31 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                 os.mkdir(tmp)
                 fd = os.open(tmp / _MARK, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                 os.write(fd, _marker_text().encode())
+                _try_lock(fd)
             else:
-                fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
-            _try_lock(fd)
+                # created and locked under a name of our own, then linked to ``tmp`` (atomic, and it
+                # fails if ``tmp`` exists): no other run ever sees ``tmp`` unlocked while we live
+                # (between a plain exclusive create and the lock, a concurrent run took the fresh
+                # file for an interrupted run's, removed it and the first writer lost its output)
+                own = tmp.with_name(f"{tmp.name}.{os.getpid()}.{os.urandom(4).hex()}")
+                fd = os.open(own, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+                try:
+                    _try_lock(fd)
+                    os.link(own, tmp, follow_symlinks=False)
+                except FileExistsError:
+                    os.close(fd)
+                    raise
+                except OSError as e:  # a filesystem without hard links: exclusive create, then lock
+                    os.close(fd)
+                    if e.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
+                        raise
+                    fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+                    _try_lock(fd)
+                except BaseException:
+                    os.close(fd)
+                    raise
+                finally:
+                    os.unlink(own)
             return fd
         except FileExistsError:
             if attempt:
@@ -126,7 +159,9 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
             raise PartialInUse(errno.EEXIST, f"{tmp} exists and cannot be checked ({e.strerror}); remove it "
                                              f"first") from None
         try:
-            if not _try_lock(fd):
+            # a folder's marker is created, then locked: a marker not yet written, or naming a live
+            # process, is a run starting now, never an interrupted one
+            if not _try_lock(fd) or (directory and _marker_in_use(lock_path)):
                 raise PartialInUse(errno.EEXIST, f"{tmp} is being written by another running hybridhdr command; "
                                                  f"wait for it or choose another output name")
             if directory:
