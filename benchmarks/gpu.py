@@ -74,8 +74,55 @@ def _make_engine_factory(shape, method="akf", params=None):
     return make, p
 
 
-def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_cpu=True):
-    """Forward, two-sided and CF on the GPU (resident and end to end) and the CPU beside them."""
+def _phases(fn):
+    """``fn()`` once more with :class:`hybridhdr.reconstruct.cuda.PhaseTimer` active: every phase
+    synchronised and timed (slower than the plain run, which is the figure; this says where the
+    time goes). Returns (seconds of the profiled run, phase table)."""
+    import hybridhdr.reconstruct.cuda as C
+    C.PHASES = tm = C.PhaseTimer()
+    try:
+        t0 = time.perf_counter()
+        fn()
+        el = time.perf_counter() - t0
+    finally:
+        C.PHASES = None
+    tab = tm.table()
+    tab["_unaccounted_s"] = round(el - sum(v["total_s"] for v in tab.values()), 5)
+    return round(el, 4), tab
+
+
+def _log_phases(name, el, tab):
+    log(f"  phases of {name} (synchronised run, {el * 1e3:.1f} ms): phase calls total_ms host_ms")
+    for k, v in tab.items():
+        if isinstance(v, dict):
+            log(f"    {k:18s} {v['calls']:6d} {v['total_s'] * 1e3:9.2f} {v['host_s'] * 1e3:9.2f}")
+    log(f"    (outside the phases: {tab['_unaccounted_s'] * 1e3:.2f} ms: driver, Python, launches between phases)")
+
+
+def _cprofile(fn, top=18):
+    """Host-side profile of ``fn()`` (cProfile, no synchronisation added): the functions with the
+    most own time, as lines ``tottime cumtime ncalls function``."""
+    import cProfile
+    import io
+    import pstats
+    pr = cProfile.Profile()
+    pr.enable()
+    try:
+        fn()
+    finally:
+        pr.disable()
+    st = pstats.Stats(pr, stream=io.StringIO())
+    rows = []
+    for (fname, line, func), (cc, nc, tt, ct, _) in st.stats.items():
+        rows.append((tt, ct, nc, f"{Path(fname).name}:{line}({func})"))
+    rows.sort(reverse=True)
+    return [f"{tt:.4f} {ct:.4f} {nc} {name}" for tt, ct, nc, name in rows[:top]]
+
+
+def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_cpu=True, profile=False):
+    """Forward, two-sided and CF on the GPU (resident and end to end) and the CPU beside them;
+    with ``profile``, each resident case once more with phase timings and ``reconstruct``'s host
+    profile."""
     from numba import cuda
 
     from hybridhdr.reconstruct import reconstruct
@@ -105,7 +152,10 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return eng.n_events
     el, ne = _best(forward, reps)
     out["akf_forward_resident"] = {"seconds": round(el, 4), "mev_s": round(ne / el / 1e6, 1), "events": int(ne)}
-    log(f"  AKF forward, events resident: {ne / el / 1e6:.1f} Mev/s")
+    log(f"  AKF forward, events resident: {ne / el / 1e6:.1f} Mev/s ({el * 1e3:.1f} ms)")
+    if profile:
+        out["akf_forward_resident"]["phases_run_s"], out["akf_forward_resident"]["phases"] = pe = _phases(forward)
+        _log_phases("the resident forward AKF", *pe)
 
     def two_sided():
         k = 0
@@ -116,7 +166,11 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return k
     el2, k = _best(two_sided, reps)
     out["akf_two_sided_resident"] = {"seconds": round(el2, 4), "mev_s": round(n / el2 / 1e6, 1), "outputs": k}
-    log(f"  AKF two-sided, events resident: {n / el2 / 1e6:.1f} Mev/s")
+    log(f"  AKF two-sided, events resident: {n / el2 / 1e6:.1f} Mev/s ({el2 * 1e3:.1f} ms)")
+    if profile:
+        out["akf_two_sided_resident"]["phases_run_s"], out["akf_two_sided_resident"]["phases"] = pe = \
+            _phases(two_sided)
+        _log_phases("the resident two-sided AKF", *pe)
 
     make_cf, _ = _make_engine_factory(shape, "cf")
 
@@ -128,14 +182,23 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return eng.n_events
     el3, ne3 = _best(cf, reps)
     out["cf_resident"] = {"seconds": round(el3, 4), "mev_s": round(ne3 / el3 / 1e6, 1)}
-    log(f"  CF forward, events resident: {ne3 / el3 / 1e6:.1f} Mev/s")
+    log(f"  CF forward, events resident: {ne3 / el3 / 1e6:.1f} Mev/s ({el3 * 1e3:.1f} ms)")
+    if profile:
+        out["cf_resident"]["phases_run_s"], out["cf_resident"]["phases"] = pe = _phases(cf)
+        _log_phases("the resident CF", *pe)
 
     rec = _recording(t, x, y, p, frames, shape)
     for mode, key in (("forward", "akf_forward"), ("offline", "akf_two_sided")):
         el, v = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"), 1)
         out[f"{key}_reconstruct_gpu"] = {"seconds": round(el, 3), "mev_s": round(n / el / 1e6, 1),
                                          "device_line": v.info.get("device")}
-        log(f"  {key} through reconstruct on the GPU: {n / el / 1e6:.1f} Mev/s")
+        log(f"  {key} through reconstruct on the GPU: {n / el / 1e6:.1f} Mev/s ({el * 1e3:.0f} ms)")
+        if profile:
+            rows = _cprofile(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"))
+            out[f"{key}_reconstruct_gpu"]["host_profile"] = rows
+            log(f"  host profile of reconstruct {mode} on the GPU (tottime cumtime ncalls function):")
+            for r in rows:
+                log("    " + r)
         if run_cpu:
             el_c, _ = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, n_workers=cpu_workers), 1)
             out[f"{key}_reconstruct_cpu"] = {"seconds": round(el_c, 3), "mev_s": round(n / el_c / 1e6, 1),
@@ -188,7 +251,7 @@ def agreement(res):
     log(f"  agreement: L {r_l:.2e}, P {r_p:.2e}, two-sided images {r_img:.2e}")
 
 
-def firenet(res, quick):
+def firenet(res, quick, reps=2, profile=False):
     import torch
 
     from akf import synth_events, synth_events_hd, synth_frames
@@ -215,8 +278,15 @@ def firenet(res, quick):
             reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"}, times_us=times[:3])  # warm-up
             torch.cuda.synchronize()
             el, v = _best(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
-                                              times_us=times), 2)
+                                              times_us=times), reps)
             o["gpu_end_to_end_ms_per_frame"] = round(1e3 * el / len(v), 2)
+            if profile:
+                rows = _cprofile(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
+                                                     times_us=times))
+                o["host_profile"] = rows
+                log(f"  host profile of FireNet {w}x{h} on the GPU, {times.size} frames (tottime cumtime ncalls function):")
+                for r in rows:
+                    log("    " + r)
             # the network step alone on a device voxel grid (the recurrent state kept on the device)
             netd, dev = load_network("firenet", FireNetParams(weights=str(path), device="cuda"))
             r = Reconstructor(netd, dev, (h, w), clip=True)
@@ -249,6 +319,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="smaller streams, one repetition")
     ap.add_argument("--reps", type=int, default=None, help="repetitions per timing (best kept)")
     ap.add_argument("--skip", default="", help="comma-separated parts to skip: hd, agreement, firenet")
+    ap.add_argument("--hd-events", type=int, default=None,
+                    help="events of the 1280x720 stream (default 20 M; 5 M with --quick)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also time each phase (synchronised runs) and profile reconstruct's host side")
+    ap.add_argument("--no-cpu", action="store_true", help="skip the CPU reconstruct runs beside the GPU ones")
+    ap.add_argument("--firenet-reps", type=int, default=2, help="repetitions of FireNet's end-to-end timing")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     from hybridhdr.reconstruct.cuda import cuda_unavailable_reason, device_name
@@ -292,11 +368,12 @@ def main(argv=None) -> int:
         section("agreement", lambda: agreement(res))
 
     def hd_part():
-        n = 5_000_000 if args.quick else 20_000_000
+        n = args.hd_events or (5_000_000 if args.quick else 20_000_000)
         log(f"1280x720: {n} events ...")
         t, x, y, p, dur = synth_events_hd(n)
         fr = synth_frames(dur, h=HD_H, w=HD_W)
-        gpu_akf_cf(t, x, y, p, fr, (HD_H, HD_W), reps, "hd", res, min(16, os.cpu_count() or 1))
+        gpu_akf_cf(t, x, y, p, fr, (HD_H, HD_W), reps, "hd", res, min(16, os.cpu_count() or 1),
+                   run_cpu=not args.no_cpu, profile=args.profile)
         hd = res["hd"]
         res["goals"] = {"akf_forward_hd_mev_s": 1000, "akf_two_sided_hd_mev_s": 400,
                         "forward_met": hd["akf_forward_resident"]["mev_s"] >= 1000,
@@ -308,7 +385,7 @@ def main(argv=None) -> int:
             import torch
             if torch.cuda.is_available():
                 log("FireNet ...")
-                section("firenet", lambda: firenet(res, args.quick))
+                section("firenet", lambda: firenet(res, args.quick, args.firenet_reps, args.profile))
             else:
                 res["firenet"] = {"skipped": "PyTorch sees no CUDA device"}
         except ImportError as e:

@@ -14,8 +14,8 @@ line (same equations, same order of operations); only the schedule differs:
   kernel's event update (:func:`._kernels._akf_event`) to its state record.
 * **The isolated-pixel term** needs, at each event i of pixel p, the latest event time t* in the
   3x3 window of p over the events *before i in the stream* (eq. 2, §3.1.1). For a neighbour q
-  that is the last of q's events with index < i in this window (binary search in q's sorted
-  group), or, if there is none, q's last-event time from before the window (``te_in``). The
+  that is the last of q's events with index < i in this window (a merge of p's and q's sorted
+  groups: each neighbour's position only moves forward as p's events come), or, if there is none, q's last-event time from before the window (``te_in``). The
   window's last-event times go to ``te_out`` (double buffering: no thread reads a time written
   in the same window), so the result equals the serial stream's for any window split.
 
@@ -202,6 +202,14 @@ def k_sort_groups(start, n_pix, grp):
         m = hi - lo
         if m < 2:
             continue
+        # the atomic slots mostly follow the stream order already: one read pass, no sort then
+        ordered = True
+        for j in range(lo + 1, hi):
+            if grp[j - 1] > grp[j]:
+                ordered = False
+                break
+        if ordered:
+            continue
         gap = 1
         if m >= 32:
             while gap < m // 3:
@@ -246,7 +254,7 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         te0 = te_in[pix]
         # neighbours without events in this window contribute their time from before it, the same
         # for every event of p: folded into one maximum; only the others are searched per event
-        nb_lo = cuda.local.array(8, np.int32)
+        nb_pos = cuda.local.array(8, np.int32)
         nb_hi = cuda.local.array(8, np.int32)
         nb_te = cuda.local.array(8, np.int64)
         n_nb = 0
@@ -261,7 +269,7 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
                         if te_in[q] > t_quiet:
                             t_quiet = te_in[q]
                     else:
-                        nb_lo[n_nb] = q_lo
+                        nb_pos[n_nb] = q_lo
                         nb_hi[n_nb] = q_hi
                         nb_te[n_nb] = te_in[q]
                         n_nb += 1
@@ -280,9 +288,18 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
             # t*: the latest event time in the 3x3 window before this event (p itself: te0)
             tstar = te0 if te0 > t_quiet else t_quiet
             for k in range(n_nb):
-                s0 = nb_lo[k]
-                kk = d_lower_bound(grp, s0, nb_hi[k], i)
-                tq = t[a + grp[kk - 1]] if kk > s0 else nb_te[k]
+                # q's last event before i: p's events come in increasing i, so each neighbour's
+                # position only moves forward (a merge: O(events of p and q) per window, where a
+                # binary search per event costs O(events of p x log events of q))
+                kk = nb_pos[k]
+                hk = nb_hi[k]
+                if kk < hk and grp[kk] < i:
+                    kk += 1
+                    while kk < hk and grp[kk] < i:
+                        kk += 1
+                    nb_pos[k] = kk
+                    nb_te[k] = t[a + grp[kk - 1]]
+                tq = nb_te[k]
                 if tq > tstar:
                     tstar = tq
             dte = ti - te0
@@ -512,6 +529,21 @@ def k_cf_load(C, lf, alpha, reset_l, set_tu, t_tu, n_pix):
         C[pix, C_ALPHA] = alpha[pix]
         if reset_l:
             C[pix, C_L] = lf[pix]
+        if set_tu:
+            C[pix, C_TU] = t_tu
+
+
+@cuda.jit
+def k_cf_load_lut(C, code, max_code, lf_l, alpha_l, reset_l, set_tu, t_tu, n_pix):
+    """:func:`k_cf_load` from per-code tables (:meth:`._engine.CFEngine._load_codes`): each
+    pixel's clipped code looks up L^F and α."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        c = min(max(np.int64(code[pix]), 0), max_code)
+        lf = lf_l[c]
+        C[pix, C_LF] = lf
+        C[pix, C_ALPHA] = alpha_l[c]
+        if reset_l:
+            C[pix, C_L] = lf
         if set_tu:
             C[pix, C_TU] = t_tu
 

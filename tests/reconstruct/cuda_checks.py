@@ -140,7 +140,7 @@ def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous
     return rel, STATE_TOL, f"L and P at {len(cpu)} outputs; events {n_gpu} vs {n_cpu}", n_cpu == n_gpu
 
 
-def check_cf_engine(mode="cf"):
+def check_cf_engine(mode="cf", generic=False, adaptive=False):
     from hybridhdr.camera import default_profile
     from hybridhdr.reconstruct import CFParams, FrameMeasurements, HighPassParams
     from hybridhdr.reconstruct._engine import CFEngine
@@ -149,11 +149,14 @@ def check_cf_engine(mode="cf"):
     t, x, y, p = _stream(900, h, w, seed=9)
     fr = _frames(h, w, [0, 70_000, 140_000, 210_000])
     from hybridhdr.reconstruct import DirectParams
-    params = {"highpass": HighPassParams(), "direct": DirectParams()}.get(mode) or CFParams(cutoff_hz=4.0)
+    params = {"highpass": HighPassParams(), "direct": DirectParams()}.get(mode) or \
+        CFParams(cutoff_hz=4.0, adaptive_gain=adaptive, adaptive_low=0.2, adaptive_high=0.8)
 
     def make(dev):
         m = None if mode == "highpass" else FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0,
                                                               bias_correction=False, interpolate_covariance=False)
+        if generic:  # no segment_codes: the per-pixel segment path (not the per-code tables)
+            m = _Step(m)
         return CFEngine((h, w), m, params, mode) if dev == "cpu" else CudaCFEngine((h, w), m, params, mode)
     res = []
     for dev in ("cpu", "cuda"):
@@ -216,6 +219,8 @@ CHECKS = {
     "akf_la_step_generic": lambda: check_akf_engine(step=True, thresholds=True),
     "akf_windows_split": lambda: check_akf_engine(max_window=97),
     "cf": lambda: check_cf_engine("cf"),
+    "cf_adaptive": lambda: check_cf_engine("cf", adaptive=True),
+    "cf_generic": lambda: check_cf_engine("cf", generic=True, adaptive=True),
     "highpass": lambda: check_cf_engine("highpass"),
     "direct": lambda: check_cf_engine("direct"),
     "reconstruct_forward": lambda: check_reconstruct("forward", fps=100.0),
