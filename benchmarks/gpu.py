@@ -116,7 +116,14 @@ def _cprofile(fn, top=18):
     for (fname, line, func), (cc, nc, tt, ct, _) in st.stats.items():
         rows.append((tt, ct, nc, f"{Path(fname).name}:{line}({func})"))
     rows.sort(reverse=True)
-    return [f"{tt:.4f} {ct:.4f} {nc} {name}" for tt, ct, nc, name in rows[:top]]
+    out = [f"{tt:.4f} {ct:.4f} {nc} {name}" for tt, ct, nc, name in rows[:top]]
+    # and the toolkit's own functions by cumulative time (which step of reconstruct holds the time)
+    own = sorted(((ct, tt, nc, f"{Path(fname).parent.name}/{Path(fname).name}:{line}({func})")
+                  for (fname, line, func), (cc, nc, tt, ct, _) in st.stats.items() if "hybridhdr" in fname),
+                 reverse=True)
+    out.append("-- hybridhdr functions by cumulative time:")
+    out += [f"{tt:.4f} {ct:.4f} {nc} {name}" for ct, tt, nc, name in own[:top]]
+    return out
 
 
 def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_cpu=True, profile=False):

@@ -273,17 +273,38 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
                         nb_hi[n_nb] = q_hi
                         nb_te[n_nb] = te_in[q]
                         n_nb += 1
+        # the state record in registers for the walk (one load and one store of each field per
+        # window, not per event); the fields a frame switch sets are constant here
+        sl = S[pix, A_L]
+        sp = S[pix, A_P]
+        sla = S[pix, A_LA]
+        stu = S[pix, A_TU]
+        rinv = S[pix, A_RINV]
+        beta = S[pix, A_BETA]
+        klog = S[pix, A_KLOG]
+        lastep = S[pix, A_LASTEP]
+        scale_p = beta != 0.0 or klog == 0.0
+        jump_on = con_px[pix] if has_px else c_on
+        jump_off = -(coff_px[pix] if has_px else c_off)
+        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
         for g in range(lo, hi):
             i = grp[g]
             ti = t[a + i]
             tif = np.float64(ti)
-            tu0 = S[pix, A_TU]
-            integ = d_pull_integral(S, pix, tif, seg_t0, seg_inv_t)
-            pp = S[pix, A_P]
+            tu0 = stu
+            # d_pull_integral on the registers
+            if beta == 0.0:
+                if klog * (sl - sla) > 0.0:
+                    integ = 0.0
+                else:
+                    integ = rinv * ((tif - tu0) * US)
+            else:
+                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
+            pp = sp
             d = 1.0 / (1.0 + pp * integ)
-            lav = S[pix, A_LA]
-            lhat = lav + (S[pix, A_L] - lav) * d
-            if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:
+            lav = sla
+            lhat = lav + (sl - lav) * d
+            if scale_p:
                 pp = pp * d
             # t*: the latest event time in the 3x3 window before this event (p itself: te0)
             tstar = te0 if te0 > t_quiet else t_quiet
@@ -312,23 +333,24 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
                 q_ += s_proc * ((tif - tu0) * US)
                 if dte <= rho_us:
                     q_ += s_ref * (dte * US)
-            S[pix, A_P] = pp + q_
+            sp = pp + q_
             positive = p[a + i] > 0
-            if positive:
-                jump = con_px[pix] if has_px else c_on
-            else:
-                jump = -(coff_px[pix] if has_px else c_off)
-            S[pix, A_L] = lhat + jump
+            jump = jump_on if positive else jump_off
+            sl = lhat + jump
             if has_la_step:
-                st = S[pix, A_LASTEP]
+                st = lastep
                 if st < 0.0:
-                    S[pix, A_LA] = lav + jump
+                    sla = lav + jump
                 elif positive:
-                    S[pix, A_LA] = lav + st
+                    sla = lav + st
                 else:
-                    S[pix, A_LA] = lav - st * ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on))
-            S[pix, A_TU] = tif
+                    sla = lav - st * off_ratio
+            stu = tif
             te0 = ti
+        S[pix, A_L] = sl
+        S[pix, A_P] = sp
+        S[pix, A_LA] = sla
+        S[pix, A_TU] = stu
         te_out[pix] = te0
         if has_cc:
             ccount[pix] += np.float32(hi - lo)
@@ -452,17 +474,27 @@ def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, c
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
         lo = start[pix]
         hi = start[pix + 1]
+        if lo == hi:
+            continue
+        # the record in registers for the walk (L^F and α are constant between frame switches)
+        lfv = C[pix, C_LF]
+        alpha = C[pix, C_ALPHA]
+        cl = C[pix, C_L]
+        ctu = C[pix, C_TU]
+        j_on = con_px[pix] if has_px else c_on
+        j_off = coff_px[pix] if has_px else c_off
         for g in range(lo, hi):
             i = grp[g]
             tif = np.float64(t[a + i])
-            lfv = C[pix, C_LF]
-            b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
-            lhat = lfv + (C[pix, C_L] - lfv) * b
+            b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
+            lhat = lfv + (cl - lfv) * b
             if p[a + i] > 0:
-                C[pix, C_L] = lhat + (con_px[pix] if has_px else c_on)
+                cl = lhat + j_on
             else:
-                C[pix, C_L] = lhat - (coff_px[pix] if has_px else c_off)
-            C[pix, C_TU] = tif
+                cl = lhat - j_off
+            ctu = tif
+        C[pix, C_L] = cl
+        C[pix, C_TU] = ctu
 
 
 @cuda.jit

@@ -762,12 +762,11 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
 
     out = cuda.device_array(n_pix, np.float32)
     counts = cuda.to_device(np.zeros(2, np.int64))
-    zeros2 = np.zeros(2, np.int64)
 
     def fuse_one(l1, p1, l2, p2):
         """Fused linear image on the device (fusion, exp, clamp: _kernels.fuse_to_linear's steps)."""
         with _phase("fuse_kernel"):
-            counts.copy_to_device(zeros2)
+            CK.k_fill_i64[1, 32](counts, np.int64(0), 2)  # on the device: no host copy per output
             CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
         with _phase("output_copy"):
             img = out.copy_to_host()
