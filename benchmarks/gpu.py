@@ -291,7 +291,8 @@ def firenet(res, quick, reps=2, profile=False):
                 rows = _cprofile(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
                                                      times_us=times))
                 o["host_profile"] = rows
-                log(f"  host profile of FireNet {w}x{h} on the GPU, {times.size} frames (tottime cumtime ncalls function):")
+                log(f"  host profile of FireNet {w}x{h} on the GPU, {times.size} frames "
+                    "(tottime cumtime ncalls function):")
                 for r in rows:
                     log("    " + r)
             # the network step alone on a device voxel grid (the recurrent state kept on the device)

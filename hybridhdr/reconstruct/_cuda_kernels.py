@@ -15,9 +15,10 @@ line (same equations, same order of operations); only the schedule differs:
 * **The isolated-pixel term** needs, at each event i of pixel p, the latest event time t* in the
   3x3 window of p over the events *before i in the stream* (eq. 2, §3.1.1). For a neighbour q
   that is the last of q's events with index < i in this window (a merge of p's and q's sorted
-  groups: each neighbour's position only moves forward as p's events come), or, if there is none, q's last-event time from before the window (``te_in``). The
-  window's last-event times go to ``te_out`` (double buffering: no thread reads a time written
-  in the same window), so the result equals the serial stream's for any window split.
+  groups: each neighbour's position only moves forward as p's events come), or, if there is
+  none, q's last-event time from before the window (``te_in``). The window's last-event times go
+  to ``te_out`` (double buffering: no thread reads a time written in the same window), so the
+  result equals the serial stream's for any window split.
 
 Per-pixel state is the CPU engine's record layout ((n, 8) float64 for the AKF, (n, 4) for CF)
 so the same field indices apply. Times are int64 µs (absolute: the CPU's int32 relative times
