@@ -163,6 +163,20 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
     if profile:
         out["akf_forward_resident"]["phases_run_s"], out["akf_forward_resident"]["phases"] = pe = _phases(forward)
         _log_phases("the resident forward AKF", *pe)
+        # the previous schedule beside it: resident events grouped window by window
+        import hybridhdr.reconstruct.cuda as C
+        keep, C.RESIDENT_CHUNK = C.RESIDENT_CHUNK, 0
+        try:
+            el_w, _ = _best(forward, reps)
+            out["akf_forward_resident_per_window_grouping"] = {"seconds": round(el_w, 4),
+                                                               "mev_s": round(ne / el_w / 1e6, 1)}
+            log(f"  AKF forward, events resident, grouped per window (previous schedule): "
+                f"{ne / el_w / 1e6:.1f} Mev/s ({el_w * 1e3:.1f} ms)")
+            pe = _phases(forward)
+            out["akf_forward_resident_per_window_grouping"]["phases"] = pe[1]
+            _log_phases("the resident forward AKF grouped per window", *pe)
+        finally:
+            C.RESIDENT_CHUNK = keep
 
     def two_sided():
         k = 0

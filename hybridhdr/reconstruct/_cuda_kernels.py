@@ -597,3 +597,184 @@ def k_akf_init(S, p0, p_cens, has_off, log_off, t_init, n_pix):
                 p = max(w * w, p0)
         S[pix, A_P] = p
         S[pix, A_TU] = t_init
+
+
+# -- resident events: one grouping per chunk, a cursor per pixel ------------------------------
+#
+# With the events resident on the device, a chunk of many windows is grouped once (the same
+# count, scan, scatter and sort): each pixel's group then holds its events of every window of the
+# chunk in stream order, and a window [.., wb) of the chunk is, for each pixel, the run of its group
+# from its cursor up to the first index >= wb. One walk launch per window (not seven), and the
+# last-event times before a window come from the groups themselves: the event before a pixel's
+# cursor, or, before its first event of the chunk, ``te_c`` (the times at the chunk's start).
+# Cursors are double-buffered (``cur_in`` read by every neighbour, ``cur_out`` written by the
+# owner), so no thread reads a position written in the same window.
+
+@cuda.jit
+def k_copy_i32(src, dst, n):
+    for i in range(cuda.grid(1), n, cuda.gridsize(1)):
+        dst[i] = src[i]
+
+
+@cuda.jit
+def k_chunk_te(t, a, start, grp, cur, te_c, te_next, n_pix):
+    """Each pixel's last event time after the chunk's processed events (its time at the chunk's
+    start where it had none): the next chunk's ``te_c``."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        g = cur[pix]
+        te_next[pix] = t[a + grp[g - 1]] if g > start[pix] else te_c[pix]
+
+
+@cuda.jit
+def k_akf_walk_res(t, p, a, wb, height, width, start, grp, cur_in, cur_out, te_c, S, has_la_step, seg_t0,
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, ccount):
+    """:func:`k_akf_walk` over the window ``[.., wb)`` (indices relative to the chunk start ``a``)
+    of a chunk grouped once: the same per-event arithmetic, t* from the neighbours' groups."""
+    n_pix = height * width
+    has_px = con_px.shape[0] > 0
+    has_cc = ccount.shape[0] > 0
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        lo = start[pix]
+        hi = start[pix + 1]
+        g0 = cur_in[pix]
+        if g0 >= hi or grp[g0] >= wb:
+            cur_out[pix] = g0
+            continue
+        yy = pix // width
+        xx = pix - yy * width
+        ylo = max(yy - 1, 0)
+        yhi = min(yy + 1, height - 1)
+        xlo = max(xx - 1, 0)
+        xhi = min(xx + 1, width - 1)
+        te0 = t[a + grp[g0 - 1]] if g0 > lo else te_c[pix]
+        nb_pos = cuda.local.array(8, np.int32)
+        nb_hi = cuda.local.array(8, np.int32)
+        nb_te = cuda.local.array(8, np.int64)
+        n_nb = 0
+        t_quiet = te0
+        for qy in range(ylo, yhi + 1):
+            for qx in range(xlo, xhi + 1):
+                q = qy * width + qx
+                if q != pix:
+                    q_lo = start[q]
+                    q_hi = start[q + 1]
+                    qg = cur_in[q]
+                    tq0 = t[a + grp[qg - 1]] if qg > q_lo else te_c[q]
+                    if qg >= q_hi or grp[qg] >= wb:  # no event in this window: one time for all
+                        if tq0 > t_quiet:
+                            t_quiet = tq0
+                    else:
+                        nb_pos[n_nb] = qg
+                        nb_hi[n_nb] = q_hi
+                        nb_te[n_nb] = tq0
+                        n_nb += 1
+        sl = S[pix, A_L]
+        sp = S[pix, A_P]
+        sla = S[pix, A_LA]
+        stu = S[pix, A_TU]
+        rinv = S[pix, A_RINV]
+        beta = S[pix, A_BETA]
+        klog = S[pix, A_KLOG]
+        lastep = S[pix, A_LASTEP]
+        scale_p = beta != 0.0 or klog == 0.0
+        jump_on = con_px[pix] if has_px else c_on
+        jump_off = -(coff_px[pix] if has_px else c_off)
+        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
+        g = g0
+        while g < hi:
+            i = grp[g]
+            if i >= wb:
+                break
+            ti = t[a + i]
+            tif = np.float64(ti)
+            tu0 = stu
+            if beta == 0.0:
+                if klog * (sl - sla) > 0.0:
+                    integ = 0.0
+                else:
+                    integ = rinv * ((tif - tu0) * US)
+            else:
+                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
+            pp = sp
+            d = 1.0 / (1.0 + pp * integ)
+            lav = sla
+            lhat = lav + (sl - lav) * d
+            if scale_p:
+                pp = pp * d
+            tstar = te0 if te0 > t_quiet else t_quiet
+            for k in range(n_nb):
+                kk = nb_pos[k]
+                hk = nb_hi[k]
+                if kk < hk and grp[kk] < i:
+                    kk += 1
+                    while kk < hk and grp[kk] < i:
+                        kk += 1
+                    nb_pos[k] = kk
+                    nb_te[k] = t[a + grp[kk - 1]]
+                tq = nb_te[k]
+                if tq > tstar:
+                    tstar = tq
+            dte = ti - te0
+            q_ = s_iso * ((ti - tstar) * US)
+            if noise_form == 0:
+                q_ += s_proc * (dte * US)
+                if dte <= rho_us:
+                    q_ += s_ref
+            else:
+                q_ += s_proc * ((tif - tu0) * US)
+                if dte <= rho_us:
+                    q_ += s_ref * (dte * US)
+            sp = pp + q_
+            positive = p[a + i] > 0
+            jump = jump_on if positive else jump_off
+            sl = lhat + jump
+            if has_la_step:
+                st = lastep
+                if st < 0.0:
+                    sla = lav + jump
+                elif positive:
+                    sla = lav + st
+                else:
+                    sla = lav - st * off_ratio
+            stu = tif
+            te0 = ti
+            g += 1
+        S[pix, A_L] = sl
+        S[pix, A_P] = sp
+        S[pix, A_LA] = sla
+        S[pix, A_TU] = stu
+        cur_out[pix] = g
+        if has_cc:
+            ccount[pix] += np.float32(g - g0)
+
+
+@cuda.jit
+def k_cf_walk_res(t, p, a, wb, n_pix, start, grp, cur_in, cur_out, C, c_on, c_off, event_decay, con_px, coff_px):
+    """:func:`k_cf_walk` over the window ``[.., wb)`` of a chunk grouped once."""
+    has_px = con_px.shape[0] > 0
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        hi = start[pix + 1]
+        g = cur_in[pix]
+        if g < hi and grp[g] < wb:
+            lfv = C[pix, C_LF]
+            alpha = C[pix, C_ALPHA]
+            cl = C[pix, C_L]
+            ctu = C[pix, C_TU]
+            j_on = con_px[pix] if has_px else c_on
+            j_off = coff_px[pix] if has_px else c_off
+            while g < hi:
+                i = grp[g]
+                if i >= wb:
+                    break
+                tif = np.float64(t[a + i])
+                b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
+                lhat = lfv + (cl - lfv) * b
+                if p[a + i] > 0:
+                    cl = lhat + j_on
+                else:
+                    cl = lhat - j_off
+                ctu = tif
+                g += 1
+            C[pix, C_L] = cl
+            C[pix, C_TU] = ctu
+        cur_out[pix] = g

@@ -42,6 +42,11 @@ DEVICE_EVENTS_BYTES = 4 << 30
 #: which leaves the result unchanged (the per-pixel walk of two consecutive windows is the walk of
 #: their union)
 MAX_WINDOW = 1 << 24
+#: resident events (:class:`DeviceEvents`) are grouped by pixel once per chunk of this many events
+#: and each window of the chunk walked from per-pixel cursors (one launch per window instead of a
+#: grouping per window; :func:`._cuda_kernels.k_akf_walk_res`); 0: grouped per window as streamed
+#: events are. Either way the same per-pixel event sequences and t*, so the same results.
+RESIDENT_CHUNK = 1 << 25
 _STAGE_MIN = 1 << 16
 
 
@@ -306,6 +311,8 @@ class _CudaEngine:
         self.con_px = self.coff_px = self._empty(np.float64)
         self.device_line = f"device: cuda ({device_name()})"
         self._cache: dict = {}
+        self._rc = None  # resident chunk: [events, chunk start, chunk end, processed up to]
+        self._cur = None
 
     def _dev(self, a, dtype=None):
         """A host array on the device, cached by its buffer (codes and tables come back)."""
@@ -353,7 +360,43 @@ class _CudaEngine:
                     dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
             self.process_device(*st, 0, n)
 
+    def process_resident(self, dev: "DeviceEvents", i: int, j: int) -> None:
+        """Events ``[i, j)`` of resident ``dev``: windows of a chunk grouped once
+        (:data:`RESIDENT_CHUNK`), walked from per-pixel cursors. Consecutive calls continue the
+        chunk; anything else (another range, :meth:`process_device`) closes it first."""
+        if RESIDENT_CHUNK <= 0:
+            self.process_device(dev.t, dev.x, dev.y, dev.p, i, j - i)
+            return
+        while i < j:
+            rc = self._rc
+            if rc is None or rc[0] is not dev or i != rc[3] or i >= rc[2]:
+                self._flush_resident()
+                c1 = min(dev.n, i + RESIDENT_CHUNK)
+                self.grouper.group(dev.x, dev.y, i, c1 - i, self.shape[1])
+                if self._cur is None:
+                    self._cur = [self.cuda.device_array(self.n, np.int32), self.cuda.device_array(self.n, np.int32)]
+                with _phase("chunk_cursors"):
+                    self.ck.k_copy_i32[_grid(self.n)](self.grouper.start, self._cur[0], self.n)
+                rc = self._rc = [dev, i, c1, i]
+            e = min(j, rc[2])
+            with _phase("walk"):
+                self._walk_res(dev, rc[1], e - rc[1])
+            self._cur.reverse()
+            rc[3] = e
+            self.n_events += e - i
+            i = e
+
+    def _flush_resident(self) -> None:
+        """Close the resident chunk (the AKF carries its last-event times over)."""
+        rc, self._rc = self._rc, None
+        if rc is not None:
+            self._close_chunk(rc[0], rc[1])
+
+    def _close_chunk(self, dev, c0: int) -> None:
+        return None
+
     def process_device(self, dt, dx, dy, dp, a: int, n: int) -> None:
+        self._flush_resident()
         for s in range(a, a + n, MAX_WINDOW):
             m = min(a + n, s + MAX_WINDOW) - s
             if m > 0:
@@ -483,6 +526,23 @@ class CudaAKFEngine(_CudaEngine):
             self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s, pr.isolated_noise_per_s,
             pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form, self.con_px, self.coff_px,
             self.ccount)
+        self.te.reverse()
+
+    def _walk_res(self, dev, c0: int, wb: int) -> None:
+        pr = self.params
+        H, W = self.shape
+        gr = self.grouper
+        self.ck.k_akf_walk_res[_grid(self.n)](
+            dev.t, dev.p, c0, wb, H, W, gr.start, gr.grp, self._cur[0], self._cur[1], self.te[0], self.S,
+            self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+            pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
+            self.con_px, self.coff_px, self.ccount)
+
+    def _close_chunk(self, dev, c0: int) -> None:
+        gr = self.grouper
+        with _phase("chunk_close"):
+            self.ck.k_chunk_te[_grid(self.n)](dev.t, c0, gr.start, gr.grp, self._cur[0], self.te[0], self.te[1],
+                                              self.n)
         self.te.reverse()
 
     # -- outputs ---------------------------------------------------------------------------
@@ -628,6 +688,13 @@ class CudaCFEngine(_CudaEngine):
         self.ck.k_cf_walk[_grid(self.n)](dt, dp, a, self.n, gr.start, gr.grp, self.C, pr.c_on, pr.c_off,
                                          self.event_decay, self.con_px, self.coff_px)
 
+    def _walk_res(self, dev, c0: int, wb: int) -> None:
+        pr = self.params
+        gr = self.grouper
+        self.ck.k_cf_walk_res[_grid(self.n)](dev.t, dev.p, c0, wb, self.n, gr.start, gr.grp, self._cur[0],
+                                             self._cur[1], self.C, pr.c_on, pr.c_off, self.event_decay,
+                                             self.con_px, self.coff_px)
+
     def output(self, t_us: int, with_state: bool = False):
         if self._lg is None:
             self._lg = self.cuda.device_array(self.n, np.float64)
@@ -660,7 +727,7 @@ class _HostWindows:
 
 
 def _device_process(dev: DeviceEvents, eng, i: int, j: int) -> None:
-    eng.process_device(dev.t, dev.x, dev.y, dev.p, i, j - i)
+    eng.process_resident(dev, i, j)
 
 
 def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarray | None, progress=None):
