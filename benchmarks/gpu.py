@@ -1,7 +1,11 @@
 """Benchmark the GPU paths: the CUDA AKF and CF (``hybridhdr.reconstruct.cuda``) and FireNet on PyTorch.
 
-Usage: ``python benchmarks/gpu.py [--quick]``. Prints progress on stderr, then ONE JSON object on
-the last stdout line. Without a usable CUDA device (or without ``numba.cuda``) it prints
+Usage: ``python benchmarks/gpu.py [--quick] [--profile] [--no-cpu] [--skip hd,agreement,firenet]
+[--hd-events N] [--reps N]``. Prints progress on stderr, then ONE JSON object on the last stdout
+line. ``--profile`` adds, for each resident case, a run with every phase synchronised and timed
+(``reconstruct.cuda.PhaseTimer``: grouping steps, walks, frame switches, output kernels and
+copies, fusion; the plain run stays the figure), the previous per-window grouping beside the
+forward AKF, and host profiles (cProfile) of ``reconstruct`` and FireNet. Without a usable CUDA device (or without ``numba.cuda``) it prints
 ``{"skipped": "<why>"}`` and exits 0.
 
 Measured (issue 30, "Must show"; goals on an H100/H200):
@@ -20,7 +24,8 @@ Measured (issue 30, "Must show"; goals on an H100/H200):
 * ``firenet``: ms per frame at 1280x720 and 346x260 on the GPU (voxel grids built on the device,
   network and recurrent state there, ``reconstruct`` end to end at 30 Hz; random seeded weights:
   speed only) and on the CPU (a few frames), plus the network step alone on the GPU (goal <= 5 ms
-  at 1280x720).
+  at 1280x720), a one-frame call (checkpoint load and network build included) and the marginal
+  time per further frame.
 
 Each timing is the best of ``--reps`` runs after a warm-up that compiles the kernels (compile
 time reported). Speed figures depend on the card: the JSON names it.
@@ -301,6 +306,13 @@ def firenet(res, quick, reps=2, profile=False):
             el, v = _best(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
                                               times_us=times), reps)
             o["gpu_end_to_end_ms_per_frame"] = round(1e3 * el / len(v), 2)
+            # fixed costs (checkpoint load, network build, first window) apart from the per-frame
+            # cost: one frame alone, and the marginal time per further frame
+            el1, _ = _best(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
+                                               times_us=times[:1]), reps)
+            o["gpu_one_frame_call_ms"] = round(1e3 * el1, 2)
+            if len(v) > 1:
+                o["gpu_marginal_ms_per_frame"] = round(1e3 * (el - el1) / (len(v) - 1), 2)
             if profile:
                 rows = _cprofile(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
                                                      times_us=times))
@@ -329,7 +341,9 @@ def firenet(res, quick, reps=2, profile=False):
             o["cpu_end_to_end_ms_per_frame"] = round(1e3 * el_c / len(vc), 1)
             o["cpu_threads"] = torch.get_num_threads()
             out[key] = o
-            log(f"  FireNet {key}: GPU {o['gpu_end_to_end_ms_per_frame']} ms/frame end to end, "
+            log(f"  FireNet {key}: GPU {o['gpu_end_to_end_ms_per_frame']} ms/frame end to end "
+                f"({o['gpu_one_frame_call_ms']} ms for a 1-frame call, marginal "
+                f"{o.get('gpu_marginal_ms_per_frame')} ms per further frame), "
                 f"{o['gpu_network_step_ms']} ms network step; CPU {o['cpu_end_to_end_ms_per_frame']} ms/frame")
     out["goal_ms_per_frame_1280x720"] = 5.0
     out["cudnn_benchmark"] = True  # set by this script (the library leaves PyTorch's global flags alone)
