@@ -406,7 +406,8 @@ class _CudaEngine:
                 self.n_events += m
 
     def close(self) -> None:
-        return None
+        """End of the pass: the resident chunk is closed (its events no longer referenced here)."""
+        self._flush_resident()
 
 
 class CudaAKFEngine(_CudaEngine):
