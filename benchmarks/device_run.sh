@@ -1,10 +1,13 @@
 #!/usr/bin/env bash
 # The GPU checks of issue 30 in one run, on a host with an NVIDIA GPU (python3 with numba,
 # numba-cuda and torch preinstalled; no network; hybridhdr not installed). From the repo root:
-#     bash benchmarks/device_run.sh [--quick]
+#     bash benchmarks/device_run.sh [benchmarks/gpu.py's options]
+# e.g. the profiled run of issue 30's second device session (under 4 min on an H200):
+#     bash benchmarks/device_run.sh --profile --no-cpu --skip agreement
 # Logs go to $OUT (default /tmp/hybridhdr-device): env.txt (versions, nvidia-smi),
 # cuda_checks.jsonl (GPU vs CPU agreement, one JSON line per check), gpu.json (benchmarks/gpu.py's
-# JSON) and gpu_stderr.txt (its progress lines: every figure, even if it is cut short). About 5 min.
+# JSON) and gpu_stderr.txt (its progress lines: every figure and phase table, even if it is cut
+# short). Each step has a timeout (CHECKS_TIMEOUT_S, GPU_TIMEOUT_S) and prints its duration.
 set -u
 OUT=${OUT:-/tmp/hybridhdr-device}
 mkdir -p "$OUT"
@@ -19,8 +22,9 @@ fi
   python3 -m pip list 2>/dev/null | grep -i -E "^(numba|numba-cuda|cupy|torch|llvmlite|h5py|scipy|isal|openexr|mitsuba|tqdm) "
   python3 -c "from hybridhdr.reconstruct.cuda import resolve_device; print(resolve_device('auto')[1])"
 } 2>&1 | tee "$OUT/env.txt"
+T0=$(date +%s)
 echo "== GPU vs CPU agreement (tests/reconstruct/cuda_checks.py --real, as test_cuda.py runs it)"
-timeout 200 python3 tests/reconstruct/cuda_checks.py --real 2> "$OUT/cuda_checks_stderr.txt" | tee "$OUT/cuda_checks.jsonl"
+timeout "${CHECKS_TIMEOUT_S:-100}" python3 tests/reconstruct/cuda_checks.py --real 2> "$OUT/cuda_checks_stderr.txt" | tee "$OUT/cuda_checks.jsonl"
 python3 -c "
 import json, sys
 d = [json.loads(s) for s in open(sys.argv[1]) if s.startswith('{')]
@@ -29,6 +33,8 @@ print('agreement: skipped' if d and 'skip' in d[0] else f'agreement: {len(d) - l
       ('FAILED: ' + ', '.join(map(str, bad))) if bad else '')
 " "$OUT/cuda_checks.jsonl"
 tail -n 5 "$OUT/cuda_checks_stderr.txt"
+T1=$(date +%s); echo "(agreement checks: $((T1 - T0)) s)"
 echo "== benchmarks/gpu.py $*"
-timeout 330 python3 benchmarks/gpu.py "$@" 2> "$OUT/gpu_stderr.txt" | tee "$OUT/gpu.json"
-cat "$OUT/gpu_stderr.txt" | grep -v -i warning | tail -n 40
+timeout "${GPU_TIMEOUT_S:-150}" python3 benchmarks/gpu.py "$@" 2> "$OUT/gpu_stderr.txt" | tee "$OUT/gpu.json"
+grep -v -i warning "$OUT/gpu_stderr.txt" | tail -n 150
+T2=$(date +%s); echo "(gpu.py: $((T2 - T1)) s; total $((T2 - T0)) s)"

@@ -1,7 +1,11 @@
 """Benchmark the GPU paths: the CUDA AKF and CF (``hybridhdr.reconstruct.cuda``) and FireNet on PyTorch.
 
-Usage: ``python benchmarks/gpu.py [--quick]``. Prints progress on stderr, then ONE JSON object on
-the last stdout line. Without a usable CUDA device (or without ``numba.cuda``) it prints
+Usage: ``python benchmarks/gpu.py [--quick] [--profile] [--no-cpu] [--skip hd,agreement,firenet]
+[--hd-events N] [--reps N]``. Prints progress on stderr, then ONE JSON object on the last stdout
+line. ``--profile`` adds, for each resident case, a run with every phase synchronised and timed
+(``reconstruct.cuda.PhaseTimer``: grouping steps, walks, frame switches, output kernels and
+copies, fusion; the plain run stays the figure), the previous per-window grouping beside the
+forward AKF, and host profiles (cProfile) of ``reconstruct`` and FireNet. Without a usable CUDA device (or without ``numba.cuda``) it prints
 ``{"skipped": "<why>"}`` and exits 0.
 
 Measured (issue 30, "Must show"; goals on an H100/H200):
@@ -20,7 +24,8 @@ Measured (issue 30, "Must show"; goals on an H100/H200):
 * ``firenet``: ms per frame at 1280x720 and 346x260 on the GPU (voxel grids built on the device,
   network and recurrent state there, ``reconstruct`` end to end at 30 Hz; random seeded weights:
   speed only) and on the CPU (a few frames), plus the network step alone on the GPU (goal <= 5 ms
-  at 1280x720).
+  at 1280x720), a one-frame call (checkpoint load and network build included) and the marginal
+  time per further frame.
 
 Each timing is the best of ``--reps`` runs after a warm-up that compiles the kernels (compile
 time reported). Speed figures depend on the card: the JSON names it.
@@ -74,8 +79,62 @@ def _make_engine_factory(shape, method="akf", params=None):
     return make, p
 
 
-def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_cpu=True):
-    """Forward, two-sided and CF on the GPU (resident and end to end) and the CPU beside them."""
+def _phases(fn):
+    """``fn()`` once more with :class:`hybridhdr.reconstruct.cuda.PhaseTimer` active: every phase
+    synchronised and timed (slower than the plain run, which is the figure; this says where the
+    time goes). Returns (seconds of the profiled run, phase table)."""
+    import hybridhdr.reconstruct.cuda as C
+    C.PHASES = tm = C.PhaseTimer()
+    try:
+        t0 = time.perf_counter()
+        fn()
+        el = time.perf_counter() - t0
+    finally:
+        C.PHASES = None
+    tab = tm.table()
+    tab["_unaccounted_s"] = round(el - sum(v["total_s"] for v in tab.values()), 5)
+    return round(el, 4), tab
+
+
+def _log_phases(name, el, tab):
+    log(f"  phases of {name} (synchronised run, {el * 1e3:.1f} ms): phase calls total_ms host_ms")
+    for k, v in tab.items():
+        if isinstance(v, dict):
+            log(f"    {k:18s} {v['calls']:6d} {v['total_s'] * 1e3:9.2f} {v['host_s'] * 1e3:9.2f}")
+    log(f"    (outside the phases: {tab['_unaccounted_s'] * 1e3:.2f} ms: driver, Python, launches between phases)")
+
+
+def _cprofile(fn, top=18):
+    """Host-side profile of ``fn()`` (cProfile, no synchronisation added): the functions with the
+    most own time, as lines ``tottime cumtime ncalls function``."""
+    import cProfile
+    import io
+    import pstats
+    pr = cProfile.Profile()
+    pr.enable()
+    try:
+        fn()
+    finally:
+        pr.disable()
+    st = pstats.Stats(pr, stream=io.StringIO())
+    rows = []
+    for (fname, line, func), (cc, nc, tt, ct, _) in st.stats.items():
+        rows.append((tt, ct, nc, f"{Path(fname).name}:{line}({func})"))
+    rows.sort(reverse=True)
+    out = [f"{tt:.4f} {ct:.4f} {nc} {name}" for tt, ct, nc, name in rows[:top]]
+    # and the toolkit's own functions by cumulative time (which step of reconstruct holds the time)
+    own = sorted(((ct, tt, nc, f"{Path(fname).parent.name}/{Path(fname).name}:{line}({func})")
+                  for (fname, line, func), (cc, nc, tt, ct, _) in st.stats.items() if "hybridhdr" in fname),
+                 reverse=True)
+    out.append("-- hybridhdr functions by cumulative time:")
+    out += [f"{tt:.4f} {ct:.4f} {nc} {name}" for ct, tt, nc, name in own[:top]]
+    return out
+
+
+def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_cpu=True, profile=False):
+    """Forward, two-sided and CF on the GPU (resident and end to end) and the CPU beside them;
+    with ``profile``, each resident case once more with phase timings and ``reconstruct``'s host
+    profile."""
     from numba import cuda
 
     from hybridhdr.reconstruct import reconstruct
@@ -105,7 +164,24 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return eng.n_events
     el, ne = _best(forward, reps)
     out["akf_forward_resident"] = {"seconds": round(el, 4), "mev_s": round(ne / el / 1e6, 1), "events": int(ne)}
-    log(f"  AKF forward, events resident: {ne / el / 1e6:.1f} Mev/s")
+    log(f"  AKF forward, events resident: {ne / el / 1e6:.1f} Mev/s ({el * 1e3:.1f} ms)")
+    if profile:
+        out["akf_forward_resident"]["phases_run_s"], out["akf_forward_resident"]["phases"] = pe = _phases(forward)
+        _log_phases("the resident forward AKF", *pe)
+        # the previous schedule beside it: resident events grouped window by window
+        import hybridhdr.reconstruct.cuda as C
+        keep, C.RESIDENT_CHUNK = C.RESIDENT_CHUNK, 0
+        try:
+            el_w, _ = _best(forward, reps)
+            out["akf_forward_resident_per_window_grouping"] = {"seconds": round(el_w, 4),
+                                                               "mev_s": round(ne / el_w / 1e6, 1)}
+            log(f"  AKF forward, events resident, grouped per window (previous schedule): "
+                f"{ne / el_w / 1e6:.1f} Mev/s ({el_w * 1e3:.1f} ms)")
+            pe = _phases(forward)
+            out["akf_forward_resident_per_window_grouping"]["phases"] = pe[1]
+            _log_phases("the resident forward AKF grouped per window", *pe)
+        finally:
+            C.RESIDENT_CHUNK = keep
 
     def two_sided():
         k = 0
@@ -116,7 +192,11 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return k
     el2, k = _best(two_sided, reps)
     out["akf_two_sided_resident"] = {"seconds": round(el2, 4), "mev_s": round(n / el2 / 1e6, 1), "outputs": k}
-    log(f"  AKF two-sided, events resident: {n / el2 / 1e6:.1f} Mev/s")
+    log(f"  AKF two-sided, events resident: {n / el2 / 1e6:.1f} Mev/s ({el2 * 1e3:.1f} ms)")
+    if profile:
+        out["akf_two_sided_resident"]["phases_run_s"], out["akf_two_sided_resident"]["phases"] = pe = \
+            _phases(two_sided)
+        _log_phases("the resident two-sided AKF", *pe)
 
     make_cf, _ = _make_engine_factory(shape, "cf")
 
@@ -128,14 +208,23 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         return eng.n_events
     el3, ne3 = _best(cf, reps)
     out["cf_resident"] = {"seconds": round(el3, 4), "mev_s": round(ne3 / el3 / 1e6, 1)}
-    log(f"  CF forward, events resident: {ne3 / el3 / 1e6:.1f} Mev/s")
+    log(f"  CF forward, events resident: {ne3 / el3 / 1e6:.1f} Mev/s ({el3 * 1e3:.1f} ms)")
+    if profile:
+        out["cf_resident"]["phases_run_s"], out["cf_resident"]["phases"] = pe = _phases(cf)
+        _log_phases("the resident CF", *pe)
 
     rec = _recording(t, x, y, p, frames, shape)
     for mode, key in (("forward", "akf_forward"), ("offline", "akf_two_sided")):
         el, v = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"), 1)
         out[f"{key}_reconstruct_gpu"] = {"seconds": round(el, 3), "mev_s": round(n / el / 1e6, 1),
                                          "device_line": v.info.get("device")}
-        log(f"  {key} through reconstruct on the GPU: {n / el / 1e6:.1f} Mev/s")
+        log(f"  {key} through reconstruct on the GPU: {n / el / 1e6:.1f} Mev/s ({el * 1e3:.0f} ms)")
+        if profile:
+            rows = _cprofile(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"))
+            out[f"{key}_reconstruct_gpu"]["host_profile"] = rows
+            log(f"  host profile of reconstruct {mode} on the GPU (tottime cumtime ncalls function):")
+            for r in rows:
+                log("    " + r)
         if run_cpu:
             el_c, _ = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, n_workers=cpu_workers), 1)
             out[f"{key}_reconstruct_cpu"] = {"seconds": round(el_c, 3), "mev_s": round(n / el_c / 1e6, 1),
@@ -188,7 +277,7 @@ def agreement(res):
     log(f"  agreement: L {r_l:.2e}, P {r_p:.2e}, two-sided images {r_img:.2e}")
 
 
-def firenet(res, quick):
+def firenet(res, quick, reps=2, profile=False):
     import torch
 
     from akf import synth_events, synth_events_hd, synth_frames
@@ -215,8 +304,23 @@ def firenet(res, quick):
             reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"}, times_us=times[:3])  # warm-up
             torch.cuda.synchronize()
             el, v = _best(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
-                                              times_us=times), 2)
+                                              times_us=times), reps)
             o["gpu_end_to_end_ms_per_frame"] = round(1e3 * el / len(v), 2)
+            # fixed costs (checkpoint load, network build, first window) apart from the per-frame
+            # cost: one frame alone, and the marginal time per further frame
+            el1, _ = _best(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
+                                               times_us=times[:1]), reps)
+            o["gpu_one_frame_call_ms"] = round(1e3 * el1, 2)
+            if len(v) > 1:
+                o["gpu_marginal_ms_per_frame"] = round(1e3 * (el - el1) / (len(v) - 1), 2)
+            if profile:
+                rows = _cprofile(lambda: reconstruct(rec, "firenet", {"weights": str(path), "device": "cuda"},
+                                                     times_us=times))
+                o["host_profile"] = rows
+                log(f"  host profile of FireNet {w}x{h} on the GPU, {times.size} frames "
+                    "(tottime cumtime ncalls function):")
+                for r in rows:
+                    log("    " + r)
             # the network step alone on a device voxel grid (the recurrent state kept on the device)
             netd, dev = load_network("firenet", FireNetParams(weights=str(path), device="cuda"))
             r = Reconstructor(netd, dev, (h, w), clip=True)
@@ -237,7 +341,9 @@ def firenet(res, quick):
             o["cpu_end_to_end_ms_per_frame"] = round(1e3 * el_c / len(vc), 1)
             o["cpu_threads"] = torch.get_num_threads()
             out[key] = o
-            log(f"  FireNet {key}: GPU {o['gpu_end_to_end_ms_per_frame']} ms/frame end to end, "
+            log(f"  FireNet {key}: GPU {o['gpu_end_to_end_ms_per_frame']} ms/frame end to end "
+                f"({o['gpu_one_frame_call_ms']} ms for a 1-frame call, marginal "
+                f"{o.get('gpu_marginal_ms_per_frame')} ms per further frame), "
                 f"{o['gpu_network_step_ms']} ms network step; CPU {o['cpu_end_to_end_ms_per_frame']} ms/frame")
     out["goal_ms_per_frame_1280x720"] = 5.0
     out["cudnn_benchmark"] = True  # set by this script (the library leaves PyTorch's global flags alone)
@@ -249,6 +355,12 @@ def main(argv=None) -> int:
     ap.add_argument("--quick", action="store_true", help="smaller streams, one repetition")
     ap.add_argument("--reps", type=int, default=None, help="repetitions per timing (best kept)")
     ap.add_argument("--skip", default="", help="comma-separated parts to skip: hd, agreement, firenet")
+    ap.add_argument("--hd-events", type=int, default=None,
+                    help="events of the 1280x720 stream (default 20 M; 5 M with --quick)")
+    ap.add_argument("--profile", action="store_true",
+                    help="also time each phase (synchronised runs) and profile reconstruct's host side")
+    ap.add_argument("--no-cpu", action="store_true", help="skip the CPU reconstruct runs beside the GPU ones")
+    ap.add_argument("--firenet-reps", type=int, default=2, help="repetitions of FireNet's end-to-end timing")
     args = ap.parse_args(argv)
     skip = set(filter(None, args.skip.split(",")))
     from hybridhdr.reconstruct.cuda import cuda_unavailable_reason, device_name
@@ -292,11 +404,12 @@ def main(argv=None) -> int:
         section("agreement", lambda: agreement(res))
 
     def hd_part():
-        n = 5_000_000 if args.quick else 20_000_000
+        n = args.hd_events or (5_000_000 if args.quick else 20_000_000)
         log(f"1280x720: {n} events ...")
         t, x, y, p, dur = synth_events_hd(n)
         fr = synth_frames(dur, h=HD_H, w=HD_W)
-        gpu_akf_cf(t, x, y, p, fr, (HD_H, HD_W), reps, "hd", res, min(16, os.cpu_count() or 1))
+        gpu_akf_cf(t, x, y, p, fr, (HD_H, HD_W), reps, "hd", res, min(16, os.cpu_count() or 1),
+                   run_cpu=not args.no_cpu, profile=args.profile)
         hd = res["hd"]
         res["goals"] = {"akf_forward_hd_mev_s": 1000, "akf_two_sided_hd_mev_s": 400,
                         "forward_met": hd["akf_forward_resident"]["mev_s"] >= 1000,
@@ -308,7 +421,7 @@ def main(argv=None) -> int:
             import torch
             if torch.cuda.is_available():
                 log("FireNet ...")
-                section("firenet", lambda: firenet(res, args.quick))
+                section("firenet", lambda: firenet(res, args.quick, args.firenet_reps, args.profile))
             else:
                 res["firenet"] = {"skipped": "PyTorch sees no CUDA device"}
         except ImportError as e:

@@ -14,10 +14,11 @@ line (same equations, same order of operations); only the schedule differs:
   kernel's event update (:func:`._kernels._akf_event`) to its state record.
 * **The isolated-pixel term** needs, at each event i of pixel p, the latest event time t* in the
   3x3 window of p over the events *before i in the stream* (eq. 2, §3.1.1). For a neighbour q
-  that is the last of q's events with index < i in this window (binary search in q's sorted
-  group), or, if there is none, q's last-event time from before the window (``te_in``). The
-  window's last-event times go to ``te_out`` (double buffering: no thread reads a time written
-  in the same window), so the result equals the serial stream's for any window split.
+  that is the last of q's events with index < i in this window (a merge of p's and q's sorted
+  groups: each neighbour's position only moves forward as p's events come), or, if there is
+  none, q's last-event time from before the window (``te_in``). The window's last-event times go
+  to ``te_out`` (double buffering: no thread reads a time written in the same window), so the
+  result equals the serial stream's for any window split.
 
 Per-pixel state is the CPU engine's record layout ((n, 8) float64 for the AKF, (n, 4) for CF)
 so the same field indices apply. Times are int64 µs (absolute: the CPU's int32 relative times
@@ -202,6 +203,14 @@ def k_sort_groups(start, n_pix, grp):
         m = hi - lo
         if m < 2:
             continue
+        # the atomic slots mostly follow the stream order already: one read pass, no sort then
+        ordered = True
+        for j in range(lo + 1, hi):
+            if grp[j - 1] > grp[j]:
+                ordered = False
+                break
+        if ordered:
+            continue
         gap = 1
         if m >= 32:
             while gap < m // 3:
@@ -246,7 +255,7 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         te0 = te_in[pix]
         # neighbours without events in this window contribute their time from before it, the same
         # for every event of p: folded into one maximum; only the others are searched per event
-        nb_lo = cuda.local.array(8, np.int32)
+        nb_pos = cuda.local.array(8, np.int32)
         nb_hi = cuda.local.array(8, np.int32)
         nb_te = cuda.local.array(8, np.int64)
         n_nb = 0
@@ -261,28 +270,58 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
                         if te_in[q] > t_quiet:
                             t_quiet = te_in[q]
                     else:
-                        nb_lo[n_nb] = q_lo
+                        nb_pos[n_nb] = q_lo
                         nb_hi[n_nb] = q_hi
                         nb_te[n_nb] = te_in[q]
                         n_nb += 1
+        # the state record in registers for the walk (one load and one store of each field per
+        # window, not per event); the fields a frame switch sets are constant here
+        sl = S[pix, A_L]
+        sp = S[pix, A_P]
+        sla = S[pix, A_LA]
+        stu = S[pix, A_TU]
+        rinv = S[pix, A_RINV]
+        beta = S[pix, A_BETA]
+        klog = S[pix, A_KLOG]
+        lastep = S[pix, A_LASTEP]
+        scale_p = beta != 0.0 or klog == 0.0
+        jump_on = con_px[pix] if has_px else c_on
+        jump_off = -(coff_px[pix] if has_px else c_off)
+        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
         for g in range(lo, hi):
             i = grp[g]
             ti = t[a + i]
             tif = np.float64(ti)
-            tu0 = S[pix, A_TU]
-            integ = d_pull_integral(S, pix, tif, seg_t0, seg_inv_t)
-            pp = S[pix, A_P]
+            tu0 = stu
+            # d_pull_integral on the registers
+            if beta == 0.0:
+                if klog * (sl - sla) > 0.0:
+                    integ = 0.0
+                else:
+                    integ = rinv * ((tif - tu0) * US)
+            else:
+                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
+            pp = sp
             d = 1.0 / (1.0 + pp * integ)
-            lav = S[pix, A_LA]
-            lhat = lav + (S[pix, A_L] - lav) * d
-            if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:
+            lav = sla
+            lhat = lav + (sl - lav) * d
+            if scale_p:
                 pp = pp * d
             # t*: the latest event time in the 3x3 window before this event (p itself: te0)
             tstar = te0 if te0 > t_quiet else t_quiet
             for k in range(n_nb):
-                s0 = nb_lo[k]
-                kk = d_lower_bound(grp, s0, nb_hi[k], i)
-                tq = t[a + grp[kk - 1]] if kk > s0 else nb_te[k]
+                # q's last event before i: p's events come in increasing i, so each neighbour's
+                # position only moves forward (a merge: O(events of p and q) per window, where a
+                # binary search per event costs O(events of p x log events of q))
+                kk = nb_pos[k]
+                hk = nb_hi[k]
+                if kk < hk and grp[kk] < i:
+                    kk += 1
+                    while kk < hk and grp[kk] < i:
+                        kk += 1
+                    nb_pos[k] = kk
+                    nb_te[k] = t[a + grp[kk - 1]]
+                tq = nb_te[k]
                 if tq > tstar:
                     tstar = tq
             dte = ti - te0
@@ -295,23 +334,24 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
                 q_ += s_proc * ((tif - tu0) * US)
                 if dte <= rho_us:
                     q_ += s_ref * (dte * US)
-            S[pix, A_P] = pp + q_
+            sp = pp + q_
             positive = p[a + i] > 0
-            if positive:
-                jump = con_px[pix] if has_px else c_on
-            else:
-                jump = -(coff_px[pix] if has_px else c_off)
-            S[pix, A_L] = lhat + jump
+            jump = jump_on if positive else jump_off
+            sl = lhat + jump
             if has_la_step:
-                st = S[pix, A_LASTEP]
+                st = lastep
                 if st < 0.0:
-                    S[pix, A_LA] = lav + jump
+                    sla = lav + jump
                 elif positive:
-                    S[pix, A_LA] = lav + st
+                    sla = lav + st
                 else:
-                    S[pix, A_LA] = lav - st * ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on))
-            S[pix, A_TU] = tif
+                    sla = lav - st * off_ratio
+            stu = tif
             te0 = ti
+        S[pix, A_L] = sl
+        S[pix, A_P] = sp
+        S[pix, A_LA] = sla
+        S[pix, A_TU] = stu
         te_out[pix] = te0
         if has_cc:
             ccount[pix] += np.float32(hi - lo)
@@ -435,17 +475,27 @@ def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, c
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
         lo = start[pix]
         hi = start[pix + 1]
+        if lo == hi:
+            continue
+        # the record in registers for the walk (L^F and α are constant between frame switches)
+        lfv = C[pix, C_LF]
+        alpha = C[pix, C_ALPHA]
+        cl = C[pix, C_L]
+        ctu = C[pix, C_TU]
+        j_on = con_px[pix] if has_px else c_on
+        j_off = coff_px[pix] if has_px else c_off
         for g in range(lo, hi):
             i = grp[g]
             tif = np.float64(t[a + i])
-            lfv = C[pix, C_LF]
-            b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
-            lhat = lfv + (C[pix, C_L] - lfv) * b
+            b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
+            lhat = lfv + (cl - lfv) * b
             if p[a + i] > 0:
-                C[pix, C_L] = lhat + (con_px[pix] if has_px else c_on)
+                cl = lhat + j_on
             else:
-                C[pix, C_L] = lhat - (coff_px[pix] if has_px else c_off)
-            C[pix, C_TU] = tif
+                cl = lhat - j_off
+            ctu = tif
+        C[pix, C_L] = cl
+        C[pix, C_TU] = ctu
 
 
 @cuda.jit
@@ -517,6 +567,21 @@ def k_cf_load(C, lf, alpha, reset_l, set_tu, t_tu, n_pix):
 
 
 @cuda.jit
+def k_cf_load_lut(C, code, max_code, lf_l, alpha_l, reset_l, set_tu, t_tu, n_pix):
+    """:func:`k_cf_load` from per-code tables (:meth:`._engine.CFEngine._load_codes`): each
+    pixel's clipped code looks up L^F and α."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        c = min(max(np.int64(code[pix]), 0), max_code)
+        lf = lf_l[c]
+        C[pix, C_LF] = lf
+        C[pix, C_ALPHA] = alpha_l[c]
+        if reset_l:
+            C[pix, C_L] = lf
+        if set_tu:
+            C[pix, C_TU] = t_tu
+
+
+@cuda.jit
 def k_akf_init(S, p0, p_cens, has_off, log_off, t_init, n_pix):
     """:meth:`._engine.AKFEngine.start`'s initialisation from the loaded first frame: L̂ = L^A,
     P = ``p0``; a censored pixel ``p_cens``, a clipped dark one (bounded on both sides, with an
@@ -532,3 +597,184 @@ def k_akf_init(S, p0, p_cens, has_off, log_off, t_init, n_pix):
                 p = max(w * w, p0)
         S[pix, A_P] = p
         S[pix, A_TU] = t_init
+
+
+# -- resident events: one grouping per chunk, a cursor per pixel ------------------------------
+#
+# With the events resident on the device, a chunk of many windows is grouped once (the same
+# count, scan, scatter and sort): each pixel's group then holds its events of every window of the
+# chunk in stream order, and a window [.., wb) of the chunk is, for each pixel, the run of its group
+# from its cursor up to the first index >= wb. One walk launch per window (not seven), and the
+# last-event times before a window come from the groups themselves: the event before a pixel's
+# cursor, or, before its first event of the chunk, ``te_c`` (the times at the chunk's start).
+# Cursors are double-buffered (``cur_in`` read by every neighbour, ``cur_out`` written by the
+# owner), so no thread reads a position written in the same window.
+
+@cuda.jit
+def k_copy_i32(src, dst, n):
+    for i in range(cuda.grid(1), n, cuda.gridsize(1)):
+        dst[i] = src[i]
+
+
+@cuda.jit
+def k_chunk_te(t, a, start, grp, cur, te_c, te_next, n_pix):
+    """Each pixel's last event time after the chunk's processed events (its time at the chunk's
+    start where it had none): the next chunk's ``te_c``."""
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        g = cur[pix]
+        te_next[pix] = t[a + grp[g - 1]] if g > start[pix] else te_c[pix]
+
+
+@cuda.jit
+def k_akf_walk_res(t, p, a, wb, height, width, start, grp, cur_in, cur_out, te_c, S, has_la_step, seg_t0,
+                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, ccount):
+    """:func:`k_akf_walk` over the window ``[.., wb)`` (indices relative to the chunk start ``a``)
+    of a chunk grouped once: the same per-event arithmetic, t* from the neighbours' groups."""
+    n_pix = height * width
+    has_px = con_px.shape[0] > 0
+    has_cc = ccount.shape[0] > 0
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        lo = start[pix]
+        hi = start[pix + 1]
+        g0 = cur_in[pix]
+        if g0 >= hi or grp[g0] >= wb:
+            cur_out[pix] = g0
+            continue
+        yy = pix // width
+        xx = pix - yy * width
+        ylo = max(yy - 1, 0)
+        yhi = min(yy + 1, height - 1)
+        xlo = max(xx - 1, 0)
+        xhi = min(xx + 1, width - 1)
+        te0 = t[a + grp[g0 - 1]] if g0 > lo else te_c[pix]
+        nb_pos = cuda.local.array(8, np.int32)
+        nb_hi = cuda.local.array(8, np.int32)
+        nb_te = cuda.local.array(8, np.int64)
+        n_nb = 0
+        t_quiet = te0
+        for qy in range(ylo, yhi + 1):
+            for qx in range(xlo, xhi + 1):
+                q = qy * width + qx
+                if q != pix:
+                    q_lo = start[q]
+                    q_hi = start[q + 1]
+                    qg = cur_in[q]
+                    tq0 = t[a + grp[qg - 1]] if qg > q_lo else te_c[q]
+                    if qg >= q_hi or grp[qg] >= wb:  # no event in this window: one time for all
+                        if tq0 > t_quiet:
+                            t_quiet = tq0
+                    else:
+                        nb_pos[n_nb] = qg
+                        nb_hi[n_nb] = q_hi
+                        nb_te[n_nb] = tq0
+                        n_nb += 1
+        sl = S[pix, A_L]
+        sp = S[pix, A_P]
+        sla = S[pix, A_LA]
+        stu = S[pix, A_TU]
+        rinv = S[pix, A_RINV]
+        beta = S[pix, A_BETA]
+        klog = S[pix, A_KLOG]
+        lastep = S[pix, A_LASTEP]
+        scale_p = beta != 0.0 or klog == 0.0
+        jump_on = con_px[pix] if has_px else c_on
+        jump_off = -(coff_px[pix] if has_px else c_off)
+        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
+        g = g0
+        while g < hi:
+            i = grp[g]
+            if i >= wb:
+                break
+            ti = t[a + i]
+            tif = np.float64(ti)
+            tu0 = stu
+            if beta == 0.0:
+                if klog * (sl - sla) > 0.0:
+                    integ = 0.0
+                else:
+                    integ = rinv * ((tif - tu0) * US)
+            else:
+                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
+            pp = sp
+            d = 1.0 / (1.0 + pp * integ)
+            lav = sla
+            lhat = lav + (sl - lav) * d
+            if scale_p:
+                pp = pp * d
+            tstar = te0 if te0 > t_quiet else t_quiet
+            for k in range(n_nb):
+                kk = nb_pos[k]
+                hk = nb_hi[k]
+                if kk < hk and grp[kk] < i:
+                    kk += 1
+                    while kk < hk and grp[kk] < i:
+                        kk += 1
+                    nb_pos[k] = kk
+                    nb_te[k] = t[a + grp[kk - 1]]
+                tq = nb_te[k]
+                if tq > tstar:
+                    tstar = tq
+            dte = ti - te0
+            q_ = s_iso * ((ti - tstar) * US)
+            if noise_form == 0:
+                q_ += s_proc * (dte * US)
+                if dte <= rho_us:
+                    q_ += s_ref
+            else:
+                q_ += s_proc * ((tif - tu0) * US)
+                if dte <= rho_us:
+                    q_ += s_ref * (dte * US)
+            sp = pp + q_
+            positive = p[a + i] > 0
+            jump = jump_on if positive else jump_off
+            sl = lhat + jump
+            if has_la_step:
+                st = lastep
+                if st < 0.0:
+                    sla = lav + jump
+                elif positive:
+                    sla = lav + st
+                else:
+                    sla = lav - st * off_ratio
+            stu = tif
+            te0 = ti
+            g += 1
+        S[pix, A_L] = sl
+        S[pix, A_P] = sp
+        S[pix, A_LA] = sla
+        S[pix, A_TU] = stu
+        cur_out[pix] = g
+        if has_cc:
+            ccount[pix] += np.float32(g - g0)
+
+
+@cuda.jit
+def k_cf_walk_res(t, p, a, wb, n_pix, start, grp, cur_in, cur_out, C, c_on, c_off, event_decay, con_px, coff_px):
+    """:func:`k_cf_walk` over the window ``[.., wb)`` of a chunk grouped once."""
+    has_px = con_px.shape[0] > 0
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        hi = start[pix + 1]
+        g = cur_in[pix]
+        if g < hi and grp[g] < wb:
+            lfv = C[pix, C_LF]
+            alpha = C[pix, C_ALPHA]
+            cl = C[pix, C_L]
+            ctu = C[pix, C_TU]
+            j_on = con_px[pix] if has_px else c_on
+            j_off = coff_px[pix] if has_px else c_off
+            while g < hi:
+                i = grp[g]
+                if i >= wb:
+                    break
+                tif = np.float64(t[a + i])
+                b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
+                lhat = lfv + (cl - lfv) * b
+                if p[a + i] > 0:
+                    cl = lhat + j_on
+                else:
+                    cl = lhat - j_off
+                ctu = tif
+                g += 1
+            C[pix, C_L] = cl
+            C[pix, C_TU] = ctu
+        cur_out[pix] = g

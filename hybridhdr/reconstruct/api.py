@@ -136,6 +136,14 @@ def make_params(method: str, params=None):
 
 # -- sources ------------------------------------------------------------------------------------
 
+def _host_workers(device: str, n_workers) -> int:
+    """Threads for the host-side work around the filter (column split, output collection): the
+    ``n_workers`` asked for on the CPU; on the GPU, where the filter needs no host thread, at
+    least the machine's cores (up to 16). Thread counts never change a result's bits."""
+    n = int(n_workers)
+    return n if device != "cuda" else max(n, min(os.cpu_count() or 1, 16))
+
+
 def _open_source(source, n_workers: int = 1):
     """(sensor_size, frames, chunk iterator factory, closer, declared event count or None, the
     opened source: the Recording or the reader, whose metadata, time range and stored threshold
@@ -439,7 +447,12 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
         check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
     if isinstance(frame_time_offset_us, bool) or not isinstance(frame_time_offset_us, (int, np.integer)):
         raise TypeError(f"frame_time_offset_us must be an int (µs), got {type(frame_time_offset_us).__name__}")
-    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source, int(n_workers))
+    # on the GPU the filter leaves the host's cores idle: its host side (splitting in-memory records
+    # into columns) uses them all, with the same bits as one thread
+    # learned methods: their own (PyTorch) device parameter
+    on_gpu = device == "cuda" or str(getattr(p, "device", "cpu")).startswith(("cuda", "auto"))
+    host_workers = _host_workers("cuda" if on_gpu else "cpu", n_workers)
+    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source, host_workers)
     events = None
     try:
         if frame_time_offset_us and frames is not None and len(frames):
@@ -488,7 +501,8 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 tm = PH.ACTIVE
                 c0 = PH.now() if tm is not None else 0
                 if isinstance(opened, Recording):  # in memory: columns split in n_workers threads
-                    events = EventArrays.from_structured(opened.events, shape, n_workers=int(n_workers))
+                    events = EventArrays.from_structured(opened.events, shape,
+                                                         n_workers=host_workers)
                     if tm is not None:
                         tm.add("read_all", c0, "parallel")
                 else:
@@ -705,7 +719,8 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         def rows(r0, r1):
             for k, im in enumerate(imgs):
                 frames[k, r0:r1] = im[r0:r1]
-        map_ranges(shape[0], n_workers, rows, min_part=8)
+        map_ranges(shape[0], _host_workers("cuda" if str(info.get("device", "")).startswith("device: cuda") else "cpu",
+                                           n_workers), rows, min_part=8)
     else:
         frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
     if tm is not None:

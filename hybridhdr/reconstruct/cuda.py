@@ -42,7 +42,73 @@ DEVICE_EVENTS_BYTES = 4 << 30
 #: which leaves the result unchanged (the per-pixel walk of two consecutive windows is the walk of
 #: their union)
 MAX_WINDOW = 1 << 24
+#: resident events (:class:`DeviceEvents`) are grouped by pixel once per chunk of this many events
+#: and each window of the chunk walked from per-pixel cursors (one launch per window instead of a
+#: grouping per window; :func:`._cuda_kernels.k_akf_walk_res`); 0: grouped per window as streamed
+#: events are. Either way the same per-pixel event sequences and t*, so the same results.
+RESIDENT_CHUNK = 1 << 25
 _STAGE_MIN = 1 << 16
+
+
+class PhaseTimer:
+    """Where the GPU path's time goes (``benchmarks/gpu.py``): while :data:`PHASES` holds one,
+    each phase of the engines is bracketed by ``cuda.synchronize()`` and timed (this serialises
+    host and device, so a profiled run is slower than a plain one: the plain figure is measured
+    apart). Per phase: ``calls``, ``total_s`` (device work and host work, synchronised) and
+    ``host_s`` (until the host had queued the phase's work: launch overhead, host arithmetic and
+    blocking copies); ``total_s - host_s`` is time spent waiting for the device."""
+
+    def __init__(self):
+        self.rows: dict = {}
+
+    def phase(self, name: str):
+        return _Phase(self, name)
+
+    def table(self) -> dict:
+        return {k: {"calls": v[0], "total_s": round(v[1], 5), "host_s": round(v[2], 5)}
+                for k, v in sorted(self.rows.items(), key=lambda kv: -kv[1][1])}
+
+
+class _Phase:
+    __slots__ = ("tm", "name", "t0", "sync")
+
+    def __init__(self, tm, name):
+        self.tm, self.name = tm, name
+
+    def __enter__(self):
+        import time
+        self.sync = _cuda().synchronize
+        self.sync()
+        self.t0 = time.perf_counter()
+
+    def __exit__(self, *exc):
+        import time
+        t1 = time.perf_counter()
+        self.sync()
+        t2 = time.perf_counter()
+        r = self.tm.rows.setdefault(self.name, [0, 0.0, 0.0])
+        r[0] += 1
+        r[1] += t2 - self.t0
+        r[2] += t1 - self.t0
+        return False
+
+
+class _NoPhase:
+    def __enter__(self):
+        return None
+
+    def __exit__(self, *exc):
+        return False
+
+
+_NO_PHASE = _NoPhase()
+#: the active :class:`PhaseTimer` (None: no timing, no synchronisation)
+PHASES: PhaseTimer | None = None
+
+
+def _phase(name: str):
+    tm = PHASES
+    return _NO_PHASE if tm is None else tm.phase(name)
 
 
 def numpy_compat() -> None:
@@ -174,10 +240,14 @@ class _Grouper:
         CK = self.ck
         self._ensure(n)
         g = _grid(n)
-        CK.k_count[g](dx, dy, a, n, width, self.cnt, self.slot)
-        self._scan(self.cnt, self.n_pix + 1, self.start)
-        CK.k_scatter[g](dx, dy, a, n, width, self.start, self.slot, self.grp, self.cnt)
-        CK.k_sort_groups[_grid(self.n_pix)](self.start, self.n_pix, self.grp)
+        with _phase("group_count"):
+            CK.k_count[g](dx, dy, a, n, width, self.cnt, self.slot)
+        with _phase("group_scan"):
+            self._scan(self.cnt, self.n_pix + 1, self.start)
+        with _phase("group_scatter"):
+            CK.k_scatter[g](dx, dy, a, n, width, self.start, self.slot, self.grp, self.cnt)
+        with _phase("group_sort"):
+            CK.k_sort_groups[_grid(self.n_pix)](self.start, self.n_pix, self.grp)
 
 
 class DeviceEvents:
@@ -205,7 +275,8 @@ class DeviceEvents:
         ry = cuda.device_array(self.n, np.uint16)
         rp = cuda.device_array(self.n, np.int8)
         if self.n:
-            CK.k_reverse_events[_grid(self.n)](self.t, self.x, self.y, self.p, self.n, np.int64(t_mirror_us) - 1,
+            with _phase("reverse_events"):
+                CK.k_reverse_events[_grid(self.n)](self.t, self.x, self.y, self.p, self.n, np.int64(t_mirror_us) - 1,
                                                rt, rx, ry, rp)
         return DeviceEvents(rt, rx, ry, rp, reversed_of=(self._host_t, int(t_mirror_us)))
 
@@ -239,6 +310,22 @@ class _CudaEngine:
         self._stage = None
         self.con_px = self.coff_px = self._empty(np.float64)
         self.device_line = f"device: cuda ({device_name()})"
+        self._cache: dict = {}
+        self._rc = None  # resident chunk: [events, chunk start, chunk end, processed up to]
+        self._cur = None
+
+    def _dev(self, a, dtype=None):
+        """A host array on the device, cached by its buffer (codes and tables come back)."""
+        a = np.ascontiguousarray(a, dtype=dtype)
+        key = (a.__array_interface__["data"][0], a.shape, a.dtype.str)
+        hit = self._cache.get(key)
+        if hit is not None:  # the same buffer (the cache keeps the array alive: no address reuse)
+            return hit[1]
+        d = self.cuda.to_device(a)
+        if len(self._cache) > 8:
+            self._cache.clear()
+        self._cache[key] = (a, d)
+        return d
 
     def _empty(self, dtype):
         return self.cuda.device_array(0, dtype)
@@ -268,20 +355,59 @@ class _CudaEngine:
                 self._stage = tuple(self.cuda.device_array(cap, dt)
                                     for dt in (np.int64, np.uint16, np.uint16, np.int8))
             st = self._stage
-            for src, dst, dt in zip((t, x, y, p), st, (np.int64, np.uint16, np.uint16, np.int8)):
-                dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
+            with _phase("stage_upload"):
+                for src, dst, dt in zip((t, x, y, p), st, (np.int64, np.uint16, np.uint16, np.int8)):
+                    dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
             self.process_device(*st, 0, n)
 
+    def process_resident(self, dev: "DeviceEvents", i: int, j: int) -> None:
+        """Events ``[i, j)`` of resident ``dev``: windows of a chunk grouped once
+        (:data:`RESIDENT_CHUNK`), walked from per-pixel cursors. Consecutive calls continue the
+        chunk; anything else (another range, :meth:`process_device`) closes it first."""
+        if RESIDENT_CHUNK <= 0:
+            self.process_device(dev.t, dev.x, dev.y, dev.p, i, j - i)
+            return
+        while i < j:
+            rc = self._rc
+            if rc is None or rc[0] is not dev or i != rc[3] or i >= rc[2]:
+                self._flush_resident()
+                c1 = min(dev.n, i + RESIDENT_CHUNK)
+                self.grouper.group(dev.x, dev.y, i, c1 - i, self.shape[1])
+                if self._cur is None:
+                    self._cur = [self.cuda.device_array(self.n, np.int32), self.cuda.device_array(self.n, np.int32)]
+                with _phase("chunk_cursors"):
+                    self.ck.k_copy_i32[_grid(self.n)](self.grouper.start, self._cur[0], self.n)
+                rc = self._rc = [dev, i, c1, i]
+            e = min(j, rc[2])
+            with _phase("walk"):
+                self._walk_res(dev, rc[1], e - rc[1])
+            self._cur.reverse()
+            rc[3] = e
+            self.n_events += e - i
+            i = e
+
+    def _flush_resident(self) -> None:
+        """Close the resident chunk (the AKF carries its last-event times over)."""
+        rc, self._rc = self._rc, None
+        if rc is not None:
+            self._close_chunk(rc[0], rc[1])
+
+    def _close_chunk(self, dev, c0: int) -> None:
+        return None
+
     def process_device(self, dt, dx, dy, dp, a: int, n: int) -> None:
+        self._flush_resident()
         for s in range(a, a + n, MAX_WINDOW):
             m = min(a + n, s + MAX_WINDOW) - s
             if m > 0:
                 self.grouper.group(dx, dy, s, m, self.shape[1])
-                self._walk(dt, dx, dy, dp, s)
+                with _phase("walk"):
+                    self._walk(dt, dx, dy, dp, s)
                 self.n_events += m
 
     def close(self) -> None:
-        return None
+        """End of the pass: the resident chunk is closed (its events no longer referenced here)."""
+        self._flush_resident()
 
 
 class CudaAKFEngine(_CudaEngine):
@@ -299,7 +425,6 @@ class CudaAKFEngine(_CudaEngine):
         self.has_la_step = False
         self.noise_form = K.NOISE_PAPER if params.noise_model == "paper" else K.NOISE_REFERENCE
         self.ccount = self._empty(np.float32)
-        self._cache: dict = {}
         self._out = None
 
     def set_thresholds(self, c_on, c_off) -> None:
@@ -307,19 +432,6 @@ class CudaAKFEngine(_CudaEngine):
         fn = getattr(self.m, "set_thresholds", None)
         if fn is not None:
             fn(*((None, None) if self.con_px.shape[0] == 0 else (self.host_con_px, self.host_coff_px)))
-
-    def _dev(self, a, dtype=None):
-        """A host array on the device, cached by its buffer (codes and tables come back)."""
-        a = np.ascontiguousarray(a, dtype=dtype)
-        key = (a.__array_interface__["data"][0], a.shape, a.dtype.str)
-        hit = self._cache.get(key)
-        if hit is not None:  # the same buffer (the cache keeps the array alive: no address reuse)
-            return hit[1]
-        d = self.cuda.to_device(a)
-        if len(self._cache) > 8:
-            self._cache.clear()
-        self._cache[key] = (a, d)
-        return d
 
     def _load(self, k: int, t_to: float | None = None) -> None:
         """:meth:`._engine.AKFEngine._load`, applied at once by a device kernel."""
@@ -403,7 +515,8 @@ class CudaAKFEngine(_CudaEngine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
-        self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
+        with _phase("switch"):
+            self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
 
     def _walk(self, dt, dx, dy, dp, a: int) -> None:
         pr = self.params
@@ -414,6 +527,23 @@ class CudaAKFEngine(_CudaEngine):
             self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s, pr.isolated_noise_per_s,
             pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form, self.con_px, self.coff_px,
             self.ccount)
+        self.te.reverse()
+
+    def _walk_res(self, dev, c0: int, wb: int) -> None:
+        pr = self.params
+        H, W = self.shape
+        gr = self.grouper
+        self.ck.k_akf_walk_res[_grid(self.n)](
+            dev.t, dev.p, c0, wb, H, W, gr.start, gr.grp, self._cur[0], self._cur[1], self.te[0], self.S,
+            self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+            pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
+            self.con_px, self.coff_px, self.ccount)
+
+    def _close_chunk(self, dev, c0: int) -> None:
+        gr = self.grouper
+        with _phase("chunk_close"):
+            self.ck.k_chunk_te[_grid(self.n)](dev.t, c0, gr.start, gr.grp, self._cur[0], self.te[0], self.te[1],
+                                              self.n)
         self.te.reverse()
 
     # -- outputs ---------------------------------------------------------------------------
@@ -438,9 +568,12 @@ class CudaAKFEngine(_CudaEngine):
         else:
             if self._out is None:
                 self._out = self.cuda.device_array(self.n, np.float32)
-            self.ck.k_akf_output_linear[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
-                                                       np.float32(self.params.intensity_offset), self._out, self.n)
-            out = self._out.copy_to_host()
+            with _phase("output_kernel"):
+                self.ck.k_akf_output_linear[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
+                                                           np.float32(self.params.intensity_offset), self._out,
+                                                           self.n)
+            with _phase("output_copy"):
+                out = self._out.copy_to_host()
         if with_state:
             return out.reshape(self.shape), lg.copy_to_host().reshape(self.shape), var.copy_to_host().reshape(self.shape)
         return out.reshape(self.shape)
@@ -476,10 +609,41 @@ class CudaCFEngine(_CudaEngine):
 
     def _columns(self, k: int | None, reset_l: bool, t_tu: float | None) -> None:
         """Load L^F and α of segment ``k`` (the CPU engine's host arithmetic, then uploaded),
-        optionally L̂ = L^F and tu (:func:`._cuda_kernels.k_cf_load`)."""
+        optionally L̂ = L^F and tu (:func:`._cuda_kernels.k_cf_load`). Frames of integer codes
+        (``segment_codes`` with an intensity table) take the per-code path of
+        :meth:`._engine.CFEngine._load_codes`: L^F and α are computed once per code on the host
+        (the same numpy operations on the same intensities) and looked up per pixel on the device
+        (:func:`._cuda_kernels.k_cf_load_lut`): no per-pixel host work, no full-image upload but
+        the codes (cached by buffer)."""
         from ._engine import CFEngine
         host = CFEngine.__new__(CFEngine)
         host.mode, host.params, host.n = self.mode, self.params, self.n
+        set_tu = t_tu is not None
+        tu = float(t_tu) if set_tu else 0.0
+        if k is not None:
+            codes_fn = getattr(self.m, "segment_codes", None)
+            sc = codes_fn(k) if codes_fn is not None else None
+            if sc is not None and sc.intensity is not None:
+                if sc.code.shape[0] != self.n:
+                    raise ValueError(f"measurement codes have {sc.code.shape[0]} values, expected {self.n} (H*W)")
+                table = np.asarray(sc.intensity, dtype=np.float64)
+                pr = self.params
+                lf_l = np.ascontiguousarray(np.log(table + self.offset))
+                if self.mode == "direct":
+                    al_l = np.zeros(table.shape[0])
+                else:
+                    al_l = np.full(table.shape[0], pr.alpha_rad_per_s)
+                    if self.mode == "cf" and pr.adaptive_gain:
+                        al_l[(table < pr.adaptive_low) | (table > pr.adaptive_high)] *= pr.adaptive_gain_scale
+                key = ("cf_lut", table.__array_interface__["data"][0], table.shape, self.offset)
+                hit = self._cache.get(key)
+                if hit is None:
+                    hit = (table, self.cuda.to_device(lf_l), self.cuda.to_device(al_l))
+                    self._cache[key] = hit
+                self.ck.k_cf_load_lut[_grid(self.n)](self.C, self._dev(sc.code), int(sc.max_code), hit[1], hit[2],
+                                                     bool(reset_l), set_tu, tu, self.n)
+                self.k = k
+                return
         if k is None:
             lf = np.zeros(self.n)
             alpha = np.ascontiguousarray(host._alpha(None), dtype=np.float64)
@@ -490,7 +654,7 @@ class CudaCFEngine(_CudaEngine):
             self.k = k
         cuda = self.cuda
         self.ck.k_cf_load[_grid(self.n)](self.C, cuda.to_device(lf), cuda.to_device(alpha), bool(reset_l),
-                                         t_tu is not None, float(t_tu) if t_tu is not None else 0.0, self.n)
+                                         set_tu, tu, self.n)
 
     def start(self, t_start_us=None) -> int:
         if self.mode == "highpass":
@@ -512,11 +676,12 @@ class CudaCFEngine(_CudaEngine):
 
     def switch(self) -> None:
         t_to = float(self.m.times_us[self.k + 1])
-        if self.mode == "direct":
-            self._columns(self.k + 1, True, t_to)
-            return
-        self.ck.k_cf_propagate[_grid(self.n)](self.C, t_to, self.n)
-        self._columns(self.k + 1, False, None)
+        with _phase("switch"):
+            if self.mode == "direct":
+                self._columns(self.k + 1, True, t_to)
+                return
+            self.ck.k_cf_propagate[_grid(self.n)](self.C, t_to, self.n)
+            self._columns(self.k + 1, False, None)
 
     def _walk(self, dt, dx, dy, dp, a: int) -> None:
         pr = self.params
@@ -524,12 +689,22 @@ class CudaCFEngine(_CudaEngine):
         self.ck.k_cf_walk[_grid(self.n)](dt, dp, a, self.n, gr.start, gr.grp, self.C, pr.c_on, pr.c_off,
                                          self.event_decay, self.con_px, self.coff_px)
 
+    def _walk_res(self, dev, c0: int, wb: int) -> None:
+        pr = self.params
+        gr = self.grouper
+        self.ck.k_cf_walk_res[_grid(self.n)](dev.t, dev.p, c0, wb, self.n, gr.start, gr.grp, self._cur[0],
+                                             self._cur[1], self.C, pr.c_on, pr.c_off, self.event_decay,
+                                             self.con_px, self.coff_px)
+
     def output(self, t_us: int, with_state: bool = False):
         if self._lg is None:
             self._lg = self.cuda.device_array(self.n, np.float64)
-        self.ck.k_cf_output[_grid(self.n)](self.C, float(t_us), self._lg, self.n)
-        lg = self._lg.copy_to_host()
-        out = (np.exp(lg) - self.offset).astype(np.float32)
+        with _phase("output_kernel"):
+            self.ck.k_cf_output[_grid(self.n)](self.C, float(t_us), self._lg, self.n)
+        with _phase("output_copy"):
+            lg = self._lg.copy_to_host()
+        with _phase("output_host_exp"):
+            out = (np.exp(lg) - self.offset).astype(np.float32)
         if with_state:
             return out.reshape(self.shape), lg.reshape(self.shape)
         return out.reshape(self.shape)
@@ -553,7 +728,7 @@ class _HostWindows:
 
 
 def _device_process(dev: DeviceEvents, eng, i: int, j: int) -> None:
-    eng.process_device(dev.t, dev.x, dev.y, dev.p, i, j - i)
+    eng.process_resident(dev, i, j)
 
 
 def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarray | None, progress=None):
@@ -655,14 +830,15 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
 
     out = cuda.device_array(n_pix, np.float32)
     counts = cuda.to_device(np.zeros(2, np.int64))
-    zeros2 = np.zeros(2, np.int64)
 
     def fuse_one(l1, p1, l2, p2):
         """Fused linear image on the device (fusion, exp, clamp: _kernels.fuse_to_linear's steps)."""
-        counts.copy_to_device(zeros2)
-        CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
-        img = out.copy_to_host()
-        nz, ncl = (int(v) for v in counts.copy_to_host())
+        with _phase("fuse_kernel"):
+            CK.k_fill_i64[1, 32](counts, np.int64(0), 2)  # on the device: no host copy per output
+            CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
+        with _phase("output_copy"):
+            img = out.copy_to_host()
+            nz, ncl = (int(v) for v in counts.copy_to_host())
         if nz:
             raise ZeroDivisionError("fuse_log32: P_f + P_b is 0")
         stats["n_clamped"] += ncl
@@ -681,9 +857,10 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
         rev_host = reverse_events(events, mirror) if (needs_host or rev_dev is None) else None
         for eng, tr, carried in passes(rev_fr, rev_host, rev_dev, True, rev_times):
             i = index[int(mirror - tr)]
-            lb = cuda.device_array(n_pix, np.float32)
-            pb = cuda.device_array(n_pix, np.float32)
-            eng.output_state32(tr, lb, pb, carried)
+            with _phase("backward_store"):
+                lb = cuda.device_array(n_pix, np.float32)
+                pb = cuda.device_array(n_pix, np.float32)
+                eng.output_state32(tr, lb, pb, carried)
             if on_device:
                 dstore[i] = (lb, pb)
             else:
@@ -700,7 +877,8 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
             t = int(t)
             if nxt is not None and nxt[1] == t:
                 eng, _, carried = nxt
-                eng.output_state32(t, lf, pf, carried)
+                with _phase("forward_state32"):
+                    eng.output_state32(t, lf, pf, carried)
                 if have_b[i]:
                     lb, pb = backward_of(i)
                     img = fuse_one(lf, pf, lb, pb)

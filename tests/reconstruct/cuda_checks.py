@@ -84,21 +84,37 @@ class _Step:
         return dataclasses.replace(s, la_step=np.linspace(0.05, 0.15, s.log_frame.shape[0]))
 
 
-def _drive_engines(make, t, x, y, p, cuts):
-    """Drive a CPU and a GPU engine through the same batches (switches inside), outputs with state."""
+def _resident(t, x, y, p):
+    """The events on the device (``cuda.DeviceEvents``), for the resident path."""
+    import types
+
+    from hybridhdr.reconstruct.cuda import DeviceEvents
+    return DeviceEvents.upload(types.SimpleNamespace(t=t, x=x, y=y, p=p))
+
+
+def _drive_engines(make, t, x, y, p, cuts, resident=False):
+    """Drive a CPU and a GPU engine through the same batches (switches inside), outputs with state;
+    ``resident``: the GPU engine takes its windows from resident events (``process_resident``)."""
     res = []
     for dev in ("cpu", "cuda"):
         eng = make(dev)
         eng.start(None)
         outs = []
+        if dev == "cuda" and resident:
+            d = _resident(t, x, y, p)
+
+            def proc(t_, x_, y_, p_, i, j):
+                eng.process_resident(d, i, j)
+        else:
+            proc = eng.process
         for a, b in zip(cuts[:-1], cuts[1:]):
             i = a
             while eng.next_switch_us() is not None and eng.next_switch_us() <= t[b - 1]:
                 j = i + int(np.searchsorted(t[i:b], eng.next_switch_us(), side="left"))
-                eng.process(t, x, y, p, i, j)
+                proc(t, x, y, p, i, j)
                 eng.switch()
                 i = j
-            eng.process(t, x, y, p, i, b)
+            proc(t, x, y, p, i, b)
             outs.append(eng.output(int(t[b - 1]) + 1, with_state=True))
         res.append((outs, eng.n_events))
         eng.close()
@@ -106,7 +122,7 @@ def _drive_engines(make, t, x, y, p, cuts):
 
 
 def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous", step=False, thresholds=False,
-                     max_window=None):
+                     max_window=None, resident_chunk=None):
     from hybridhdr.camera import default_profile
     from hybridhdr.reconstruct import AKFParams, FrameMeasurements
     from hybridhdr.reconstruct._engine import AKFEngine
@@ -132,15 +148,19 @@ def check_akf_engine(noise_model="paper", cov="linear", frame_update="continuous
     import hybridhdr.reconstruct.cuda as C
     if max_window is not None:  # windows split inside the engine (staging and grouping limits)
         C.MAX_WINDOW = max_window
+    if resident_chunk is not None:  # resident events, grouped once per chunk of this many
+        C.RESIDENT_CHUNK = resident_chunk
     try:
-        (cpu, n_cpu), (gpu, n_gpu) = _drive_engines(make, t, x, y, p, [0, n // 3, 2 * n // 3, n])
+        (cpu, n_cpu), (gpu, n_gpu) = _drive_engines(make, t, x, y, p, [0, n // 3, 2 * n // 3, n],
+                                                    resident=resident_chunk is not None)
     finally:
         C.MAX_WINDOW = 1 << 24
+        C.RESIDENT_CHUNK = 1 << 25
     rel = max(max(_rel(g[1], c[1]), _rel(g[2], c[2])) for c, g in zip(cpu, gpu))
     return rel, STATE_TOL, f"L and P at {len(cpu)} outputs; events {n_gpu} vs {n_cpu}", n_cpu == n_gpu
 
 
-def check_cf_engine(mode="cf"):
+def check_cf_engine(mode="cf", generic=False, adaptive=False, resident_chunk=None):
     from hybridhdr.camera import default_profile
     from hybridhdr.reconstruct import CFParams, FrameMeasurements, HighPassParams
     from hybridhdr.reconstruct._engine import CFEngine
@@ -149,26 +169,49 @@ def check_cf_engine(mode="cf"):
     t, x, y, p = _stream(900, h, w, seed=9)
     fr = _frames(h, w, [0, 70_000, 140_000, 210_000])
     from hybridhdr.reconstruct import DirectParams
-    params = {"highpass": HighPassParams(), "direct": DirectParams()}.get(mode) or CFParams(cutoff_hz=4.0)
+    params = {"highpass": HighPassParams(), "direct": DirectParams()}.get(mode) or \
+        CFParams(cutoff_hz=4.0, adaptive_gain=adaptive, adaptive_low=0.2, adaptive_high=0.8)
 
     def make(dev):
         m = None if mode == "highpass" else FrameMeasurements(fr, (h, w), default_profile(), intensity_offset=1.0,
                                                               bias_correction=False, interpolate_covariance=False)
+        if generic:  # no segment_codes: the per-pixel segment path (not the per-code tables)
+            m = _Step(m)
         return CFEngine((h, w), m, params, mode) if dev == "cpu" else CudaCFEngine((h, w), m, params, mode)
+    import hybridhdr.reconstruct.cuda as CU
+    try:
+        res = _cf_runs(make, t, x, y, p, resident_chunk)
+    finally:
+        CU.RESIDENT_CHUNK = 1 << 25
+    rel = max(_rel(g[1], c[1]) for c, g in zip(*res))
+    rel_img = max(_rel(g[0], c[0]) for c, g in zip(*res))
+    return max(rel, rel_img / IMAGE_TOL * STATE_TOL), STATE_TOL, f"L (float64) and images ({rel_img:.2e})", True
+
+
+def _cf_runs(make, t, x, y, p, resident_chunk):
+    """The CPU and GPU CF engines through the same windows: [(image, float64 L̂) per output] each."""
+    import hybridhdr.reconstruct.cuda as CU
     res = []
     for dev in ("cpu", "cuda"):
         e = make(dev)
         e.start(int(t[0]))
         outs = []
         n = t.shape[0]
+        proc = e.process
+        if dev == "cuda" and resident_chunk is not None:
+            CU.RESIDENT_CHUNK = resident_chunk
+            d = _resident(t, x, y, p)
+
+            def proc(t_, x_, y_, p_, i, j):
+                e.process_resident(d, i, j)
         for a, b in zip([0, n // 2], [n // 2, n]):
             i = a
             while e.next_switch_us() is not None and e.next_switch_us() <= t[b - 1]:
                 j = i + int(np.searchsorted(t[i:b], e.next_switch_us(), side="left"))
-                e.process(t, x, y, p, i, j)
+                proc(t, x, y, p, i, j)
                 e.switch()
                 i = j
-            e.process(t, x, y, p, i, b)
+            proc(t, x, y, p, i, b)
             tt = int(t[b - 1]) + 1
             if dev == "cpu":  # the CPU kernel's float64 L̂ (cf_output only writes the linear value)
                 from hybridhdr.reconstruct import _kernels as K
@@ -179,12 +222,10 @@ def check_cf_engine(mode="cf"):
                 img, lg = e.output(tt, with_state=True)
                 outs.append((img, lg.reshape(-1)))
         res.append(outs)
-    rel = max(_rel(g[1], c[1]) for c, g in zip(*res))
-    rel_img = max(_rel(g[0], c[0]) for c, g in zip(*res))
-    return max(rel, rel_img / IMAGE_TOL * STATE_TOL), STATE_TOL, f"L (float64) and images ({rel_img:.2e})", True
+    return res
 
 
-def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, fps=None):
+def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, fps=None, resident_chunk=None):
     import hybridhdr.reconstruct.cuda as C
     from conftest import ideal_recording
     from hybridhdr.reconstruct import reconstruct
@@ -193,6 +234,8 @@ def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, 
         C.DEVICE_STORE_BYTES = 0
     if stream:
         C.DEVICE_EVENTS_BYTES = 0
+    if resident_chunk is not None:
+        C.RESIDENT_CHUNK = resident_chunk
     try:
         kw = dict(mode=mode, augment=augment, fps=fps)
         a = reconstruct(rec, "akf", **kw, device="cpu")
@@ -200,6 +243,7 @@ def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, 
     finally:
         C.DEVICE_STORE_BYTES = 2 << 30
         C.DEVICE_EVENTS_BYTES = 4 << 30
+        C.RESIDENT_CHUNK = 1 << 25
     same_t = a.t_us.shape == b.t_us.shape and bool(np.all(a.t_us == b.t_us))
     rel = _rel(b.frames, a.frames) if same_t else float("inf")
     ok_info = b.info.get("device", "").startswith("device: cuda") and a.info.get("n_clamped") == b.info.get("n_clamped")
@@ -215,12 +259,19 @@ CHECKS = {
     "akf_discrete_thresholds": lambda: check_akf_engine(frame_update="discrete", thresholds=True),
     "akf_la_step_generic": lambda: check_akf_engine(step=True, thresholds=True),
     "akf_windows_split": lambda: check_akf_engine(max_window=97),
+    "akf_resident": lambda: check_akf_engine(thresholds=True, resident_chunk=1 << 25),
+    "akf_resident_chunks": lambda: check_akf_engine(step=True, thresholds=True, resident_chunk=97),
     "cf": lambda: check_cf_engine("cf"),
+    "cf_adaptive": lambda: check_cf_engine("cf", adaptive=True),
+    "cf_generic": lambda: check_cf_engine("cf", generic=True, adaptive=True),
+    "cf_resident_chunks": lambda: check_cf_engine("cf", resident_chunk=97),
     "highpass": lambda: check_cf_engine("highpass"),
     "direct": lambda: check_cf_engine("direct"),
     "reconstruct_forward": lambda: check_reconstruct("forward", fps=100.0),
     "reconstruct_causal": lambda: check_reconstruct("causal"),
     "reconstruct_two_sided": lambda: check_reconstruct("offline", fps=100.0),
+    "reconstruct_two_sided_chunks": lambda: check_reconstruct("offline", fps=100.0, resident_chunk=11),
+    "reconstruct_two_sided_per_window": lambda: check_reconstruct("offline", fps=100.0, resident_chunk=0),
     "reconstruct_two_sided_spill_stream": lambda: check_reconstruct("offline", spill=True, stream=True),
     "reconstruct_two_sided_augmented": lambda: check_reconstruct("offline", augment=True),
 }

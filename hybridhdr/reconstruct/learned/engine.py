@@ -164,9 +164,19 @@ class LearnedEngine(E.Engine):
         if self.on_device:
             torch = _torch()
             dev = self.rec.device
-            # x, y as int32 (PyTorch's uint16 has few kernels), t int64, p int8
-            self._buf.append(tuple(torch.from_numpy(np.ascontiguousarray(a[i0:i1], dtype=dt)).to(dev)
-                                   for a, dt in ((t, np.int64), (x, np.int32), (y, np.int32), (p, np.int8))))
+            # t int64, p int8; x, y as int32 (PyTorch's uint16 has few kernels): uint16 columns go
+            # as they are, viewed as int16 (half the bytes of int32, no host conversion), and are
+            # widened on the device (& 0xFFFF undoes the sign: the same values)
+            cols = [torch.from_numpy(np.ascontiguousarray(t[i0:i1], dtype=np.int64)).to(dev)]
+            for a in (x, y):
+                a = a[i0:i1]
+                if a.dtype == np.uint16:
+                    d = torch.from_numpy(np.ascontiguousarray(a).view(np.int16)).to(dev).to(torch.int32) & 0xFFFF
+                else:
+                    d = torch.from_numpy(np.ascontiguousarray(a, dtype=np.int32)).to(dev)
+                cols.append(d)
+            cols.append(torch.from_numpy(np.ascontiguousarray(p[i0:i1], dtype=np.int8)).to(dev))
+            self._buf.append(tuple(cols))
         else:
             self._buf.append((t[i0:i1].copy(), x[i0:i1].copy(), y[i0:i1].copy(), p[i0:i1].copy()))
         self.n_events += i1 - i0

@@ -101,15 +101,21 @@ def voxel_grid_torch(t, x, y, p, num_bins: int, shape, normalize: bool = True):
     pix = y * W + x
     HW = H * W
     grid.index_add_(0, ti * HW + pix, pol * (1.0 - frac))
+    # no boolean indexing (its data-dependent size makes the host wait for the device): the events
+    # in the last bin add an exact +0.0 to a bin of their pixel instead (x + 0.0 == x; no bin is -0.0)
     right = ti + 1 < B
-    grid.index_add_(0, ((ti + 1) * HW + pix)[right], (pol * frac)[right])
+    grid.index_add_(0, torch.where(right, (ti + 1) * HW + pix, pix), torch.where(right, pol * frac, 0.0))
     g = grid.float()
     if normalize:
+        # mean and (population) standard deviation of the non-zero entries, as masked sums over the
+        # whole grid (float64), again with nothing that waits for the device; no non-zero entry:
+        # every entry stays 0
         nz = g != 0
-        v = g[nz].double()
-        if v.numel():
-            mean = v.mean()
-            std = v.std(unbiased=False)
-            std = torch.where(std > 0, std, torch.ones_like(std))
-            g = torch.zeros_like(g).masked_scatter_(nz, ((v - mean) / std).float())
+        cnt = nz.sum().double().clamp(min=1.0)
+        gd = torch.where(nz, g.double(), 0.0)
+        mean = gd.sum() / cnt
+        dev_ = torch.where(nz, gd - mean, 0.0)
+        std = torch.sqrt((dev_ * dev_).sum() / cnt)
+        std = torch.where(std > 0, std, torch.ones_like(std))
+        g = torch.where(nz, (dev_ / std).float(), torch.zeros_like(g))
     return g.view(B, H, W)
