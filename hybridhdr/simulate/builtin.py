@@ -22,7 +22,7 @@ import numpy as np
 from .scene import (Blink, CameraSpec, Emission, Emitter, Keyframe, Material, MeshSpec, Pattern, RenderSettings,
                     Scene, SceneObject, Trajectory, look_at_rotation, quat_from_matrix)
 
-__all__ = ["BUILTIN_SCENES", "builtin_scene", "HDR_V2_SCENES", "REALISTIC_SENSOR", "SCENE_TIERS", "scene_sensor"]
+__all__ = ["BUILTIN_SCENES", "builtin_scene", "HDR_V2_SCENES", "REALISTIC_SENSOR", "TYPICAL_DAVIS_SENSOR", "SCENE_TIERS", "scene_sensor"]
 
 #: name -> one-line description
 BUILTIN_SCENES = {
@@ -47,16 +47,34 @@ _DEFAULT_DURATION_S = {"dark_room_window": 1.0, "night_drive_sign": 1.0, "fast_o
 #: textured regions the camera sweeps over while the frames clip them).
 HDR_V2_SCENES = ("window_scenery", "lamp_shade", "sunlit_facade")
 
-#: The event sensor of HDR set v2, in the simulator's own parameter names: figures typical of a
-#: DAVIS346 / DAVIS240 (the one place to swap in a measured profile). Contrast threshold 0.25
-#: (DAVIS346 ON/OFF thresholds are set by bias to about 0.2-0.3 ln units; v2e's default 0.2),
-#: per-pixel mismatch sigma 0.03 (v2e's default, Hu, Liu & Delbruck, CVPRW 2021,
+#: Typical figures of a DAVIS346 / DAVIS240 (HDR set v2's sensor before a measured profile existed;
+#: kept as the fallback of the tiers a profile cannot identify): contrast threshold 0.25 (DAVIS346
+#: ON/OFF thresholds are set by bias to about 0.2-0.3 ln units; v2e's default 0.2), per-pixel
+#: mismatch sigma 0.03 (v2e's default, Hu, Liu & Delbruck, CVPRW 2021,
 #: doi:10.1109/CVPRW53098.2021.00144), refractory period 0.5 ms (v2e's default; the refractory
 #: bias sets 0.1-1 ms: Graça, McReynolds & Delbruck, "Shining light on the DVS pixel", 2023,
 #: arXiv:2304.04706), shot noise 0.5 Hz per pixel (background activity of DAVIS pixels is
 #: 0.1-1 Hz indoors; v2e), leak 0.1 Hz (v2e's noisy preset, IEBCS's ON leak rate).
-REALISTIC_SENSOR = {"contrast_threshold_on": 0.25, "contrast_threshold_off": 0.25, "threshold_mismatch_sigma": 0.03,
-                    "refractory_period_us": 500, "shot_noise_rate_hz": 0.5, "leak_rate_hz": 0.1}
+TYPICAL_DAVIS_SENSOR = {"contrast_threshold_on": 0.25, "contrast_threshold_off": 0.25, "threshold_mismatch_sigma": 0.03,
+                        "refractory_period_us": 500, "shot_noise_rate_hz": 0.5, "leak_rate_hz": 0.1}
+
+
+def _measured_sensor() -> dict:
+    """The built-in profile measured on a real DAVIS240C (``builtin:davis240c``, estimated from
+    ``ecd_slider_depth`` by ``hybridhdr calibrate sensor``): the parameters that recording
+    identifies (ON 0.47, OFF 0.39, shot noise 0.68 Hz, leak ~0), and :data:`TYPICAL_DAVIS_SENSOR`'s
+    for the tiers it cannot (mismatch sigma, refractory period: docs/simulate-sensor.md)."""
+    from .sensor import load_profile_spec
+    measured = load_profile_spec("builtin:davis240c").simulator_params
+    return {**TYPICAL_DAVIS_SENSOR, **{k: float(v) for k, v in measured.items() if k in TYPICAL_DAVIS_SENSOR}}
+
+
+#: The event sensor of HDR set v2, in the simulator's own parameter names: the measured DAVIS240C
+#: profile where it identifies a parameter, typical figures elsewhere (the one place to swap in
+#: another measured profile). With the typical figures alone (0.25, sigma 0.03) one pixel of
+#: ``sunlit_facade`` drew an ON threshold of 0.104 and its 3.7 ln rise became 6.5 ln: 89 % of the
+#: AKF's set-v2 MSE (docs/simulate.md).
+REALISTIC_SENSOR = _measured_sensor()
 
 #: Sensor tiers (``hybridhdr.simulate.sensor.SENSOR_TIERS``) each HDR-v2 scene needs, and why;
 #: the others are switched off (:func:`scene_sensor`). No scene needs tier 4 (photoreceptor

@@ -149,8 +149,12 @@ def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
     write_recording(rec, p)
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    assert res["thresholds"] == "input"
-    assert res["leave_one_out"]["methods"]["akf"]["thresholds"][0]["source"] == "input"
+    # a recording that declares no thresholds: the CLI defaults self-calibrate it (as reconstruct
+    # --self-calibrate auto), leave-one-out
+    assert res["thresholds"] == "selfcal"
+    used = res["leave_one_out"]["methods"]["akf"]["thresholds"][0]
+    assert used["source"] in ("selfcal", "params"), used  # params: the input cannot tell (recorded why)
+    assert used["source"] == "selfcal" or used["why"]
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--contrast-threshold", "0.15",
                  "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
