@@ -370,6 +370,8 @@ def run(args) -> int:
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
+                # the previews' display map as 'view' makes it (frames' encoding; events-only: centred)
+                writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=not METHODS[method][1])
                 written = writer.close()
             finally:
                 for b in bars:
