@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._util.atomic import atomic_path
-from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, positive_int
+from ._util.cliargs import COMMON, HelpFormatter, add_format_arg, json_output, positive_float, positive_int
 from ._util.timearg import add_time_window, time_arg
 from .formats.images import apply_display_map, display_map
 
@@ -52,7 +52,7 @@ def add_parser(sub) -> None:
                        allow_abbrev=False, description=__doc__.split("\n\n", 1)[1].replace("``", "'"))
     p.add_argument("recording", type=Path, metavar="RECORDING", help="recording (any format the readers accept)")
     p.add_argument("--out", type=Path, required=True, help="output MP4 file")
-    p.add_argument("--from", dest="format", default=None, help="input format (default: detect)")
+    add_format_arg(p)
     p.add_argument("--recon", type=Path, default=None, metavar="DIR",
                    help="a 'hybridhdr reconstruct' output folder (timestamps.txt + EXR) shown as a third panel")
     p.add_argument("--fps", type=positive_float, default=None,

@@ -7,7 +7,8 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float
+from .._util.cliargs import (DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
+                             json_output, nonneg_int, positive_float, thresholds_arg)
 
 
 def add_parser(sub) -> None:
@@ -61,6 +62,9 @@ def add_parser(sub) -> None:
                                                              "default min(2, CPUs))")
     b.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder for Q (default $HYBRIDHDR_HDRVDP_DIR; never read from the bench file)")
+    b.add_argument("--resume", action="store_true",
+                   help="reuse the tasks an interrupted run of the same bench finished (OUT/runs/, written as "
+                        "each task finishes) and run only the others; without it they are run again")
     b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
                    help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
                         "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
@@ -103,16 +107,15 @@ def add_parser(sub) -> None:
                         "events' span)")
     h.add_argument("--params", type=Path, default=None, help="method parameters (TOML)")
     h.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
-    h.add_argument("--thresholds", choices=["params", "input"], default=None,
-                   help="contrast thresholds: 'input' = each event method's pooled ON/OFF thresholds estimated "
-                        "without the held-out frame, in the method's own log model; 'params' = the method's own "
-                        "(default: params when --params or --contrast-threshold is given, else input)")
+    h.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params",
+                   help=THRESHOLDS_HELP + "; here auto is estimated without the held-out frame, in each method's "
+                        "own log model")
     h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
     h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
                                                               "else built-in)")
     h.add_argument("--well-exposed", default=None, metavar="LO,HI",
                    help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
-    h.add_argument("--format", default=None, help="input format (default: detected)")
+    add_format_arg(h)
     h.set_defaults(func=run_holdout_cmd)
     p.set_defaults(func=lambda args: (p.print_help(), 0)[1])
 
@@ -314,7 +317,8 @@ def run_bench_cmd(args) -> int:
     hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
     if hv:
         bench = dataclasses.replace(bench, hdrvdp_dir=str(hv))
-    rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress,
+                     out_dir=args.out, resume=args.resume)
     w = write_results(rows, args.out, bench)
     print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())
     print(f"\nwrote {w['csv']}, {w['report_md']}, {w['report_html']}"
@@ -384,11 +388,15 @@ def run_holdout_cmd(args) -> int:
     held = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     thresholds = args.thresholds
+    given = args.params is not None or args.contrast_threshold is not None
     if thresholds is None:
-        thresholds = "params" if (args.params is not None or args.contrast_threshold is not None) else "input"
+        thresholds = "params" if given else DEFAULT_THRESHOLDS  # the one default, as reconstruct's
+    elif given and thresholds in ("auto", "input"):
+        raise ValueError(f"--thresholds {thresholds} and --params/--contrast-threshold both give the thresholds; "
+                         f"use one (or --thresholds params)")
     res = evaluate_holdout(rec, specs, tasks=tasks, held=held, profile=args.profile, well_exposed=well,
                            log=lambda msg: print(msg, file=sys.stderr), thresholds=thresholds)
-    res["thresholds"] = thresholds
+    res["thresholds"] = str(thresholds)
     res["recording"] = str(args.recording)
     if args.json:
         print(json.dumps(res, default=lambda o: o.item() if hasattr(o, "item") else str(o)))

@@ -68,7 +68,8 @@ def detect_format(path) -> str:
             return name
     what = "directory" if path.is_dir() else f"{path.stat().st_size}-byte file starting with {head[:16]!r}"
     raise UnknownFormatError(path, f"could not detect the event format of this {what}; expected one of "
-                                   f"{sorted(formats())} (give the format explicitly to override)")
+                                   f"{sorted(formats())} (give the format explicitly to override: --format NAME "
+                                   f"on the command line, format=NAME in Python)")
 
 
 def open_reader(path, format: str | None = None, **options) -> EventFileReader:

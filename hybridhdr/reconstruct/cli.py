@@ -8,7 +8,8 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, nonneg_int, positive_float, positive_int
+from .._util.cliargs import (COMMON, DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, UsageError, add_format_arg,
+                             cli_wording, json_output, nonneg_int, positive_float, positive_int, thresholds_arg)
 from .._util.timearg import add_time_window
 
 _FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
@@ -64,9 +65,9 @@ def add_parser(subparsers) -> None:
                    help="interpolate with the nominal threshold (no per-pixel eq. 12; the default)")
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
-    p.add_argument("--thresholds", type=Path, default=None,
-                   help="per-pixel ON/OFF contrast thresholds (thresholds.npz from 'hybridhdr calibrate thresholds'); "
-                        "default: the map stored in the recording, if any")
+    p.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params",
+                   help=THRESHOLDS_HELP + "; --contrast-threshold auto is --thresholds auto")
+    add_format_arg(p)
     p.add_argument("--cfa", choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"), default=None,
                    help="colour filter array of the event and frame sensors (default: as the recording declares; "
                         "'none' forces monochrome); colour output is linear RGB")
@@ -130,7 +131,7 @@ def estimate_run_thresholds(args, params):
         raise ValueError(f"--contrast-threshold does not apply to --method {args.method}")
     from ..formats import read
     enc = getattr(args, "frame_encoding", None)
-    rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
+    rec = read(args.recording, getattr(args, "format", None), **({} if enc is None else {"frame_encoding": enc}))
     try:
         on, off, record = _THRESHOLD_ESTIMATOR(rec, profile=args.profile, intensity_offset=params.intensity_offset)
     except ValueError as e:
@@ -276,8 +277,8 @@ def output_window(args, method: str):
         raise UsageError("--until applies to --fps outputs")
     if str(args.recording).startswith("builtin:") or not (relative or args.fps is not None or windowed):
         return resolve_window(args, None) + (None,)
-    span = recording_span(args.recording, frame_encoding=args.frame_encoding) if args.frame_encoding else \
-        recording_span(args.recording)
+    opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
+    span = recording_span(args.recording, getattr(args, "format", None), **opts)
     t0, t1 = resolve_window(args, span.origin_us)
     note = None
     if args.fps is not None and t1 is None:
@@ -319,12 +320,21 @@ def run(args) -> int:
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
         auto_note = None
+        thr_source = args.thresholds  # FILE (Path), auto, input, params or None: --help, THRESHOLDS_HELP
         if args.contrast_threshold == "auto":
-            if args.thresholds is not None:
+            if thr_source is not None:
                 raise ValueError("--contrast-threshold auto and --thresholds both give the thresholds; use one")
-            params, auto_note = estimate_run_thresholds(args, params)
+            thr_source = "auto"
         given = thresholds_given(args)  # once: a --config file is read for it
-        run_params = api_params(params, given)
+        if thr_source in ("auto", "input") and given and args.contrast_threshold != "auto":
+            raise ValueError(f"--thresholds {thr_source} and the thresholds given by --contrast-threshold/--set/--config "
+                             f"disagree; use one (or --thresholds params)")
+        if thr_source == "auto":
+            params, auto_note = estimate_run_thresholds(args, params)
+        if thr_source is None:
+            thr_source = "params" if given else DEFAULT_THRESHOLDS  # the one default, as evaluate holdout's
+        run_params = api_params(params, given or thr_source in ("auto", "params"))
+        map_path = thr_source if isinstance(thr_source, Path) else None
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
@@ -357,15 +367,16 @@ def run(args) -> int:
                 writer.on_written = bars[1].update
             info: dict = {}
             source = str(args.recording)
-            if getattr(args, "frame_encoding", None) is not None:
+            if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
                 from ..formats import open_reader
-                source = open_reader(args.recording, frame_encoding=args.frame_encoding)
+                opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
+                source = open_reader(args.recording, args.format, **opts)
             try:
                 for t, img in reconstruct_iter(source, method, run_params, times_us=times, fps=args.fps,
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
-                                               augment=augment, thresholds=args.thresholds, cfa=args.cfa,
+                                               augment=augment, thresholds=map_path, cfa=args.cfa,
                                                demosaic=args.demosaic):
                     writer.write(t, img)
                 if writer.n == 0:
@@ -388,12 +399,15 @@ def run(args) -> int:
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
             if hasattr(params, "contrast_threshold_on"):
                 used = info.get("thresholds")
-                if args.thresholds is not None:
-                    used = f"per-pixel map {args.thresholds} (--thresholds)"
+                if map_path is not None:
+                    used = f"per-pixel map {map_path} (--thresholds)"
                 elif not (used or "").startswith("per-pixel map"):
                     used = auto_note or used or ("given on the command line" if given else
+                                                 "the method's own parameters (--thresholds params)"
+                                                 if thr_source == "params" else
                                                  "the method's default (none given, none declared by the recording)")
                 run_info["thresholds"] = used
+                run_info["thresholds_source"] = str(thr_source)
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
                 if key in info:
                     run_info[key] = info[key]
@@ -425,8 +439,11 @@ def run(args) -> int:
             raise
         print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
         from .._util.timearg import EmptyWindowError
+        from ..errors import FormatError
+        # a file that cannot be read as the format detected or given (UnknownFormatError included)
+        # exits 1, as in every other verb (tests/test_cli_flags.py)
         usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
-                 and not isinstance(e, EmptyWindowError))
+                 and not isinstance(e, (EmptyWindowError, FormatError)))
         return 2 if usage else 1
 
 

@@ -53,19 +53,26 @@ def add_parser(subparsers) -> None:
     p.add_argument("--gt-fps", "--gt-rate-hz", dest="gt_rate_hz", type=positive_float, default=None,
                    help="also store HDR ground truth at this many per second, besides every frame's mid-exposure "
                         "(--gt-rate-hz is the old name)")
-    e = p.add_argument_group("event sensor (v2e names; each overrides the --preset's value)")
-    e.add_argument("--pos-thres", type=positive_float, default=None, help="ON contrast threshold, log units (v2e 0.2)")
-    e.add_argument("--neg-thres", type=positive_float, default=None,
+    e = p.add_argument_group("event sensor (v2e names, and v2e's own underscore spellings as aliases: "
+                             "--pos_thres ... --refractory_period in seconds; each overrides the --preset's value)")
+    e.add_argument("--pos-thres", "--pos_thres", dest="pos_thres", type=positive_float, default=None,
+                   help="ON contrast threshold, log units (v2e 0.2)")
+    e.add_argument("--neg-thres", "--neg_thres", dest="neg_thres", type=positive_float, default=None,
                    help="OFF contrast threshold, log units, given positive (v2e 0.2)")
-    e.add_argument("--sigma-thres", type=nonneg_float, default=None,
+    e.add_argument("--sigma-thres", "--sigma_thres", dest="sigma_thres", type=nonneg_float, default=None,
                    help="sigma of the per-pixel threshold mismatch, log units (v2e 0.03)")
-    e.add_argument("--cutoff-hz", type=nonneg_float, default=None,
+    e.add_argument("--cutoff-hz", "--cutoff_hz", dest="cutoff_hz", type=nonneg_float, default=None,
                    help="photoreceptor corner frequency at white, Hz (v2e 300; 0 = infinite bandwidth)")
-    e.add_argument("--leak-rate-hz", type=nonneg_float, default=None, help="leak events per pixel per second (v2e 0.01)")
-    e.add_argument("--shot-noise-rate-hz", type=nonneg_float, default=None,
-                   help="shot-noise events per pixel per second, ON + OFF (v2e noisy 5)")
-    e.add_argument("--refractory-period-us", type=nonneg_int, default=None,
+    e.add_argument("--leak-rate-hz", "--leak_rate_hz", dest="leak_rate_hz", type=nonneg_float, default=None,
+                   help="leak events per pixel per second (v2e 0.01)")
+    e.add_argument("--shot-noise-rate-hz", "--shot_noise_rate_hz", dest="shot_noise_rate_hz", type=nonneg_float,
+                   default=None, help="shot-noise events per pixel per second, ON + OFF (v2e noisy 5)")
+    r = e.add_mutually_exclusive_group()
+    r.add_argument("--refractory-period-us", type=nonneg_int, default=None,
                    help="blind time after each event, µs (v2e 500)")
+    r.add_argument("--refractory_period", dest="refractory_period_s", type=nonneg_float, default=None,
+                   metavar="SECONDS", help="v2e's spelling and unit: blind time after each event in SECONDS "
+                                           "(v2e 0.0005); rounded to whole µs")
     b = p.add_argument_group("builtin:blinking_checkerboard (calibration board)")
     b.add_argument("--poses", type=positive_int, default=None,
                    help="static camera views of the board (1-5; 'calibrate rig' needs at least 4 with its default "
@@ -147,6 +154,11 @@ def sensor_params(args):
 
     from .sensor import sensor_preset
     over = {field: getattr(args, flag) for flag, field in _SENSOR_FLAGS.items() if getattr(args, flag, None) is not None}
+    if getattr(args, "refractory_period_s", None) is not None:  # v2e's --refractory_period, in seconds
+        s = float(args.refractory_period_s)
+        if s > 1e3:
+            raise ValueError(f"--refractory_period is in seconds (v2e's unit): expected at most 1000, got {s:g}")
+        over["refractory_period_us"] = int(round(s * 1e6))
     base = sensor_preset(args.preset)
     if over.get("photoreceptor_cutoff_hz") == 0:
         over["photoreceptor_cutoff_hz"] = None
