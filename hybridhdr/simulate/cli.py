@@ -142,6 +142,52 @@ def _signals_exit():
             signal.signal(sg, h)
 
 
+class _MinuteAdvice:
+    """With the fallback renderer (``scalar_rgb``, about 50x slower than ``llvm_ad_mono``), once the
+    run has rendered for ``after_s`` seconds, print the measured render rate and the duration (at
+    this size) and the size (for the whole duration) that would finish in about a minute, when the
+    run itself would take much longer. Wraps ``source.render`` (the sampler's only call into the
+    renderer); the estimate is the measured scene time per wall second, and a render's cost taken
+    as proportional to its pixel count (the number of renders depends on the scene's motion and
+    brightness changes, not on its size)."""
+
+    def __init__(self, source, scene, t_start, *, after_s: float = 10.0, target_s: float = 60.0):
+        self.source, self.scene, self.t_start = source, scene, t_start
+        self.after_s, self.target_s = after_s, target_s
+        self.t_max = 0
+        self.done = False
+
+    def install(self):
+        render = self.source.render
+
+        def wrapped(t_us):
+            out = render(t_us)
+            self.t_max = max(self.t_max, int(t_us))
+            if not self.done:
+                self.check()
+            return out
+        self.source.render = wrapped
+
+    def check(self):
+        import time
+        wall = time.perf_counter() - self.t_start
+        if wall < self.after_s or self.t_max <= 0:
+            return
+        self.done = True
+        est = wall * self.scene.duration_us / self.t_max  # the whole run at the measured pace
+        if est < 2 * self.target_s:
+            return
+        w, h = self.scene.camera.width, self.scene.camera.height
+        k = (self.target_s / est) ** 0.5
+        w2, h2 = max(16, int(w * k) // 2 * 2), max(16, int(h * k) // 2 * 2)
+        dur = self.target_s * self.t_max / wall / 1e6
+        n = self.source.renders
+        print(f"\nnote: the renderer is scalar_rgb (the fallback when no usable LLVM is found): {n} renders of "
+              f"{w}x{h} in {wall:.0f} s ({n / wall:.2g} renders/s, {self.t_max / 1e6:.3g} s of scene time); this "
+              f"run will take about {est / 60:.0f} min. About a minute: --duration-s {dur:.2g} at this size, or --width {w2} "
+              f"--height {h2} for the whole {self.scene.duration_us / 1e6:g} s", file=sys.stderr)
+
+
 _SENSOR_FLAGS = {"pos_thres": "contrast_threshold_on", "neg_thres": "contrast_threshold_off",
                  "sigma_thres": "threshold_mismatch_sigma", "cutoff_hz": "photoreceptor_cutoff_hz",
                  "leak_rate_hz": "leak_rate_hz", "shot_noise_rate_hz": "shot_noise_rate_hz",
@@ -233,6 +279,8 @@ def run(args) -> int:
     # cannot compile the kernels) leaves nothing behind; SIGTERM/SIGHUP end the run through the
     # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
     source.render(0)
+    if source.variant == "scalar_rgb":  # the slow fallback: say what would finish in about a minute
+        _MinuteAdvice(source, scene, t0).install()
     with _signals_exit():
         res = simulate_to_file(source, args.out, sensor=sensor, camera=camera, sampling=sampling,
                                gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
