@@ -121,3 +121,16 @@ def test_format_detection_failure_exits_1_in_every_verb(tmp_path, capsys):
         err = capsys.readouterr().err
         assert rc == 1, (verb, err)
         assert "could not detect the event format" in err and "--format NAME" in err, (verb, err)
+
+
+def test_building_the_parser_imports_no_heavy_module():
+    """``hybridhdr --help`` (every command's start) builds the parser without numba, the kernels,
+    cv2, h5py or matplotlib: the parts' packages load their modules lazily (benchmarks/cli_start.py
+    measures the time)."""
+    import subprocess
+    import sys
+    code = ("import sys, hybridhdr.cli as c; c.build_parser(); "
+            "print(','.join(m for m in ('numba', 'cv2', 'h5py', 'matplotlib', 'hybridhdr.reconstruct._kernels', "
+            "'hybridhdr.reconstruct.api', 'hybridhdr.evaluate.bench') if m in sys.modules))")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == ""
