@@ -588,11 +588,27 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
                 for i in todo:
                     done(i, run_task(tasks[i], opts))
             elif todo:
-                from concurrent.futures import ProcessPoolExecutor, as_completed as cf_done
-                with ProcessPoolExecutor(max_workers=n, mp_context=_pool_context()) as ex:
+                from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
+                from concurrent.futures import wait as cf_wait
+                ex = ProcessPoolExecutor(max_workers=n, mp_context=_pool_context())
+                try:
                     futs = {ex.submit(run_task, tasks[i], opts): i for i in todo}
-                    for f in cf_done(futs):
-                        done(futs[f], f.result())
+                    pending = set(futs)
+                    while pending:
+                        # short waits: the main thread wakes to take a Ctrl-C even when the signal
+                        # went to another thread, instead of at the next finished task
+                        fin, pending = cf_wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                        for f in sorted(fin, key=lambda f: futs[f]):
+                            done(futs[f], f.result())
+                except BaseException:
+                    # Ctrl-C: stop now. A worker that got the SIGINT too only fails its task and goes
+                    # on with the queue, and shutdown(wait=True) would wait for every queued task;
+                    # the finished tasks are already in OUT/runs/ for --resume
+                    for proc in list((getattr(ex, "_processes", None) or {}).values()):
+                        proc.terminate()
+                    ex.shutdown(wait=False, cancel_futures=True)
+                    raise
+                ex.shutdown(wait=True)
     finally:
         if bar is not None:
             bar.close()
