@@ -49,7 +49,8 @@ def register(steps) -> None:
                     "(log domain with a CRF; Poisson ML in the linear domain for RAW/linear brackets) and write "
                     "OpenEXR. With --register, register the reference to every frame of a recording (SURF or "
                     "SIFT keypoints, ratio test, MAGSAC homography, optional ECC) and write a NEW recording with "
-                    "the warped references. Writes OUT.json (report) and OUT.png (reference, frame, overlay).")
+                    "the warped references. Writes OUT.json (report) and OUT.png (the tone-mapped reference at "
+                    "full size; with --register: reference, frame, overlay).")
     q.add_argument("brackets", type=Path, metavar="BRACKETS_DIR", help="bracket set folder")
     q.add_argument("--crf", type=Path, default=None,
                    help="crf.json from 'calibrate crf' (default: estimated here with Debevec for coded images)")
