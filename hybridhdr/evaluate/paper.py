@@ -258,8 +258,8 @@ def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True
     ``weights`` (``{"e2vid": PATH, "firenet": PATH}``, from ``demo --weights-e2vid/--weights-firenet``)
     adds the learned columns to the table.
 
-    About 3 minutes on 2 cores (177 s measured in issue 31; its demo bench alone 572 s at load 15-20), no downloads (the simulated sets are cached under
-    ``OUT/paper/cache``).
+    About 3 minutes on 2 cores (177 s measured in issue 31; its demo bench alone 572 s at load
+    15-20), no downloads (the simulated sets are cached under ``OUT/paper/cache``).
     """
     import dataclasses
 
