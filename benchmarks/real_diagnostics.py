@@ -321,7 +321,7 @@ def ablation(rec, gains) -> dict:
                     "note": f"offset {c.time_offset_us} us, I0 {c.intensity_offset}"}
         return cal
     steps = [("defaults: c 0.1, I0 1e-3, stamps", dict(thresholds="params")),
-             ("+ pooled thresholds", dict(thresholds="input")),
+             ("+ pooled thresholds", dict(thresholds="auto")),
              ("+ thresholds, I0 (no offset)", dict(thresholds="params", calibrate=hook(fix_offset=0))),
              ("+ thresholds, offset (I0 1e-3)", dict(thresholds="params", calibrate=hook(fix_i0=1e-3))),
              ("self-calibration (CLI default)", dict(thresholds="selfcal"))]

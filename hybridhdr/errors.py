@@ -16,6 +16,12 @@ class EventValidationError(ValueError):
     """Events violate an invariant (unsorted time, coordinates outside the sensor, bad polarity)."""
 
 
+class WindowOutsideDataError(ValueError):
+    """A time window given to the API (``Recording.slice_time``, ``hybridhdr.read``,
+    ``RecordingFile.events`` ...) lies wholly outside the recording's data; the message names the
+    recording's span, as the command line's empty-window error does."""
+
+
 class FormatError(ValueError):
     """A file does not match the format it claims (or was asked) to be.
 

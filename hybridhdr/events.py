@@ -11,7 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from .errors import EventValidationError
+from .errors import EventValidationError, WindowOutsideDataError
 
 __all__ = [
     "EVENT_DTYPE",
@@ -25,6 +25,7 @@ __all__ = [
     "validate_triggers",
     "slice_time",
     "time_window_indices",
+    "api_window",
     "concatenate_events",
     "events_fields",
 ]
@@ -200,6 +201,45 @@ def time_window_indices(t: np.ndarray, t_start_us=None, t_end_us=None) -> tuple[
     i0 = 0 if t_start_us is None else int(np.searchsorted(t, np.int64(t_start_us), side="left"))
     i1 = len(t) if t_end_us is None else int(np.searchsorted(t, np.int64(t_end_us), side="left"))
     return i0, max(i0, i1)
+
+
+def api_window(t_start_us, t_end_us, *, absolute: bool, span, what: str = "recording") -> tuple:
+    """The absolute ``[t_start_us, t_end_us)`` of a window given to the API, checked against the data.
+
+    The one time base of the API (docs/conventions.md, "Time windows"): ``absolute=True`` (the
+    default everywhere, as before) takes the bounds as sensor-time µs, as timestamps are stored;
+    ``absolute=False`` counts them from the recording's start ``span[0]`` (its first event or
+    frame exposure start), as the command line's ``--start``/``--end`` do. ``span``: the data's
+    ``(first, last)`` µs sensor time, or None for a recording without data (then no check).
+    A window that lies wholly outside ``span`` raises :class:`WindowOutsideDataError` naming the
+    span (a window inside, even one that holds nothing, is returned as it is).
+    """
+    for name, v in (("t_start_us", t_start_us), ("t_end_us", t_end_us)):
+        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
+            raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
+    if not isinstance(absolute, (bool, np.bool_)):
+        raise TypeError(f"absolute must be True or False, got {absolute!r}")
+    t0 = None if t_start_us is None else int(t_start_us)
+    t1 = None if t_end_us is None else int(t_end_us)
+    if not absolute:
+        if span is None:
+            if t0 is not None or t1 is not None:
+                raise WindowOutsideDataError(f"{what}: a window relative to the start (absolute=False) needs data, "
+                                             f"and the recording holds no events or frames")
+            return t0, t1
+        t0 = None if t0 is None else t0 + int(span[0])
+        t1 = None if t1 is None else t1 + int(span[0])
+    if span is not None and (t0 is not None or t1 is not None):
+        first, last = int(span[0]), int(span[1])
+        if (t1 is not None and t1 <= first) or (t0 is not None and t0 > last):
+            given = (f"[{t_start_us if t_start_us is not None else '-'}, {t_end_us if t_end_us is not None else '-'}) "
+                     f"µs {'sensor time' if absolute else 'from the start'}")
+            hint = ("; absolute=False counts from the recording's start, as the command line's --start/--end do"
+                    if absolute else "")
+            raise WindowOutsideDataError(
+                f"{what}: the window {given} lies outside the data, which spans {first:,}..{last:,} µs sensor "
+                f"time (0..{(last - first) / 1e6:g} s from the start){hint}")
+    return t0, t1
 
 
 def slice_time(events: np.ndarray, t_start_us=None, t_end_us=None) -> np.ndarray:

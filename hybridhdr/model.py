@@ -300,8 +300,35 @@ class Recording:
             lo.append(int(self.triggers["t"][0])); hi.append(int(self.triggers["t"][-1]))
         return (min(lo), max(hi)) if lo else None
 
-    def slice_time(self, t_start_us=None, t_end_us=None) -> "Recording":
-        """Events, triggers and HDR references in ``[t_start_us, t_end_us)``; frames by mid-exposure."""
+    def data_span_us(self) -> tuple[int, int] | None:
+        """``(start, last)`` µs sensor time of the data: the start is the first event or frame
+        exposure start (the command line's origin for ``--start``), triggers only when there is
+        neither; the last is the latest event, frame exposure end, trigger or HDR reference."""
+        firsts, lasts = [], []
+        if self.events.size:
+            firsts.append(int(self.events["t"][0])); lasts.append(int(self.events["t"][-1]))
+        if self.frames is not None and len(self.frames):
+            firsts.append(int(self.frames.t_start_us.min())); lasts.append(int(self.frames.t_end_us.max()))
+        if self.triggers.size:
+            lasts.append(int(self.triggers["t"][-1]))
+            if not firsts:
+                firsts.append(int(self.triggers["t"][0]))
+        if self.hdr is not None and len(self.hdr.t_us):
+            lasts.append(int(np.max(self.hdr.t_us)))
+            if not firsts:
+                firsts.append(int(np.min(self.hdr.t_us)))
+        return (min(firsts), max(lasts)) if firsts else None
+
+    def slice_time(self, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> "Recording":
+        """Events, triggers and HDR references in ``[t_start_us, t_end_us)``; frames by mid-exposure.
+
+        ``absolute=True`` (default): µs sensor time, as the timestamps are stored.
+        ``absolute=False``: µs from the recording's start (:meth:`data_span_us`), as the command
+        line's ``--start``/``--end``. A window wholly outside the data raises
+        :class:`~hybridhdr.errors.WindowOutsideDataError` naming the recording's span."""
+        from .events import api_window
+        t_start_us, t_end_us = api_window(t_start_us, t_end_us, absolute=absolute, span=self.data_span_us(),
+                                          what="Recording.slice_time")
         hdr = self.hdr
         if hdr is not None:
             i0, i1 = time_window_indices(hdr.t_us, t_start_us, t_end_us)

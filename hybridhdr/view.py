@@ -31,7 +31,7 @@ from pathlib import Path
 import numpy as np
 
 from ._util.atomic import atomic_path
-from ._util.cliargs import COMMON, HelpFormatter, json_output, positive_float, image_side
+from ._util.cliargs import COMMON, HelpFormatter, add_format_arg, image_side, json_output, positive_float
 from ._util.timearg import add_time_window, time_arg
 from .formats.images import apply_display_map, display_map
 
@@ -40,10 +40,10 @@ ON_COLOUR = (255, 255, 255)
 OFF_COLOUR = (64, 126, 200)
 BAR_HEIGHT = 28
 LABEL_HEIGHT = 20
-def recon_display_map(sample, *, gamma: float = 1.0) -> dict:
+def recon_display_map(sample, *, gamma: float = 1.0, events_only: bool = False) -> dict:
     """How the reconstruction panel shows intensities (see the module notes): the shared preview
     display map of :func:`hybridhdr.formats.images.display_map`, from a sample of outputs."""
-    return display_map(sample, gamma=gamma)
+    return display_map(sample, gamma=gamma, events_only=events_only)
 
 
 def add_parser(sub) -> None:
@@ -52,7 +52,7 @@ def add_parser(sub) -> None:
                        allow_abbrev=False, description=__doc__.split("\n\n", 1)[1].replace("``", "'"))
     p.add_argument("recording", type=Path, metavar="RECORDING", help="recording (any format the readers accept)")
     p.add_argument("--out", type=Path, required=True, help="output MP4 file")
-    p.add_argument("--from", dest="format", default=None, help="input format (default: detect)")
+    add_format_arg(p)
     p.add_argument("--recon", type=Path, default=None, metavar="DIR",
                    help="a 'hybridhdr reconstruct' output folder (timestamps.txt + EXR) shown as a third panel")
     p.add_argument("--fps", type=positive_float, default=None,
@@ -129,13 +129,15 @@ class _Recon:
         self._read = read_exr
         pick = np.unique(np.linspace(0, len(self.paths) - 1, min(len(self.paths), 64)).astype(int))
         self._sample = np.stack([read_exr(self.paths[i]) for i in pick])
-        self.display = recon_display_map(self._sample)
+        self.events_only = _events_only_run(Path(folder))
+        self.display = recon_display_map(self._sample, events_only=self.events_only)
         self._cache = (None, None)
 
     def set_frame_encoding(self, encoding) -> None:
-        """Show the linear map with the frames' transfer (gamma 2.2 for gamma/sRGB codes)."""
-        gamma = 2.2 if str(encoding) in ("gamma", "srgb") else 1.0
-        self.display = recon_display_map(self._sample, gamma=gamma)
+        """Show the linear map with the frames' transfer (gamma 2.2 for gamma/sRGB codes), as the
+        reconstruct previews do (:func:`hybridhdr.formats.images.display_gamma`)."""
+        from .formats.images import display_gamma
+        self.display = recon_display_map(self._sample, gamma=display_gamma(encoding), events_only=self.events_only)
         self._cache = (None, None)
 
     def at(self, t_us) -> np.ndarray | None:
@@ -146,6 +148,18 @@ class _Recon:
             u8 = apply_display_map(self._read(self.paths[i]), self.display)
             self._cache = (i, np.repeat(u8[..., None], 3, axis=2) if u8.ndim == 2 else u8)
         return self._cache[1]
+
+
+def _events_only_run(folder: Path) -> bool:
+    """True when the folder's run.json names an events-only method (high-pass, E2VID, FireNet):
+    its outputs get the centred log map (display_map_centred), as its previews do."""
+    import json
+    from .reconstruct.api import METHODS
+    try:
+        method = json.loads((folder / "run.json").read_text(encoding="utf-8")).get("method")
+    except (OSError, ValueError, AttributeError):
+        return False
+    return method in METHODS and not METHODS[method][1]
 
 
 # -- the clip -------------------------------------------------------------------------------------
@@ -252,7 +266,8 @@ def run(args) -> int:
                     if recon is not None:
                         rimg = recon.at(t)
                         rimg = np.zeros((height, panels[0].shape[1], 3), np.uint8) if rimg is None else _fit(rimg, height)
-                        how = "log map" if recon.display["mode"] == "log" else "linear, as the frame"
+                        how = ("log map, centred" if recon.display.get("centre") else
+                               "log map" if recon.display["mode"] == "log" else "linear, as the frame")
                         panels.append(_label(rimg, f"reconstruction ({args.recon.name}; {how})"))
                     row = np.concatenate(panels, axis=1)
                     rel = (t - span.origin_us) / 1e6

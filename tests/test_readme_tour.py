@@ -63,3 +63,64 @@ def test_readme_longer_runs_parse():
     for line, argv in _commands(blocks[1]):
         args = p.parse_args(argv)
         assert getattr(args, "func", None) is not None, line
+
+
+def test_readme_python_examples_return_events(tmp_path, monkeypatch):
+    """The README's Python block runs on the sparklers sample (its file names mapped to the sample)
+    and every window it takes returns events: the sample starts at 913,716,224 µs sensor time, so
+    a window counted from 0 used to return nothing, silently (issue 31)."""
+    import ast
+
+    import numpy as np
+
+    from .conftest import shared_file
+    raw = shared_file("prophesee/sparklers_gen3_evt2.raw")
+    text = (REPO_ROOT / "README.md").read_text(encoding="utf-8")
+    block = re.findall(r"```python\n(.*?)```", text, flags=re.S)[0]
+    src = block.replace('"sparklers.raw"', repr(str(raw))).replace('"big.raw"', repr(str(raw)))
+    assert src != block, "the README's Python block no longer reads sparklers.raw"
+    monkeypatch.chdir(tmp_path)
+    tree = ast.parse(src)
+    ns: dict = {}
+    windows = 0
+    for node in tree.body:  # statement by statement: each window expression is checked
+        if isinstance(node, ast.Expr) and isinstance(node.value, ast.Call) and \
+                getattr(node.value.func, "attr", "") == "slice_time":
+            got = eval(compile(ast.Expression(node.value), "README", "eval"), ns)
+            assert got.n_events > 0, ast.unparse(node)
+            windows += 1
+        else:
+            exec(compile(ast.Module([node], []), "README", "exec"), ns)
+    assert windows >= 2
+    assert len(ns["ev"]) > 0 and np.all(np.diff(ns["ev"]["t"]) >= 0)
+    a = ns["rec"].slice_time(10_000, 20_000, absolute=False)
+    b = ns["rec"].slice_time(913_726_224, 913_736_224)
+    assert a.n_events == b.n_events > 0  # the two time bases name the same window
+
+
+def test_api_window_outside_the_data_names_the_span(tmp_path):
+    """A window outside the data raises, naming the span, in every API entry point."""
+    import hybridhdr as hh
+    from hybridhdr.container import RecordingFile, write_recording
+    from hybridhdr.errors import WindowOutsideDataError
+    from hybridhdr.events import make_events
+    rec = hh.Recording(make_events([1_000_000, 1_000_500, 1_002_000], [0, 1, 2], [0, 0, 0], [1, -1, 1]),
+                       hh.SensorSize(4, 4))
+    assert rec.data_span_us() == (1_000_000, 1_002_000)
+    with pytest.raises(WindowOutsideDataError, match=r"1,000,000\.\.1,002,000 µs.*absolute=False"):
+        rec.slice_time(0, 50_000)
+    with pytest.raises(WindowOutsideDataError, match="outside the data"):
+        rec.slice_time(10_000, None, absolute=False)  # starts after the last event
+    assert rec.slice_time(0, 600, absolute=False).n_events == 2
+    assert rec.slice_time(1_000_400, 1_000_450).n_events == 0  # inside the data, empty: no error
+    p = write_recording(rec, tmp_path / "r.h5")
+    with RecordingFile(p) as f:
+        assert f.events(500, None, absolute=False)["t"].tolist() == [1_000_500, 1_002_000]
+        with pytest.raises(WindowOutsideDataError, match="RecordingFile.events"):
+            f.events(0, 50_000)
+        with pytest.raises(WindowOutsideDataError):
+            list(f.iter_event_columns(2, 3_000_000, None))
+        assert f.read(0, 1, absolute=False).n_events == 1
+    assert hh.read(p, t_start_us=1_000, absolute=False).n_events == 1
+    with pytest.raises(WindowOutsideDataError, match="1,000,000"):
+        hh.read(p, t_start_us=0, t_end_us=10)

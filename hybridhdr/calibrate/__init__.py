@@ -4,12 +4,42 @@ checkerboard), camera response and the AKF noise profile, HDR references, contra
 See ``docs/calibrate.md``. The camera model these produce is :mod:`hybridhdr.camera`.
 """
 
-from .crf import CRF, estimate_crf, gamma_crf
 from .event_images import BlinkParams, event_images
-from .hdr_reference import RegistrationParams, align_brackets, merge_brackets, register, register_recording
 from .noise_profile import noise_profile
-from .rig import Board, RigCalibration, calibrate_rig, load_calibration, save_calibration
-from .thresholds import estimate_thresholds
+
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
+# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+_LAZY = {
+    'CRF': '.crf',
+    'estimate_crf': '.crf',
+    'gamma_crf': '.crf',
+    'RegistrationParams': '.hdr_reference',
+    'align_brackets': '.hdr_reference',
+    'merge_brackets': '.hdr_reference',
+    'register': '.hdr_reference',
+    'register_recording': '.hdr_reference',
+    'Board': '.rig',
+    'RigCalibration': '.rig',
+    'calibrate_rig': '.rig',
+    'load_calibration': '.rig',
+    'save_calibration': '.rig',
+    'estimate_thresholds': '.thresholds',
+}
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "Board", "RigCalibration", "calibrate_rig", "load_calibration", "save_calibration", "BlinkParams",

@@ -51,7 +51,8 @@ def register(steps) -> None:
                     "(log domain with a CRF; Poisson ML in the linear domain for RAW/linear brackets) and write "
                     "OpenEXR. With --register, register the reference to every frame of a recording (SURF or "
                     "SIFT keypoints, ratio test, MAGSAC homography, optional ECC) and write a NEW recording with "
-                    "the warped references. Writes OUT.json (report) and OUT.png (reference, frame, overlay).")
+                    "the warped references. Writes OUT.json (report) and OUT.png (the tone-mapped reference at "
+                    "full size; with --register: reference, frame, overlay).")
     q.add_argument("brackets", type=Path, metavar="BRACKETS_DIR", help="bracket set folder")
     q.add_argument("--crf", type=Path, default=None,
                    help="crf.json from 'calibrate crf' (default: estimated here with Debevec for coded images)")
@@ -241,8 +242,10 @@ def run_hdr_reference(args) -> int:
     with _staged(args.out.parent or Path("."), last=(args.out.name,)) as stage:
         write_exr(stage / args.out.name, E)
         _write_json(stage / args.out.with_suffix(".json").name, report)
-        _plot_reference(E, frame, H, stage / args.out.with_suffix(".png").name)
-    msg = f"hdr-reference: {E.shape} -> {args.out}"
+        _plot_reference(E, frame, H, stage / args.out.with_suffix(".png").name, valid=mask)
+    msg = (f"hdr-reference: {E.shape[1]}x{E.shape[0]} {'RGB' if E.ndim == 3 else 'grey'}, radiance "
+           f"{report['radiance_range'][0]:.3g}..{report['radiance_range'][1]:.3g} -> {args.out} "
+           f"(preview {args.out.with_suffix('.png')})")
     if args.register is not None:
         msg += (f"; {len(report['registration'])} frames registered (mean {report['mean_time_s']:.2f} s/frame) "
                 f"-> {args.out_recording}")
@@ -251,18 +254,51 @@ def run_hdr_reference(args) -> int:
     return 0
 
 
-def _plot_reference(E, frame, H, path: Path) -> None:
-    """Tone-mapped reference; with a registration also the frame and a red/cyan overlay."""
-    import matplotlib
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
+def _preview_reference(E, valid=None, *, saturation: float = 0.6):
+    """Full-size 8-bit preview of a merged reference: the log tone map of its luminance (0.5th and
+    99.5th percentiles of the valid pixels to black and white) with its colour ratios to the power
+    ``saturation``; pixels outside ``valid`` (e.g. the Memorial scans' pure-blue borders, not
+    image data) black. Returns (uint8 image, log limits)."""
     import numpy as np
 
     from ..formats.images import tone_map
+    from .hdr_reference import to_grey
+    L = np.asarray(to_grey(E), np.float64)
+    ok = np.ones(L.shape, bool) if valid is None else np.asarray(valid, bool)
+    if valid is not None and not ok.all():
+        # aligned brackets are resampled: the marked border bleeds about a pixel into its
+        # neighbours (thin blue lines), so 2 px more are left out
+        from scipy.ndimage import binary_erosion
+        ok = binary_erosion(ok, iterations=2, border_value=1)
+    _, lim = tone_map(np.where(ok, L, np.nan)[None], low_percentile=0.5, high_percentile=99.5)
+    v = tone_map(L[None], limits=lim)[0][0] / 255.0
+    if E.ndim == 3:
+        with np.errstate(invalid="ignore", divide="ignore"):
+            ratio = np.clip(np.nan_to_num(E / np.maximum(L, 1e-12)[..., None]), 0, None) ** saturation
+        out = np.clip(v[..., None] * ratio, 0, 1)
+    else:
+        out = v
+    out = np.where(ok[..., None] if out.ndim == 3 else ok, out, 0.0)
+    return np.round(255 * out).astype(np.uint8), lim
+
+
+def _plot_reference(E, frame, H, path: Path, valid=None) -> None:
+    """The tone-mapped reference at full size (:func:`_preview_reference`); with a registration a
+    figure of it, the frame and a red/cyan overlay."""
+    import numpy as np
+
+    from ..formats.images import _write_png, tone_map
     from .hdr_reference import to_grey, warp_reference
 
-    ref_t, lim = tone_map(to_grey(E)[None])
-    panels = [("HDR reference (log tone map)", ref_t[0])]
+    ref8, lim = _preview_reference(E, valid)
+    if frame is None:
+        with atomic_path(path, ".png") as tmp:
+            _write_png(tmp, ref8)
+        return
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    panels = [("HDR reference (log tone map)", ref8)]
     if frame is not None:
         f = to_grey(frame)
         warped = warp_reference(to_grey(E).astype(np.float32), H, f.shape)

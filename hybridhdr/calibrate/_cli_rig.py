@@ -117,6 +117,42 @@ def _save_png(fig, path: Path) -> None:
         plt.close(fig)
 
 
+#: Fewer views than this per camera draw a warning (OpenCV's calibration guide asks for 10-20).
+FEW_VIEWS = 10
+
+
+def simulated_camera(provenance) -> dict | None:
+    """The camera a simulated recording states (``provenance["source"]``, written by
+    ``hybridhdr simulate``: ``K``, ``width``, ``height``), else None. Its frames and events come
+    from that one pinhole camera, so both calibrated cameras should find this K and no baseline."""
+    src = provenance.get("source") if isinstance(provenance, dict) else None
+    if not isinstance(src, dict) or "K" not in src:
+        return None
+    try:
+        K = [[float(v) for v in row] for row in src["K"]]
+        if len(K) != 3 or any(len(r) != 3 for r in K):
+            return None
+    except (TypeError, ValueError):
+        return None
+    return {"K": K, "width": src.get("width"), "height": src.get("height"), "scene": src.get("scene")}
+
+
+def compare_with_truth(truth: dict, cameras: dict, stereo) -> dict:
+    """Estimated intrinsics of each camera against the simulated camera's K, and the stereo
+    estimate against the true (zero) baseline of one camera."""
+    K = truth["K"]
+    out = {"source": "recording provenance (simulated single camera)", "K": K, "cameras": {},
+           "true_baseline_m": 0.0, "estimated_baseline_m": float(stereo.baseline_m),
+           "estimated_rotation_deg": float(stereo.rotation_deg)}
+    for n, c in cameras.items():
+        k = c.K
+        out["cameras"][n] = {"fx_error_pct": 100.0 * (float(k[0, 0]) / K[0][0] - 1.0),
+                             "fy_error_pct": 100.0 * (float(k[1, 1]) / K[1][1] - 1.0),
+                             "cx_error_px": float(k[0, 2]) - K[0][2], "cy_error_px": float(k[1, 2]) - K[1][2],
+                             "views_used": len(c.views)}
+    return out
+
+
 @json_command
 def run(args) -> int:
     import cv2
@@ -134,6 +170,7 @@ def run(args) -> int:
     out.mkdir(parents=True, exist_ok=True)
     report: dict = {"command": " ".join(sys.argv), "board": board.to_dict()}
     progress = not args.no_progress
+    truth_src = None
     if args.events is not None:
         from ..formats import read as read_any
         rec = read_any(args.events)
@@ -145,6 +182,8 @@ def run(args) -> int:
                              trigger_channel=args.trigger_channel,
                              min_windows_per_pose=args.min_windows_per_pose)
         trig = None if args.no_triggers else rec.triggers
+        if args.frames is None:  # frames and events of one recording: is it a simulated single camera?
+            truth_src = simulated_camera(rec.metadata.provenance)
         res = event_images(rec.events, rec.sensor_size, trig, params, progress=progress)
         report["event_images"] = res.summary()
         per = res.period
@@ -213,6 +252,12 @@ def run(args) -> int:
         "homography_depth_m": rig.depth_m, "parallax": rig.parallax_table(),
         "hybridhdr_version": __version__,
     })
+    few = {n: len(c.views) for n, c in ((n1, rig.camera1), (n2, rig.camera2)) if len(c.views) < FEW_VIEWS}
+    report["warnings"] = [f"{n}: only {k} views used; intrinsics from fewer than {FEW_VIEWS} views of the board at "
+                          f"varied angles are poorly constrained (more poses: simulate --poses, or record more)"
+                          for n, k in few.items()]
+    if truth_src is not None:
+        report["ground_truth"] = compare_with_truth(truth_src, {n1: rig.camera1, n2: rig.camera2}, rig.stereo)
     write_json_atomic(out / "report.json", report)
     # plots
     import matplotlib
@@ -235,8 +280,20 @@ def run(args) -> int:
         print(f"{n}: {c.image_size} fx {c.K[0, 0]:.2f} fy {c.K[1, 1]:.2f} cx {c.K[0, 2]:.2f} cy {c.K[1, 2]:.2f}; "
               f"RMS {c.rms_px:.3f} px over {len(c.views)} views ({len(c.rejected_views)} pruned)")
     st = rig.stereo
-    print(f"stereo: baseline {1000 * st.baseline_m:.2f} mm, rotation {st.rotation_deg:.3f} deg, RMS {st.rms_px:.3f} px "
-          f"over {len(st.views)} views")
+    gt = report.get("ground_truth")
+    if gt is not None:  # one simulated camera made both: there is no stereo pair, only estimation error
+        for n, e in gt["cameras"].items():
+            print(f"{n} vs the recording's ground truth (fx {gt['K'][0][0]:.2f} fy {gt['K'][1][1]:.2f} cx "
+                  f"{gt['K'][0][2]:.2f} cy {gt['K'][1][2]:.2f}): fx {e['fx_error_pct']:+.2f} %, fy "
+                  f"{e['fy_error_pct']:+.2f} %, cx {e['cx_error_px']:+.2f} px, cy {e['cy_error_px']:+.2f} px")
+        print(f"stereo: none, one simulated camera records frames and events (true baseline 0); the estimated "
+              f"{1000 * st.baseline_m:.2f} mm, {st.rotation_deg:.3f} deg are calibration error (RMS {st.rms_px:.3f} "
+              f"px over {len(st.views)} views)")
+    else:
+        print(f"stereo: baseline {1000 * st.baseline_m:.2f} mm, rotation {st.rotation_deg:.3f} deg, RMS "
+              f"{st.rms_px:.3f} px over {len(st.views)} views")
+    for w in report["warnings"]:
+        print(f"warning: {w}", file=sys.stderr)
     tab = rig.parallax_table()
     dname = "infinity" if rig.depth_m is None else f"{rig.depth_m:g} m"
     print(f"{n1}->{n2} homography at {dname}; residual parallax (max over the image, {n2} px):")

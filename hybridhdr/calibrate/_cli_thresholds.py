@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, add_format_arg, json_output, positive_int
 
 
 def register(steps) -> None:
@@ -23,7 +23,7 @@ def register(steps) -> None:
     p.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and frames (any "
                                                                      "readable format)")
     p.add_argument("--out", type=Path, default=Path("thresholds"), help="output folder")
-    p.add_argument("--format", default=None, help="input format (default: detected)")
+    add_format_arg(p)
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's declared one, else the built-in profile of "
                         "the frames' encoding)")

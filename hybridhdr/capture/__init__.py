@@ -10,14 +10,43 @@ USB device listing :func:`list_devices` (:mod:`.devices`), the OAK backend
 (:mod:`.session`).
 """
 
-from .depthai_backend import DepthaiFrameSource
-from .devices import NoDeviceFound, list_devices
-from .prophesee_backend import PropheseeEventSource
-from .recorder import Recorder, RecorderStats, recover
-from .session import create_session, verify_session
-from .sources import (EventSource, FrameItem, FrameSource, ReplayEventSource, ReplayFrameSource,
-                      SyntheticEventSource)
-from .sync import SyncReport, sync_frames, sync_recording
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
+# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+_LAZY = {
+    'DepthaiFrameSource': '.depthai_backend',
+    'NoDeviceFound': '.devices',
+    'list_devices': '.devices',
+    'PropheseeEventSource': '.prophesee_backend',
+    'Recorder': '.recorder',
+    'RecorderStats': '.recorder',
+    'recover': '.recorder',
+    'create_session': '.session',
+    'verify_session': '.session',
+    'EventSource': '.sources',
+    'FrameItem': '.sources',
+    'FrameSource': '.sources',
+    'ReplayEventSource': '.sources',
+    'ReplayFrameSource': '.sources',
+    'SyntheticEventSource': '.sources',
+    'SyncReport': '.sync',
+    'sync_frames': '.sync',
+    'sync_recording': '.sync',
+}
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "EventSource", "FrameSource", "FrameItem", "ReplayEventSource", "ReplayFrameSource", "SyntheticEventSource",

@@ -4,14 +4,45 @@ benchmarks and their datasets, reports, speed–accuracy and stability charts, T
 See ``docs/evaluate.md``.
 """
 
-from .bench import bundled_bench, load_bench, run_bench
-from .charts import plot_speed_accuracy, plot_stability
-from .datasets import Dataset, load_dataset
-from .metrics import global_ssim, hdrvdp_q, mse, psnr, pu_psnr, pu_ssim, score_video, ssim
-from .paper import paper_table, run_paper
-from .realdata import evaluate_holdout
-from .report import write_report
-from .sweeps import stability_bench
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
+# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+_LAZY = {
+    'bundled_bench': '.bench',
+    'load_bench': '.bench',
+    'run_bench': '.bench',
+    'plot_speed_accuracy': '.charts',
+    'plot_stability': '.charts',
+    'Dataset': '.datasets',
+    'load_dataset': '.datasets',
+    'global_ssim': '.metrics',
+    'hdrvdp_q': '.metrics',
+    'mse': '.metrics',
+    'psnr': '.metrics',
+    'pu_psnr': '.metrics',
+    'pu_ssim': '.metrics',
+    'score_video': '.metrics',
+    'ssim': '.metrics',
+    'paper_table': '.paper',
+    'run_paper': '.paper',
+    'evaluate_holdout': '.realdata',
+    'write_report': '.report',
+    'stability_bench': '.sweeps',
+}
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "mse", "psnr", "ssim", "global_ssim", "pu_psnr", "pu_ssim", "score_video", "hdrvdp_q",

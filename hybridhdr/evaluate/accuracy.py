@@ -389,7 +389,7 @@ REAL_BASELINES = {"frames_zoh": "hold previous frame", "frames_linear": "linear 
 
 
 def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
-                       well_exposed=None, log=None, thresholds: str = "input") -> list[dict]:
+                       well_exposed=None, log=None, thresholds: str = "auto") -> list[dict]:
     """Leave-one-frame-out on a real recording.
 
     For each held-out frame k (default: every frame with a frame before and after it inside the
@@ -404,7 +404,7 @@ def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_t
     Only the frames inside the events' span are kept (the recording's other frames have no events
     around them).
 
-    ``thresholds="input"`` (default; a real recording does not state its thresholds): every event
+    ``thresholds="auto"`` (default; a real recording does not state its thresholds): every event
     method's pooled ON/OFF thresholds are estimated on its input, in its own log model
     (:func:`hybridhdr.evaluate.realdata.input_thresholds`); ``"params"``: the methods' own (with
     ``contrast_threshold`` if given).
@@ -414,7 +414,7 @@ def real_leave_one_out(rec, held=None, methods=METHODS, profile=None, contrast_t
 
 
 def real_next_frame(rec, held=None, methods=METHODS, profile=None, contrast_threshold=None,
-                    well_exposed=None, log=None, thresholds: str = "input") -> list[dict]:
+                    well_exposed=None, log=None, thresholds: str = "auto") -> list[dict]:
     """Next-frame prediction on a real recording, for the causal methods of ``methods``.
 
     For each predicted frame k (default as :func:`real_leave_one_out`) the input is cut before it
@@ -430,7 +430,7 @@ def real_next_frame(rec, held=None, methods=METHODS, profile=None, contrast_thre
 
 
 def _real_holdout(rec, task, name, held, methods, profile, contrast_threshold, well_exposed, log,
-                  thresholds="input") -> list[dict]:
+                  thresholds="auto") -> list[dict]:
     held = RD.default_held_frames(rec) if held is None else [int(k) for k in held]
     ref, valid, _ = RD.reference_frames(rec, held, profile, well_exposed)
     specs = [RD.HoldoutSpec(m.label, m.method, m.mode, method_params(m, contrast_threshold), m.augment)

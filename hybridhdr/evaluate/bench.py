@@ -581,9 +581,73 @@ def _pool_context():
         return mp.get_context("spawn")
 
 
+# -- runs that survive an interruption (issue 31): one file per finished task, --resume -----------
+
+#: Folder under ``--out`` holding one ``task_NNNNN.json`` (its rows) and ``.npz`` (its strip
+#: images) per finished task (a dataset variant with its method runs), each written atomically
+#: as the task finishes.
+RUNS_DIR = "runs"
+
+
+def _task_key(task, opts: dict) -> str:
+    """A digest of everything a task's rows depend on (dataset, grid values, runs, bench options),
+    so that ``--resume`` reuses a finished task only for the same bench."""
+    import dataclasses
+    import hashlib
+    ds_name, spec, ds_gv, runs = task
+    blob = json.dumps([ds_name, spec, ds_gv, [dataclasses.asdict(r) for r in runs],
+                       {k: v for k, v in opts.items() if k != "warmup"}], sort_keys=True, default=str)
+    return hashlib.sha256(blob.encode()).hexdigest()
+
+
+def _plain(v):
+    if isinstance(v, np.generic):
+        return v.item()
+    raise TypeError(f"cannot store {type(v).__name__} in a run file")
+
+
+def _save_task(runs_dir: Path, i: int, key: str, rows: list[dict]) -> list[dict]:
+    """Write task ``i``'s rows (and strip images) atomically; returns the rows as read back, so
+    that a resumed and an uninterrupted bench report the same values (JSON round trip)."""
+    strip = rows[0].get("_strip", {}) if rows else {}
+    plain = [{k: v for k, v in r.items() if k != "_strip"} for r in rows]
+    text = json.dumps({"key": key, "task": i, "rows": plain}, default=_plain)
+    if strip:
+        with atomic_path(runs_dir / f"task_{i:05d}.npz", ".npz") as tmp:
+            np.savez(tmp, **{f"s{j}": np.asarray(v) for j, v in enumerate(strip.values())},
+                     names=np.array(list(strip.keys()), dtype=str))
+    with atomic_path(runs_dir / f"task_{i:05d}.json") as tmp:  # last: the task counts as finished
+        Path(tmp).write_text(text, encoding="utf-8")
+    return _load_task(runs_dir, i, key)
+
+
+def _load_task(runs_dir: Path, i: int, key: str) -> list[dict] | None:
+    """Task ``i``'s rows from a run file written for the same ``key``, else None."""
+    f = runs_dir / f"task_{i:05d}.json"
+    try:
+        d = json.loads(f.read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return None
+    if not isinstance(d, dict) or d.get("key") != key or not isinstance(d.get("rows"), list):
+        return None
+    rows = d["rows"]
+    z = runs_dir / f"task_{i:05d}.npz"
+    if rows and z.is_file():
+        with np.load(z, allow_pickle=False) as a:
+            names = [str(n) for n in a["names"]]
+            rows[0]["_strip"] = {n: a[f"s{j}"] for j, n in enumerate(names)}
+    return rows
+
+
 def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None = None,
-              progress: bool = True) -> list[dict]:
+              progress: bool = True, out_dir=None, resume: bool = False) -> list[dict]:
     """Run all tasks; returns rows in (task, method) order.
+
+    With ``out_dir``, each task's rows are written to ``out_dir/runs/task_NNNNN.json`` (and its
+    strip images to ``.npz``) atomically as soon as it finishes, so an interrupted bench keeps
+    every finished task; ``resume=True`` reads those back and runs only the others (a file
+    written for another bench, or other options, is run again). Without ``resume`` earlier run
+    files are replaced.
 
     Parameters
     ----------
@@ -596,10 +660,36 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
     tasks = expand(bench)
     opts = _bench_opts(bench)
     bar = None
+    results: list = [None] * len(tasks)
+    keys = [_task_key(t, opts) for t in tasks]
+    runs_dir = None
+    if out_dir is not None:
+        runs_dir = Path(out_dir) / RUNS_DIR
+        runs_dir.mkdir(parents=True, exist_ok=True)
+        if resume:
+            for i in range(len(tasks)):
+                results[i] = _load_task(runs_dir, i, keys[i])
+        else:
+            old = list(runs_dir.glob("task_*.json"))
+            if old:
+                print(f"note: bench {bench.name}: replacing the {len(old)} finished task(s) in {runs_dir} "
+                      f"(--resume reuses them)", file=sys.stderr)
+            for f in old + list(runs_dir.glob("task_*.npz")):
+                f.unlink()
+    todo = [i for i in range(len(tasks)) if results[i] is None]
+    if resume and out_dir is not None:
+        print(f"bench {bench.name}: resuming, {len(tasks) - len(todo)} of {len(tasks)} tasks already finished "
+              f"in {runs_dir}", file=sys.stderr)
+
+    def done(i, rows):
+        results[i] = rows if runs_dir is None else _save_task(runs_dir, i, keys[i], rows)
+        if bar is not None:
+            bar.update(1)
+
     if progress:
         from tqdm import tqdm
-        bar = tqdm(total=len(tasks), desc=f"bench {bench.name}", unit="task", file=sys.stderr, dynamic_ncols=True)
-    results: list = [None] * len(tasks)
+        bar = tqdm(total=len(tasks), initial=len(tasks) - len(todo), desc=f"bench {bench.name}", unit="task",
+                   file=sys.stderr, dynamic_ncols=True)
     try:
         if scheduler is not None:
             try:
@@ -611,13 +701,11 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
             try:
                 import uuid
                 tag = uuid.uuid4().hex[:12]  # fresh keys: a reused Client must not return old results
-                futs = [client.submit(run_task, t, opts, key=f"hybridhdr-bench-{bench.name}-{tag}-{i}", pure=False)
-                        for i, t in enumerate(tasks)]
-                index = {f.key: i for i, f in enumerate(futs)}
+                futs = [client.submit(run_task, tasks[i], opts, key=f"hybridhdr-bench-{bench.name}-{tag}-{i}",
+                                      pure=False) for i in todo]
+                index = {f.key: i for f, i in zip(futs, todo)}
                 for f in as_completed(futs):
-                    results[index[f.key]] = f.result()
-                    if bar is not None:
-                        bar.update(1)
+                    done(index[f.key], f.result())
             finally:
                 if own or not hasattr(scheduler, "submit"):
                     client.close()
@@ -626,23 +714,28 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
             if n < 0:
                 raise ValueError(f"workers must be >= 0, got {n}")
             if n == 0:
-                for i, t in enumerate(tasks):
-                    results[i] = run_task(t, opts)
-                    if bar is not None:
-                        bar.update(1)
-            else:
-                from concurrent.futures import ProcessPoolExecutor, as_completed as cf_done
-                with ProcessPoolExecutor(max_workers=n, mp_context=_pool_context(),
-                                         initializer=_bench_worker_init) as ex:
-                    try:
-                        futs = {ex.submit(run_task, t, opts): i for i, t in enumerate(tasks)}
-                        for f in cf_done(futs):
-                            results[futs[f]] = f.result()
-                            if bar is not None:
-                                bar.update(1)
-                    except BaseException:  # SIGTERM, Ctrl-C, an error: end the workers now, leave none behind
-                        _stop_pool(ex)
-                        raise
+                for i in todo:
+                    done(i, run_task(tasks[i], opts))
+            elif todo:
+                from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
+                from concurrent.futures import wait as cf_wait
+                ex = ProcessPoolExecutor(max_workers=n, mp_context=_pool_context(), initializer=_bench_worker_init)
+                try:
+                    futs = {ex.submit(run_task, tasks[i], opts): i for i in todo}
+                    pending = set(futs)
+                    while pending:
+                        # short waits: the main thread wakes to take a Ctrl-C even when the signal
+                        # went to another thread, instead of at the next finished task
+                        fin, pending = cf_wait(pending, timeout=0.5, return_when=FIRST_COMPLETED)
+                        for f in sorted(fin, key=lambda f: futs[f]):
+                            done(futs[f], f.result())
+                except BaseException:
+                    # SIGTERM, Ctrl-C, an error: end the workers now and leave none behind (a worker
+                    # that got the SIGINT too would only fail its task and go on with the queue); the
+                    # finished tasks are already in OUT/runs/ for --resume
+                    _stop_pool(ex)
+                    raise
+                ex.shutdown(wait=True)
     finally:
         if bar is not None:
             bar.close()

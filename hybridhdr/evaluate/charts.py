@@ -261,6 +261,26 @@ def stability_curves(rows, *, dataset: str, axis: str, metric: str = "ssim", bou
     return out
 
 
+def method_colours(names) -> dict:
+    """tab10 index per curve name, the same for a method in every panel and chart: the method's
+    place in ``reconstruct.METHODS`` (aliases resolved, a grid suffix " [...]" ignored), else a
+    fixed digest of the name; a name whose colour is taken in this chart gets the next free one."""
+    import zlib
+
+    from ..reconstruct.api import METHOD_ALIASES, METHODS
+    order = list(METHODS)
+    out, used = {}, set()
+    for n in names:
+        base = str(n).split(" [")[0]
+        base = METHOD_ALIASES.get(base, base)
+        k = order.index(base) if base in order else zlib.crc32(base.encode()) % 10
+        while k in used and len(used) < 10:
+            k = (k + 1) % 10
+        used.add(k)
+        out[n] = k % 10
+    return out
+
+
 def plot_stability(rows, *, dataset: str, axis: str, metric: str = "ssim", bound: float | None = None,
                    better: str | None = None, stress: str = "increasing", title: str | None = None,
                    log_x: bool | None = None, relative_bound: float | None = None, ax=None):
@@ -284,16 +304,17 @@ def plot_stability(rows, *, dataset: str, axis: str, metric: str = "ssim", bound
         ax.set_title(title or f"stability: {axis}", fontsize=9)
         return fig, ax
     cmap = plt.get_cmap("tab10")
+    colours = method_colours(list(curves))
     for i, (name, c) in enumerate(curves.items()):
         xs, ys = np.asarray(c["x"], float), np.asarray(c["y"], float)
         order = np.argsort(xs)
-        ax.plot(xs[order], ys[order], "o-", color=cmap(i % 10), ms=4, label=name)
+        ax.plot(xs[order], ys[order], "o-", color=cmap(colours[name]), ms=4, label=name)
         if c["failed_at"] is not None:
             j = int(np.flatnonzero(xs == c["failed_at"])[0])
             yv = ys[j] if math.isfinite(ys[j]) else np.nanmin(ys) if np.isfinite(ys).any() else 0.0
             ax.plot([c["failed_at"]], [yv], marker="x", color="red", ms=11, mew=2.2, zorder=5)
             ax.annotate(name, (c["failed_at"], yv), textcoords="offset points", xytext=(4, 6), fontsize=7,
-                        color=cmap(i % 10))
+                        color=cmap(colours[name]))
     if bound is not None:
         ax.axhline(bound, color="red", ls=":", lw=1, label=f"bound {bound:g}")
     if relative_bound is not None:

@@ -7,7 +7,8 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import HelpFormatter, json_command, json_output, nonneg_int, positive_float, worker_count
+from .._util.cliargs import (DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
+                             json_output, nonneg_int, positive_float, thresholds_arg, worker_count)
 
 
 def add_parser(sub) -> None:
@@ -52,7 +53,10 @@ def add_parser(sub) -> None:
     b = esub.add_parser("bench", formatter_class=fmt, help="run a TOML bench file",
                         description="Run methods x datasets x parameter grids from BENCH (a TOML file, or a "
                                     "bundled name: demo, speed_accuracy, stability, tiny); write results.csv, "
-                                    "report.md/.html, strips and charts to --out.")
+                                    "report.md/.html, strips and charts to --out. Each finished task is kept in "
+                                    "OUT/runs/ as it finishes (--resume continues an interrupted run). Measured on "
+                                    "a loaded shared 2-core machine: tiny 156 s, demo 572 s, stability 8 min or "
+                                    "more (docs/evaluate.md).")
     b.add_argument("bench", help="bench TOML file or bundled bench name")
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
@@ -61,6 +65,9 @@ def add_parser(sub) -> None:
                                                              "default min(2, CPUs))")
     b.add_argument("--hdrvdp-dir", type=Path, default=None,
                    help="HDR-VDP 3 folder for Q (default $HYBRIDHDR_HDRVDP_DIR; never read from the bench file)")
+    b.add_argument("--resume", action="store_true",
+                   help="reuse the tasks an interrupted run of the same bench finished (OUT/runs/, written as "
+                        "each task finishes) and run only the others; without it they are run again")
     b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
                    help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
                         "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
@@ -105,19 +112,15 @@ def add_parser(sub) -> None:
                         "events' span)")
     h.add_argument("--params", type=Path, default=None, help="method parameters (TOML)")
     h.add_argument("--contrast-threshold", type=float, default=None, help="contrast threshold c (log units)")
-    h.add_argument("--thresholds", choices=["params", "input", "selfcal"], default=None,
-                   help="contrast thresholds: 'selfcal' = the event/frame self-calibration (frame time offset, "
-                        "thresholds, the AKF's log offset) of the recording without the held-out frame, as "
-                        "reconstruct --self-calibrate; 'input' = each event method's pooled ON/OFF thresholds "
-                        "estimated without the held-out frame, in the method's own log model; 'params' = the "
-                        "method's own (default: params when --params or --contrast-threshold is given or the "
-                        "recording declares thresholds, else selfcal)")
+    h.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
+                   help=THRESHOLDS_HELP + "; here auto and selfcal are estimated without the held-out frame (the "
+                        "recording without it; selfcal's frame k is predicted at the time it stands for)")
     h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
     h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
                                                               "else built-in)")
     h.add_argument("--well-exposed", default=None, metavar="LO,HI",
                    help="well-exposed codes, inclusive (default 20,235 scaled to the bit depth)")
-    h.add_argument("--format", default=None, help="input format (default: detected)")
+    add_format_arg(h)
     h.set_defaults(func=run_holdout_cmd)
     o = esub.add_parser("overexpose", formatter_class=fmt,
                         help="real data without an HDR reference: over-expose the frames, score HDR recovery",
@@ -145,13 +148,13 @@ def add_parser(sub) -> None:
                    help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
     o.add_argument("--contrast-threshold", type=positive_float, default=None,
                    help="contrast threshold c (log units) for every event method")
-    o.add_argument("--thresholds", choices=["params", "input", "selfcal"], default=None,
-                   help="contrast thresholds: 'selfcal' = the event/frame self-calibration of the over-exposed "
-                        "input without the scored frame (as reconstruct --self-calibrate); 'params' = the "
-                        "method's own; 'input' = pooled ON/OFF thresholds estimated in the method's log model on "
-                        "the over-exposed input without the scored frame (default: the CLI defaults, i.e. params "
-                        "when --params or --contrast-threshold is given or the recording declares thresholds, "
-                        "else selfcal)")
+    o.add_argument("--thresholds", choices=["auto", "input", "params", "selfcal"], default=None,
+                   help="contrast thresholds, as reconstruct's --thresholds words: selfcal = the event/frame "
+                        "self-calibration of the over-exposed input without the scored frame; auto = pooled ON/OFF "
+                        "thresholds estimated in the method's log model on that input; input = what the recording "
+                        "declares (else the method's own); params = the method's own [default: " + DEFAULT_THRESHOLDS +
+                        " for a recording that declares no thresholds, else input; params when --params or "
+                        "--contrast-threshold is given]")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     o.add_argument("--format", default=None, help="input format (default: detected)")
@@ -379,7 +382,8 @@ def run_bench_cmd(args) -> int:
     hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
     if hv:
         bench = dataclasses.replace(bench, hdrvdp_dir=str(hv))
-    rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress)
+    rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress,
+                     out_dir=args.out, resume=args.resume)
     w = write_results(rows, args.out, bench)
     print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())
     print(f"\nwrote {w['csv']}, {w['report_md']}, {w['report_html']}"
@@ -454,13 +458,16 @@ def run_holdout_cmd(args) -> int:
     held = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     thresholds = args.thresholds
+    given = args.params is not None or args.contrast_threshold is not None
     if thresholds is None:
         from .realdata import default_threshold_source
-        thresholds = ("params" if (args.params is not None or args.contrast_threshold is not None)
-                      else default_threshold_source(rec))
+        thresholds = "params" if given else default_threshold_source(rec)  # DEFAULT_THRESHOLDS, as reconstruct's
+    elif given and thresholds in ("auto", "input", "selfcal"):
+        raise ValueError(f"--thresholds {thresholds} and --params/--contrast-threshold both give the thresholds; "
+                         f"use one (or --thresholds params)")
     res = evaluate_holdout(rec, specs, tasks=tasks, held=held, profile=args.profile, well_exposed=well,
                            log=lambda msg: print(msg, file=sys.stderr), thresholds=thresholds)
-    res["thresholds"] = thresholds
+    res["thresholds"] = str(thresholds)
     res["recording"] = str(args.recording)
     if args.json:
         print(json.dumps(res, default=lambda o: o.item() if hasattr(o, "item") else str(o)))

@@ -43,7 +43,7 @@ fraction of non-positive or non-finite reconstructed pixels (before any floor). 
 causal). Memory: one method's reconstructions at the scored frames at a time.
 
 **Parameters**: each method's own (``thresholds="params"``, the CLI defaults) or, with
-``thresholds="input"``, pooled ON/OFF thresholds estimated in the method's log model on the
+``thresholds="auto"``, pooled ON/OFF thresholds estimated in the method's log model on the
 over-exposed input **without frame k** (:func:`hybridhdr.evaluate.realdata.input_thresholds`).
 ``calibrate`` (a callable) is the hook for a self-calibration: called once per scored frame
 with the over-exposed input without frame k, it returns overrides (:func:`apply_calibration`)
@@ -335,7 +335,7 @@ def _without(rec_in, k):
 
 def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec."""
-    loo = thresholds in ("input", "selfcal") or calibrate is not None
+    loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
@@ -351,7 +351,7 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
             cal_cache[k] = {"rec": _without(rec_in, k), "thr": {}}
         sub = cal_cache[k]
         dt = 0
-        if thresholds == "input":
+        if thresholds == "auto":
             params, u = RD.input_thresholds(sub["rec"], spec.method, params, profile, cache=sub["thr"])
             used["thresholds"] = u
         elif thresholds == "selfcal" and spec.method not in ("frames_zoh", "frames_linear"):
@@ -428,7 +428,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     frames : indices into the kept frames (τ_k up to the last event) to score, each ≥ 1; default
         :func:`default_scored_frames`
     profile : the frames' camera profile (default: the recording's, else built-in)
-    thresholds : ``"params"`` (each method's own), ``"input"`` (estimated without frame k) or
+    thresholds : ``"params"`` (each method's own; ``"input"`` is the same here: with no parameters
+        given, the method takes what the recording declares), ``"auto"`` (estimated without frame k) or
         ``"selfcal"`` (the event/frame self-calibration of the input without frame k,
         :func:`hybridhdr.evaluate.realdata.selfcal_params`: frame k is reconstructed at the time it
         stands for, τ_k + the calibrated offset)
@@ -446,7 +447,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     ``gains`` and ``by_gain``: per :func:`gain_key` ``{"counts": {class: n}, "counts_per_frame",
     "clipped_fraction", "methods": {label: {"method", "mode", "role", "status", "log_rmse",
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
-    "wall_s", "per_frame", "used" (with thresholds="input" or calibrate)}}}``.
+    "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
     if thresholds not in RD.THRESHOLD_SOURCES:
         raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES}, got {thresholds!r}")

@@ -24,7 +24,9 @@ and **linear interpolation** (``frames_linear`` between k−1 and k+1, in intens
 next-frame task hold-previous is the causal baseline; linear interpolation needs frame k+1, so
 it is shown as a non-causal reference (the same number as in the leave-one-out task).
 
-Contrast thresholds (``thresholds="input"``): a real recording rarely states its sensor's
+Contrast thresholds (``thresholds="auto"``; the command line's ``--thresholds`` words, one
+vocabulary with ``reconstruct``: ``auto`` estimated, ``input`` what the recording declares,
+``params`` the method's own, or a per-pixel map): a real recording rarely states its sensor's
 thresholds, and a method's threshold only means something in its own log model (the AKF's
 ``log(I + 1e-3)``, CF's ``log(I + 1)``). Each event method's pooled ON and OFF thresholds are then
 estimated **without frame k** (on the leave-one-out input, the recording with frame k withheld:
@@ -45,6 +47,7 @@ event; frames after the last event are dropped from the input (no events around 
 from __future__ import annotations
 
 import dataclasses
+import os
 import time
 
 import numpy as np
@@ -131,22 +134,27 @@ def _luminance(frame):
     return x
 
 
-#: Methods whose events are scaled by contrast thresholds (``thresholds="input"`` calibrates them).
+#: Methods whose events are scaled by contrast thresholds (``thresholds="auto"`` calibrates them).
 THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
 
-#: Values of ``thresholds``: the methods' own (``"params"``), estimated on each input (``"input"``),
-#: or the event/frame self-calibration of each input (``"selfcal"``: frame time offset, thresholds
-#: and the AKF's log offset, :mod:`hybridhdr.calibrate.selfcal`).
-THRESHOLD_SOURCES = ("params", "input", "selfcal")
+#: Values of ``thresholds`` besides a per-pixel map (a ThresholdMap or a path to one): the methods'
+#: own (``"params"``), estimated on each input (``"auto"``), what the recording declares
+#: (``"input"``: its stored map or its event camera's nominal ON/OFF, else the method's own), or the
+#: event/frame self-calibration of each input (``"selfcal"``: frame time offset, thresholds and the
+#: AKF's log offset, :mod:`hybridhdr.calibrate.selfcal`).
+THRESHOLD_SOURCES = ("params", "auto", "input", "selfcal")
+
+#: Parameter names that state contrast thresholds.
+_THRESHOLD_KEYS = ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off")
 
 
 def default_threshold_source(rec) -> str:
-    """What the command line's defaults use on ``rec``: ``"selfcal"`` for a recording that declares
-    no contrast thresholds and stores no map (as ``reconstruct --self-calibrate auto``), else
-    ``"params"`` (the methods then take the declared thresholds)."""
+    """What the command line's default (``--thresholds``' :data:`DEFAULT_THRESHOLDS`, "selfcal")
+    means on ``rec``: ``"selfcal"`` for a recording that declares no contrast thresholds and stores
+    no map, else ``"input"`` (the declared ones)."""
     from ..reconstruct.api import _declared_thresholds
     declared = _declared_thresholds(rec) is not None or getattr(rec, "thresholds", None) is not None
-    return "params" if declared else "selfcal"
+    return "input" if declared else "selfcal"
 
 
 def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
@@ -204,21 +212,28 @@ def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dic
         return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": est}
     c_on, c_off, intervals = est
     return (p.replace(contrast_threshold_on=c_on, contrast_threshold_off=c_off),
-            {"source": "input", "c_on": c_on, "c_off": c_off, "intensity_offset": i0, "intervals": intervals})
+            {"source": "auto", "c_on": c_on, "c_off": c_off, "intensity_offset": i0, "intervals": intervals})
 
 
 def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params") -> dict:
     """Reconstruct every spec at every held-out frame.
 
-    ``thresholds``: ``"params"`` (each spec's own) or ``"input"`` (estimated on each input in the
-    method's log model, :func:`input_thresholds`).
+    ``thresholds``: ``"params"`` (each spec's own), ``"auto"`` (estimated on each input in the
+    method's log model, :func:`input_thresholds`), ``"input"`` (what the recording declares, else
+    the spec's own) or a per-pixel threshold map (a ThresholdMap or a path to a ``.npz``).
 
     Returns ``{label: {"frames": [(H, W) float64 or None per held-out frame], "wall_s": float,
     "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
     of a spec stops that spec (reported, not hidden).
     """
-    if thresholds not in THRESHOLD_SOURCES:
-        raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES}, got {thresholds!r}")
+    tmap = None
+    if not isinstance(thresholds, str):
+        tmap = thresholds
+        if isinstance(thresholds, os.PathLike):
+            from ..formats.thresholds import load_thresholds
+            tmap = load_thresholds(thresholds)
+    elif thresholds not in THRESHOLD_SOURCES:
+        raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES} or a threshold map, got {thresholds!r}")
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
     for k in held:
         loo_k, calib_k = None, {}  # the recording without frame k, and its threshold estimates, once per k
@@ -230,6 +245,17 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
             try:
                 r_k, t = holdout_input(rec, k, tk)
                 params = s.params
+                kw = {}
+                if tmap is not None and resolve_method(s.method) in THRESHOLD_METHODS:
+                    kw["thresholds"] = tmap
+                    st["thresholds"].append({"source": "map", "file": str(thresholds) if isinstance(
+                        thresholds, os.PathLike) else "given"})
+                elif thresholds == "input" and resolve_method(s.method) in THRESHOLD_METHODS:
+                    # the recording's declared thresholds: the API applies them when the params state none
+                    if params is not None:
+                        params = {k: v for k, v in make_params(resolve_method(s.method), params).to_dict().items()
+                                  if k not in _THRESHOLD_KEYS}
+                    kw["_record_input"] = True
                 dt = 0
                 if thresholds == "selfcal" and s.method not in ("frames_zoh", "frames_linear"):
                     # the calibration of the recording without frame k (never the scored frame);
@@ -241,7 +267,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     st["thresholds"].append(used)
                     if dt:
                         r_k, t = holdout_input(rec, k, tk, time_offset_us=dt)
-                if thresholds == "input":
+                if thresholds == "auto":
                     # next-frame: the filter sees only the data before tau_k; its two threshold
                     # numbers, a camera constant, come from the recording without frame k
                     if loo_k is None:
@@ -249,8 +275,12 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     params, used = input_thresholds(loo_k, s.method, params, profile, cache=calib_k)
                     st["thresholds"].append(used)
                 t0 = time.perf_counter()
+                record_input = kw.pop("_record_input", False)
                 v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
-                                profile=profile, augment=s.augment, frame_time_offset_us=dt)
+                                profile=profile, augment=s.augment, frame_time_offset_us=dt, **kw)
+                if record_input:
+                    st["thresholds"].append({"source": "input", "used": v.info.get(
+                        "thresholds", "the method's own (the recording declares none)")})
                 st["wall_s"] += time.perf_counter() - t0
                 st["frames"].append(_luminance(v.frames[0]))
             except Exception as e:  # reported per spec
@@ -313,8 +343,9 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
     tasks : subset of :data:`TASKS`; ``next_frame`` runs the causal specs only (others are listed
         as skipped) and the baselines.
     held : frame indices (into the frames up to the last event), default :func:`default_held_frames`
-    thresholds : ``"params"`` (each method's own) or ``"input"`` (estimated on each input in the
-        method's own log model; module docstring)
+    thresholds : ``"params"`` (each method's own), ``"auto"`` (estimated on each input in the
+        method's own log model; module docstring), ``"input"`` (what the recording declares) or a
+        per-pixel threshold map (:func:`holdout_reconstructions`)
 
     Returns
     -------

@@ -73,10 +73,10 @@ SIMULATOR_KEYS = {
 DEFAULT_METHODS = (
     {"name": "akf", "method": "akf"},
     {"name": "cf", "method": "cf"},
-    {"name": "hpf", "method": "highpass"},
+    {"name": "highpass", "method": "highpass"},
     {"name": "direct", "method": "direct"},
     {"name": "edi", "method": "edi"},
-    {"name": "frames", "method": "frames"},
+    {"name": "frames_zoh", "method": "frames_zoh"},
 )
 
 

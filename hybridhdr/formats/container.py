@@ -38,9 +38,9 @@ import numpy as np
 from .._util.checks import check_shape
 from .._util.limits import check_finite, check_frame_bytes, check_frame_shape, check_h5_stored, check_sensor_size
 from .._version import __version__
-from ..errors import FormatError
-from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers, slice_time,
-                      validate_events, validate_triggers)
+from ..errors import FormatError, WindowOutsideDataError
+from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, api_window, empty_events, empty_triggers,
+                      slice_time, validate_events, validate_triggers)
 from ..model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
 from ._safe_h5 import close_and_remove, open_h5_for_writing
 from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
@@ -420,7 +420,7 @@ def _guarded(method):
         def gen(self, *a, **k):
             try:
                 yield from method(self, *a, **k)
-            except FormatError:
+            except (FormatError, WindowOutsideDataError):  # the API's own errors pass
                 raise
             except Exception as e:
                 raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
@@ -430,7 +430,7 @@ def _guarded(method):
     def wrapper(self, *a, **k):
         try:
             return method(self, *a, **k)
-        except FormatError:
+        except (FormatError, WindowOutsideDataError):  # the API's own errors pass
             raise
         except Exception as e:
             raise FormatError(self.path, f"corrupt hybridhdr container ({type(e).__name__}: {e})") from None
@@ -663,20 +663,50 @@ class RecordingFile(EventFileReader):
                               record=i0 + i)
         return cols
 
+    def data_span_us(self) -> tuple[int, int] | None:
+        """``(start, last)`` µs sensor time: the first event or frame exposure start (the command
+        line's origin) and the last event or frame exposure end (triggers when nothing else);
+        reads only the ends of the time columns."""
+        firsts, lasts = [], []
+        tr = self.time_range_us
+        if tr is not None:
+            firsts.append(tr[0]); lasts.append(tr[1])
+        for group, a, b in (("frames", "t_start_us", "t_end_us"), ("triggers", "t", "t")):
+            if group == "triggers" and firsts:
+                break
+            g = self._f.get(group)
+            try:
+                if g is not None and a in g and b in g and g[a].shape[0] and g[b].shape[0]:
+                    firsts.append(int(g[a][0])); lasts.append(int(g[b][g[b].shape[0] - 1]))
+            except Exception:  # noqa: BLE001 - a corrupt group is reported by its own reader
+                pass
+        return (min(firsts), max(lasts)) if firsts else None
+
+    def _window(self, t_start_us, t_end_us, absolute, what):
+        if absolute is True and t_start_us is None and t_end_us is None:
+            return None, None
+        return api_window(t_start_us, t_end_us, absolute=absolute, span=self.data_span_us(),
+                          what=f"{self.path}: RecordingFile.{what}")
+
     @_guarded
-    def event_columns(self, t_start_us=None, t_end_us=None) -> dict[str, np.ndarray]:
-        """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy)."""
+    def event_columns(self, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> dict[str, np.ndarray]:
+        """Contiguous columns ``{"t", "x", "y", "p"}`` of the window, for kernels (no record copy);
+        the window as in :meth:`events`."""
+        t_start_us, t_end_us = self._window(t_start_us, t_end_us, absolute, "event_columns")
         return self._columns(*self.index_range(t_start_us, t_end_us))
 
-    def iter_event_columns(self, chunk_events: int = 1 << 20, t_start_us=None, t_end_us=None):
+    def iter_event_columns(self, chunk_events: int = 1 << 20, t_start_us=None, t_end_us=None, *,
+                           absolute: bool = True):
         """Yield validated ``(t, x, y, p)`` column tuples of about ``chunk_events`` events each.
 
         Reads the columns straight into contiguous arrays (no structured-record copy), which is
-        what the reconstruction kernels take; time order is checked across chunk boundaries.
+        what the reconstruction kernels take; time order is checked across chunk boundaries. The
+        window as in :meth:`events`.
         """
         chunk_events = int(chunk_events)
         if chunk_events < 1:
             raise ValueError(f"chunk_events must be >= 1, got {chunk_events}")
+        t_start_us, t_end_us = self._window(t_start_us, t_end_us, absolute, "iter_event_columns")
         i0, i1 = self.index_range(t_start_us, t_end_us)
         t_prev = None
         for a in range(i0, i1, chunk_events):
@@ -691,8 +721,14 @@ class RecordingFile(EventFileReader):
             yield c["t"], c["x"], c["y"], c["p"]
 
     @_guarded
-    def events(self, t_start_us=None, t_end_us=None) -> np.ndarray:
-        """Events in ``[t_start_us, t_end_us)`` (loads only that window)."""
+    def events(self, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> np.ndarray:
+        """Events in ``[t_start_us, t_end_us)`` (loads only that window).
+
+        ``absolute=True`` (default): µs sensor time, as stored; ``absolute=False``: µs from the
+        recording's start (:meth:`data_span_us`), as the command line's ``--start``/``--end``. A
+        window wholly outside the data raises :class:`~hybridhdr.errors.WindowOutsideDataError`
+        naming the span."""
+        t_start_us, t_end_us = self._window(t_start_us, t_end_us, absolute, "events")
         return self._load(*self.index_range(t_start_us, t_end_us))
 
     @_guarded
@@ -809,7 +845,9 @@ class RecordingFile(EventFileReader):
             raise FormatError(self.path, f"corrupt /thresholds group: {e}") from None
 
     @_guarded
-    def read(self, t_start_us=None, t_end_us=None) -> Recording:
+    def read(self, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> Recording:
+        """The recording, or its window (as in :meth:`events`)."""
+        t_start_us, t_end_us = self._window(t_start_us, t_end_us, absolute, "read")
         ev = self.events(t_start_us, t_end_us)
         trig = self.read_triggers()
         trig = slice_time(trig, t_start_us, t_end_us)
@@ -884,9 +922,10 @@ def write_recording(recording: Recording, path, **options) -> Path:
     return Path(path)
 
 
-def read_recording(path, t_start_us=None, t_end_us=None) -> Recording:
+def read_recording(path, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> Recording:
+    """The recording in a container file, or its window (:meth:`RecordingFile.events`'s time base)."""
     with RecordingFile(path) as r:
-        return r.read(t_start_us, t_end_us)
+        return r.read(t_start_us, t_end_us, absolute=absolute)
 
 
 def sniff(path: Path, head: bytes) -> str | None:

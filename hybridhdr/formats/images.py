@@ -36,7 +36,7 @@ import numpy as np
 from .._util.atomic import atomic_path
 from .._util.checks import check_shape
 
-__all__ = ["tone_map", "display_map", "display_map_from", "apply_display_map", "LOG_MAP_RATIO", "LogPercentiles",
+__all__ = ["tone_map", "display_map", "display_map_from", "display_map_centred", "display_gamma", "apply_display_map", "LOG_MAP_RATIO", "LogPercentiles",
            "write_exr", "read_exr", "write_exr_sequence", "write_timestamps",
            "write_png_previews", "write_mp4", "exr_compressions", "DEFAULT_EXR_COMPRESSION",
            "LOSSY_EXR_COMPRESSIONS"]
@@ -163,14 +163,36 @@ def display_map_from(p5: float, p995: float, log_limits: tuple[float, float], *,
     return {"mode": "linear", "hi": max(1.0, float(p995)), "gamma": float(gamma)}
 
 
-def display_map(sample, *, gamma: float = 1.0, low_percentile: float = 1.0, high_percentile: float = 99.0) -> dict:
-    """:func:`display_map_from` of a sample of linear frames (any shape); no valid pixel: linear."""
+def display_gamma(encoding) -> float:
+    """The display gamma of the linear map that shows a reconstruction as its frames look:
+    2.2 for frames stored as display codes (``Frames.encoding`` "gamma" or "srgb"), else 1.0
+    (linear, raw or unknown codes: the frame-anchored outputs are in the frames' own linear
+    units, so ``I / hi`` is already the frame's code). Shared by the previews and ``view``."""
+    return 2.2 if str(encoding) in ("gamma", "srgb") else 1.0
+
+
+def display_map_centred(log_lo: float, log_mid: float, log_hi: float) -> dict:
+    """The display map of an events-only reconstruction (high-pass, E2VID, FireNet): its
+    intensity has no absolute scale (it starts from a constant), only changes of log intensity
+    mean something, so the log map is centred on the median ``log_mid`` (mid grey, code 128)
+    and spans the larger of its distances to ``log_lo`` / ``log_hi`` (1st / 99th percentiles)
+    on both sides: the unchanged background is grey, brighter spots lighter, darker ones darker."""
+    r = max(float(log_mid) - float(log_lo), float(log_hi) - float(log_mid), 1e-6)
+    return {"mode": "log", "limits": (float(log_mid) - r, float(log_mid) + r), "gamma": 1.0, "centre": "median"}
+
+
+def display_map(sample, *, gamma: float = 1.0, low_percentile: float = 1.0, high_percentile: float = 99.0,
+                events_only: bool = False) -> dict:
+    """:func:`display_map_from` of a sample of linear frames (any shape), or with ``events_only``
+    :func:`display_map_centred`; no valid pixel: linear."""
     a = np.asarray(sample, dtype=np.float64)
     v = a[np.isfinite(a) & (a > _FLOOR)]
     if v.size == 0:
         return {"mode": "linear", "hi": 1.0, "gamma": float(gamma)}
+    lo, mid, hi = (float(x) for x in np.percentile(np.log(v), [low_percentile, 50.0, high_percentile]))
+    if events_only:
+        return display_map_centred(lo, mid, hi)
     p5, p995 = (float(x) for x in np.percentile(v, [5.0, 99.5]))
-    lo, hi = (float(x) for x in np.percentile(np.log(v), [low_percentile, high_percentile]))
     return display_map_from(p5, p995, (lo, hi), gamma=gamma)
 
 

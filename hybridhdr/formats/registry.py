@@ -70,7 +70,8 @@ def detect_format(path) -> str:
             return name
     what = "directory" if path.is_dir() else f"{path.stat().st_size}-byte file starting with {head[:16]!r}"
     raise UnknownFormatError(path, f"could not detect the event format of this {what}; expected one of "
-                                   f"{sorted(formats())} (give the format explicitly to override)")
+                                   f"{sorted(formats())} (give the format explicitly to override: --format NAME "
+                                   f"on the command line, format=NAME in Python)")
 
 
 def open_reader(path, format: str | None = None, **options) -> EventFileReader:
@@ -113,10 +114,51 @@ def open_writer(path, format: str | None = None, *, sensor_size=None, metadata: 
     return cls(path, sensor_size=sensor_size, metadata=metadata, **options)
 
 
-def read(path, format: str | None = None, *, t_start_us=None, t_end_us=None, **options) -> Recording:
-    """Read a file of any supported format into a :class:`~hybridhdr.Recording`."""
+def read(path, format: str | None = None, *, t_start_us=None, t_end_us=None, absolute: bool = True,
+         **options) -> Recording:
+    """Read a file of any supported format into a :class:`~hybridhdr.Recording`.
+
+    ``t_start_us``/``t_end_us``: the half-open window to read, µs sensor time (``absolute=True``,
+    the default, as timestamps are stored) or µs from the recording's start (``absolute=False``:
+    its first event or frame exposure start, as the command line's ``--start``/``--end``). A
+    window wholly outside the data raises :class:`~hybridhdr.errors.WindowOutsideDataError`
+    naming the recording's span."""
+    from ..events import api_window
+    if t_start_us is None and t_end_us is None:
+        with open_reader(path, format, **options) as r:
+            return r.read()
+    api_window(t_start_us, t_end_us, absolute=True, span=None, what=str(path))  # types
+    if not absolute:  # the origin: the first chunk and the frames suffice
+        span = _data_span(path, format, options, full=False)
+        api_window(t_start_us, t_end_us, absolute=span is not None, span=None, what=str(path))  # no data: error
+        t_start_us = None if t_start_us is None else int(t_start_us) + span[0]
+        t_end_us = None if t_end_us is None else int(t_end_us) + span[0]
     with open_reader(path, format, **options) as r:
-        return r.read(t_start_us, t_end_us)
+        rec = r.read(t_start_us, t_end_us)
+    if not (rec.events.size or (rec.frames is not None and len(rec.frames)) or rec.triggers.size):
+        # nothing in the window: is it outside the data?
+        api_window(t_start_us, t_end_us, absolute=True, span=_data_span(path, format, options), what=str(path))
+    return rec
+
+
+def _data_span(path, format, options, *, full: bool = True):
+    """``(start, last)`` µs of a file's data (first event or frame exposure start; last event or
+    frame exposure end), as the command line's origin; ``full=False``
+    reads one chunk of events (``last`` is then only a lower bound). None without data."""
+    firsts, lasts = [], []
+    with open_reader(path, format, **options) as r:
+        for c in r.iter_chunks(1 << 20):
+            if len(c.events):
+                if not firsts:
+                    firsts.append(int(c.events["t"][0]))
+                lasts = [int(c.events["t"][-1])]
+                if not full:
+                    break
+        fr = r.read_frames()
+        if fr is not None and len(fr):
+            firsts.append(int(fr.t_start_us.min()))
+            lasts.append(int(fr.t_end_us.max()))
+    return (min(firsts), max(lasts)) if firsts else None
 
 
 def write(recording: Recording, path, format: str | None = None, *, on_unsupported: str = "warn",

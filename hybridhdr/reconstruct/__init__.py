@@ -7,9 +7,39 @@
 See ``docs/reconstruct.md``.
 """
 
-from .api import METHOD_ALIASES, METHODS, Video, make_params, reconstruct, reconstruct_iter, resolve_method
-from .measurement import FrameMeasurements, Segment
-from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
+# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+_LAZY = {
+    'METHOD_ALIASES': '.api',
+    'METHODS': '.api',
+    'Video': '.api',
+    'make_params': '.api',
+    'reconstruct': '.api',
+    'reconstruct_iter': '.api',
+    'resolve_method': '.api',
+    'FrameMeasurements': '.measurement',
+    'Segment': '.measurement',
+    'AKFParams': '.params',
+    'CFParams': '.params',
+    'DirectParams': '.params',
+    'FramesParams': '.params',
+    'HighPassParams': '.params',
+}
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__ = [
     "reconstruct", "reconstruct_iter", "Video", "METHODS", "METHOD_ALIASES", "resolve_method", "make_params",

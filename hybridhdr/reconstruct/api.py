@@ -477,6 +477,8 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                                           f"(log units)")
         shape = _sensor_shape(ss, frames)
         check_sensor_size(*shape, what="sensor (per-pixel filter state)")
+        if info is not None and frames is not None:
+            info["frame_encoding"] = str(frames.encoding)  # the previews' display map (display_gamma)
         if fps is not None and times_us is None:
             span = _time_span_us(opened, frames)
             if span is not None:

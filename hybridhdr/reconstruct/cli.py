@@ -8,8 +8,9 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, UsageError, cli_wording, json_output, positive_float
-from .._util.cliargs import chunk_events_count, positive_worker_count, worker_count
+from .._util.cliargs import (COMMON, DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, UsageError, add_format_arg,
+                             chunk_events_count, cli_wording, json_output, nonneg_int, positive_float, positive_int,
+                             positive_worker_count, thresholds_arg, worker_count)
 from .._util.timearg import add_time_window
 
 _FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
@@ -49,11 +50,6 @@ def add_parser(subparsers) -> None:
                    help="contrast threshold c (log units), or 'auto': one ON and one OFF threshold estimated from "
                         "the recording's frames and events (reads it into memory once; 'hybridhdr calibrate "
                         "thresholds' gives a per-pixel map) [default: as the recording declares, else 0.1]")
-    p.add_argument("--self-calibrate", choices=("auto", "on", "off"), default="auto",
-                   help="estimate from the recording's own frames and events the time each frame stands for, the "
-                        "contrast thresholds and (AKF) the log model's offset I0 (hybridhdr.calibrate.selfcal; "
-                        "docs/calibrate.md). auto: for a recording that declares no thresholds when none are given "
-                        "(AKF, CF, direct); recorded in run.json")
     p.add_argument("--cutoff-hz", type=positive_float, default=None, help="CF / high-pass cutoff frequency (Hz)")
     a = p.add_argument_group("frame augmentation (AKF, offline mode; paper §4.1, eqs. 10-13)")
     a.add_argument("--augmentation", action="store_true",
@@ -70,9 +66,9 @@ def add_parser(subparsers) -> None:
                    help="interpolate with the nominal threshold (no per-pixel eq. 12; the default)")
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
-    p.add_argument("--thresholds", type=Path, default=None,
-                   help="per-pixel ON/OFF contrast thresholds (thresholds.npz from 'hybridhdr calibrate thresholds'); "
-                        "default: the map stored in the recording, if any")
+    p.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
+                   help=THRESHOLDS_HELP + "; --contrast-threshold auto is --thresholds auto")
+    add_format_arg(p)
     p.add_argument("--cfa", choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"), default=None,
                    help="colour filter array of the event and frame sensors (default: as the recording declares; "
                         "'none' forces monochrome); colour output is linear RGB")
@@ -132,34 +128,33 @@ def set_threshold_estimator(fn) -> None:
     _THRESHOLD_ESTIMATOR = fn
 
 
-#: ``fn(recording, *, profile, intensity_offset) -> dict`` behind ``--self-calibrate``
+#: ``fn(recording, *, profile, intensity_offset) -> dict`` behind ``--thresholds selfcal``
 #: (:func:`hybridhdr.calibrate.selfcal.self_calibration`), installed by the ``hybridhdr`` command.
 _SELF_CALIBRATOR = None
 
-#: Methods ``--self-calibrate`` applies to (a frame model and contrast thresholds).
+#: Methods ``--thresholds selfcal`` applies to (a frame model and contrast thresholds).
 SELF_CALIBRATED_METHODS = ("akf", "cf", "direct")
 
 
 def set_self_calibrator(fn) -> None:
-    """Install the estimator behind ``--self-calibrate`` (the app layer does)."""
+    """Install the estimator behind ``--thresholds selfcal`` (the app layer does)."""
     global _SELF_CALIBRATOR
     _SELF_CALIBRATOR = fn
 
 
-def self_calibrate_run(args, params, method: str, given: bool):
-    """``(params, frame_time_offset_us, record or None, note or None)`` for ``--self-calibrate``.
+def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"):
+    """``(params, frame_time_offset_us, record or None, note or None)`` for ``--thresholds selfcal``.
 
-    ``auto`` calibrates only a recording that declares no thresholds (nor stores a map) when the
-    command line gives none; ``on`` always (an error when the recording cannot tell); ``off``
-    never. The AKF takes the calibrated log offset and thresholds, CF and direct integration
+    ``mode``: ``"auto"`` (the default ``--thresholds``) calibrates only a recording that declares no
+    thresholds (nor stores a map) when the command line gives none; ``"on"`` (``--thresholds
+    selfcal``) always (an error when the recording cannot tell); ``"off"`` never. The AKF takes the calibrated log offset and thresholds, CF and direct integration
     thresholds in their own log model; all take the frame time offset."""
-    mode = getattr(args, "self_calibrate", "off")
     if mode == "off" or method not in SELF_CALIBRATED_METHODS:
         if mode == "on" and method not in SELF_CALIBRATED_METHODS:
-            raise ValueError(f"--self-calibrate on applies to --method {'/'.join(SELF_CALIBRATED_METHODS)}, "
+            raise ValueError(f"--thresholds selfcal applies to --method {'/'.join(SELF_CALIBRATED_METHODS)}, "
                              f"not {method}")
         return params, 0, None, None
-    if mode == "auto" and (given or args.thresholds is not None or args.contrast_threshold is not None):
+    if mode == "auto" and (given or args.contrast_threshold is not None):
         return params, 0, None, None
     from ..formats import read
     from .api import _declared_thresholds, _open_source, _stored_thresholds
@@ -172,7 +167,7 @@ def self_calibrate_run(args, params, method: str, given: bool):
         if declared or frames is None or len(frames) < 3:
             return params, 0, None, None
     if _SELF_CALIBRATOR is None:
-        msg = "--self-calibrate needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command"
+        msg = "--thresholds selfcal needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command"
         if mode == "on":
             raise ValueError(msg)
         return params, 0, None, f"self-calibration skipped: {msg}"
@@ -183,7 +178,7 @@ def self_calibrate_run(args, params, method: str, given: bool):
         cal = _SELF_CALIBRATOR(rec, profile=args.profile, intensity_offset=own_i0)
     except ValueError as e:
         if mode == "on":
-            raise ValueError(f"--self-calibrate on: the recording cannot tell ({e})") from None
+            raise ValueError(f"--thresholds selfcal: the recording cannot tell ({e})") from None
         return params, 0, None, f"self-calibration skipped: {e}"
     over = {"contrast_threshold_on": cal["c_on"], "contrast_threshold_off": cal["c_off"]}
     if method == "akf":
@@ -204,7 +199,7 @@ def estimate_run_thresholds(args, params):
         raise ValueError(f"--contrast-threshold does not apply to --method {args.method}")
     from ..formats import read
     enc = getattr(args, "frame_encoding", None)
-    rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
+    rec = read(args.recording, getattr(args, "format", None), **({} if enc is None else {"frame_encoding": enc}))
     try:
         on, off, record = _THRESHOLD_ESTIMATOR(rec, profile=args.profile, intensity_offset=params.intensity_offset)
     except ValueError as e:
@@ -355,8 +350,8 @@ def output_window(args, method: str):
         raise UsageError("--until applies to --fps outputs")
     if str(args.recording).startswith("builtin:") or not (relative or args.fps is not None or windowed):
         return resolve_window(args, None) + (None,)
-    span = recording_span(args.recording, frame_encoding=args.frame_encoding) if args.frame_encoding else \
-        recording_span(args.recording)
+    opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
+    span = recording_span(args.recording, getattr(args, "format", None), **opts)
     t0, t1 = resolve_window(args, span.origin_us)
     note = None
     if args.fps is not None and t1 is None:
@@ -398,18 +393,33 @@ def run(args) -> int:
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
         auto_note = None
+        thr_source = args.thresholds  # FILE (Path), auto, input, params or None: --help, THRESHOLDS_HELP
         if args.contrast_threshold == "auto":
-            if args.thresholds is not None:
+            if thr_source is not None:
                 raise ValueError("--contrast-threshold auto and --thresholds both give the thresholds; use one")
-            params, auto_note = estimate_run_thresholds(args, params)
+            thr_source = "auto"
         given = thresholds_given(args)  # once: a --config file is read for it
-        params, frame_dt, selfcal_record, selfcal_note = self_calibrate_run(args, params, method, given)
+        if thr_source in ("auto", "input", "selfcal") and given and args.contrast_threshold != "auto":
+            raise ValueError(f"--thresholds {thr_source} and the thresholds given by --contrast-threshold/--set/--config "
+                             f"disagree; use one (or --thresholds params)")
+        if thr_source == "auto":
+            params, auto_note = estimate_run_thresholds(args, params)
+        by_default = thr_source is None
+        if by_default:
+            thr_source = "params" if given else DEFAULT_THRESHOLDS  # the one default, as evaluate holdout's
+        # selfcal: always with --thresholds selfcal; by default only for a recording that declares
+        # no thresholds (one that does keeps them: input)
+        sc_mode = "off" if thr_source != "selfcal" else ("auto" if by_default else "on")
+        params, frame_dt, selfcal_record, selfcal_note = self_calibrate_run(args, params, method, given, sc_mode)
         if selfcal_record is not None:
             auto_note, given = selfcal_note, True
             print(selfcal_note, file=sys.stderr)
         elif selfcal_note:
             print(f"note: {selfcal_note}", file=sys.stderr)
-        run_params = api_params(params, given)
+        if thr_source == "selfcal" and selfcal_record is None:
+            thr_source = "input"  # declared (or the method's own, said in the output)
+        run_params = api_params(params, given or thr_source in ("auto", "params"))
+        map_path = thr_source if isinstance(thr_source, Path) else None
         augment = build_augment(args)
         times = None
         if args.times_us is not None:
@@ -448,20 +458,23 @@ def run(args) -> int:
             _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
             print(device_line, file=sys.stderr)
             source = str(args.recording)
-            if getattr(args, "frame_encoding", None) is not None:
+            if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
                 from ..formats import open_reader
-                source = open_reader(args.recording, frame_encoding=args.frame_encoding)
+                opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
+                source = open_reader(args.recording, args.format, **opts)
             try:
                 for t, img in reconstruct_iter(source, method, run_params, times_us=times, fps=args.fps,
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
-                                               augment=augment, thresholds=args.thresholds, cfa=args.cfa,
+                                               augment=augment, thresholds=map_path, cfa=args.cfa,
                                                demosaic=args.demosaic, frame_time_offset_us=frame_dt,
                                                device=getattr(args, "device", "cpu")):
                     writer.write(t, img)
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
+                # the previews' display map as 'view' makes it (frames' encoding; events-only: centred)
+                writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=not METHODS[method][1])
                 written = writer.close()
             finally:
                 for b in bars:
@@ -479,12 +492,15 @@ def run(args) -> int:
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
             if hasattr(params, "contrast_threshold_on"):
                 used = info.get("thresholds")
-                if args.thresholds is not None:
-                    used = f"per-pixel map {args.thresholds} (--thresholds)"
+                if map_path is not None:
+                    used = f"per-pixel map {map_path} (--thresholds)"
                 elif not (used or "").startswith("per-pixel map"):
                     used = auto_note or used or ("given on the command line" if given else
+                                                 "the method's own parameters (--thresholds params)"
+                                                 if thr_source == "params" else
                                                  "the method's default (none given, none declared by the recording)")
                 run_info["thresholds"] = used
+                run_info["thresholds_source"] = str(thr_source)
             if selfcal_record is not None:
                 run_info["self_calibration"] = selfcal_record
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
@@ -519,7 +535,8 @@ def run(args) -> int:
         print(f"hybridhdr reconstruct: error: {cli_wording(str(e))}", file=sys.stderr)
         from .._util.timearg import EmptyWindowError
         from ..errors import FormatError
-        # a bad or oversized input file (FormatError, LimitExceeded, a FIFO) is not a usage error: 1
+        # a bad or oversized input file (FormatError, LimitExceeded, a FIFO), or one that cannot be
+        # read as the format detected or given, is not a usage error: 1, as in every other verb
         usage = ((stage == "arguments" or isinstance(e, (ValueError, TypeError, FileNotFoundError)))
                  and not isinstance(e, (EmptyWindowError, FormatError)))
         return 2 if usage else 1

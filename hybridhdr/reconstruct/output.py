@@ -27,7 +27,7 @@ import numpy as np
 
 from .._util.atomic import current_umask
 from ..formats.images import (DEFAULT_EXR_COMPRESSION, _TIMESTAMPS_HEADER, LogPercentiles, _check_frame, _check_tone,
-                              _exr_compression, _MP4Stream, _write_png, apply_display_map, display_map_from,
+                              _exr_compression, _MP4Stream, _write_png, apply_display_map, display_map_centred, display_map_from,
                               write_exr)
 
 __all__ = ["VideoWriter", "write_video", "OUTPUTS"]
@@ -155,6 +155,7 @@ class VideoWriter:
             raise ValueError(f"display_gamma must be > 0, got {display_gamma}")
         self.tone = dict(low_percentile=low_percentile, high_percentile=high_percentile, gamma=gamma,
                          display_gamma=display_gamma)
+        self.events_only = False  # set_display
         self.n_writers = int(writers)
         self.queue_frames = int(queue_frames) if queue_frames else 2 * self.n_writers + 2
         self.on_written = on_written
@@ -305,6 +306,16 @@ class VideoWriter:
                     pass
         self._raise_pending_error()
 
+    def set_display(self, *, frame_encoding=None, events_only: bool = False) -> None:
+        """Before :meth:`close`: the previews' display map as ``hybridhdr view`` makes it. The linear
+        map's gamma follows the frames' encoding (:func:`~hybridhdr.formats.images.display_gamma`:
+        2.2 for gamma/sRGB codes, else 1.0), so a preview looks like its frame; ``events_only``
+        (a method without frames) gets the log map centred on mid grey
+        (:func:`~hybridhdr.formats.images.display_map_centred`)."""
+        from ..formats.images import display_gamma
+        self.tone["display_gamma"] = display_gamma(frame_encoding)
+        self.events_only = bool(events_only)
+
     def close(self) -> dict:
         """Finish every file; returns ``{"exr": n, "exr_compression", "png": n, "mp4": name, ...}``."""
         if self._closed:
@@ -345,13 +356,16 @@ class VideoWriter:
 
     def _previews(self) -> dict:
         t0 = time.perf_counter()
-        lo, hi, p5, p995 = self._hist.percentiles(self._spill_frames, (self.tone["low_percentile"],
-                                                                      self.tone["high_percentile"], 5.0, 99.5))
+        lo, hi, p5, p995, mid = self._hist.percentiles(self._spill_frames, (self.tone["low_percentile"],
+                                                                           self.tone["high_percentile"], 5.0, 99.5,
+                                                                           50.0))
         if hi <= lo:
             hi = lo + 1e-6
-        # log map for an HDR video, linear (display gamma) otherwise: formats.images.display_map_from
-        disp = display_map_from(math.exp(p5), math.exp(p995), (lo, hi), gamma=self.tone["display_gamma"],
-                                log_gamma=self.tone["gamma"])
+        if self.events_only:  # no absolute scale: log map centred on mid grey
+            disp = display_map_centred(lo, mid, hi)
+        else:  # log map for an HDR video, linear (display gamma) otherwise: formats.images.display_map_from
+            disp = display_map_from(math.exp(p5), math.exp(p995), (lo, hi), gamma=self.tone["display_gamma"],
+                                    log_gamma=self.tone["gamma"])
         out = {"preview_log_limits": [lo, hi], "preview_display": dict(disp)}
         mp4_thread = None
         mp4_err = []

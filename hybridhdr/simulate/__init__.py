@@ -6,17 +6,54 @@ the demo use is :mod:`.procedural`.
 """
 
 # sensor models, time sampling, pipeline and AHDR builder (docs/simulate-sensor.md)
-from .ahdr import ImageMotionSource, ImageSequenceSource, MotionParams, build_ahdr
-from .camera import FrameCamera, FrameCameraParams
-from .pipeline import SimulationResult, simulate, simulate_to_file
-from .sampling import SamplingParams, TimeSampler, event_fidelity
-from .sensor import PRESETS, EventSensor, EventSensorParams, sensor_preset
-from .source import RadianceSource
 
 # scenes, Mitsuba rendering and built-in scenes (docs/simulate.md)
-from .builtin import BUILTIN_SCENES, builtin_scene
-from .render import MitsubaSource, preview_strip, select_variant
-from .scene import Scene, SceneError, load_scene, save_scene
+
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
+# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+_LAZY = {
+    'ImageMotionSource': '.ahdr',
+    'ImageSequenceSource': '.ahdr',
+    'MotionParams': '.ahdr',
+    'build_ahdr': '.ahdr',
+    'FrameCamera': '.camera',
+    'FrameCameraParams': '.camera',
+    'SimulationResult': '.pipeline',
+    'simulate': '.pipeline',
+    'simulate_to_file': '.pipeline',
+    'SamplingParams': '.sampling',
+    'TimeSampler': '.sampling',
+    'event_fidelity': '.sampling',
+    'PRESETS': '.sensor',
+    'EventSensor': '.sensor',
+    'EventSensorParams': '.sensor',
+    'sensor_preset': '.sensor',
+    'RadianceSource': '.source',
+    'BUILTIN_SCENES': '.builtin',
+    'builtin_scene': '.builtin',
+    'MitsubaSource': '.render',
+    'preview_strip': '.render',
+    'select_variant': '.render',
+    'Scene': '.scene',
+    'SceneError': '.scene',
+    'load_scene': '.scene',
+    'save_scene': '.scene',
+}
+
+
+def __getattr__(name):
+    mod = _LAZY.get(name)
+    if mod is None:
+        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
+    import importlib
+    value = getattr(importlib.import_module(mod, __name__), name)
+    globals()[name] = value
+    return value
+
+
+def __dir__():
+    return sorted(set(globals()) | set(_LAZY))
+
 
 __all__: list[str] = [
     "RadianceSource",

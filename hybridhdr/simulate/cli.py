@@ -56,22 +56,30 @@ def add_parser(subparsers) -> None:
     p.add_argument("--gt-fps", "--gt-rate-hz", dest="gt_rate_hz", type=positive_float, default=None,
                    help="also store HDR ground truth at this many per second, besides every frame's mid-exposure "
                         "(--gt-rate-hz is the old name)")
-    e = p.add_argument_group("event sensor (v2e names; each overrides the --preset's and the --sensor profile's value)")
+    e = p.add_argument_group("event sensor (v2e names, and v2e's own underscore spellings as aliases: --pos_thres "
+                             "... --refractory_period in seconds; each overrides the --preset's and the --sensor "
+                             "profile's value)")
     e.add_argument("--sensor", default=None, metavar="PROFILE",
                    help="sensor profile JSON from 'hybridhdr calibrate sensor', or builtin:davis240c; its identified "
                         "parameters replace the --preset's (default with --sensor: ideal, every other tier off)")
-    e.add_argument("--pos-thres", type=positive_float, default=None, help="ON contrast threshold, log units (v2e 0.2)")
-    e.add_argument("--neg-thres", type=positive_float, default=None,
+    e.add_argument("--pos-thres", "--pos_thres", dest="pos_thres", type=positive_float, default=None,
+                   help="ON contrast threshold, log units (v2e 0.2)")
+    e.add_argument("--neg-thres", "--neg_thres", dest="neg_thres", type=positive_float, default=None,
                    help="OFF contrast threshold, log units, given positive (v2e 0.2)")
-    e.add_argument("--sigma-thres", type=nonneg_float, default=None,
+    e.add_argument("--sigma-thres", "--sigma_thres", dest="sigma_thres", type=nonneg_float, default=None,
                    help="sigma of the per-pixel threshold mismatch, log units (v2e 0.03)")
-    e.add_argument("--cutoff-hz", type=nonneg_float, default=None,
+    e.add_argument("--cutoff-hz", "--cutoff_hz", dest="cutoff_hz", type=nonneg_float, default=None,
                    help="photoreceptor corner frequency at white, Hz (v2e 300; 0 = infinite bandwidth)")
-    e.add_argument("--leak-rate-hz", type=nonneg_float, default=None, help="leak events per pixel per second (v2e 0.01)")
-    e.add_argument("--shot-noise-rate-hz", type=nonneg_float, default=None,
-                   help="shot-noise events per pixel per second, ON + OFF (v2e noisy 5)")
-    e.add_argument("--refractory-period-us", type=nonneg_int, default=None,
+    e.add_argument("--leak-rate-hz", "--leak_rate_hz", dest="leak_rate_hz", type=nonneg_float, default=None,
+                   help="leak events per pixel per second (v2e 0.01)")
+    e.add_argument("--shot-noise-rate-hz", "--shot_noise_rate_hz", dest="shot_noise_rate_hz", type=nonneg_float,
+                   default=None, help="shot-noise events per pixel per second, ON + OFF (v2e noisy 5)")
+    r = e.add_mutually_exclusive_group()
+    r.add_argument("--refractory-period-us", type=nonneg_int, default=None,
                    help="blind time after each event, µs (v2e 500)")
+    r.add_argument("--refractory_period", dest="refractory_period_s", type=nonneg_float, default=None,
+                   metavar="SECONDS", help="v2e's spelling and unit: blind time after each event in SECONDS "
+                                           "(v2e 0.0005); rounded to whole µs")
     b = p.add_argument_group("builtin:blinking_checkerboard (calibration board)")
     b.add_argument("--poses", type=positive_int, default=None,
                    help="static camera views of the board (1-5; 'calibrate rig' needs at least 4 with its default "
@@ -141,6 +149,52 @@ def _signals_exit():
             signal.signal(sg, h)
 
 
+class _MinuteAdvice:
+    """With the fallback renderer (``scalar_rgb``, about 50x slower than ``llvm_ad_mono``), once the
+    run has rendered for ``after_s`` seconds, print the measured render rate and the duration (at
+    this size) and the size (for the whole duration) that would finish in about a minute, when the
+    run itself would take much longer. Wraps ``source.render`` (the sampler's only call into the
+    renderer); the estimate is the measured scene time per wall second, and a render's cost taken
+    as proportional to its pixel count (the number of renders depends on the scene's motion and
+    brightness changes, not on its size)."""
+
+    def __init__(self, source, scene, t_start, *, after_s: float = 10.0, target_s: float = 60.0):
+        self.source, self.scene, self.t_start = source, scene, t_start
+        self.after_s, self.target_s = after_s, target_s
+        self.t_max = 0
+        self.done = False
+
+    def install(self):
+        render = self.source.render
+
+        def wrapped(t_us):
+            out = render(t_us)
+            self.t_max = max(self.t_max, int(t_us))
+            if not self.done:
+                self.check()
+            return out
+        self.source.render = wrapped
+
+    def check(self):
+        import time
+        wall = time.perf_counter() - self.t_start
+        if wall < self.after_s or self.t_max <= 0:
+            return
+        self.done = True
+        est = wall * self.scene.duration_us / self.t_max  # the whole run at the measured pace
+        if est < 2 * self.target_s:
+            return
+        w, h = self.scene.camera.width, self.scene.camera.height
+        k = (self.target_s / est) ** 0.5
+        w2, h2 = max(16, int(w * k) // 2 * 2), max(16, int(h * k) // 2 * 2)
+        dur = self.target_s * self.t_max / wall / 1e6
+        n = self.source.renders
+        print(f"\nnote: the renderer is scalar_rgb (the fallback when no usable LLVM is found): {n} renders of "
+              f"{w}x{h} in {wall:.0f} s ({n / wall:.2g} renders/s, {self.t_max / 1e6:.3g} s of scene time); this "
+              f"run will take about {est / 60:.0f} min. About a minute: --duration-s {dur:.2g} at this size, or --width {w2} "
+              f"--height {h2} for the whole {self.scene.duration_us / 1e6:g} s", file=sys.stderr)
+
+
 _SENSOR_FLAGS = {"pos_thres": "contrast_threshold_on", "neg_thres": "contrast_threshold_off",
                  "sigma_thres": "threshold_mismatch_sigma", "cutoff_hz": "photoreceptor_cutoff_hz",
                  "leak_rate_hz": "leak_rate_hz", "shot_noise_rate_hz": "shot_noise_rate_hz",
@@ -153,6 +207,11 @@ def sensor_params(args):
 
     from .sensor import sensor_preset
     over = {field: getattr(args, flag) for flag, field in _SENSOR_FLAGS.items() if getattr(args, flag, None) is not None}
+    if getattr(args, "refractory_period_s", None) is not None:  # v2e's --refractory_period, in seconds
+        s = float(args.refractory_period_s)
+        if s > 1e3:
+            raise ValueError(f"--refractory_period is in seconds (v2e's unit): expected at most 1000, got {s:g}")
+        over["refractory_period_us"] = int(round(s * 1e6))
     profile = getattr(args, "sensor", None)
     preset = getattr(args, "preset", None) or ("ideal" if profile else "clean")
     base = sensor_preset(preset)
@@ -235,6 +294,8 @@ def run(args) -> int:
     # cannot compile the kernels) leaves nothing behind; SIGTERM/SIGHUP end the run through the
     # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
     source.render(0)
+    if source.variant == "scalar_rgb":  # the slow fallback: say what would finish in about a minute
+        _MinuteAdvice(source, scene, t0).install()
     with _signals_exit():
         res = simulate_to_file(source, args.out, sensor=sensor, camera=camera, sampling=sampling,
                                gt_times_us=gt, seed=args.seed, progress=not args.no_progress)

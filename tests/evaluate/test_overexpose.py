@@ -184,7 +184,7 @@ def test_calibration_and_input_thresholds_never_see_the_scored_frame(monkeypatch
 
     monkeypatch.setattr(O.RD, "input_thresholds", spy_thresholds)
     specs = [O.OverexposeSpec("akf_causal", "akf", "causal"), O.OverexposeSpec("cf_causal", "cf", "causal")]
-    res = O.evaluate_overexpose(rec, [4], specs, thresholds="input", calibrate=spy)
+    res = O.evaluate_overexpose(rec, [4], specs, thresholds="auto", calibrate=spy)
     scored = res["frames"]
     assert len(seen) == len(scored)  # once per scored frame, shared by the methods
     for k, s in zip(scored, seen):
@@ -194,7 +194,7 @@ def test_calibration_and_input_thresholds_never_see_the_scored_frame(monkeypatch
     assert [u["frame"] for u in used] == scored
     assert all(u["calibration"]["applied"] == {"contrast_threshold": 0.05} and u["calibration"]["note"] == "spy"
                for u in used)
-    assert all(u["thresholds"]["source"] == "input" for u in used)
+    assert all(u["thresholds"]["source"] == "auto" for u in used)
 
 
 def test_planted_frame_changes_no_estimate_made_for_it():
@@ -207,11 +207,11 @@ def test_planted_frame_changes_no_estimate_made_for_it():
     rec2 = Recording(rec.events, rec.sensor_size, Frames(noisy, fr.t_start_us, fr.t_end_us, encoding="linear"),
                      metadata=rec.metadata)
     specs = [O.OverexposeSpec("akf_causal", "akf", "causal")]
-    u1 = O.evaluate_overexpose(rec, [4], specs, thresholds="input")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
-    u2 = O.evaluate_overexpose(rec2, [4], specs, thresholds="input")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
+    u1 = O.evaluate_overexpose(rec, [4], specs, thresholds="auto")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
+    u2 = O.evaluate_overexpose(rec2, [4], specs, thresholds="auto")["by_gain"]["4"]["methods"]["akf_causal"]["used"]
     by1 = {u["frame"]: u["thresholds"] for u in u1}
     by2 = {u["frame"]: u["thresholds"] for u in u2}
-    assert by1[2]["source"] == "input" and by1[2] == by2[2]
+    assert by1[2]["source"] == "auto" and by1[2] == by2[2]
     assert any(by1[k] != by2[k] for k in by1 if k != 2)
 
 

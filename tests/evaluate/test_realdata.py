@@ -122,7 +122,7 @@ def test_input_thresholds_recover_the_sensor_and_never_see_frame_k(rec):
     k = RD.default_held_frames(rec)[2]
     loo, _ = RD.holdout_input(rec, k, "leave_one_out")
     p, used = RD.input_thresholds(loo, "akf", None)
-    assert used["source"] == "input"
+    assert used["source"] == "auto"
     assert p.c_on == pytest.approx(0.15, rel=0.05) and p.c_off == pytest.approx(0.15, rel=0.05)
     # CF's log(I + 1) model gives its own (smaller) numbers: each method in its own model
     q, used_cf = RD.input_thresholds(loo, "cf", None)
@@ -136,10 +136,10 @@ def test_input_thresholds_recover_the_sensor_and_never_see_frame_k(rec):
     assert u1["source"] == "params" and p1.c_on == 0.3 and "two frames" in u1["why"]
     # in next-frame prediction the numbers come from the recording without frame k (never from it)
     res = RD.holdout_reconstructions(rec, [RD.HoldoutSpec("akf_causal", "akf", "causal")], task="next_frame",
-                                     held=[k], thresholds="input")
+                                     held=[k], thresholds="auto")
     assert res["akf_causal"]["thresholds"][0] == used
     with pytest.raises(ValueError, match="thresholds must be one of"):
-        RD.holdout_reconstructions(rec, [], task="next_frame", held=[k], thresholds="auto")
+        RD.holdout_reconstructions(rec, [], task="next_frame", held=[k], thresholds="estimated")
 
 
 def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
@@ -147,14 +147,37 @@ def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
     from hybridhdr.container import write_recording
     p = tmp_path / "rec.h5"
     write_recording(rec, p)
+    from hybridhdr._util.cliargs import DEFAULT_THRESHOLDS
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
-    # a recording that declares no thresholds: the CLI defaults self-calibrate it (as reconstruct
-    # --self-calibrate auto), leave-one-out
+    # a recording that declares no thresholds: the one default (DEFAULT_THRESHOLDS, selfcal, as
+    # reconstruct's) self-calibrates it, leave-one-out
     assert res["thresholds"] == "selfcal"
     used = res["leave_one_out"]["methods"]["akf"]["thresholds"][0]
     assert used["source"] in ("selfcal", "params"), used  # params: the input cannot tell (recorded why)
     assert used["source"] == "selfcal" or used["why"]
+    assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--thresholds", "auto",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert res["thresholds"] == "auto"
+    assert res["leave_one_out"]["methods"]["akf"]["thresholds"][0]["source"] == "auto"
+    assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--thresholds", "input",
+                 "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    used = res["leave_one_out"]["methods"]["akf"]["thresholds"][0]
+    assert used["source"] == "input" and "declares none" in used["used"]  # procedural: none declared
+    import dataclasses
+
+    import hybridhdr
+    ec = dataclasses.replace(rec.metadata.event_camera, contrast_threshold_on=0.15, contrast_threshold_off=0.14)
+    declared = hybridhdr.Recording(rec.events, rec.sensor_size, rec.frames, rec.triggers, rec.hdr,
+                                   dataclasses.replace(rec.metadata, event_camera=ec))
+    write_recording(declared, tmp_path / "declared.h5")
+    assert main(["evaluate", "holdout", str(tmp_path / "declared.h5"), "--method", "akf", "--frames", "2",
+                 "--thresholds", "input", "--json"]) == 0
+    res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    used = res["leave_one_out"]["methods"]["akf"]["thresholds"][0]
+    assert used["source"] == "input" and used["used"].startswith("declared by the recording: ON 0.15, OFF 0.14")
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--contrast-threshold", "0.15",
                  "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])

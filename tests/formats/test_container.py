@@ -71,9 +71,17 @@ def test_lazy_window_equals_slice(tmp_path_factory, a, b, chunk):
         write_recording(rec, p, buffer_events=1000)
     t0, t1 = sorted([a - 500_000, b - 500_000])
     with RecordingFile(p) as r:
-        assert np.array_equal(r.events(t0, t1), hh.slice_time(rec.events, t0, t1))
-        cols = r.event_columns(t0, t1)
-        assert np.array_equal(cols["t"], hh.slice_time(rec.events, t0, t1)["t"])
+        first, last = r.data_span_us()
+        if t1 <= first or t0 > last:  # wholly outside the data: an error naming the span (issue 31)
+            from hybridhdr.errors import WindowOutsideDataError
+            with pytest.raises(WindowOutsideDataError, match="spans"):
+                r.events(t0, t1)
+            with pytest.raises(WindowOutsideDataError, match="spans"):
+                r.event_columns(t0, t1)
+        else:
+            assert np.array_equal(r.events(t0, t1), hh.slice_time(rec.events, t0, t1))
+            cols = r.event_columns(t0, t1)
+            assert np.array_equal(cols["t"], hh.slice_time(rec.events, t0, t1)["t"])
         chunks = list(r.iter_chunks(chunk))
         assert np.array_equal(np.concatenate([c.events for c in chunks]), rec.events)
         assert np.array_equal(np.concatenate([c.triggers for c in chunks]), rec.triggers)

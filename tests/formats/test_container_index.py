@@ -64,7 +64,14 @@ def test_windows_equal_slices(tmp_path_factory, version, a, b):
     t0, t1 = sorted((a, b))
     with RecordingFile(p) as r:
         assert r.format_version == version
-        assert np.array_equal(r.events(t0, t1), hh.slice_time(ev, t0, t1))
+        i0, i1 = r.index_range(t0, t1)  # the index itself, whatever the window
+        assert np.array_equal(ev[i0:i1], hh.slice_time(ev, t0, t1))
+        if t1 <= _T[0] or t0 > _T[-1]:  # wholly outside the data: an error naming the span (issue 31)
+            from hybridhdr.errors import WindowOutsideDataError
+            with pytest.raises(WindowOutsideDataError, match="spans"):
+                r.events(t0, t1)
+        else:
+            assert np.array_equal(r.events(t0, t1), hh.slice_time(ev, t0, t1))
         assert r.index_range(None, t0)[1] == np.searchsorted(_T, t0)
 
 
