@@ -29,7 +29,7 @@ def _pooled_thresholds(recording, **kw):
 
 
 def _self_calibration(recording, **kw):
-    """``reconstruct --self-calibrate``: calibrate's event/frame self-calibration (imported when used)."""
+    """``reconstruct --thresholds selfcal``: calibrate's event/frame self-calibration (imported when used)."""
     from .calibrate.selfcal import self_calibration
     return self_calibration(recording, **kw)
 
