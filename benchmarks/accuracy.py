@@ -378,13 +378,13 @@ def main() -> int:
         res["real_overexpose_s"] = time.perf_counter() - t
     else:
         res["real_error"] = f"{ECD} not found"
+        res["real_overexpose"] = {"skipped": f"{ECD} not found (the ../shared sample data is absent)"}
     if "hdr_v2" in suites:
         t = time.perf_counter()
         res["sim_to_real"] = _sim_to_real(suites["hdr_v2"], res.get("real_overexpose"))
         res["sim_to_real_s"] = time.perf_counter() - t
         _log("sim-to-real (overexpose x4 on HDR set v2 vs ecd_slider_depth): "
              + json.dumps({k: v for k, v in res["sim_to_real"].items() if k != "sim"}, default=float))
-        res["real_overexpose"] = {"skipped": f"{ECD} not found (the ../shared sample data is absent)"}
     summary = {name: _mean_rows(rows) for name, rows in all_rows.items()}
     res["per_dataset"] = {name: [{k: v for k, v in r.items() if k in ("dataset", "method", "status", "mse", "ssim",
                                                                       "log_rmse_recoverable_causal",
