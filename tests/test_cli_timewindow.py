@@ -95,17 +95,18 @@ def test_reconstruct_windows_and_until(tmp_path, capsys, shared_data):
     rc, _, err = run_cli(capsys, "reconstruct", ecd, "--out", tmp_path / "bad", "--start", "5s", "--no-progress")
     assert rc == 1 and "3.33382 s" in err and "0.174156 s" in err and not (tmp_path / "bad").exists()
     # --fps stops at the last event (0.174 s), saying so; --until last runs on to the last frame (3.33 s)
+    # (--thresholds params: the frames' own times; self-calibration would move them 7.75 ms)
     rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "a", "--fps", "300",
-                           "--no-exr", "--no-progress", "--json")
+                           "--no-exr", "--no-progress", "--json", "--thresholds", "params")
     assert rc == 0, err
     res = json.loads(out)
     assert res["t_last_us"] <= 174_156 and res["frames"] == 53 and "outputs stop at the last event" in err
     rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "b", "--fps", "300",
-                           "--until", "last", "--no-exr", "--no-progress", "--json")
+                           "--until", "last", "--no-exr", "--no-progress", "--json", "--thresholds", "params")
     res = json.loads(out)
     assert rc == 0 and res["t_last_us"] > 3_300_000 and res["frames"] == 1001 and "outputs stop" not in err
     # relative window: 50 ms .. 100 ms after the first timestamp (t = 0 here: the first frame)
     rc, out, err = run_cli(capsys, "reconstruct", ecd, "--method", "direct", "--out", tmp_path / "c", "--fps", "100",
-                           "--start", "50ms", "--end", "100ms", "--no-exr", "--no-progress", "--json")
+                           "--start", "50ms", "--end", "100ms", "--no-exr", "--no-progress", "--json", "--thresholds", "params")
     res = json.loads(out)
     assert rc == 0 and res["t_first_us"] == 50_000 and res["t_last_us"] == 90_000

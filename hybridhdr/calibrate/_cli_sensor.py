@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from .._util.cliargs import COMMON, HelpFormatter, json_output, positive_int
+from .._util.cliargs import COMMON, HelpFormatter, add_format_arg, json_output, positive_int
 
 
 def register(steps) -> None:
@@ -21,7 +21,7 @@ def register(steps) -> None:
                     "'hybridhdr simulate --sensor PROFILE' reads. See docs/calibrate.md, 'Sensor profile'.")
     p.add_argument("recording", type=Path, metavar="REC", help="recording with events and frames (any readable format)")
     p.add_argument("--out", type=Path, required=True, help="profile JSON to write (atomically)")
-    p.add_argument("--format", default=None, help="input format (default: detected)")
+    add_format_arg(p)
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON of the frames (default: the recording's declared one, else the built-in "
                         "profile of the frames' encoding)")

@@ -157,7 +157,7 @@ def add_parser(sub) -> None:
                         "--contrast-threshold is given]")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
-    o.add_argument("--format", default=None, help="input format (default: detected)")
+    add_format_arg(o)
     o.add_argument("--out", type=Path, required=True, help="output folder")
     o.add_argument("--overwrite", action="store_true",
                    help="replace the files a previous overexpose run wrote in --out (keeps everything else)")
