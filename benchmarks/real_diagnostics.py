@@ -372,7 +372,7 @@ def _plot(res, path):
     ax[2].set_yticks(y, names, fontsize=8)
     ax[2].invert_yaxis()
     ax[2].set(xlabel="AKF log error / frames-only (gain 4)", title="ablation")
-    ax[2].legend(fontsize=7)
+    ax[2].legend(fontsize=7, loc="upper center", bbox_to_anchor=(0.5, -0.16), ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
