@@ -11,6 +11,8 @@ USB device listing :func:`list_devices` (:mod:`.devices`), the OAK backend
 """
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
+from .._util.lazy import lazy_exports
+
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'DepthaiFrameSource': '.depthai_backend',
@@ -34,18 +36,7 @@ _LAZY = {
 }
 
 
-def __getattr__(name):
-    mod = _LAZY.get(name)
-    if mod is None:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    import importlib
-    value = getattr(importlib.import_module(mod, __name__), name)
-    globals()[name] = value
-    return value
-
-
-def __dir__():
-    return sorted(set(globals()) | set(_LAZY))
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)
 
 
 __all__ = [
