@@ -7,9 +7,9 @@ See ``docs/calibrate.md``. The camera model these produce is :mod:`hybridhdr.cam
 from .event_images import BlinkParams, event_images
 from .noise_profile import noise_profile
 
-# Lazy (PEP 562): the names below load their module on first use, so that building the command
 from .._util.lazy import lazy_exports
 
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'CRF': '.crf',

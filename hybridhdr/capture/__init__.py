@@ -10,9 +10,9 @@ USB device listing :func:`list_devices` (:mod:`.devices`), the OAK backend
 (:mod:`.session`).
 """
 
-# Lazy (PEP 562): the names below load their module on first use, so that building the command
 from .._util.lazy import lazy_exports
 
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'DepthaiFrameSource': '.depthai_backend',

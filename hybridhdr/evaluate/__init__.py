@@ -4,9 +4,9 @@ benchmarks and their datasets, reports, speed–accuracy and stability charts, T
 See ``docs/evaluate.md``.
 """
 
-# Lazy (PEP 562): the names below load their module on first use, so that building the command
 from .._util.lazy import lazy_exports
 
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'bundled_bench': '.bench',

@@ -9,9 +9,9 @@ the demo use is :mod:`.procedural`.
 
 # scenes, Mitsuba rendering and built-in scenes (docs/simulate.md)
 
-# Lazy (PEP 562): the names below load their module on first use, so that building the command
 from .._util.lazy import lazy_exports
 
+# Lazy (PEP 562): the names below load their module on first use, so that building the command
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'ImageMotionSource': '.ahdr',
