@@ -4,17 +4,19 @@
 #     bash benchmarks/device_run.sh [benchmarks/gpu.py's options]
 # e.g. the profiled run of issue 30's second device session (under 4 min on an H200):
 #     bash benchmarks/device_run.sh --profile --no-cpu --skip agreement
-# Logs go to $OUT (default /tmp/hybridhdr-device): env.txt (versions, nvidia-smi),
+# Logs go to $OUT (default: a new temporary folder, printed): env.txt (versions, nvidia-smi),
 # cuda_checks.jsonl (GPU vs CPU agreement, one JSON line per check), gpu.json (benchmarks/gpu.py's
 # JSON) and gpu_stderr.txt (its progress lines: every figure and phase table, even if it is cut
 # short). Each step has a timeout (CHECKS_TIMEOUT_S, GPU_TIMEOUT_S) and prints its duration.
 set -u
-OUT=${OUT:-/tmp/hybridhdr-device}
+OUT=${OUT:-$(mktemp -d -t hybridhdr-device-XXXXXX)}
+echo "logs in $OUT"
 mkdir -p "$OUT"
 export PYTHONPATH=$PWD PYTHONUNBUFFERED=1
-if ls .whl/*.whl >/dev/null 2>&1; then  # carried wheels (/work/.library/device/README.md's recipe)
-  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target /tmp/site .whl/*.whl \
-    && export PYTHONPATH=$PWD:/tmp/site
+if ls .whl/*.whl >/dev/null 2>&1; then  # carried wheels, if any (installed into a private folder)
+  site=$(mktemp -d -t hybridhdr-site-XXXXXX)
+  python3 -m pip install -q --no-index --no-deps --no-compile --no-cache-dir --upgrade --target "$site" .whl/*.whl \
+    && export PYTHONPATH=$PWD:$site
 fi
 {
   date -u; nvidia-smi; uname -a

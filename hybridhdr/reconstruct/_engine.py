@@ -34,6 +34,26 @@ def row_bands(height: int, n_workers: int) -> list[tuple[int, int]]:
     return [(edges[i], edges[i + 1]) for i in range(n) if edges[i + 1] > edges[i]]
 
 
+def segment_span(m, k: int, segment):
+    """``(codes or None, segment or None, t0_us, 1/T_us, T in s)`` of frame segment k of the
+    measurement provider ``m``: its per-code tables when it has them (``m.segment_codes``), else
+    ``segment(k)`` (the provider's segment, fetched as the caller does); T is the segment's length
+    (0 for the last, open one). Shared by the CPU and GPU frame switches."""
+    times = m.times_us
+    t0_us = int(times[k])
+    t1_us = int(times[k + 1]) if k + 1 < len(m) else None
+    codes_fn = getattr(m, "segment_codes", None)
+    sc = codes_fn(k) if codes_fn is not None else None
+    seg = None
+    if sc is None:
+        seg = segment(k)
+        t0_us, t1_us = seg.t0_us, seg.t1_us
+    if t1_us is None:
+        return sc, seg, t0_us, 0.0, 0.0
+    T_us = t1_us - t0_us
+    return sc, seg, t0_us, 1.0 / T_us, T_us * K.US
+
+
 class Engine:
     """Base of the per-method engines driven by :func:`drive`.
 
@@ -207,21 +227,7 @@ class AKFEngine(Engine):
         self._flush()
         n = self.n
         W = self.shape[1]
-        times = self.m.times_us
-        t0_us = int(times[k])
-        t1_us = int(times[k + 1]) if k + 1 < len(self.m) else None
-        codes_fn = getattr(self.m, "segment_codes", None)
-        sc = codes_fn(k) if codes_fn is not None else None
-        if sc is None:
-            seg = self._segment(k)
-            t0_us, t1_us = seg.t0_us, seg.t1_us
-        if t1_us is not None:
-            T_us = t1_us - t0_us
-            seg_inv_t = 1.0 / T_us
-            seg_t_s = T_us * K.US
-        else:
-            seg_inv_t = 0.0
-            seg_t_s = 0.0
+        sc, seg, t0_us, seg_inv_t, seg_t_s = segment_span(self.m, k, self._segment)
         prop = t_to is not None
         disc = prop and self.params.frame_update == "discrete"  # the first frame initialises instead
         # process noise accrues at switches too in our model (0: the paper's, at events only)

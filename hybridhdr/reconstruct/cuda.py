@@ -436,22 +436,8 @@ class CudaAKFEngine(_CudaEngine):
     def _load(self, k: int, t_to: float | None = None) -> None:
         """:meth:`._engine.AKFEngine._load`, applied at once by a device kernel."""
         n = self.n
-        times = self.m.times_us
-        t0_us = int(times[k])
-        t1_us = int(times[k + 1]) if k + 1 < len(self.m) else None
-        codes_fn = getattr(self.m, "segment_codes", None)
-        sc = codes_fn(k) if codes_fn is not None else None
-        seg = None
-        if sc is None:
-            seg = self.m.segment(k)
-            t0_us, t1_us = seg.t0_us, seg.t1_us
-        if t1_us is not None:
-            T_us = t1_us - t0_us
-            seg_inv_t = 1.0 / T_us
-            seg_t_s = T_us * K.US
-        else:
-            seg_inv_t = 0.0
-            seg_t_s = 0.0
+        from ._engine import segment_span
+        sc, seg, t0_us, seg_inv_t, seg_t_s = segment_span(self.m, k, self.m.segment)
         prop = t_to is not None
         disc = prop and self.params.frame_update == "discrete"
         s_proc = float(self.params.process_noise_per_s) if self.params.frame_update == "discrete" else 0.0

@@ -41,6 +41,7 @@ from ..model import HDRReferences, Recording
 from . import builtin
 from .ahdr import MotionParams, build_ahdr
 from .camera import FrameCameraParams, crf_inverse_table
+from .source import AnalyticSceneSource
 from .pipeline import simulate
 from .procedural import ProceduralScene
 from .render import MitsubaSource
@@ -71,18 +72,8 @@ class SimulatedData:
     profile: CameraProfile | None = None
 
 
-class ProceduralSource:
+class ProceduralSource(AnalyticSceneSource):
     """:class:`hybridhdr.simulate.procedural.ProceduralScene` as a ``RadianceSource`` (simulate/source.py)."""
-
-    def __init__(self, scene, duration_us: int):
-        self.scene = scene
-        self.sensor_size = scene.sensor_size
-        self.duration_us = int(duration_us)
-        self.renders = 0
-
-    def render(self, t_us: int) -> np.ndarray:
-        self.renders += 1
-        return self.scene.intensity(int(t_us)).astype(np.float32)
 
     def max_image_speed_px_per_s(self, t0_us: int, t1_us: int) -> float:
         # the disc moves at speed_px_per_s; the background grating drifts by at most

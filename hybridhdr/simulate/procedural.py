@@ -26,6 +26,7 @@ from ..camera.cfa import mosaic, parse_cfa
 from ..camera.encoding import LUMINANCE_WEIGHTS
 from ..events import EVENT_DTYPE, SensorSize, empty_events, empty_triggers
 from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+from .source import AnalyticSceneSource
 
 __all__ = ["ProceduralScene", "procedural_recording", "EdgeSweepScene", "edge_sweep_recording", "ideal_events",
            "ColourEdgeSweepScene", "colour_edge_sweep_recording", "hdr_scene", "random_homography", "render_frame",
@@ -587,18 +588,8 @@ class SensorCalibrationScene:
         return masks[name]
 
 
-class _CalibrationSource:
+class _CalibrationSource(AnalyticSceneSource):
     """:class:`SensorCalibrationScene` as a ``RadianceSource`` (simulate/source.py)."""
-
-    def __init__(self, scene: SensorCalibrationScene, duration_us: int):
-        self.scene = scene
-        self.sensor_size = scene.sensor_size
-        self.duration_us = int(duration_us)
-        self.renders = 0
-
-    def render(self, t_us: int) -> np.ndarray:
-        self.renders += 1
-        return self.scene.intensity(int(t_us)).astype(np.float32)
 
     def max_image_speed_px_per_s(self, t0_us: int, t1_us: int) -> float:
         return float(self.scene.speed_px_per_s)

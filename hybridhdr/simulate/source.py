@@ -50,3 +50,20 @@ class RadianceSource(Protocol):
     def describe(self) -> dict:
         """JSON-serialisable description for the recording's provenance (scene name, variant, spp...)."""
         ...
+
+
+class AnalyticSceneSource:
+    """An analytic scene (an object with ``sensor_size`` and ``intensity(t_us)``) as a
+    :class:`RadianceSource`: renders are exact evaluations, counted. Subclasses state the motion
+    bound and the description."""
+
+    def __init__(self, scene, duration_us: int):
+        self.scene = scene
+        self.sensor_size = scene.sensor_size
+        self.duration_us = int(duration_us)
+        self.renders = 0
+
+    def render(self, t_us: int) -> np.ndarray:
+        self.renders += 1
+        return self.scene.intensity(int(t_us)).astype(np.float32)
+
