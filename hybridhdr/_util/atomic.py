@@ -434,3 +434,23 @@ def refuse_overwriting_inputs(outputs, inputs) -> None:
                                  f"(choose another output name)")
             if not out.exists() and os.path.realpath(out) == os.path.realpath(i):
                 raise ValueError(f"{flag} {out} is the input {i}; refusing to overwrite an input")
+
+
+def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command: str = "this command") -> None:
+    """The one rule for an output file or folder that already exists, in every verb that writes.
+
+    An existing non-empty output is refused (``ValueError``, before any work) unless ``overwrite``;
+    an empty folder is accepted. ``flag`` names the option in the message, ``command`` the verb.
+    The check is the same for files and folders, so ``simulate``, ``convert`` and ``calibrate sensor``
+    refuse exactly as ``reconstruct`` does for its folder."""
+    out = Path(os.fspath(out))
+    if overwrite or not (out.exists() or out.is_symlink()):
+        return
+    if out.is_dir() and not out.is_symlink():
+        if not any(out.iterdir()):
+            return
+        what = "exists and is not empty"
+    else:
+        what = "exists"
+    raise ValueError(f"{flag} {out} {what}; choose another name or pass --overwrite "
+                     f"(replaces what a {command} run writes)")
