@@ -7,8 +7,9 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import (DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
-                             json_output, nonneg_int, positive_float, thresholds_arg, worker_count)
+from .._util.cliargs import (HelpFormatter, add_format_arg, json_command, json_output, nonneg_int, positive_float,
+                             worker_count)
+from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLDS_HELP, thresholds_arg
 
 
 def add_parser(sub) -> None:

@@ -126,8 +126,8 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
 
 def _frames_profile(rec, profile):
     if profile is None:
-        from ..reconstruct.api import _source_profile
-        profile = _source_profile(rec)
+        from ..reconstruct.api import source_profile
+        profile = source_profile(rec)
     return profile_for_frames(load_profile(profile), rec.frames)
 
 
