@@ -153,6 +153,7 @@ def _export(commit: str, dest: Path) -> None:
 
 def _run(tree: Path, out: Path, which: str, quick: bool, data: Path, env_extra=None) -> None:
     env = dict(os.environ, PYTHONPATH=str(tree), **(env_extra or {}))
+    out.parent.mkdir(parents=True, exist_ok=True)
     script = out.parent / f"runner_{out.name}.py"
     script.write_text(RUNNER)
     r = subprocess.run([sys.executable, str(script), str(out), which, "1" if quick else "0", str(data)], cwd=tree,
@@ -164,6 +165,7 @@ def _run(tree: Path, out: Path, which: str, quick: bool, data: Path, env_extra=N
 def _run_cli(tree: Path, out: Path, data: Path) -> None:
     env = dict(os.environ, PYTHONPATH=str(tree))
     rec = data / "ecd_slider_depth"
+    out.mkdir(parents=True, exist_ok=True)
     for name, extra in CLI_RUNS.items():
         dest = out / name
         r = subprocess.run([sys.executable, "-m", "hybridhdr", "reconstruct", str(rec), "--out", str(dest),
