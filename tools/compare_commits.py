@@ -63,9 +63,9 @@ def clean(o):
         return {"ndarray": o.dtype.str, "shape": list(o.shape), "bytes": o.tobytes().hex()[:4096]}
     return o if isinstance(o, (int, float, str, bool, type(None))) else repr(o)
 
-def run(name, src, method, **kw):
+def run(name, src, method, params=None, **kw):
     try:
-        v = reconstruct(src, method, **kw)
+        v = reconstruct(src, method, params, **kw)
         np.savez(out / f"{name}.npz", frames=v.frames, t_us=v.t_us)
         res = {"info": clean(v.info), "params": clean(v.params), "method": v.method}
     except Exception as e:
