@@ -107,7 +107,7 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
     specs, skipped = [], {}
     for m in methods:
         m = resolve_method(m)
-        if not RECON_METHODS[m][1]:
+        if not RECON_METHODS[m].needs_frames:
             raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
                              f"frames: {', '.join(FRAME_METHODS)}")
         if m in ("frames_zoh", "frames_linear"):

@@ -12,11 +12,10 @@ from .._util.cliargs import (COMMON, HelpFormatter, UsageError, add_format_arg, 
                              json_output, nonneg_int, positive_float, positive_int, positive_worker_count, worker_count)
 from .._util.timearg import add_time_window
 from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, thresholds_arg
+from .methods import METHOD_ALIASES, METHODS, methods_with
 
-_FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
-
-_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi",
-                   "e2vid", "firenet"]
+#: ``--method``: every registered method, each followed by its aliases.
+METHOD_CHOICES = [c for name in METHODS for c in (name, *(a for a, n in METHOD_ALIASES.items() if n == name))]
 
 
 def add_parser(subparsers) -> None:
@@ -29,7 +28,7 @@ def add_parser(subparsers) -> None:
                     "optional PNG/MP4 previews. With --fps the outputs stop at the last event (frame-only "
                     "methods: the last frame) unless --until says otherwise.")
     p.add_argument("recording", type=Path, help="recording (any format the readers accept)")
-    p.add_argument("--method", default="akf", choices=_METHOD_CHOICES, help="reconstruction method")
+    p.add_argument("--method", default="akf", choices=METHOD_CHOICES, help="reconstruction method")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--mode", default="offline", choices=["offline", "causal", "forward"],
                    help="offline may use future frames; causal uses only the past")
@@ -117,7 +116,7 @@ def _threshold_arg(text):
 
 
 #: Methods ``--thresholds selfcal`` applies to (a frame model and contrast thresholds).
-SELF_CALIBRATED_METHODS = ("akf", "cf", "direct")
+SELF_CALIBRATED_METHODS = methods_with(takes_thresholds=True, needs_frames=True)
 
 
 def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"):
@@ -196,7 +195,7 @@ def _parse_value(s: str):
 
 def build_params(args):
     """The method's Params from --preset, --config, named flags and --set (in that order)."""
-    from .api import METHODS, make_params, resolve_method
+    from .methods import make_params, resolve_method
     from .params import AKFParams
     method = resolve_method(args.method)
     cls = METHODS[method].params_class
@@ -243,7 +242,7 @@ def thresholds_given(args) -> bool:
         if item.split("=", 1)[0].strip().replace("-", "_") in THRESHOLD_KEYS:
             return True
     if args.config is not None:
-        from .api import METHODS, resolve_method
+        from .methods import resolve_method
         if any(k in THRESHOLD_KEYS for k in _toml_fields(METHODS[resolve_method(args.method)].params_class, args.config)):
             return True
     return False
@@ -316,7 +315,7 @@ def output_window(args, method: str):
     t0, t1 = resolve_window(args, span.origin_us)
     note = None
     if args.fps is not None and t1 is None:
-        until = args.until or ("frames" if method in _FRAME_ONLY or span.events is None else "events")
+        until = args.until or ("frames" if METHODS[method].frames_only or span.events is None else "events")
         ends = {"events": None if span.events is None else span.events[1],
                 "frames": None if span.frames is None else span.frames[1]}
         last = max(v for v in ends.values() if v is not None) if any(v is not None for v in ends.values()) else None
@@ -343,7 +342,8 @@ def run(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from .api import METHODS, reconstruct_iter, resolve_method
+    from .api import reconstruct_iter
+    from .methods import resolve_method
     from .._util.atomic import AtomicFolder
     from ..formats.images import DEFAULT_EXR_COMPRESSION, exr_compressions
     from .output import OUTPUTS, VideoWriter

@@ -3,18 +3,15 @@ parsing of their parameters and of the AKF's frame augmentation.
 
 One registry serves the API, the command line, the GPU path, ``evaluate`` and the benchmarks:
 a method's capabilities are named fields here, not positions in a tuple or lists repeated
-across modules.
+across modules. Importing it imports no kernel (the command line builds its parser from it):
+a method's parameter class is imported when it is first asked for.
 """
 
 from __future__ import annotations
 
+import importlib
 import os
 from dataclasses import dataclass
-
-from .augment import AugmentParams
-from .edi import EDIParams
-from .learned.params import E2VIDParams, FireNetParams
-from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
 
 __all__ = ["MethodSpec", "METHODS", "METHOD_ALIASES", "MODES", "method_spec", "resolve_method", "make_params",
            "make_augment_params", "methods_with"]
@@ -30,8 +27,9 @@ class MethodSpec:
     Attributes
     ----------
     name : str
-    params_class : type
-        Its ``…Params`` dataclass.
+    params_ref : str
+        ``"module:Class"`` (relative to :mod:`hybridhdr.reconstruct`) of its ``…Params``
+        dataclass, :attr:`params_class`.
     needs_frames : bool
         It cannot run without frames (else: events only).
     uses_events : bool
@@ -46,12 +44,18 @@ class MethodSpec:
     """
 
     name: str
-    params_class: type
+    params_ref: str
     needs_frames: bool
     uses_events: bool
     takes_thresholds: bool
     cuda_engine: bool
     description: str
+
+    @property
+    def params_class(self) -> type:
+        """The method's ``…Params`` dataclass (imported on first use)."""
+        mod, _, cls = self.params_ref.partition(":")
+        return getattr(importlib.import_module(mod, __package__), cls)
 
     @property
     def frames_only(self) -> bool:
@@ -68,19 +72,19 @@ def _spec(name, cls, frames, events, thresholds, cuda, description) -> tuple[str
 
 #: method name -> :class:`MethodSpec`
 METHODS: dict[str, MethodSpec] = dict([
-    _spec("akf", AKFParams, True, True, True, True, "Asynchronous Kalman Filter (Wang et al., ICCV 2021)"),
-    _spec("cf", CFParams, True, True, True, True,
+    _spec("akf", ".params:AKFParams", True, True, True, True, "Asynchronous Kalman Filter (Wang et al., ICCV 2021)"),
+    _spec("cf", ".params:CFParams", True, True, True, True,
           "complementary filter, fixed or HDR-adaptive gain (Scheerlinck et al., ACCV 2018)"),
-    _spec("highpass", HighPassParams, False, True, True, True,
+    _spec("highpass", ".params:HighPassParams", False, True, True, True,
           "high-pass filter on events only (CF with zero frame input)"),
-    _spec("direct", DirectParams, True, True, True, True, "direct integration of events onto the last frame"),
-    _spec("frames_zoh", FramesParams, True, False, False, False, "frames only, zero-order hold"),
-    _spec("frames_linear", FramesParams, True, False, False, False, "frames only, linear interpolation in intensity"),
-    _spec("edi", EDIParams, True, True, False, False,
+    _spec("direct", ".params:DirectParams", True, True, True, True, "direct integration of events onto the last frame"),
+    _spec("frames_zoh", ".params:FramesParams", True, False, False, False, "frames only, zero-order hold"),
+    _spec("frames_linear", ".params:FramesParams", True, False, False, False, "frames only, linear interpolation in intensity"),
+    _spec("edi", ".edi:EDIParams", True, True, False, False,
           "EDI deblurring: high-rate video from each blurred frame and its events (Pan et al., CVPR 2019)"),
-    _spec("e2vid", E2VIDParams, False, True, False, False,
+    _spec("e2vid", ".learned.params:E2VIDParams", False, True, False, False,
           "E2VID recurrent UNet on event voxel grids, events only, released weights (Rebecq et al., TPAMI 2019)"),
-    _spec("firenet", FireNetParams, False, True, False, False,
+    _spec("firenet", ".learned.params:FireNetParams", False, True, False, False,
           "FireNet light recurrent network, events only, released weights (Scheerlinck et al., WACV 2020)"),
 ])
 METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
@@ -129,8 +133,9 @@ def make_params(method: str, params=None):
     return p
 
 
-def make_augment_params(augment) -> AugmentParams:
+def make_augment_params(augment):
     """AugmentParams from None/True (defaults), False (off), a dict, a TOML path or an instance."""
+    from .augment import AugmentParams
     if augment is None:
         return AugmentParams()  # off: the default measurement carries frames forward with events
     if augment is True:
