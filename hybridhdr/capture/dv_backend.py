@@ -166,25 +166,31 @@ class HostClockSamples:
 
     The host receives each batch some time after its newest timestamp; that latency is never
     negative, so the smallest ``host - data`` in a bin is the best estimate of the clock offset
-    there (the lower envelope). One sample per ``bin_us`` (default 1 s) bounds the memory of long
-    recordings (3,600 samples an hour).
+    there (the lower envelope). Bins start at ``bin_us`` (100 ms); when more than ``max_bins`` are
+    held the bin width doubles and neighbours merge (keeping the lower envelope), so memory and the
+    JSON stored in the recording stay bounded for any length.
     """
 
-    def __init__(self, bin_us: int = 1_000_000, max_bins: int = 1 << 20):
+    def __init__(self, bin_us: int = 100_000, max_bins: int = 1024):
         self.bin_us, self.max_bins = int(bin_us), int(max_bins)
         self._bins: dict[int, tuple[int, int]] = {}
         self._lock = threading.Lock()
 
+    def _insert(self, data_us: int, host_us: int) -> None:
+        b = host_us // self.bin_us
+        cur = self._bins.get(b)
+        if cur is None or host_us - data_us < cur[1] - cur[0]:
+            self._bins[b] = (data_us, host_us)
+
     def add(self, data_us: int, host_us: int) -> None:
-        b = int(host_us) // self.bin_us
         with self._lock:
-            cur = self._bins.get(b)
-            if cur is None:
-                if len(self._bins) >= self.max_bins:
-                    return
-                self._bins[b] = (int(data_us), int(host_us))
-            elif host_us - data_us < cur[1] - cur[0]:
-                self._bins[b] = (int(data_us), int(host_us))
+            self._insert(int(data_us), int(host_us))
+            if len(self._bins) > self.max_bins:
+                old = list(self._bins.values())
+                self._bins = {}
+                self.bin_us *= 2
+                for d, h in old:
+                    self._insert(d, h)
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
         with self._lock:
@@ -715,9 +721,32 @@ class DvFrameSource(_DvSourceMixin, FrameSource):
 
 
 # -- serving a recording as DV network streams --------------------------------------------------
+def _remove_stale_socket(path: str) -> None:
+    """Remove a UNIX socket file nobody listens on (left by a server that was killed)."""
+    import os
+    import socket
+    import stat
+    try:
+        st = os.lstat(path)
+    except FileNotFoundError:
+        return
+    if not stat.S_ISSOCK(st.st_mode):
+        raise FileExistsError(f"{path} exists and is not a socket; choose another socket path")
+    s = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+    try:
+        s.connect(path)
+    except ConnectionRefusedError:
+        os.unlink(path)
+        return
+    finally:
+        s.close()
+    raise FileExistsError(f"{path}: another server is listening on this socket")
+
+
 def _writer(dv, url: str, stream):
     kind, where = parse_dv_source(url)
     if kind == "unix":
+        _remove_stale_socket(where)
         return dv.io.NetworkWriter(dv.Path(where), stream)
     return dv.io.NetworkWriter(where[0], int(where[1]), stream)
 
