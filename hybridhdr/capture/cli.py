@@ -266,12 +266,13 @@ def _host_sync(out: Path) -> dict:
 
 
 def _run_record(args) -> int:
-    from .recorder import Recorder
+    from .recorder import Recorder, warm_up
     from .sources import ReplayEventSource
     if args.sync == "host" and args.frames in (None, "none") and not args.source:
         raise ValueError("--sync host needs a separate frame camera (--frames pylon|oak) or DV streams")
     ev = _event_source(args)
     fr = None
+    warm_up()  # before any live source opens: nothing may wait unread while the kernel compiles
     try:
         ev.open()
         origin = None

@@ -242,6 +242,9 @@ class PylonFrameSource(FrameSource):
         if self._tick_hz is not None:
             for _ in range(5):
                 self._latch_once()
+        # the path frames will take (a camera clock is confirmed by the first frame's TimeStamp)
+        self.timestamp_source = ("camera" if self._tick_hz is not None
+                                 else "host-trigger" if self.trigger == "software" else "host-arrival")
 
     def close(self) -> None:
         if self.cam is not None:

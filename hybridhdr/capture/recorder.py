@@ -53,7 +53,7 @@ from ..model import Frames, Metadata
 from .sources import FrameItem
 
 __all__ = ["Recorder", "RecorderStats", "recover", "journal_path", "JournalWriter", "read_journal",
-           "ON_FULL_POLICIES"]
+           "ON_FULL_POLICIES", "warm_up"]
 
 log = logging.getLogger(__name__)
 
@@ -366,6 +366,17 @@ class RecorderStats:
 _SENTINEL = object()
 
 
+def warm_up() -> None:
+    """Load/compile the journal's packing kernel (seconds on a loaded machine the first time).
+
+    :meth:`Recorder.start` calls it before it opens the sources; a caller that opens live sources
+    itself (the command line) calls it first, so that no stream waits unread meanwhile.
+    """
+    from ._kernels import pack_columns
+    e = np.zeros(0, EVENT_DTYPE)
+    pack_columns(e["t"], e["x"], e["y"], e["p"], *(np.zeros(0, EVENT_DTYPE[k]) for k in "txyp"))
+
+
 class Recorder:
     """Record an event source (and optionally a frame source) into a hybridhdr container.
 
@@ -581,11 +592,7 @@ class Recorder:
             raise FileExistsError(f"{self.path} exists; choose another output name")
         self.stats.policy = self._policy_for(self.event_source)
         self._frame_policy = None if self.frame_source is None else self._policy_for(self.frame_source)
-        # load/compile the packing kernel now, not in the first seconds of a live recording, and before
-        # the sources open: a live stream (a DV network reader) buffers only so much before it drops
-        from ._kernels import pack_columns
-        e = np.zeros(0, EVENT_DTYPE)
-        pack_columns(e["t"], e["x"], e["y"], e["p"], *(np.zeros(0, EVENT_DTYPE[k]) for k in "txyp"))
+        warm_up()
         self.event_source.open()
         if self.frame_source is not None:
             self.frame_source.open()

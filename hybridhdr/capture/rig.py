@@ -45,13 +45,15 @@ class HostSyncReport:
     span_s: float           # host time covered by the samples
     n_frames: int
     frame_timestamp_source: str | None = None
+    drift_stderr_ppm: float = float("nan")  # standard error of the drift: rms / (sqrt(n) · std(t_event))
 
     def to_dict(self) -> dict:
         return asdict(self)
 
     def summary(self) -> str:
         return "\n".join([
-            f"host clock = {self.offset_us:.1f} µs + (1 + {self.drift_ppm:.2f} ppm) · event clock "
+            f"host clock = {self.offset_us:.1f} µs + (1 + {self.drift_ppm:.2f} ± {self.drift_stderr_ppm:.2f} ppm) "
+            f"· event clock "
             f"({self.n_inliers} of {self.n_samples} samples over {self.span_s:.2f} s)",
             f"latency variation: RMS {self.rms_us:.1f} µs, max {self.max_abs_us:.1f} µs",
             f"{self.n_frames} frames put on the event clock (frame times from: {self.frame_timestamp_source})"])
@@ -76,10 +78,13 @@ def host_clock_sync(frames: Frames, event_data_us, event_host_us, *, frame_times
     te = np.maximum(te, ts)
     out = Frames(frames.images, ts, te, encoding=frames.encoding, iso=frames.iso, gain=frames.gain)
     ri = r[inl]
+    xi = (x[inl] - x0).astype(np.float64)
+    se = (float(np.sqrt(np.mean(ri ** 2))) / (np.sqrt(len(xi)) * float(np.std(xi))) * 1e6
+          if len(xi) > 2 and np.std(xi) > 0 else float("nan"))
     rep = HostSyncReport("host-clock", float(y0 + a - b * x0), float((b - 1) * 1e6),
                          float(np.sqrt(np.mean(ri ** 2))) if len(ri) else float("nan"),
                          float(np.max(np.abs(ri))) if len(ri) else float("nan"), int(len(x)), int(inl.sum()),
-                         float((y[-1] - y[0]) / 1e6), int(len(frames)), frame_timestamp_source)
+                         float((y[-1] - y[0]) / 1e6), int(len(frames)), frame_timestamp_source, se)
     return out, rep
 
 
