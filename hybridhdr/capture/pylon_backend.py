@@ -61,8 +61,14 @@ _FORMATS = {"Mono8": (np.uint8, "gamma"), "Mono10": (np.uint16, "raw"), "Mono12"
 
 
 def _pylon():
+    import warnings
     try:
-        from pypylon import genicam, pylon
+        # pypylon's SWIG module emits a DeprecationWarning ("builtin type SwigPyPacked has no __module__
+        # attribute") while it initialises; turned into an exception (python -W error, pytest's
+        # filterwarnings = error) it aborts the initialisation and the interpreter crashes
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            from pypylon import genicam, pylon
     except ImportError as e:
         raise ImportError("Basler and GenICam cameras need pypylon: pip install 'hybridhdr[pylon]'") from e
     return pylon, genicam

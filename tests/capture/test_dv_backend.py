@@ -28,12 +28,10 @@ from hybridhdr.cli import main  # noqa: E402
 from hybridhdr.formats import open_reader  # noqa: E402
 from hybridhdr.formats.container import read_recording  # noqa: E402
 
+from ..conftest import SHARED_DATA  # noqa: E402
+
 REPO = Path(__file__).resolve().parents[2]
-DAVIS = REPO.parent / "shared" / "data" / "aedat4" / "davis346_street.aedat4"
-for _cand in (DAVIS, Path("/work/shared/data/aedat4/davis346_street.aedat4")):
-    if _cand.exists():
-        DAVIS = _cand
-        break
+DAVIS = SHARED_DATA / "aedat4" / "davis346_street.aedat4"
 needs_davis = pytest.mark.skipif(not DAVIS.exists(), reason=f"the DAVIS346 recording is absent ({DAVIS})")
 
 

@@ -6,6 +6,7 @@ once, when it starts, and emulated cameras must not appear in the other tests' d
 
 from __future__ import annotations
 
+import importlib.util
 import json
 import os
 import subprocess
@@ -15,7 +16,8 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-pytest.importorskip("pypylon", reason="pypylon (the [pylon] extra) is not installed")
+if importlib.util.find_spec("pypylon") is None:  # not imported here: pylon must start in the child
+    pytest.skip("pypylon (the [pylon] extra) is not installed", allow_module_level=True)
 
 from hybridhdr.cli import main  # noqa: E402
 
@@ -71,7 +73,7 @@ def test_software_trigger_frames_on_the_host_clock(tmp_path):
 
 
 def test_rig_dv_stream_and_pylon_emulator_with_sync_report(tmp_path):
-    from test_dv_backend import DAVIS, _end, _serve, _wait_sockets
+    from .test_dv_backend import DAVIS, _end, _serve, _wait_sockets
     if not DAVIS.exists():
         pytest.skip(f"the DAVIS346 recording is absent ({DAVIS})")
     pytest.importorskip("dv_processing", reason="dv-processing (the [dv] extra) is not installed")
