@@ -204,7 +204,7 @@ def dv_stream(folder: Path, n_events: int, rate: float, chunk_us: int, queue_chu
     ev = np.concatenate([c.events for c, _ in zip(gen, range(n_chunks))])
     src_file = folder / "stream.aedat4"
     t = time.perf_counter()
-    hybridhdr.write(ev, src_file, format="aedat4", sensor_size=(260, 346))
+    hybridhdr.write(hybridhdr.Recording(ev, hybridhdr.SensorSize(260, 346)), src_file, format="aedat4")
     log(f"wrote {len(ev):,} events to {src_file.name} in {time.perf_counter() - t:.1f} s")
     check = SyntheticEventSource(rate, sensor_size=(260, 346), chunk_us=chunk_us, pace="fast", seed=2)
 

@@ -274,15 +274,20 @@ def _run_record(args) -> int:
     fr = None
     warm_up()  # before any live source opens: nothing may wait unread while the kernel compiles
     try:
+        separate_camera = args.frames is not None and args.frames not in ("none",) and not Path(args.frames).exists()
+        if separate_camera:  # a frame camera opens (slowly) before a live event stream starts flowing
+            fr = _frame_source(args, None, ev)
+            fr.open()
         ev.open()
         origin = None
         if isinstance(ev, ReplayEventSource):
             tr = ev._reader.time_range_us if hasattr(ev._reader, "time_range_us") else None
             origin = None if tr is None else tr[0]
             ev.t_origin_us = origin
-        fr = _frame_source(args, origin, ev)
-        if fr is not None:
-            fr.open()
+        if not separate_camera:
+            fr = _frame_source(args, origin, ev)
+            if fr is not None:
+                fr.open()
         rec = Recorder(args.out, ev, fr, queue_chunks=args.queue_chunks, flush_interval_s=args.flush_interval_s,
                        on_full=args.on_full, compression=_comp(args.compression), fsync=args.fsync,
                        progress=not args.no_progress)

@@ -78,10 +78,10 @@ def test_rig_dv_stream_and_pylon_emulator_with_sync_report(tmp_path):
         pytest.skip(f"the DAVIS346 recording is absent ({DAVIS})")
     pytest.importorskip("dv_processing", reason="dv-processing (the [dv] extra) is not installed")
     urls = {k: f"dv-unix://{tmp_path / (k + '.sock')}" for k in ("events", "triggers")}
-    proc = _serve(urls)  # realtime: 2.4 s of DAVIS data
+    proc = _serve(urls, "--speed", "0.5")  # half speed: the 2.4 s of DAVIS data last 4.8 s
     try:
         _wait_sockets(urls, proc)
-        r = _scenario("rig", tmp_path, urls["events"], urls["triggers"], "6")
+        r = _scenario("rig", tmp_path, urls["events"], urls["triggers"], "9")
     finally:
         _end(proc)
     assert r["rc"] == 0
@@ -97,5 +97,7 @@ def test_rig_dv_stream_and_pylon_emulator_with_sync_report(tmp_path):
     # frames triggered while the stream ran lie within the events' time span once on the event clock
     t = np.asarray(r["t_start_us"])
     inside = (t >= r["event_t0"] - 100_000) & (t <= r["event_t1"] + 100_000)
-    assert inside.sum() >= 30, (inside.sum(), len(t))        # 25 Hz over the 2.4 s of the stream
+    # 25 Hz over the 4.8 s of the stream is 120 frames; on a loaded machine the recorder and the camera
+    # may start a second or two after the stream: at least 30 of them
+    assert inside.sum() >= 30, (inside.sum(), len(t))
     assert r["host_sync"]["offset_us"] == rep["offset_us"]
