@@ -280,7 +280,7 @@ def main(argv=None) -> int:
     ap.add_argument("--max-rate-s", type=float, default=None, help="length of the max-rate phase (0 = skip)")
     ap.add_argument("--dir", type=Path, default=None, help="parent of the temporary output folder")
     ap.add_argument("--dv-events", type=int, default=None,
-                    help="events of the DV-stream phase (default 20 M, quick 3 M; 0 = skip)")
+                    help="events of the DV-stream phase (default 20 M, quick 1 M; 0 = skip)")
     args = ap.parse_args(argv)
     dur = args.duration_s if args.duration_s is not None else (10.0 if args.quick else 60.0)
     mr = args.max_rate_s if args.max_rate_s is not None else (3.0 if args.quick else 10.0)
@@ -294,7 +294,7 @@ def main(argv=None) -> int:
         if mr > 0:
             log(f"max-rate phase: unpaced source for {mr:.0f} s")
             res.update(max_rate(folder, mr, args.chunk_us, args.queue_chunks))
-        nd = args.dv_events if args.dv_events is not None else (3_000_000 if args.quick else 20_000_000)
+        nd = args.dv_events if args.dv_events is not None else (1_000_000 if args.quick else 20_000_000)
         if nd > 0:
             try:
                 import dv_processing  # noqa: F401
