@@ -758,9 +758,10 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
 
     The stand-in for a live DAVIS behind iniVation's DV software: one ``dv.io.NetworkWriter`` per
     kind in ``urls`` (``{"events": URL, "frames": URL, "triggers": URL}``, URLs as for ``--source``).
-    Waits until every stream has a client (data written with no client is lost), then writes the
-    packets in time order, paced at ``speed`` × the recorded rate (``None``: as fast as possible),
-    and waits until every queued packet has been sent.
+    Waits until every stream has a client (data written with no client is lost), then writes each
+    packet when the (scaled) clock reaches its LAST timestamp (a frame: its exposure end), as a
+    camera delivers a packet once it is complete, at ``speed`` × the recorded rate (``None``: as
+    fast as possible), and waits until every queued packet has been sent.
 
     ``t_from_us`` / ``t_to_us`` serve only ``[t_from_us, t_to_us)`` (events, triggers and frame
     starts), e.g. to stop a stream part-way and restart it where it stopped.
@@ -810,7 +811,7 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
             if len(e) and (e.getLowestTime() < lo or e.getHighestTime() >= hi):
                 e = e.sliceTime(lo, hi)
             if len(e):
-                yield int(e.getLowestTime()), "events", e
+                yield int(e.getHighestTime()), "events", e
 
     def frames():
         while True:
@@ -818,7 +819,7 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
             if f is None:
                 return
             if lo <= f.timestamp < hi:
-                yield int(f.timestamp), "frames", f
+                yield int(f.timestamp) + int(round(f.exposure.total_seconds() * 1e6)), "frames", f
 
     def triggers():
         while True:
@@ -832,7 +833,7 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
                     tv.append(x)
                 t = tv
             if keep:
-                yield int(keep[0].timestamp), "triggers", t
+                yield int(keep[-1].timestamp), "triggers", t
 
     import heapq
     gens = {"events": events, "frames": frames, "triggers": triggers}
