@@ -370,9 +370,10 @@ class DvCapture:
         self._lock = threading.Lock()
         self.counters = {"interruptions": 0, "restarts": 0, "ended": 0, "gaps_us": [], "imu_samples": 0,
                          "timestamp_resets": 0, "events_dropped_in_buffer": 0, "triggers_dropped_in_buffer": 0,
-                         "frames_dropped_in_buffer": 0, "interruption_log": []}
+                         "frames_dropped_in_buffer": 0, "frames_not_recorded": 0, "interruption_log": []}
         self.clock = {"events": HostClockSamples(), "frames": HostClockSamples()}
         self.errors: list[BaseException] = []
+        self._want_frames = False  # set by frame_source(): frames are buffered only when recorded
 
     # -- lifecycle ------------------------------------------------------------------------------
     def open(self) -> "DvCapture":
@@ -441,7 +442,11 @@ class DvCapture:
         return self._ev
 
     def frame_source(self) -> "DvFrameSource | None":
-        """The frame source, or None when no input carries frames (opens the capture to find out)."""
+        """The frame source, or None when no input carries frames (opens the capture to find out).
+
+        Frames are buffered only once this was called; before, a camera's or a stream's frames are
+        read and counted (``frames_not_recorded``) but not kept."""
+        self._want_frames = True
         self.open()
         if "frames" not in self.kinds:
             return None
@@ -497,7 +502,13 @@ class DvCapture:
                         got = True
                 if "frames" in kinds:
                     f = r.getNextFrame()
-                    if f is not None:
+                    if f is not None and not self._want_frames:
+                        # frames nobody records (another frame camera, or --frames none): read so the
+                        # reader never overflows, count, keep out of the drop counts
+                        with self._lock:
+                            self.counters["frames_not_recorded"] += 1
+                        got = True
+                    elif f is not None:
                         item = frame_from_dv(f, self.frame_size, 0)
                         host = _host_us()
                         last["frames"] = item.t_end_us

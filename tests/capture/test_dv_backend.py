@@ -206,3 +206,23 @@ hi = int(sys.argv[4]) if sys.argv[4] else None
 serve_recording(sys.argv[1], json.loads(sys.argv[2]), speed=None, t_from_us=lo, t_to_us=hi, wait_clients_s=120)
 os._exit(0)
 """
+
+
+@needs_davis
+def test_frames_of_a_stream_not_recorded_are_counted_apart_from_drops(source, tmp_path):
+    """A rig records another camera's frames: the DAVIS frame stream is read (so its reader never
+    overflows) and counted as not recorded, which is not a loss."""
+    urls = _urls(tmp_path)
+    proc = _serve(urls, "--fast")
+    try:
+        _wait_sockets(urls, proc)
+        cap = DvCapture(list(urls.values()), reconnect_timeout_s=0.5)
+        st = Recorder(tmp_path / "rec.h5", cap.event_source()).record(60)
+    finally:
+        _end(proc)
+    c = st.source_counters["events"]
+    assert c["frames_not_recorded"] == len(source.frames)
+    assert st.source_dropped == 0 and not st.dropped_anything
+    back = read_recording(tmp_path / "rec.h5")
+    np.testing.assert_array_equal(back.events, source.events)
+    assert back.frames is None or not len(back.frames)
