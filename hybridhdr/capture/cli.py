@@ -332,10 +332,11 @@ def run_serve_dv(args) -> int:
     urls = {k: getattr(args, k) for k in ("events", "frames", "triggers") if getattr(args, k)}
     if not urls:
         raise ValueError("give at least one of --events URL, --frames URL, --triggers URL")
-    print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
-          file=sys.stderr, flush=True)
+    def ready():  # the sockets listen now
+        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
+              file=sys.stderr, flush=True)
     counts = serve_recording(args.file, urls, speed=None if args.fast else args.speed,
-                             wait_clients_s=args.wait_clients_s)
+                             wait_clients_s=args.wait_clients_s, on_ready=ready)
     print(f"served {', '.join(f'{v:,} {k}' for k, v in counts.items())}", flush=True)
     sys.stdout.flush()
     sys.stderr.flush()

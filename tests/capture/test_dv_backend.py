@@ -43,8 +43,20 @@ def source():
         return r.read()
 
 
-def _urls(d: Path):
-    return {k: f"dv-unix://{d / (k + '.sock')}" for k in ("events", "frames", "triggers")}
+def _urls(d: Path, transport: str = "unix"):
+    if transport == "unix":
+        return {k: f"dv-unix://{d / (k + '.sock')}" for k in ("events", "frames", "triggers")}
+    import socket
+    ports = []
+    socks = []
+    for _ in range(3):  # free loopback ports (held together so that they differ)
+        s = socket.socket()
+        s.bind(("127.0.0.1", 0))
+        socks.append(s)
+        ports.append(s.getsockname()[1])
+    for s in socks:
+        s.close()
+    return {k: f"dv-tcp://127.0.0.1:{p}" for k, p in zip(("events", "frames", "triggers"), ports)}
 
 
 def _serve(urls: dict, *extra) -> subprocess.Popen:
@@ -56,14 +68,19 @@ def _serve(urls: dict, *extra) -> subprocess.Popen:
 
 
 def _wait_sockets(urls: dict, proc: subprocess.Popen, timeout_s: float = 120.0):
+    """Wait for the server's line saying its sockets listen (a probe connection would count as a client)."""
+    import selectors
+    sel = selectors.DefaultSelector()
+    sel.register(proc.stderr, selectors.EVENT_READ)
     t_end = time.monotonic() + timeout_s
-    paths = [parse_dv_source(u)[1] for u in urls.values()]
-    while not all(os.path.exists(p) for p in paths):
-        if proc.poll() is not None:
-            raise AssertionError(f"the server ended early: {proc.stderr.read()}")
-        if time.monotonic() > t_end:
-            raise AssertionError("the server did not open its sockets")
-        time.sleep(0.05)
+    while time.monotonic() < t_end:
+        if sel.select(timeout=0.5):
+            line = proc.stderr.readline()
+            if "waiting for clients" in line:
+                return
+            if not line and proc.poll() is not None:
+                break
+    raise AssertionError(f"the server did not open its sockets (exit {proc.poll()})")
 
 
 def _end(proc: subprocess.Popen):
@@ -105,9 +122,11 @@ def test_host_clock_samples_keep_the_lower_envelope_and_stay_bounded():
 
 
 @needs_davis
-def test_record_dv_streams_equals_source(source, tmp_path, capsys):
-    """Every event, every frame with its exposure, every trigger of the file, through three UNIX sockets."""
-    urls = _urls(tmp_path)
+@pytest.mark.parametrize("transport", ["unix", "tcp"])
+def test_record_dv_streams_equals_source(source, tmp_path, capsys, transport):
+    """Every event, every frame with its exposure, every trigger of the file, through three UNIX
+    sockets (and three loopback TCP ports)."""
+    urls = _urls(tmp_path, transport)
     proc = _serve(urls)
     try:
         _wait_sockets(urls, proc)
@@ -142,14 +161,16 @@ def test_restarted_stream_is_counted_and_nothing_is_lost(source, tmp_path):
     cap = DvCapture(list(urls.values()), reconnect_timeout_s=60.0)
     # first server: [start, t_cut), as fast as the sockets take it; it exits when done
     a = subprocess.Popen([sys.executable, "-c", _SERVE_PART, str(DAVIS), json.dumps(urls), "", str(t_cut)],
-                         stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+                         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                         env={**os.environ, "PYTHONPATH": str(REPO)})
     try:
         _wait_sockets(urls, a)
         rec = Recorder(tmp_path / "rec.h5", cap.event_source(), cap.frame_source(), flush_interval_s=0.1)
         rec.start()
         assert a.wait(120) == 0
         b = subprocess.Popen([sys.executable, "-c", _SERVE_PART, str(DAVIS), json.dumps(urls), str(t_cut), ""],
-                             stdout=subprocess.PIPE, text=True, env={**os.environ, "PYTHONPATH": str(REPO)})
+                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                             env={**os.environ, "PYTHONPATH": str(REPO)})
         try:
             assert b.wait(120) == 0
         finally:
@@ -203,7 +224,8 @@ import json, os, sys
 from hybridhdr.capture.dv_backend import serve_recording
 lo = int(sys.argv[3]) if sys.argv[3] else None
 hi = int(sys.argv[4]) if sys.argv[4] else None
-serve_recording(sys.argv[1], json.loads(sys.argv[2]), speed=None, t_from_us=lo, t_to_us=hi, wait_clients_s=120)
+serve_recording(sys.argv[1], json.loads(sys.argv[2]), speed=None, t_from_us=lo, t_to_us=hi, wait_clients_s=120,
+                on_ready=lambda: print("waiting for clients", file=sys.stderr, flush=True))
 os._exit(0)
 """
 
