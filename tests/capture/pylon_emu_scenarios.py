@@ -94,7 +94,16 @@ def rig(folder: Path, events_url: str, triggers_url: str, seconds: str = "4") ->
             "host_sync": back.metadata.provenance.get("host_clock_sync")}
 
 
+def brackets_cli(folder: Path) -> dict:
+    """``hybridhdr capture brackets --device pylon`` on the emulator's own test image."""
+    from hybridhdr.cli import main
+    rc = main(["capture", "brackets", "--device", "pylon", "--exposures-us", "1000", "4000", "16000", "--gain-db",
+               "0", "--out", str(folder / "b"), "--plot", str(folder / "b.png")])
+    return {"rc": rc, "brackets": json.loads((folder / "b" / "brackets.json").read_text())}
+
+
 if __name__ == "__main__":
     name, folder, *rest = sys.argv[1:]
-    res = {"brackets": brackets, "software_trigger": software_trigger, "rig": rig}[name](Path(folder), *rest)
+    res = {"brackets": brackets, "brackets_cli": brackets_cli, "software_trigger": software_trigger,
+           "rig": rig}[name](Path(folder), *rest)
     print(json.dumps(res))

@@ -55,6 +55,14 @@ def test_bracket_with_exposures_read_back_then_calibrate_crf(tmp_path, capsys):
     assert (out / "camera_profile.json").exists()
 
 
+def test_brackets_command_on_the_emulator(tmp_path):
+    r = _scenario("brackets_cli", tmp_path)
+    assert r["rc"] == 0
+    imgs = r["brackets"]["images"]
+    assert [round(i["exposure_s"] * 1e6) for i in imgs] == [1000, 4000, 16000]
+    assert r["brackets"]["camera"]["model"] == "Emulation" and (tmp_path / "b.png").exists()
+
+
 def test_software_trigger_frames_on_the_host_clock(tmp_path):
     r = _scenario("software_trigger", tmp_path, "40", "1.5")
     t0 = np.asarray(r["t_start_us"])
