@@ -278,13 +278,15 @@ def _run_record(args) -> int:
         if separate_camera:  # a frame camera opens (slowly) before a live event stream starts flowing
             fr = _frame_source(args, None, ev)
             fr.open()
+        elif args.frames is None and getattr(ev, "capture", None) is not None:
+            fr = ev.capture.frame_source()  # a DAVIS's or a DV stream's frames: wanted before the first arrives
         ev.open()
         origin = None
         if isinstance(ev, ReplayEventSource):
             tr = ev._reader.time_range_us if hasattr(ev._reader, "time_range_us") else None
             origin = None if tr is None else tr[0]
             ev.t_origin_us = origin
-        if not separate_camera:
+        if not separate_camera and fr is None:
             fr = _frame_source(args, origin, ev)
             if fr is not None:
                 fr.open()
