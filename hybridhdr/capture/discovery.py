@@ -7,7 +7,7 @@ install lists nothing and exits 0.
 
 from __future__ import annotations
 
-from .devices import list_devices
+from . import devices
 
 __all__ = ["discover", "format_device_dicts", "LISTERS"]
 
@@ -50,7 +50,7 @@ def discover(*, include_unknown: bool = False, listers=("usb", "dv-processing", 
                 except ImportError:
                     notes.append(_missing_hint(name))
                     continue
-                for d in list_devices(include_unknown=include_unknown):
+                for d in devices.list_devices(include_unknown=include_unknown):  # looked up per call
                     devs.append({**d.to_dict(), "sdk": "usb"})
             elif name == "dv-processing":
                 from .dv_backend import dv_available, list_dv_cameras
