@@ -13,7 +13,8 @@ returning ``None`` when nothing is waiting):
   inputs and finds out what each carries.
 
 :class:`DvCapture` holds the inputs; :meth:`DvCapture.event_source` and
-:meth:`DvCapture.frame_source` are the recorder's :class:`~hybridhdr.capture.sources.EventSource`
+:meth:`DvCapture.frame_source` (call it before the stream flows: frames that arrive before are read
+and counted as not recorded) are the recorder's :class:`~hybridhdr.capture.sources.EventSource`
 (events with the triggers merged in) and :class:`~hybridhdr.capture.sources.FrameSource` over them.
 The readers are polled by pump threads into bounded buffers (:class:`DvCapture`), so the recorder
 may make the sources wait; a full buffer drops and counts, as a camera driver would.
