@@ -1,4 +1,5 @@
-"""Soak test of the capture recorder: a synthetic 20 Mev/s stream for 60 s (10 s with --quick).
+"""Soak test of the capture recorder: a synthetic 20 Mev/s stream for 60 s (10 s with --quick), then
+a DV network stream on loopback beside a file replay of the same events (``dv_*`` and ``replay_*``).
 
 Usage: ``python benchmarks/recorder.py [--quick]``. Progress goes to stderr; the last stdout line
 is ONE JSON object.
@@ -33,6 +34,8 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+
+import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
@@ -167,6 +170,104 @@ def max_rate(folder: Path, duration_s: float, chunk_us: int, queue_chunks: int):
             "cpu_ms_per_mev": ms_per_mev, "rate_on_one_free_core_mev_s": 1e3 / ms_per_mev}
 
 
+_DV_SERVER = """
+import json, os, sys
+from hybridhdr.capture.dv_backend import serve_recording
+print(json.dumps(serve_recording(sys.argv[1], {"events": sys.argv[2]}, speed=None, wait_clients_s=120)), flush=True)
+os._exit(0)
+"""
+
+
+def dv_stream(folder: Path, n_events: int, rate: float, chunk_us: int, queue_chunks: int):
+    """A DV network stream on loopback (UNIX socket) into the recorder, beside a file replay of the same data.
+
+    The events are the synthetic generator's (exactly checkable, chunk by chunk), written once into an
+    AEDAT4 file (not timed). Phase "replay": :class:`ReplayEventSource` reads the file unpaced into the
+    recorder (blocking queue). Phase "dv": a separate process serves the same file with dv-processing's
+    ``NetworkWriter`` as fast as the socket takes it (``serve_recording(speed=None)``), and the recorder
+    records it through :class:`DvCapture` (pump thread, bounded buffer): the sustained rate is events
+    written over the time from the first batch received to the end of the stream, and every event the
+    server sent and the file does not hold is a loss — compared with the recorder's and the pump's drop
+    counts and the stream interruptions.
+    """
+    import os
+    import subprocess
+
+    import hybridhdr
+    from hybridhdr.capture.dv_backend import DvCapture
+    from hybridhdr.capture.recorder import Recorder
+    from hybridhdr.capture.sources import ReplayEventSource, SyntheticEventSource
+    from hybridhdr.formats.container import RecordingFile
+
+    gen = SyntheticEventSource(rate, sensor_size=(260, 346), chunk_us=chunk_us, pace="fast", seed=2)
+    n_chunks = max(1, n_events // gen.chunk_events)
+    ev = np.concatenate([c.events for c, _ in zip(gen, range(n_chunks))])
+    src_file = folder / "stream.aedat4"
+    t = time.perf_counter()
+    hybridhdr.write(hybridhdr.Recording(ev, hybridhdr.SensorSize(260, 346)), src_file, format="aedat4")
+    log(f"wrote {len(ev):,} events to {src_file.name} in {time.perf_counter() - t:.1f} s")
+    check = SyntheticEventSource(rate, sensor_size=(260, 346), chunk_us=chunk_us, pace="fast", seed=2)
+
+    def verify(path):
+        with RecordingFile(path) as f:
+            return check.check_stream(f.iter_events(1 << 22))
+
+    # replay phase
+    rp = ReplayEventSource(src_file, pace="fast", chunk_us=chunk_us)
+    rec = Recorder(folder / "replay.h5", rp, queue_chunks=queue_chunks, compression=None)
+    rec.start()
+    rec.wait()
+    st = rec.finish()
+    replay = {"replay_events": st.events_written, "replay_wall_s": st.duration_s,
+              "replay_mev_s": st.events_written / st.duration_s / 1e6, "replay_events_dropped": st.events_dropped,
+              "replay_check": verify(folder / "replay.h5")}
+    log(f"replay: {replay['replay_mev_s']:.2f} Mev/s")
+
+    # DV stream phase
+    sock = folder / "events.sock"
+    env = {**os.environ, "PYTHONPATH": str(Path(__file__).resolve().parents[1])}
+    server = subprocess.Popen([sys.executable, "-c", _DV_SERVER, str(src_file), f"dv-unix://{sock}"],
+                              stdout=subprocess.PIPE, text=True, env=env)
+    try:
+        while not sock.exists():
+            if server.poll() is not None:
+                raise RuntimeError("the DV server ended before opening its socket")
+            time.sleep(0.02)
+        cap = DvCapture([f"dv-unix://{sock}"], reconnect_timeout_s=0.5, buffer_items=4096)
+        es = cap.event_source()
+        first = {}
+
+        def on_flush(d):
+            if d["events_written"] and "t" not in first:
+                first["t"] = time.perf_counter()
+        rec = Recorder(folder / "dv.h5", es, queue_chunks=queue_chunks, compression=None, flush_interval_s=0.05,
+                       on_flush=on_flush)
+        t0 = time.perf_counter()
+        rec.start()
+        served = json.loads(server.stdout.readline())
+        rec.wait(120)
+        t_end = time.perf_counter()
+        st = rec.finish()
+    finally:
+        if server.poll() is None:
+            server.kill()
+        server.communicate()
+    chk = verify(folder / "dv.h5")
+    c = st.source_counters.get("events", {})
+    wall = t_end - t0
+    lost = served["events"] - chk["events"]
+    return {**replay, "dv_events_served": served["events"], "dv_events_written": st.events_written,
+            "dv_events_lost": lost, "dv_recorder_events_dropped": st.events_dropped,
+            "dv_buffer_events_dropped": c.get("events_dropped_in_buffer"),
+            "dv_stream_interruptions": c.get("interruptions"), "dv_stream_restarts": c.get("restarts"),
+            "dv_check": chk, "dv_wall_s": wall,
+            # the stream ends with the reconnection window (0.5 s) the source waits before it gives up
+            "dv_mev_s": st.events_written / max(wall - 0.5, 1e-9) / 1e6,
+            "dv_all_loss_counted": lost == (st.events_dropped + (c.get("events_dropped_in_buffer") or 0))
+            or bool(c.get("interruptions", 0) > c.get("ended", 0)),
+            "dv_over_replay": (st.events_written / max(wall - 0.5, 1e-9)) / (replay["replay_mev_s"] * 1e6)}
+
+
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0],
                                  formatter_class=argparse.ArgumentDefaultsHelpFormatter)
@@ -178,6 +279,8 @@ def main(argv=None) -> int:
     ap.add_argument("--flush-interval-s", type=float, default=1.0, help="journal flush period")
     ap.add_argument("--max-rate-s", type=float, default=None, help="length of the max-rate phase (0 = skip)")
     ap.add_argument("--dir", type=Path, default=None, help="parent of the temporary output folder")
+    ap.add_argument("--dv-events", type=int, default=None,
+                    help="events of the DV-stream phase (default 20 M, quick 1 M; 0 = skip)")
     args = ap.parse_args(argv)
     dur = args.duration_s if args.duration_s is not None else (10.0 if args.quick else 60.0)
     mr = args.max_rate_s if args.max_rate_s is not None else (3.0 if args.quick else 10.0)
@@ -191,6 +294,16 @@ def main(argv=None) -> int:
         if mr > 0:
             log(f"max-rate phase: unpaced source for {mr:.0f} s")
             res.update(max_rate(folder, mr, args.chunk_us, args.queue_chunks))
+        nd = args.dv_events if args.dv_events is not None else (1_000_000 if args.quick else 20_000_000)
+        if nd > 0:
+            try:
+                import dv_processing  # noqa: F401
+            except ImportError:
+                log("DV-stream phase skipped: dv-processing is not installed (pip install 'hybridhdr[dv]')")
+                res["dv_skipped"] = "dv-processing is not installed"
+            else:
+                log(f"DV-stream phase: {nd:,} events over a UNIX socket, beside a file replay of the same data")
+                res.update(dv_stream(folder, nd, 5e6, args.chunk_us, args.queue_chunks))
     finally:
         shutil.rmtree(folder, ignore_errors=True)
     res["peak_rss_mb"] = _status_kb("VmHWM") / 1024

@@ -1,5 +1,5 @@
-"""Capture: live data in, recordings out — event/frame sources (file replay, OAK, Prophesee),
-USB discovery, trigger synchronisation, the crash-safe recorder, dataset sessions.
+"""Capture: live data in, recordings out — event/frame sources (file replay, OAK, Prophesee, DAVIS
+and DV network streams through dv-processing, Basler/GenICam through pylon), device discovery, trigger synchronisation, the crash-safe recorder, dataset sessions.
 
 File formats (reading, writing, detection) are :mod:`hybridhdr.formats`.
 
@@ -33,6 +33,10 @@ _LAZY = {
     'SyncReport': '.sync',
     'sync_frames': '.sync',
     'sync_recording': '.sync',
+    'DvCapture': '.dv_backend',
+    'PylonFrameSource': '.pylon_backend',
+    'discover': '.discovery',
+    'host_clock_sync_recording': '.rig',
 }
 
 
@@ -43,4 +47,5 @@ __all__ = [
     "EventSource", "FrameSource", "FrameItem", "ReplayEventSource", "ReplayFrameSource", "SyntheticEventSource",
     "Recorder", "RecorderStats", "recover", "sync_frames", "sync_recording", "SyncReport",
     "list_devices", "NoDeviceFound", "DepthaiFrameSource", "PropheseeEventSource", "create_session", "verify_session",
+    "DvCapture", "PylonFrameSource", "discover", "host_clock_sync_recording",
 ]

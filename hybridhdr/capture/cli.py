@@ -20,10 +20,13 @@ def add_parser(sub) -> None:
     p.set_defaults(func=lambda a: (p.print_help(), 0)[1])
     cs = p.add_subparsers(dest="capture_command", metavar="STEP")
 
-    d = cs.add_parser("devices", help="list attached event and frame cameras (USB IDs)", formatter_class=_FMT, parents=[COMMON],
-                      description="List attached cameras by USB vendor/product ID (Prophesee, iniVation, Luxonis, "
-                                  "FLIR, Basler, ...). Exits 1 when none is found, except with --json, which prints "
-                                  "the list ([] when empty) and exits 0.")
+    d = cs.add_parser("devices", help="list attached event and frame cameras (USB IDs, dv-processing, pylon)",
+                      formatter_class=_FMT, parents=[COMMON],
+                      description="List attached cameras: by USB vendor/product ID (pyusb: Prophesee, iniVation, "
+                                  "Luxonis, FLIR, Basler, ...), DAVIS/DVXplorer through dv-processing and Basler/GenICam "
+                                  "cameras through pylon. A package that is missing is named with the extra that "
+                                  "installs it (exit 0). Exits 1 when every lister ran and found nothing, except with "
+                                  "--json, which prints the list ([] when empty) and exits 0.")
     d.add_argument("--all", action="store_true", help="also list USB devices that are not known cameras")
     d.set_defaults(func=run_devices)
 
@@ -32,11 +35,31 @@ def add_parser(sub) -> None:
                       description="Record an event source and optionally a frame source into a hybridhdr "
                                   "container. Data go to OUT.journal while recording; after a crash run "
                                   "'hybridhdr capture recover OUT'.")
-    r.add_argument("--events", required=True,
+    r.add_argument("--events", default=None,
                    help="event source: a file to replay (any readable format), 'synthetic:RATE' (events/s), "
                         "or 'prophesee' / 'device' for a live Prophesee camera")
+    r.add_argument("--camera", default=None, metavar="davis[:SERIAL]",
+                   help="a DAVIS or DVXplorer through dv-processing: events, triggers and (DAVIS) frames from one "
+                        "device")
+    r.add_argument("--source", action="append", default=[], metavar="URL",
+                   help="a DV network stream, dv-tcp://HOST:PORT or dv-unix:///path/to/socket; repeat it, one per "
+                        "stream kind (events, frames, triggers)")
     r.add_argument("--frames", default=None,
-                   help="frame source: a file to replay, or 'oak' / 'device' for a Luxonis OAK camera")
+                   help="frame source: a file to replay, 'oak' / 'device' for a Luxonis OAK, 'pylon[:SERIAL]' for a "
+                        "Basler/GenICam camera, or 'none' to leave out a DAVIS's or DV stream's frames")
+    r.add_argument("--gain-db", type=float, default=None, help="pylon: fixed gain (dB)")
+    r.add_argument("--frame-rate-hz", type=positive_float, default=None,
+                   help="pylon: free-running frame rate; DAVIS: APS frame rate (frame interval = 1/rate)")
+    r.add_argument("--trigger", default="free", choices=("free", "software", "Line1", "Line2", "Line3", "Line4"),
+                   help="pylon trigger: free-running, software (at --trigger-rate-hz) or a hardware input line")
+    r.add_argument("--trigger-rate-hz", type=positive_float, default=None, help="pylon: software trigger rate")
+    r.add_argument("--pixel-format", default=None, help="pylon pixel format (Mono8, Mono12, Mono16, RGB8 ...)")
+    r.add_argument("--reconnect-s", type=positive_float, default=5.0,
+                   help="DV inputs: how long an interrupted stream or camera is reconnected before it ends")
+    r.add_argument("--sync", choices=("none", "host"), default="none",
+                   help="host: after recording, put the frames on the event clock through both sources' host-clock "
+                        "samples and write the sync report to OUT.sync.json (a rig without trigger wiring; with "
+                        "wiring use 'capture sync')")
     r.add_argument("--out", type=Path, required=True, help="output container (.h5)")
     r.add_argument("--duration-s", type=positive_float, default=None, help="stop after this many seconds (default: "
                    "end of the replayed file, Ctrl-C for live sources)")
@@ -48,7 +71,8 @@ def add_parser(sub) -> None:
     r.add_argument("--on-full", choices=("auto", "block", "drop"), default="auto", help="queue-full policy")
     r.add_argument("--compression", choices=("gzip", "lzf", "none"), default="gzip", help="container compression")
     r.add_argument("--fsync", action="store_true", help="fsync the journal at each flush (power-loss safe)")
-    r.add_argument("--exposure-us", type=int, default=None, help="OAK manual exposure (µs)")
+    r.add_argument("--exposure-us", type=int, default=None,
+                   help="manual exposure (µs): OAK (with --iso), pylon, or the DAVIS APS")
     r.add_argument("--iso", type=int, default=None, help="OAK manual ISO (100-1600)")
     r.add_argument("--frame-sync", choices=("off", "input", "output"), default=None, help="OAK FSYNC role")
     r.add_argument("--trigger-channels", type=int, nargs="*", default=(), help="Prophesee trigger inputs to enable")
@@ -61,7 +85,9 @@ def add_parser(sub) -> None:
                                   "exposures.txt, or a brackets.json folder), optionally rewriting it as a "
                                   "brackets.json folder; or capture one from an OAK camera.")
     b.add_argument("folder", nargs="?", type=Path, help="bracket folder to read")
-    b.add_argument("--device", choices=("oak",), default=None, help="capture from a camera instead")
+    b.add_argument("--device", default=None, metavar="oak|pylon[:SERIAL]", help="capture from a camera instead")
+    b.add_argument("--gain-db", type=float, default=None, help="pylon: fixed gain (dB) for the bracket")
+    b.add_argument("--pixel-format", default=None, help="pylon pixel format (Mono8, Mono12 ...)")
     b.add_argument("--exposures-us", type=int, nargs="+", default=None, help="exposures to capture (µs)")
     b.add_argument("--iso", type=int, default=100, help="ISO for the capture")
     b.add_argument("--frames-per-step", type=positive_int, default=1, help="frames kept per exposure")
@@ -85,6 +111,20 @@ def add_parser(sub) -> None:
     s.add_argument("--report", type=Path, default=None, help="write the report as JSON")
     s.add_argument("--plot", type=Path, default=None, help="PNG of the fit residuals")
     s.set_defaults(func=run_sync)
+
+    sv = cs.add_parser("serve-dv", help="serve an AEDAT4 recording as DV network streams (a stand-in for a live DAVIS)",
+                       formatter_class=_FMT, parents=[COMMON_NO_JSON],
+                       description="Serve a recording's events, frames and triggers with dv-processing's NetworkWriter, "
+                                   "one stream per kind, as iniVation's DV software streams a live camera; waits for a "
+                                   "client on every stream, then sends in recorded time.")
+    sv.add_argument("file", type=Path, help="AEDAT4 recording")
+    sv.add_argument("--events", default=None, metavar="URL", help="dv-tcp://HOST:PORT or dv-unix:///path")
+    sv.add_argument("--frames", default=None, metavar="URL")
+    sv.add_argument("--triggers", default=None, metavar="URL")
+    sv.add_argument("--speed", type=positive_float, default=1.0, help="pace (1 = recorded rate)")
+    sv.add_argument("--fast", action="store_true", help="send as fast as possible")
+    sv.add_argument("--wait-clients-s", type=positive_float, default=60.0, help="how long to wait for clients")
+    sv.set_defaults(func=run_serve_dv)
 
     v = cs.add_parser("recover", help="rebuild a recording from the journal of an interrupted capture",
                       formatter_class=_FMT, parents=[COMMON_NO_JSON],
@@ -122,20 +162,41 @@ def _comp(v):
 # -- devices ----------------------------------------------------------------------------------
 @json_output
 def run_devices(args) -> int:
-    from .devices import NoDeviceFound, format_devices, list_devices
-    devs = list_devices(include_unknown=args.all)
+    from .devices import NoDeviceFound
+    from .discovery import discover, format_device_dicts
+    devs, notes = discover(include_unknown=args.all)
+    for n in notes:
+        print(f"note: {n}", file=sys.stderr)
     if args.json:  # a list, empty or not, is the answer
-        print(json.dumps([d.to_dict() for d in devs]))
+        print(json.dumps(devs))
         return 0
     if not devs:
+        if notes:
+            print("no device found by the installed listers (see the notes above)")
+            return 0
         raise NoDeviceFound("no device found (looked for Prophesee, iniVation, Luxonis OAK, FLIR, Basler, "
-                            "Allied Vision, IDS and XIMEA USB IDs; see docs/capture.md)")
-    print(json.dumps([d.to_dict() for d in devs]) if args.json else format_devices(devs))
+                            "Allied Vision, IDS and XIMEA USB IDs, dv-processing and pylon cameras; see "
+                            "docs/capture.md)")
+    print(format_device_dicts(devs))
     return 0
 
 
 # -- record -----------------------------------------------------------------------------------
 def _event_source(args):
+    given = [k for k in ("events", "camera", "source") if getattr(args, k)]
+    if len(given) != 1:
+        raise ValueError(f"give one event source: --events FILE|synthetic:RATE|prophesee, --camera davis[:SERIAL] "
+                         f"or --source URL (one per DV stream); got {given or 'none'}")
+    if args.camera or args.source:
+        from .dv_backend import DvCapture
+        specs = [args.camera] if args.camera else list(args.source)
+        if args.camera and not (args.camera == "davis" or args.camera.startswith("davis:")):
+            raise ValueError(f"--camera {args.camera!r}: expected davis or davis:SERIAL (DAVIS and DVXplorer cameras)")
+        cam_controls = bool(args.camera) and args.frames in (None, "none")
+        fi = None if not (cam_controls and args.frame_rate_hz) else int(round(1e6 / args.frame_rate_hz))
+        cap = DvCapture(specs, exposure_us=args.exposure_us if cam_controls else None, frame_interval_us=fi,
+                        reconnect_timeout_s=args.reconnect_s)
+        return cap.event_source()
     spec = args.events
     if spec in ("prophesee", "device"):
         from .prophesee_backend import PropheseeEventSource
@@ -152,20 +213,29 @@ def _event_source(args):
         return SyntheticEventSource(rate, chunk_us=args.chunk_us, pace=args.pace, duration_s=args.duration_s)
     from .sources import ReplayEventSource
     if not Path(spec).exists():
-        raise FileNotFoundError(f"--events {spec}: no such file (or use 'synthetic:RATE', 'prophesee')")
+        raise FileNotFoundError(f"--events {spec}: no such file (or use 'synthetic:RATE', 'prophesee', --camera davis "
+                                f"or --source URL)")
     return ReplayEventSource(spec, pace=args.pace, speed=args.speed, chunk_us=args.chunk_us)
 
 
-def _frame_source(args, t_origin_us=None):
+def _frame_source(args, t_origin_us=None, ev=None):
     spec = args.frames
     if spec is None:
+        cap = getattr(ev, "capture", None)
+        return None if cap is None else cap.frame_source()  # a DAVIS's or a DV frame stream's frames
+    if spec == "none":
         return None
     if spec in ("oak", "device"):
         from .depthai_backend import DepthaiFrameSource
         return DepthaiFrameSource(exposure_us=args.exposure_us, iso=args.iso, frame_sync=args.frame_sync)
+    if spec == "pylon" or spec.startswith("pylon:"):
+        from .pylon_backend import PylonFrameSource
+        return PylonFrameSource(spec.split(":", 1)[1] if ":" in spec else None, exposure_us=args.exposure_us,
+                                gain_db=args.gain_db, pixel_format=args.pixel_format, trigger=args.trigger,
+                                software_rate_hz=args.trigger_rate_hz, frame_rate_hz=args.frame_rate_hz)
     from .sources import ReplayFrameSource
     if not Path(spec).exists():
-        raise FileNotFoundError(f"--frames {spec}: no such file (or use 'oak')")
+        raise FileNotFoundError(f"--frames {spec}: no such file (or use 'oak', 'pylon[:SERIAL]', 'none')")
     return ReplayFrameSource(spec, pace=args.pace, speed=args.speed, t_origin_us=t_origin_us)
 
 
@@ -176,21 +246,50 @@ def run_record(args) -> int:
         return _run_record(args)
 
 
+def _host_sync(out: Path) -> dict:
+    """Rewrite OUT with its frames on the event clock (host-clock samples); the report to OUT.sync.json."""
+    import os
+
+    from .._util.atomic import write_json_atomic
+    from ..formats.container import read_recording, write_recording
+    from .rig import host_clock_sync_recording
+    rec2, rep = host_clock_sync_recording(read_recording(out))
+    tmp = out.with_name(out.name + ".sync.partial")
+    if tmp.exists():
+        raise FileExistsError(f"{tmp} exists (a left-over of an interrupted sync?); delete it first")
+    write_recording(rec2, tmp)
+    os.replace(tmp, out)
+    rp = out.with_name(out.name + ".sync.json")
+    write_json_atomic(rp, rep.to_dict())
+    print(rep.summary())
+    return {"report": str(rp), **rep.to_dict()}
+
+
 def _run_record(args) -> int:
-    from .recorder import Recorder
+    from .recorder import Recorder, warm_up
     from .sources import ReplayEventSource
+    if args.sync == "host" and args.frames in (None, "none") and not args.source:
+        raise ValueError("--sync host needs a separate frame camera (--frames pylon|oak) or DV streams")
     ev = _event_source(args)
     fr = None
+    warm_up()  # before any live source opens: nothing may wait unread while the kernel compiles
     try:
+        separate_camera = args.frames is not None and args.frames not in ("none",) and not Path(args.frames).exists()
+        if separate_camera:  # a frame camera opens (slowly) before a live event stream starts flowing
+            fr = _frame_source(args, None, ev)
+            fr.open()
+        elif args.frames is None and getattr(ev, "capture", None) is not None:
+            fr = ev.capture.frame_source()  # a DAVIS's or a DV stream's frames: wanted before the first arrives
         ev.open()
         origin = None
         if isinstance(ev, ReplayEventSource):
             tr = ev._reader.time_range_us if hasattr(ev._reader, "time_range_us") else None
             origin = None if tr is None else tr[0]
             ev.t_origin_us = origin
-        fr = _frame_source(args, origin)
-        if fr is not None:
-            fr.open()
+        if not separate_camera and fr is None:
+            fr = _frame_source(args, origin, ev)
+            if fr is not None:
+                fr.open()
         rec = Recorder(args.out, ev, fr, queue_chunks=args.queue_chunks, flush_interval_s=args.flush_interval_s,
                        on_full=args.on_full, compression=_comp(args.compression), fsync=args.fsync,
                        progress=not args.no_progress)
@@ -202,7 +301,7 @@ def _run_record(args) -> int:
             print("stopping ...", file=sys.stderr)
         st = rec.finish()
     except BaseException:
-        for s in (ev, fr):
+        for s in (fr, ev):
             if s is not None:
                 s.close()
         raise
@@ -211,9 +310,40 @@ def _run_record(args) -> int:
     if st.dropped_anything or st.frames_missing_by_sequence:
         print(f"WARNING: dropped {st.events_dropped:,} events, {st.triggers_dropped:,} triggers, "
               f"{st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
-              f"by sequence number", file=sys.stderr)
-    args.emit_json({"out": str(args.out), **st.to_dict(), "dropped_anything": st.dropped_anything})
+              f"by sequence number; {st.source_dropped:,} items dropped by the sources (out of order or "
+              f"their buffer full)", file=sys.stderr)
+    for role, c in st.source_counters.items():
+        if c.get("restarts"):
+            print(f"WARNING: {role} inputs stopped and came back {c['restarts']} time(s) (gaps µs: {c.get('gaps_us')}); "
+                  f"data sent while an input was down is not in the recording", file=sys.stderr)
+        if c.get("ended"):
+            print(f"note: {c['ended']} {role} input(s) ended (the stream finished, the server stopped or the camera "
+                  f"went away) and did not come back within {args.reconnect_s:g} s", file=sys.stderr)
+    res = {"out": str(args.out), **st.to_dict(), "dropped_anything": st.dropped_anything}
+    if args.sync == "host":
+        res["sync"] = _host_sync(Path(args.out))
+    args.emit_json(res)
     return 0
+
+
+@json_command
+def run_serve_dv(args) -> int:
+    import os
+
+    from .dv_backend import serve_recording
+    urls = {k: getattr(args, k) for k in ("events", "frames", "triggers") if getattr(args, k)}
+    if not urls:
+        raise ValueError("give at least one of --events URL, --frames URL, --triggers URL")
+    def ready():  # the sockets listen now
+        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
+              file=sys.stderr, flush=True)
+    counts = serve_recording(args.file, urls, speed=None if args.fast else args.speed,
+                             wait_clients_s=args.wait_clients_s, on_ready=ready)
+    print(f"served {', '.join(f'{v:,} {k}' for k, v in counts.items())}", flush=True)
+    sys.stdout.flush()
+    sys.stderr.flush()
+    # a dv NetworkWriter with a connected client blocks in its destructor: end without running them
+    os._exit(0)
 
 
 # -- brackets ---------------------------------------------------------------------------------
@@ -246,6 +376,25 @@ def _plot_brackets(images, exposures_s, path):
 
 @json_command
 def run_brackets(args) -> int:
+    if args.device is not None and (args.device == "pylon" or args.device.startswith("pylon:")):
+        if not args.exposures_us or args.out is None:
+            raise ValueError("--device pylon needs --exposures-us (µs values to capture) and --out FOLDER")
+        from .pylon_backend import PylonFrameSource
+        src = PylonFrameSource(args.device.split(":", 1)[1] if ":" in args.device else None, trigger="software",
+                               pixel_format=args.pixel_format)
+        try:
+            src.open()
+            items, rep = src.capture_brackets(args.exposures_us, gain_db=args.gain_db,
+                                              frames_per_step=args.frames_per_step, folder=args.out)
+        finally:
+            src.close()
+        print(f"wrote {args.out}: {len(items)} frames; exposures read back from the camera (µs): {rep['reported_us']}")
+        if args.plot is not None:
+            _plot_brackets([it.image for it in items], [it.exposure_us * 1e-6 for it in items], args.plot)
+        args.emit_json({"out": str(args.out), "frames": len(items), **rep})
+        return 0
+    if args.device is not None and args.device != "oak":
+        raise ValueError(f"--device {args.device!r}: expected oak, pylon or pylon:SERIAL")
     if args.device == "oak":
         if not args.exposures_us:
             raise ValueError("--device oak needs --exposures-us (µs values to capture)")

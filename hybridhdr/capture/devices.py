@@ -139,3 +139,4 @@ def format_devices(devs: list[UsbCamera]) -> str:
     rows += [(d.usb_id, d.maker, d.model, d.kind, f"{d.bus}:{d.address}", d.serial or "-") for d in devs]
     w = [max(len(r[i]) for r in rows) for i in range(len(rows[0]))]
     return "\n".join("  ".join(c.ljust(w[i]) for i, c in enumerate(r)).rstrip() for r in rows)
+

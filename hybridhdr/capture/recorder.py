@@ -53,7 +53,7 @@ from ..model import Frames, Metadata
 from .sources import FrameItem
 
 __all__ = ["Recorder", "RecorderStats", "recover", "journal_path", "JournalWriter", "read_journal",
-           "ON_FULL_POLICIES"]
+           "ON_FULL_POLICIES", "warm_up"]
 
 log = logging.getLogger(__name__)
 
@@ -333,16 +333,48 @@ class RecorderStats:
     policy: str = ""
     recovered: bool = False
     errors: list = field(default_factory=list)
+    #: what live sources count themselves (``counters()``: stream interruptions and restarts, data
+    #: dropped because its timestamps went back, samples not stored), by source role
+    source_counters: dict = field(default_factory=dict)
+    #: the sources' host-clock samples (``clock_samples()``), by role, added when the recording stops
+    source_clocks: dict = field(default_factory=dict)
 
     @property
     def dropped_anything(self) -> bool:
-        return bool(self.events_dropped or self.triggers_dropped or self.frames_dropped)
+        return bool(self.events_dropped or self.triggers_dropped or self.frames_dropped
+                    or self.source_dropped)
+
+    @property
+    def source_dropped(self) -> int:
+        """Items the sources dropped themselves: timestamps going back (a reset or a restart), or their
+        own buffer full."""
+        return sum(int(v) for c in self.source_counters.values() for k, v in c.items()
+                   if k.endswith(("_out_of_order", "_dropped_in_buffer")))
+
+    @property
+    def stream_interruptions(self) -> int:
+        """Times a live stream stopped (whether or not it came back), over all sources."""
+        return sum(int(c.get("interruptions", 0)) for c in self.source_counters.values())
 
     def to_dict(self) -> dict:
-        return asdict(self)
+        d = asdict(self)
+        d["stream_interruptions"] = self.stream_interruptions
+        d["source_dropped"] = self.source_dropped
+        return d
 
 
 _SENTINEL = object()
+
+
+def warm_up() -> None:
+    """Load/compile the journal's packing kernel (seconds on a loaded machine the first time).
+
+    :meth:`Recorder.start` calls it before it opens the sources; a caller that opens live sources
+    itself (the command line) calls it first, so that no stream waits unread meanwhile.
+    """
+    from ._kernels import pack_columns
+    e = np.zeros(0, EVENT_DTYPE)
+    pack_columns(e["t"], e["x"], e["y"], e["p"], *(np.zeros(0, EVENT_DTYPE[k]) for k in "txyp"))
 
 
 class Recorder:
@@ -490,9 +522,19 @@ class Recorder:
             self._errors.append(e)
             self._stop.set()
 
+    def _sources(self):
+        return (("events", self.event_source), ("frames", self.frame_source))
+
+    def _collect_source_counters(self):
+        for role, src in self._sources():
+            fn = getattr(src, "counters", None)
+            if callable(fn):
+                self.stats.source_counters[role] = fn()
+
     def _flush(self, jw: JournalWriter):
         s = self.stats
         s.flushes += 1
+        self._collect_source_counters()
         s.journal_bytes = jw.bytes_written
         jw.write_json(T_FLUSH, s.to_dict())
         jw.flush()
@@ -550,6 +592,7 @@ class Recorder:
             raise FileExistsError(f"{self.path} exists; choose another output name")
         self.stats.policy = self._policy_for(self.event_source)
         self._frame_policy = None if self.frame_source is None else self._policy_for(self.frame_source)
+        warm_up()
         self.event_source.open()
         if self.frame_source is not None:
             self.frame_source.open()
@@ -565,10 +608,6 @@ class Recorder:
                   "policy": self.stats.policy, "flush_interval_s": self.flush_interval_s}
         self._jw = JournalWriter(self.journal_path, header, compression=self.journal_compression,
                                  fsync=self.fsync)
-        # load/compile the packing kernel now, not in the first second of a live recording
-        from ._kernels import pack_columns
-        e = np.zeros(0, EVENT_DTYPE)
-        pack_columns(e["t"], e["x"], e["y"], e["p"], *(np.zeros(0, EVENT_DTYPE[k]) for k in "txyp"))
         self._t0 = time.perf_counter()
         self._writer = threading.Thread(target=self._run_writer, args=(self._jw,), name="recorder-writer",
                                         daemon=True)
@@ -601,6 +640,11 @@ class Recorder:
         self._q.put(_SENTINEL)
         self._writer.join()
         self.stats.duration_s = time.perf_counter() - self._t0
+        self._collect_source_counters()
+        for role, src in self._sources():
+            fn = getattr(src, "clock_samples", None)
+            if callable(fn):
+                self.stats.source_clocks[role] = fn()
         for src in (self.event_source, self.frame_source):
             if src is not None:
                 src.close()

@@ -20,6 +20,8 @@ from hybridhdr.model import Frames, Recording
     ["capture", "brackets", "--device", "oak", "--exposures-us", "1000", "4000", "--out", "OUT"],
     ["capture", "record", "--events", "synthetic:1000", "--frames", "oak", "--out", "OUT", "--duration-s", "1"],
     ["capture", "record", "--events", "prophesee", "--out", "OUT", "--duration-s", "1"],
+    ["capture", "record", "--camera", "davis", "--out", "OUT", "--duration-s", "1"],
+    ["capture", "brackets", "--device", "pylon", "--exposures-us", "1000", "4000", "--out", "OUT"],
 ])
 def test_device_commands_without_hardware(argv, tmp_path, capsys):
     argv = [str(tmp_path / "o") if a == "OUT" else a for a in argv]

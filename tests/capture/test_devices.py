@@ -68,3 +68,50 @@ def test_identify_vendor_wildcard():
     assert D.identify(0x1234, 0x5678) is None
     with pytest.raises(D.NoDeviceFound):
         raise D.NoDeviceFound("x")
+
+
+# -- every installed SDK, none required ------------------------------------------------------------
+_SDK_MODULES = ("usb", "usb.core", "usb.backend", "usb.backend.libusb1", "usb.util", "libusb_package",
+                "dv_processing", "pypylon", "pypylon.pylon", "pypylon.genicam")
+
+
+def _hide_sdks(monkeypatch):
+    """What a `make demo` install lacks: pyusb, dv-processing and pypylon import as missing."""
+    import sys
+    for m in _SDK_MODULES:
+        monkeypatch.setitem(sys.modules, m, None)  # `import m` raises ImportError
+
+
+def test_devices_json_without_any_sdk_is_an_empty_list(monkeypatch, capsys):
+    _hide_sdks(monkeypatch)
+    assert main(["capture", "devices", "--json"]) == 0
+    out = capsys.readouterr()
+    assert out.out.strip() == "[]"
+    for extra in ("hybridhdr[capture]", "hybridhdr[dv]", "hybridhdr[pylon]"):
+        assert extra in out.err  # which extra lists cameras through which package
+    assert "Traceback" not in out.err and "No module named" not in out.err
+
+
+def test_devices_text_without_any_sdk_exits_0_with_hints(monkeypatch, capsys):
+    _hide_sdks(monkeypatch)
+    assert main(["capture", "devices"]) == 0
+    out = capsys.readouterr()
+    assert "no device found by the installed listers" in out.out
+    assert "pip install 'hybridhdr[capture]'" in out.err
+
+
+def test_discover_merges_the_listers(monkeypatch):
+    from hybridhdr.capture import discovery, dv_backend, pylon_backend
+    _patch_find(monkeypatch, [FakeUsbDevice(0x152A, 0x841A)])
+    monkeypatch.setattr(dv_backend, "dv_available", lambda: True)
+    monkeypatch.setattr(dv_backend, "list_dv_cameras", lambda: [{"maker": "iniVation", "model": "DAVIS346",
+                                                                 "serial": "00000499", "sdk": "dv-processing",
+                                                                 "kind": "event+frame",
+                                                                 "open_with": "--camera davis:00000499"}])
+    monkeypatch.setattr(pylon_backend, "pylon_available", lambda: False)
+    devs, notes = discovery.discover()
+    assert [d["sdk"] for d in devs] == ["usb", "dv-processing"]
+    assert devs[0]["usb_id"] == "152a:841a" and devs[1]["open_with"] == "--camera davis:00000499"
+    assert notes == ["pypylon is not installed: pip install 'hybridhdr[pylon]' to list cameras through it"]
+    table = discovery.format_device_dicts(devs)
+    assert "--camera davis:00000499" in table
