@@ -467,7 +467,7 @@ def _clock_and_chunks(req: ReconstructRequest, op: _Opened, engine):
     return clock, start, chunks
 
 
-def _one_pass_stats(engine, req: ReconstructRequest, op: _Opened, info: dict) -> None:
+def _one_pass_stats(engine, req: ReconstructRequest, info: dict) -> None:
     """What a one-pass run reports in ``info`` after its last output."""
     info["n_events_used"] = engine.n_events
     info["n_clamped"] = int(getattr(engine, "n_clamped", 0))
@@ -498,7 +498,7 @@ def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
                            progress=run.progress)
         engine.close()  # no measurement is still being computed ahead when the stats are read
         if info is not None:
-            _one_pass_stats(engine, req, op, info)
+            _one_pass_stats(engine, req, info)
     finally:
         engine.close()
 
