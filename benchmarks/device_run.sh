@@ -22,7 +22,7 @@ fi
   date -u; nvidia-smi; uname -a
   python3 -c "import sys, numpy, numba; print(sys.version); print('numpy', numpy.__version__, 'numba', numba.__version__)"
   python3 -m pip list 2>/dev/null | grep -i -E "^(numba|numba-cuda|cupy|torch|llvmlite|h5py|scipy|isal|openexr|mitsuba|tqdm) "
-  python3 -c "from hybridhdr.reconstruct.cuda import resolve_device; print(resolve_device('auto')[1])"
+  python3 -c "from hybridhdr.reconstruct.request import Device; print(Device.resolve('auto').line)"
 } 2>&1 | tee "$OUT/env.txt"
 T0=$(date +%s)
 echo "== GPU vs CPU agreement (tests/reconstruct/cuda_checks.py --real, as test_cuda.py runs it)"

@@ -45,8 +45,8 @@ def main(argv=None) -> int:
     args = ap.parse_args(argv)
     import torch
 
-    from hybridhdr.reconstruct.learned.engine import resolve_device
-    device = resolve_device(args.device)
+    from hybridhdr.reconstruct.learned.engine import torch_device
+    device = torch_device(args.device)
     dev_name = torch.cuda.get_device_name(device) if device.type == "cuda" else "cpu"
 
     from hybridhdr.reconstruct import reconstruct

@@ -115,12 +115,11 @@ class _Recon:
     """Outputs of a reconstruct folder, tone-mapped with limits over (a sample of) all of them."""
 
     def __init__(self, folder: Path):
-        from .evaluate.cli import _read_timestamps
-        from .formats.images import read_exr
+        from .formats.images import read_exr, read_timestamps
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
             raise FileNotFoundError(f"--recon {folder}: expected timestamps.txt written by 'hybridhdr reconstruct'")
-        self.t, names = _read_timestamps(tsf)
+        self.t, names = read_timestamps(tsf)
         self.paths = [Path(folder) / n for n in names]
         missing = [p for p in self.paths if not p.is_file()]
         if missing:
@@ -202,7 +201,7 @@ def run(args) -> int:
     from ._util.timearg import check_window, empty_window_error, resolve_window
     from .formats.span import recording_span
     from .formats import open_reader
-    from .formats.images import _MP4Stream, _write_png
+    from .formats.images import MP4Stream, write_png
 
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
@@ -275,7 +274,7 @@ def run(args) -> int:
                                                          f"t = {rel:.4f} s   (sensor {t:,} us)   frame {k + 1}/{len(times)}")],
                                          axis=0)
                     if stream is None:
-                        stream = _MP4Stream(tmp, img.shape, args.playback_fps)
+                        stream = MP4Stream(tmp, img.shape, args.playback_fps)
                     stream.write(img)
                     if k == still_at:
                         still = img
@@ -289,7 +288,7 @@ def run(args) -> int:
                     # the MP4 is still at its temporary name, which a failure here removes
                     args.still.parent.mkdir(parents=True, exist_ok=True)
                     with atomic_path(args.still, ".png") as tmp_still:
-                        _write_png(tmp_still, still)
+                        write_png(tmp_still, still)
             except BaseException:
                 if stream is not None:
                     stream.abort()  # ffmpeg killed and waited for before the temporary MP4 is removed

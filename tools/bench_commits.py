@@ -3,8 +3,8 @@
 Usage: ``python tools/bench_commits.py A B [--bench benchmarks/akf.py] [--rounds 2] [--args "--quick"]``
 
 Both commits are exported with ``git archive`` into temporary folders; the benchmark of each
-commit's own tree runs in turn (A, B, A, B, ...), so the machine's drift from minute to minute
-falls on both alike. For every numeric figure whose name ends in ``mev_s`` (a throughput: higher
+commit's own tree runs in turn (A, B, then B, A, ...), so the machine's drift from minute to
+minute falls on both alike; ``--together`` runs the two at the same time in each round instead. For every numeric figure whose name ends in ``mev_s`` (a throughput: higher
 is better) the best of the rounds of each commit is compared: ``ratio = B / A``. Prints one
 JSON object last: ``{"a", "b", "rounds", "figures": {name: {"a", "b", "ratio"}}, "worst_ratio"}``.
 """
@@ -58,6 +58,8 @@ def main(argv=None) -> int:
     ap.add_argument("--bench", default="benchmarks/akf.py", help="the benchmark, relative to the repository")
     ap.add_argument("--rounds", type=int, default=2, help="runs of each commit, interleaved")
     ap.add_argument("--args", default="--quick", help="the benchmark's arguments")
+    ap.add_argument("--together", action="store_true",
+                    help="run A and B at the same time in each round (both see the same machine; half the wall time)")
     args = ap.parse_args(argv)
     extra = shlex.split(args.args)
     with tempfile.TemporaryDirectory(prefix="bench_commits_") as td:
@@ -66,9 +68,19 @@ def main(argv=None) -> int:
         _export(args.b, trees["b"])
         runs = {"a": [], "b": []}
         for i in range(args.rounds):
-            for tag in ("a", "b") if i % 2 == 0 else ("b", "a"):
-                print(f"round {i + 1}: {getattr(args, tag)} ...", file=sys.stderr)
-                runs[tag].append(_figures(_run(trees[tag], args.bench, extra)))
+            order = ("a", "b") if i % 2 == 0 else ("b", "a")
+            if args.together:
+                from concurrent.futures import ThreadPoolExecutor
+                print(f"round {i + 1}: {args.a} and {args.b} at once ...", file=sys.stderr)
+                with ThreadPoolExecutor(2) as pool:
+                    futs = {tag: pool.submit(_run, trees[tag], args.bench, extra) for tag in order}
+                    for tag in order:
+                        runs[tag].append(_figures(futs[tag].result()))
+            else:
+                for tag in order:
+                    print(f"round {i + 1}: {getattr(args, tag)} ...", file=sys.stderr)
+                    runs[tag].append(_figures(_run(trees[tag], args.bench, extra)))
+            print(json.dumps({"round": i + 1, **{tag: runs[tag][-1] for tag in order}}), file=sys.stderr)
     figs = {}
     for name in sorted(set(runs["a"][0]) & set(runs["b"][0])):
         a = max(r[name] for r in runs["a"] if name in r)

@@ -229,7 +229,8 @@ def main(argv=None) -> int:
     with tempfile.TemporaryDirectory(prefix="compare_commits_") as td:
         root = args.out or Path(td)
         outs = {}
-        for tag, commit in (("a", args.a), ("b", args.b)):
+
+        def one(tag, commit):  # the two commits run at once (each in its own processes)
             tree = Path(td) / f"tree_{tag}"
             _export(commit, tree)
             out = root / f"out_{tag}"
@@ -240,6 +241,10 @@ def main(argv=None) -> int:
             if not args.no_cli and (data / "ecd_slider_depth").exists():
                 _run_cli(tree, out / "cli", data)
             outs[tag] = out
+        from concurrent.futures import ThreadPoolExecutor
+        with ThreadPoolExecutor(2) as pool:
+            for f in [pool.submit(one, "a", args.a), pool.submit(one, "b", args.b)]:
+                f.result()
         diff, only_a, only_b, n = _compare(outs["a"], outs["b"])
         errors = sum(1 for p in outs["a"].rglob("*.json") if p.parent.name in ("api", "cudasim")
                      and "error" in json.loads(p.read_text()))

@@ -67,7 +67,8 @@ def _try_lock(fd: int) -> bool:
         return True  # no locking on this filesystem: the exclusive creation still holds
 
 
-_MARK = ".hybridhdr-partial"
+#: The file inside a partial output folder that says hybridhdr made it (and who holds it).
+PARTIAL_MARK = ".hybridhdr-partial"
 
 
 def _marker_text() -> str:
@@ -113,7 +114,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
         try:
             if directory:
                 os.mkdir(tmp)
-                fd = os.open(tmp / _MARK, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
+                fd = os.open(tmp / PARTIAL_MARK, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                 os.write(fd, _marker_text().encode())
                 _try_lock(fd)
             else:
@@ -148,11 +149,11 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
         if tmp.is_symlink():
             raise PartialInUse(errno.EEXIST, f"{tmp} exists and is a symbolic link; refusing to write through it "
                                              f"(remove it if it is yours)")
-        if directory != tmp.is_dir() or (directory and not (tmp / _MARK).is_file()):
+        if directory != tmp.is_dir() or (directory and not (tmp / PARTIAL_MARK).is_file()):
             raise PartialInUse(errno.EEXIST, f"{tmp} exists and was not made by hybridhdr (a "
                                              f"{'folder' if tmp.is_dir() else 'file'}); it is never deleted: "
                                              f"move it away or choose another output name")
-        lock_path = tmp / _MARK if directory else tmp
+        lock_path = tmp / PARTIAL_MARK if directory else tmp
         try:
             fd = os.open(lock_path, os.O_RDWR | os.O_NOFOLLOW | os.O_CLOEXEC)
         except OSError as e:
@@ -236,7 +237,7 @@ def atomic_folder(folder):
     fd = claim_partial(tmp, directory=True)  # exclusive; a stale one of ours is removed, anything else refused
     try:
         yield tmp
-        os.unlink(tmp / _MARK)
+        os.unlink(tmp / PARTIAL_MARK)
         os.replace(tmp, folder)
     except BaseException:
         shutil.rmtree(tmp, ignore_errors=True)
@@ -245,7 +246,7 @@ def atomic_folder(folder):
         release_partial(fd)
 
 
-_MARKER = _MARK
+_MARKER = PARTIAL_MARK  # the folder writer's name for it
 
 
 class AtomicFolder:

@@ -287,13 +287,13 @@ def _plot_reference(E, frame, H, path: Path, valid=None) -> None:
     figure of it, the frame and a red/cyan overlay."""
     import numpy as np
 
-    from ..formats.images import _write_png, tone_map
+    from ..formats.images import write_png, tone_map
     from .hdr_reference import to_grey, warp_reference
 
     ref8, lim = _preview_reference(E, valid)
     if frame is None:
         with atomic_path(path, ".png") as tmp:
-            _write_png(tmp, ref8)
+            write_png(tmp, ref8)
         return
     import matplotlib
     matplotlib.use("Agg")

@@ -43,6 +43,7 @@ import time
 import numpy as np
 
 from ..reconstruct import AKFParams, reconstruct
+from ..reconstruct.methods import method_spec
 from ..simulate.procedural import edge_sweep_recording
 from . import realdata as RD
 from .datasets import event_log_change, load_dataset
@@ -92,7 +93,7 @@ def method_params(spec: MethodSpec, contrast_threshold: float | None):
     if spec.preset is not None:
         kw = {} if contrast_threshold is None else {"contrast_threshold": float(contrast_threshold)}
         return getattr(AKFParams, spec.preset)(**kw)
-    if contrast_threshold is None or spec.method in ("frames_zoh", "frames_linear"):
+    if contrast_threshold is None or method_spec(spec.method).frames_only:
         return None
     return {"contrast_threshold": float(contrast_threshold)}
 

@@ -185,27 +185,6 @@ def _gain_list(text: str) -> list:
     return out
 
 
-def _read_timestamps(path: Path):
-    import numpy as np
-    ts, names = [], []
-    with open(path, encoding="utf-8") as f:
-        for i, line in enumerate(f, 1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split()
-            if len(parts) != 2:
-                raise ValueError(f"{path}:{i}: expected 't_us filename', found {s!r}")
-            try:
-                ts.append(int(parts[0]))
-            except ValueError:
-                raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
-            from .._util.confine import inside_folder
-            inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
-            names.append(parts[1])
-    return np.asarray(ts, np.int64), names
-
-
 def _perceptual(metric: str) -> set:
     want = {x.strip() for x in str(metric).split(",") if x.strip()}
     bad = want - {"jod", "q", "none"}
@@ -236,7 +215,8 @@ def score_reconstruction(recon_dir, reference, *, tolerance_us: int = 1000, norm
     tsf = d / "timestamps.txt"
     if not tsf.is_file():
         raise FileNotFoundError(f"{d}: expected timestamps.txt written by 'hybridhdr reconstruct', not found")
-    t, names = _read_timestamps(tsf)
+    from ..formats.images import read_timestamps
+    t, names = read_timestamps(tsf)
     method = None
     if (d / "run.json").is_file():
         try:

@@ -64,8 +64,8 @@ from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import LUMINANCE_WEIGHTS, well_exposed_range
 from ..model import Frames, HDRReferences, Metadata, Recording
 from ..reconstruct import reconstruct
-from ..reconstruct.api import METHODS as RECON_METHODS
-from ..reconstruct.api import make_params, resolve_method
+from ..reconstruct.methods import METHODS as RECON_METHODS
+from ..reconstruct.methods import make_params, methods_with, resolve_method
 from . import realdata as RD
 from .accuracy import LOG_FLOOR, log_errors, recoverable_masks
 
@@ -80,7 +80,7 @@ CLASSES = ("recoverable_causal", "recoverable_offline", "well_exposed")
 BASELINES = ("frames_only", "hold_previous")
 
 #: Reconstruction methods that take frames (the events-only ones have no clipped frame to complete).
-FRAME_METHODS = ("akf", "cf", "direct", "edi")
+FRAME_METHODS = methods_with(needs_frames=True, uses_events=True)
 
 
 @dataclasses.dataclass(frozen=True)
@@ -110,7 +110,7 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
         if not RECON_METHODS[m].needs_frames:
             raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
                              f"frames: {', '.join(FRAME_METHODS)}")
-        if m in ("frames_zoh", "frames_linear"):
+        if RECON_METHODS[m].frames_only:
             raise ValueError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
                              f"scored")
         for mode in modes:
@@ -354,7 +354,7 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
         if thresholds == "auto":
             params, u = RD.input_thresholds(sub["rec"], spec.method, params, profile, cache=sub["thr"])
             used["thresholds"] = u
-        elif thresholds == "selfcal" and spec.method not in ("frames_zoh", "frames_linear"):
+        elif thresholds == "selfcal" and not RECON_METHODS[resolve_method(spec.method)].frames_only:
             # the self-calibration of the input without frame k: frame k stands for tau_k + dt,
             # so the method reconstructs there (and every frame of its input is shifted alike)
             params, dt, u = RD.selfcal_params(sub["rec"], spec.method, params, profile, cache=sub["thr"])

@@ -59,7 +59,7 @@ from ..camera.encoding import well_exposed_range
 from ..events import slice_time
 from ..model import Recording
 from ..reconstruct import reconstruct
-from ..reconstruct.methods import make_params, methods_with, resolve_method
+from ..reconstruct.methods import make_params, method_spec, methods_with, resolve_method
 from ..camera.encoding import frames_to_codes
 from .metrics import DEFAULT_CLIP, ssim_map
 
@@ -248,7 +248,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                                   if k not in THRESHOLD_KEYS}
                     kw["_record_input"] = True
                 dt = 0
-                if thresholds == "selfcal" and s.method not in ("frames_zoh", "frames_linear"):
+                if thresholds == "selfcal" and not method_spec(s.method).frames_only:
                     # the calibration of the recording without frame k (never the scored frame);
                     # frame k stands for tau_k + dt, so it is predicted there (next-frame: the
                     # input is cut just before that time)

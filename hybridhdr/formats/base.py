@@ -290,8 +290,8 @@ class EventFileWriter:
             self._finish()
             self._closed = True
             if self.partial_is_dir:
-                from .._util.atomic import _MARK
-                (self.tmp_path / _MARK).unlink(missing_ok=True)
+                from .._util.atomic import PARTIAL_MARK
+                (self.tmp_path / PARTIAL_MARK).unlink(missing_ok=True)
             os.replace(self.tmp_path, self.path)
         except BaseException:
             self.abort()

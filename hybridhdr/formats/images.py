@@ -39,7 +39,8 @@ from .._util.checks import check_shape
 __all__ = ["tone_map", "display_map", "display_map_from", "display_map_centred", "display_gamma", "apply_display_map", "LOG_MAP_RATIO", "LogPercentiles",
            "write_exr", "read_exr", "write_exr_sequence", "write_timestamps",
            "write_png_previews", "write_mp4", "exr_compressions", "DEFAULT_EXR_COMPRESSION",
-           "LOSSY_EXR_COMPRESSIONS"]
+           "LOSSY_EXR_COMPRESSIONS", "TIMESTAMPS_HEADER", "read_timestamps", "write_png", "MP4Stream", "check_frame",
+           "check_tone", "exr_compression"]
 
 #: name -> OpenEXR constant name; only those the installed OpenEXR has are offered
 _EXR_COMPRESSION_NAMES = {
@@ -73,7 +74,7 @@ def exr_compressions() -> list[str]:
     return [k for k, v in _EXR_COMPRESSION_NAMES.items() if hasattr(OpenEXR, v)]
 
 
-def _exr_compression(name: str):
+def exr_compression(name: str):
     import OpenEXR
     key = str(name).lower()
     if key not in _EXR_COMPRESSION_NAMES or not hasattr(OpenEXR, _EXR_COMPRESSION_NAMES[key]):
@@ -81,7 +82,7 @@ def _exr_compression(name: str):
     return getattr(OpenEXR, _EXR_COMPRESSION_NAMES[key])
 
 
-def _check_frame(img) -> np.ndarray:
+def check_frame(img) -> np.ndarray:
     a = np.ascontiguousarray(img, dtype=np.float32)
     check_shape(a, "H W | H W 3", "a frame")
     return a
@@ -96,8 +97,8 @@ def write_exr(path, img, *, compression: str = DEFAULT_EXR_COMPRESSION, channel:
         import OpenEXR
     except ImportError as e:  # pragma: no cover
         raise ImportError("writing EXR needs the OpenEXR package (pip install 'hybridhdr[images]')") from e
-    a = _check_frame(img)
-    header = {"compression": _exr_compression(compression), "type": OpenEXR.scanlineimage}
+    a = check_frame(img)
+    header = {"compression": exr_compression(compression), "type": OpenEXR.scanlineimage}
     chans = ({channel: a} if a.ndim == 2 else
              {c: np.ascontiguousarray(a[..., i]) for i, c in enumerate("RGB")})
     try:
@@ -120,7 +121,7 @@ def tone_map(frames: np.ndarray, *, low_percentile: float = 1.0, high_percentile
     """
     f = np.asarray(frames, dtype=np.float64)
     check_shape(f, "K H W | H W | K H W 3 | H W 3", "frames")
-    _check_tone(low_percentile, high_percentile, gamma)
+    check_tone(low_percentile, high_percentile, gamma)
     valid = np.isfinite(f) & (f > _FLOOR)
     lg = np.log(np.where(valid, f, 1.0))
     if limits is None:
@@ -137,7 +138,7 @@ def tone_map(frames: np.ndarray, *, low_percentile: float = 1.0, high_percentile
     return np.round(255.0 * v).astype(np.uint8), (lo, hi)
 
 
-def _check_tone(low_percentile, high_percentile, gamma):
+def check_tone(low_percentile, high_percentile, gamma):
     if not 0 <= low_percentile < high_percentile <= 100:
         raise ValueError(f"need 0 <= low_percentile < high_percentile <= 100, got {low_percentile}, {high_percentile}")
     if gamma <= 0:
@@ -292,13 +293,36 @@ def write_timestamps(t_us, names, path) -> Path:
     """``timestamps.txt``: a header line, then ``t_us filename`` per frame."""
     path = Path(path)
     with atomic_path(path, ".txt") as tmp, open(tmp, "w", encoding="utf-8") as f:
-        f.write(_TIMESTAMPS_HEADER)
+        f.write(TIMESTAMPS_HEADER)
         for t, n in zip(np.asarray(t_us, np.int64), names):
             f.write(f"{int(t)} {n}\n")
     return path
 
 
-_TIMESTAMPS_HEADER = "# t_us filename (t in microseconds, the state at t includes events before t)\n"
+TIMESTAMPS_HEADER = "# t_us filename (t in microseconds, the state at t includes events before t)\n"
+
+
+def read_timestamps(path) -> tuple[np.ndarray, list[str]]:
+    """``(t_us (K,) int64, file names)`` of a ``timestamps.txt`` written with
+    :data:`TIMESTAMPS_HEADER` (``t_us filename`` lines; ``#`` comments); every name must stay
+    inside the file's folder."""
+    from .._util.confine import inside_folder
+    ts, names = [], []
+    with open(path, encoding="utf-8") as f:
+        for i, line in enumerate(f, 1):
+            s = line.strip()
+            if not s or s.startswith("#"):
+                continue
+            parts = s.split()
+            if len(parts) != 2:
+                raise ValueError(f"{path}:{i}: expected 't_us filename', found {s!r}")
+            try:
+                ts.append(int(parts[0]))
+            except ValueError:
+                raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
+            inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
+            names.append(parts[1])
+    return np.asarray(ts, np.int64), names
 
 
 def write_exr_sequence(video, out_dir, *, prefix: str = "frame_", channel: str = "Y",
@@ -306,7 +330,7 @@ def write_exr_sequence(video, out_dir, *, prefix: str = "frame_", channel: str =
     """Write each frame as a float32 EXR (``channel``, or R, G, B for colour) plus ``timestamps.txt``."""
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    _exr_compression(compression)
+    exr_compression(compression)
     paths, names = [], []
     for i, img in enumerate(video.frames):
         name = f"{prefix}{i:06d}.exr"
@@ -332,7 +356,7 @@ def read_exr(path, channel: str = "Y") -> np.ndarray:
         return np.asarray(ch[channel].pixels, dtype=np.float32)
 
 
-def _write_png(path, img_u8) -> None:
+def write_png(path, img_u8) -> None:
     from PIL import Image
     Image.fromarray(img_u8).save(str(path), format="PNG")
 
@@ -348,12 +372,12 @@ def write_png_previews(video, out_dir, *, every: int = 1, prefix: str = "preview
     for i in range(0, len(imgs), every):
         path = out / f"{prefix}{i:06d}.png"
         with atomic_path(path, ".png") as tmp:
-            _write_png(tmp, imgs[i])
+            write_png(tmp, imgs[i])
         paths.append(path)
     return paths
 
 
-class _MP4Stream:
+class MP4Stream:
     """H.264 through an ffmpeg process (``imageio-ffmpeg``), fed one tone-mapped frame at a time;
     odd sizes are padded (edge) to even.
 
@@ -466,7 +490,7 @@ def write_mp4(video, path, *, fps: float = 30.0, **tone) -> Path:
     path.parent.mkdir(parents=True, exist_ok=True)
     imgs, _ = tone_map(video.frames, **tone)
     with atomic_path(path, ".mp4") as tmp:
-        s = _MP4Stream(tmp, imgs.shape[1:], fps)
+        s = MP4Stream(tmp, imgs.shape[1:], fps)
         try:
             for im in imgs:
                 s.write(im)

@@ -13,6 +13,8 @@ from .._util.lazy import lazy_exports
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
     'METHOD_ALIASES': '.api',
+    'MethodSpec': '.methods',
+    'ReconstructRequest': '.request',
     'METHODS': '.api',
     'Video': '.api',
     'make_params': '.api',
@@ -33,7 +35,8 @@ __getattr__, __dir__ = lazy_exports(__name__, _LAZY)
 
 
 __all__ = [
-    "reconstruct", "reconstruct_iter", "Video", "METHODS", "METHOD_ALIASES", "resolve_method", "make_params",
+    "reconstruct", "reconstruct_iter", "Video", "METHODS", "METHOD_ALIASES", "MethodSpec", "ReconstructRequest",
+    "resolve_method", "make_params",
     "AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
     "FrameMeasurements", "Segment",
 ]

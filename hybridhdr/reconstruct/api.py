@@ -13,7 +13,7 @@ import numpy as np
 from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.limits import check_fps_outputs, check_sensor_size
-from ..calibrate.resolve import resolve_thresholds
+from ..calibrate.resolve import recording_declares_thresholds, resolve_thresholds
 from ..camera import CameraProfile
 from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
@@ -31,7 +31,7 @@ from .smoother import output_times, two_sided_iter
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "MODES", "MethodSpec", "reconstruct", "reconstruct_iter",
            "resolve_method", "method_spec", "make_params", "make_augment_params", "source_profile",
-           "engine_for", "ReconstructRequest"]
+           "engine_for", "ReconstructRequest", "recording_facts"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -185,6 +185,16 @@ def source_profile(source):
     except (TypeError, ValueError) as e:
         raise ValueError(f"the recording's camera profile (metadata provenance 'camera_profile') is invalid: "
                          f"{e}") from None
+
+
+def recording_facts(source) -> tuple[bool, int]:
+    """(whether the recording declares contrast thresholds or stores a map, its number of frames),
+    read without its events: what decides whether reconstruct's default self-calibrates it."""
+    _, frames, _, close, _, opened = _open_source(source)
+    try:
+        return recording_declares_thresholds(opened), 0 if frames is None else len(frames)
+    finally:
+        close()
 
 
 def _time_span_us(source, frames) -> tuple[int, int] | None:
@@ -457,7 +467,7 @@ def _clock_and_chunks(req: ReconstructRequest, op: _Opened, engine):
     return clock, start, chunks
 
 
-def _one_pass_stats(engine, req: ReconstructRequest, op: _Opened, info: dict) -> None:
+def _one_pass_stats(engine, req: ReconstructRequest, info: dict) -> None:
     """What a one-pass run reports in ``info`` after its last output."""
     info["n_events_used"] = engine.n_events
     info["n_clamped"] = int(getattr(engine, "n_clamped", 0))
@@ -488,7 +498,7 @@ def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
                            progress=run.progress)
         engine.close()  # no measurement is still being computed ahead when the stats are read
         if info is not None:
-            _one_pass_stats(engine, req, op, info)
+            _one_pass_stats(engine, req, info)
     finally:
         engine.close()
 

@@ -134,16 +134,12 @@ def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"
         return params, 0, None, None
     if mode == "auto" and (given or args.contrast_threshold is not None):
         return params, 0, None, None
-    from ..calibrate.resolve import recording_declares_thresholds, resolve_thresholds
+    from ..calibrate.resolve import resolve_thresholds
     from ..formats import read
     if mode == "auto":
-        from .api import _open_source
-        _, frames, _, close, _, opened = _open_source(str(args.recording))
-        try:
-            declared = recording_declares_thresholds(opened)
-        finally:
-            close()
-        if declared or frames is None or len(frames) < 3:
+        from .api import recording_facts
+        declared, n_frames = recording_facts(str(args.recording))
+        if declared or n_frames < 3:
             return params, 0, None, None
     enc = getattr(args, "frame_encoding", None)
     rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)

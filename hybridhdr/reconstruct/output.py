@@ -26,8 +26,8 @@ from pathlib import Path
 import numpy as np
 
 from .._util.atomic import current_umask
-from ..formats.images import (DEFAULT_EXR_COMPRESSION, _TIMESTAMPS_HEADER, LogPercentiles, _check_frame, _check_tone,
-                              _exr_compression, _MP4Stream, _write_png, apply_display_map, display_map_centred, display_map_from,
+from ..formats.images import (DEFAULT_EXR_COMPRESSION, TIMESTAMPS_HEADER, LogPercentiles, check_frame, check_tone,
+                              exr_compression, MP4Stream, write_png, apply_display_map, display_map_centred, display_map_from,
                               write_exr)
 
 __all__ = ["VideoWriter", "write_video", "OUTPUTS"]
@@ -45,7 +45,7 @@ def _task_exr(path, img, compression, channel):
 
 def _task_png(spill, shape, index, path, display):
     fr = _read_spill(spill, shape, index)
-    _write_png(path, apply_display_map(fr, display))
+    write_png(path, apply_display_map(fr, display))
     return 1
 
 
@@ -138,10 +138,10 @@ class VideoWriter:
         if not self.out.is_dir():
             raise FileNotFoundError(f"output folder {self.out} does not exist")
         if exr:
-            _exr_compression(compression)
+            exr_compression(compression)
         if mp4 and not playback_fps > 0:
             raise ValueError(f"playback_fps must be > 0, got {playback_fps}")
-        _check_tone(low_percentile, high_percentile, gamma)
+        check_tone(low_percentile, high_percentile, gamma)
         if backend not in ("process", "thread"):
             raise ValueError(f"backend must be 'process' or 'thread', got {backend!r}")
         if writers is None:
@@ -177,7 +177,7 @@ class VideoWriter:
         self._t0 = time.perf_counter()
         self._ts = open(self.out / "timestamps.txt", "w", encoding="utf-8")
         try:
-            self._ts.write(_TIMESTAMPS_HEADER)
+            self._ts.write(TIMESTAMPS_HEADER)
             if self._hist is not None:
                 self._spill = open(self._spill_path, "wb")
             if self.n_writers > 0:
@@ -240,7 +240,7 @@ class VideoWriter:
         if self._closed:
             raise ValueError("write() on a closed VideoWriter")
         self._raise_pending_error()
-        a = _check_frame(frame)
+        a = check_frame(frame)
         if self.shape is None:
             self.shape = a.shape
         elif a.shape != self.shape:
@@ -372,7 +372,7 @@ class VideoWriter:
         if self.mp4:
             def encode():
                 try:
-                    s = _MP4Stream(self.out / "preview.mp4", self.shape, self.playback_fps)
+                    s = MP4Stream(self.out / "preview.mp4", self.shape, self.playback_fps)
                     try:
                         for i, fr in enumerate(self._spill_frames()):
                             if mp4_err:

@@ -267,7 +267,7 @@ def test_view_still_full_disk_keeps_no_mp4(tmp_path, monkeypatch, capfd):
     pytest.importorskip("imageio_ffmpeg")
     import hybridhdr.formats.images as images
     src = _recording(tmp_path / "r.h5")
-    monkeypatch.setattr(images, "_write_png", _enospc)
+    monkeypatch.setattr(images, "write_png", _enospc)
     rc = main(["view", str(src), "--out", str(tmp_path / "v.mp4"), "--still", str(tmp_path / "s.png"),
                "--no-progress"])
     err = capfd.readouterr().err

@@ -11,7 +11,7 @@ from .. import _engine as E
 from .params import WEIGHTS_HELP, LearnedParams, WeightsRequiredError
 from .voxel import events_to_voxel_grid, normalize_voxel_grid, voxel_grid_torch
 
-__all__ = ["load_checkpoint", "load_network", "Reconstructor", "LearnedEngine", "resolve_device", "export_onnx"]
+__all__ = ["load_checkpoint", "load_network", "Reconstructor", "LearnedEngine", "torch_device", "export_onnx"]
 
 METHOD_ARCH = {"e2vid": "E2VIDRecurrent", "firenet": "FireNet"}
 
@@ -25,7 +25,7 @@ def _torch():
     return torch
 
 
-def resolve_device(device: str = "auto"):
+def torch_device(device: str = "auto"):
     torch = _torch()
     if device == "auto":
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")
@@ -87,7 +87,7 @@ def load_network(method: str, params: LearnedParams):
     if res.missing_keys or res.unexpected_keys:
         raise ValueError(f"{params.weights}: state_dict does not match {want} {cfg}: missing keys "
                          f"{res.missing_keys[:8]}, unexpected keys {res.unexpected_keys[:8]}")
-    device = resolve_device(params.device)
+    device = torch_device(params.device)
     return net.to(device).eval(), device
 
 
