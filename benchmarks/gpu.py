@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/gpu.py [--quick] [--profile] [--no-cpu] [--skip hd,agreement,firenet]
 [--hd-events N] [--reps N]``. Prints progress on stderr, then ONE JSON object on the last stdout
 line. ``--profile`` adds, for each resident case, a run with every phase synchronised and timed
-(``reconstruct.cuda.PhaseTimer``: grouping steps, walks, frame switches, output kernels and
+(``hybridhdr._util.phases`` with the device synchronised: grouping steps, walks, frame switches, output kernels and
 copies, fusion; the plain run stays the figure), the previous per-window grouping beside the
 forward AKF, and host profiles (cProfile) of ``reconstruct`` and FireNet. Without a usable CUDA device (or without ``numba.cuda``) it prints
 ``{"skipped": "<why>"}`` and exits 0.
@@ -80,18 +80,18 @@ def _make_engine_factory(shape, method="akf", params=None):
 
 
 def _phases(fn):
-    """``fn()`` once more with :class:`hybridhdr.reconstruct.cuda.PhaseTimer` active: every phase
-    synchronised and timed (slower than the plain run, which is the figure; this says where the
-    time goes). Returns (seconds of the profiled run, phase table)."""
-    import hybridhdr.reconstruct.cuda as C
-    C.PHASES = tm = C.PhaseTimer()
-    try:
+    """``fn()`` once more under :func:`hybridhdr._util.phases.timing` with the device synchronised
+    around every phase (slower than the plain run, which is the figure; this says where the time
+    goes). Returns (seconds of the profiled run, phase table)."""
+    from hybridhdr._util import phases as PH
+    from hybridhdr.reconstruct.cuda import _cuda
+    with PH.timing(sync=_cuda().synchronize) as tm:
         t0 = time.perf_counter()
         fn()
         el = time.perf_counter() - t0
-    finally:
-        C.PHASES = None
-    tab = tm.table()
+    rows = tm.report()["phases"]
+    tab = {k: {"calls": v["calls"], "total_s": round(v["s"], 5), "host_s": round(v.get("host_s", 0.0), 5)}
+           for k, v in sorted(rows.items(), key=lambda kv: -kv[1]["s"])}
     tab["_unaccounted_s"] = round(el - sum(v["total_s"] for v in tab.values()), 5)
     return round(el, 4), tab
 

@@ -27,6 +27,7 @@ import os
 
 import numpy as np
 
+from .._util import phases as PH
 from . import _kernels as K
 
 __all__ = ["cuda_unavailable_reason", "resolve_device", "CudaAKFEngine", "CudaCFEngine", "DeviceEvents",
@@ -48,67 +49,6 @@ MAX_WINDOW = 1 << 24
 #: events are. Either way the same per-pixel event sequences and t*, so the same results.
 RESIDENT_CHUNK = 1 << 25
 _STAGE_MIN = 1 << 16
-
-
-class PhaseTimer:
-    """Where the GPU path's time goes (``benchmarks/gpu.py``): while :data:`PHASES` holds one,
-    each phase of the engines is bracketed by ``cuda.synchronize()`` and timed (this serialises
-    host and device, so a profiled run is slower than a plain one: the plain figure is measured
-    apart). Per phase: ``calls``, ``total_s`` (device work and host work, synchronised) and
-    ``host_s`` (until the host had queued the phase's work: launch overhead, host arithmetic and
-    blocking copies); ``total_s - host_s`` is time spent waiting for the device."""
-
-    def __init__(self):
-        self.rows: dict = {}
-
-    def phase(self, name: str):
-        return _Phase(self, name)
-
-    def table(self) -> dict:
-        return {k: {"calls": v[0], "total_s": round(v[1], 5), "host_s": round(v[2], 5)}
-                for k, v in sorted(self.rows.items(), key=lambda kv: -kv[1][1])}
-
-
-class _Phase:
-    __slots__ = ("tm", "name", "t0", "sync")
-
-    def __init__(self, tm, name):
-        self.tm, self.name = tm, name
-
-    def __enter__(self):
-        import time
-        self.sync = _cuda().synchronize
-        self.sync()
-        self.t0 = time.perf_counter()
-
-    def __exit__(self, *exc):
-        import time
-        t1 = time.perf_counter()
-        self.sync()
-        t2 = time.perf_counter()
-        r = self.tm.rows.setdefault(self.name, [0, 0.0, 0.0])
-        r[0] += 1
-        r[1] += t2 - self.t0
-        r[2] += t1 - self.t0
-        return False
-
-
-class _NoPhase:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
-
-
-_NO_PHASE = _NoPhase()
-#: the active :class:`PhaseTimer` (None: no timing, no synchronisation)
-PHASES: PhaseTimer | None = None
-
-
-def _phase(name: str):
-    tm = PHASES
-    return _NO_PHASE if tm is None else tm.phase(name)
 
 
 def numpy_compat() -> None:
@@ -240,13 +180,13 @@ class _Grouper:
         CK = self.ck
         self._ensure(n)
         g = _grid(n)
-        with _phase("group_count"):
+        with PH.phase("group_count", "parallel"):
             CK.k_count[g](dx, dy, a, n, width, self.cnt, self.slot)
-        with _phase("group_scan"):
+        with PH.phase("group_scan", "parallel"):
             self._scan(self.cnt, self.n_pix + 1, self.start)
-        with _phase("group_scatter"):
+        with PH.phase("group_scatter", "parallel"):
             CK.k_scatter[g](dx, dy, a, n, width, self.start, self.slot, self.grp, self.cnt)
-        with _phase("group_sort"):
+        with PH.phase("group_sort", "parallel"):
             CK.k_sort_groups[_grid(self.n_pix)](self.start, self.n_pix, self.grp)
 
 
@@ -275,7 +215,7 @@ class DeviceEvents:
         ry = cuda.device_array(self.n, np.uint16)
         rp = cuda.device_array(self.n, np.int8)
         if self.n:
-            with _phase("reverse_events"):
+            with PH.phase("reverse_events", "parallel"):
                 CK.k_reverse_events[_grid(self.n)](self.t, self.x, self.y, self.p, self.n, np.int64(t_mirror_us) - 1,
                                                rt, rx, ry, rp)
         return DeviceEvents(rt, rx, ry, rp, reversed_of=(self._host_t, int(t_mirror_us)))
@@ -355,7 +295,7 @@ class _CudaEngine:
                 self._stage = tuple(self.cuda.device_array(cap, dt)
                                     for dt in (np.int64, np.uint16, np.uint16, np.int8))
             st = self._stage
-            with _phase("stage_upload"):
+            with PH.phase("stage_upload", "parallel"):
                 for src, dst, dt in zip((t, x, y, p), st, (np.int64, np.uint16, np.uint16, np.int8)):
                     dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
             self.process_device(*st, 0, n)
@@ -375,11 +315,11 @@ class _CudaEngine:
                 self.grouper.group(dev.x, dev.y, i, c1 - i, self.shape[1])
                 if self._cur is None:
                     self._cur = [self.cuda.device_array(self.n, np.int32), self.cuda.device_array(self.n, np.int32)]
-                with _phase("chunk_cursors"):
+                with PH.phase("chunk_cursors", "parallel"):
                     self.ck.k_copy_i32[_grid(self.n)](self.grouper.start, self._cur[0], self.n)
                 rc = self._rc = [dev, i, c1, i]
             e = min(j, rc[2])
-            with _phase("walk"):
+            with PH.phase("walk", "parallel"):
                 self._walk_res(dev, rc[1], e - rc[1])
             self._cur.reverse()
             rc[3] = e
@@ -401,7 +341,7 @@ class _CudaEngine:
             m = min(a + n, s + MAX_WINDOW) - s
             if m > 0:
                 self.grouper.group(dx, dy, s, m, self.shape[1])
-                with _phase("walk"):
+                with PH.phase("walk", "parallel"):
                     self._walk(dt, dx, dy, dp, s)
                 self.n_events += m
 
@@ -501,7 +441,7 @@ class CudaAKFEngine(_CudaEngine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
-        with _phase("switch"):
+        with PH.phase("switch", "parallel"):
             self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
 
     def _walk(self, dt, dx, dy, dp, a: int) -> None:
@@ -527,7 +467,7 @@ class CudaAKFEngine(_CudaEngine):
 
     def _close_chunk(self, dev, c0: int) -> None:
         gr = self.grouper
-        with _phase("chunk_close"):
+        with PH.phase("chunk_close", "parallel"):
             self.ck.k_chunk_te[_grid(self.n)](dev.t, c0, gr.start, gr.grp, self._cur[0], self.te[0], self.te[1],
                                               self.n)
         self.te.reverse()
@@ -554,11 +494,11 @@ class CudaAKFEngine(_CudaEngine):
         else:
             if self._out is None:
                 self._out = self.cuda.device_array(self.n, np.float32)
-            with _phase("output_kernel"):
+            with PH.phase("output_kernel", "parallel"):
                 self.ck.k_akf_output_linear[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
                                                            np.float32(self.params.intensity_offset), self._out,
                                                            self.n)
-            with _phase("output_copy"):
+            with PH.phase("output_copy", "parallel"):
                 out = self._out.copy_to_host()
         if with_state:
             return out.reshape(self.shape), lg.copy_to_host().reshape(self.shape), var.copy_to_host().reshape(self.shape)
@@ -662,7 +602,7 @@ class CudaCFEngine(_CudaEngine):
 
     def switch(self) -> None:
         t_to = float(self.m.times_us[self.k + 1])
-        with _phase("switch"):
+        with PH.phase("switch", "parallel"):
             if self.mode == "direct":
                 self._columns(self.k + 1, True, t_to)
                 return
@@ -685,11 +625,11 @@ class CudaCFEngine(_CudaEngine):
     def output(self, t_us: int, with_state: bool = False):
         if self._lg is None:
             self._lg = self.cuda.device_array(self.n, np.float64)
-        with _phase("output_kernel"):
+        with PH.phase("output_kernel", "parallel"):
             self.ck.k_cf_output[_grid(self.n)](self.C, float(t_us), self._lg, self.n)
-        with _phase("output_copy"):
+        with PH.phase("output_copy", "parallel"):
             lg = self._lg.copy_to_host()
-        with _phase("output_host_exp"):
+        with PH.phase("output_host_exp", "parallel"):
             out = (np.exp(lg) - self.offset).astype(np.float32)
         if with_state:
             return out.reshape(self.shape), lg.reshape(self.shape)
@@ -819,10 +759,10 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
 
     def fuse_one(l1, p1, l2, p2):
         """Fused linear image on the device (fusion, exp, clamp: _kernels.fuse_to_linear's steps)."""
-        with _phase("fuse_kernel"):
+        with PH.phase("fuse_kernel", "parallel"):
             CK.k_fill_i64[1, 32](counts, np.int64(0), 2)  # on the device: no host copy per output
             CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
-        with _phase("output_copy"):
+        with PH.phase("output_copy", "parallel"):
             img = out.copy_to_host()
             nz, ncl = (int(v) for v in counts.copy_to_host())
         if nz:
@@ -843,7 +783,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
         rev_host = reverse_events(events, mirror) if (needs_host or rev_dev is None) else None
         for eng, tr, carried in passes(rev_fr, rev_host, rev_dev, True, rev_times):
             i = index[int(mirror - tr)]
-            with _phase("backward_store"):
+            with PH.phase("backward_store", "parallel"):
                 lb = cuda.device_array(n_pix, np.float32)
                 pb = cuda.device_array(n_pix, np.float32)
                 eng.output_state32(tr, lb, pb, carried)
@@ -863,7 +803,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
             t = int(t)
             if nxt is not None and nxt[1] == t:
                 eng, _, carried = nxt
-                with _phase("forward_state32"):
+                with PH.phase("forward_state32", "parallel"):
                     eng.output_state32(t, lf, pf, carried)
                 if have_b[i]:
                     lb, pb = backward_of(i)
