@@ -188,7 +188,7 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         nb_pos = cuda.local.array(8, np.int32)
         nb_hi = cuda.local.array(8, np.int32)
         nb_te = cuda.local.array(8, np.int64)
-        n_nb, t_quiet = d_window_neighbours(pix, height, width, start, te_in, nb_pos, nb_hi, nb_te)
+        n_nb, t_quiet = d_window_neighbours(pix, height, width, start, start[1:], te_in, nb_pos, nb_hi, nb_te)
         jump_on, jump_off = d_jumps(pix, c_on, c_off, con_px, coff_px, has_px)
         g, te_last = d_akf_walk_pixel(S, pix, t, p, a, grp, lo, hi, NO_BOUND, te_in[pix], t_quiet, nb_pos, nb_hi,
                                       nb_te, n_nb, has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc,

@@ -161,6 +161,8 @@ class Engine:
 class AKFEngine(Engine):
     """Asynchronous Kalman filter state (eqs. 14-21) over a measurement provider."""
 
+    kind = "row-band"  # the events of each batch split by row band (see _pixel_engine for the other)
+
     lookahead = True  # compute a generic provider's next segment in the background
 
     def __init__(self, shape, measurements, params, n_workers: int = 1):
@@ -311,18 +313,22 @@ class AKFEngine(Engine):
         p_cens = float(getattr(self.params, "censored_initial_covariance", p0))
         off = getattr(self.params, "intensity_offset", None)
         log_off = math.log(off) if off is not None else 0.0
-        if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
+        if self.te and self.te[0].dtype != np.int32:  # a restart after the int64 fallback
             self.te = self._int32_te()
         W = self.shape[1]
-        te = self.te
 
         def band(b, lo, hi):
             K.akf_start(self._S, p0, p_cens, log_off, off is not None, float(t_init), lo * W, hi * W)
-            te[b][:] = 0  # each worker its own last-event times (first touch of their pages)
+            self._start_band_te(b)
         with PH.phase("start", "parallel"):
             self._map_bands(band, self.n)
         self.te_base = t_init
         return t_init
+
+    def _start_band_te(self, b: int) -> None:
+        """Zero band ``b``'s last-event times (relative to the start: each worker first touches
+        its own pages)."""
+        self.te[b][:] = 0
 
     def _int32_te(self) -> list:
         """One zeroed int32 last-event-time array per band (times relative to ``te_base``)."""

@@ -203,10 +203,10 @@ def akf_walk_pixel(S, pix, t, p, a, grp, g, hi, wb, te0, t_quiet, nb_pos, nb_hi,
     return g, te0
 
 
-def window_neighbours(pix, height, width, start, te_in, nb_pos, nb_hi, nb_te):
+def window_neighbours(pix, height, width, glo, ghi, te_in, nb_pos, nb_hi, nb_te):
     """The 3×3 neighbours of ``pix`` (clipped at the border) for :func:`akf_walk_pixel` over one
-    window grouped by pixel (``start``: each pixel's group bounds; ``te_in``: last event times
-    before the window): returns ``(n_nb, t_quiet)``, the neighbours with events in the window
+    window grouped by pixel (pixel q's group is ``[glo[q], ghi[q])`` of the group array, empty for
+    a pixel without events; ``te_in``: last event times before the window): returns ``(n_nb, t_quiet)``, the neighbours with events in the window
     listed in ``nb_*``, the others' times (and the pixel's own) folded into ``t_quiet``."""
     yy = pix // width
     xx = pix - yy * width
@@ -220,8 +220,8 @@ def window_neighbours(pix, height, width, start, te_in, nb_pos, nb_hi, nb_te):
         for qx in range(xlo, xhi + 1):
             q = qy * width + qx
             if q != pix:
-                q_lo = start[q]
-                q_hi = start[q + 1]
+                q_lo = glo[q]
+                q_hi = ghi[q]
                 if q_lo == q_hi:
                     if te_in[q] > t_quiet:
                         t_quiet = te_in[q]

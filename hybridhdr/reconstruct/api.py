@@ -386,8 +386,9 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
         if method == "akf":
             return CudaAKFEngine(shape, measurements, params), prof
         return CudaCFEngine(shape, measurements, params, method), prof
-    if method == "akf":
-        return E.AKFEngine(shape, measurements, params, n_workers), prof
+    if method == "akf":  # the row-band or the pixel-parallel engine, by the worker count (same bits)
+        from ._pixel_engine import cpu_akf_engine
+        return cpu_akf_engine(shape, measurements, params, n_workers), prof
     if method in ("cf", "direct", "highpass"):
         return E.CFEngine(shape, measurements, params, method, n_workers), prof
     if mode == "causal" and method == "frames_linear":
@@ -429,6 +430,8 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                            device: str = "cpu") -> Iterator[tuple[int, np.ndarray]]:
     method = resolve_method(method)
     device, device_line = resolve_device(device, method)  # "cuda" or "cpu", and the line saying which
+    from ._pixel_engine import engine_line
+    device_line += engine_line(method, device, n_workers, mode)  # which CPU engine runs the AKF
     if info is not None:
         info["device"] = device_line
     if mode not in MODES:

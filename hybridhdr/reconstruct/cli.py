@@ -456,7 +456,8 @@ def run(args) -> int:
             info: dict = {}
             from .cuda import resolve_device
             _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
-            print(device_line, file=sys.stderr)
+            from ._pixel_engine import engine_line
+            print(device_line + engine_line(method, _device, args.workers, args.mode), file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
                 from ..formats import open_reader
