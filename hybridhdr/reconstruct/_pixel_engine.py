@@ -19,7 +19,7 @@ workers, so the blocks can be dealt out by their event counts):
 2. each worker scatters its part's event indices into per-block lists, in stream order
    (:func:`block_scatter`): a counting sort by block, stable;
 3. each worker groups its blocks' events by pixel (:func:`group_block`, a stable counting sort
-   over the block's pixels that touches only the pixels with events: no pass over the sensor);
+   over the block's pixels: the groups in pixel order, so neighbours' groups lie near each other);
 4. each worker walks its blocks' pixels (:func:`walk_block`);
 5. each worker moves its pixels' last event times into ``te`` and clears their group bounds.
 
@@ -68,43 +68,47 @@ def block_scatter(y, a, j0, j1, block_of_row, pos, out):
 
 
 @njit(cache=True, nogil=True)
-def group_block(x, y, a, ev, e0, e1, identity, width, gcnt, glo, ghi, grp, act):
+def group_block(t, x, y, p, a, ev, e0, e1, identity, width, pix_lo, pix_hi, gcnt, glo, ghi, grp, tg, pg, act):
     """Group the block's events by pixel, each pixel's in stream order.
 
     The block's events are ``ev[e0:e1]`` (indices relative to ``a``), or ``e0 .. e1 - 1`` themselves
-    when ``identity``. Pixel ``q``'s group becomes ``grp[glo[q]:ghi[q]]``, laid out in the block's
-    range ``[e0, e1)`` of ``grp``; the pixels with events are listed in ``act[e0:e0 + k]`` in the
-    order of their first event, and ``k`` is returned. ``gcnt``, ``glo`` and ``ghi`` are 0 for
-    every pixel without events (:func:`finish_block` restores that), so only the block's events
-    and their pixels are touched.
+    when ``identity``; its pixels are ``[pix_lo, pix_hi)``. Pixel ``q``'s group becomes
+    ``grp[glo[q]:ghi[q]]``, laid out in pixel order in the block's range ``[e0, e1)`` of ``grp``,
+    each event's time and polarity copied to the same position of ``tg`` and ``pg`` (the walk
+    reads them in sequence, and the groups of neighbouring pixels lie near each other); the
+    pixels with events are listed in ``act[e0:e0 + k]`` in pixel order, and ``k`` is returned.
+    ``gcnt``, ``glo`` and ``ghi`` are 0 for every pixel without events (:func:`finish_block`
+    restores that).
     """
-    k = 0
     for j in range(e0, e1):
         i = j if identity else np.int64(ev[j])
-        q = np.int64(y[a + i]) * width + np.int64(x[a + i])
-        if gcnt[q] == 0:
+        gcnt[np.int64(y[a + i]) * width + np.int64(x[a + i])] += 1
+    k = 0
+    pos = e0
+    for q in range(pix_lo, pix_hi):
+        c = gcnt[q]
+        if c != 0:
             act[e0 + k] = q
             k += 1
-        gcnt[q] += 1
-    pos = e0
-    for m in range(e0, e0 + k):
-        q = act[m]
-        glo[q] = pos
-        ghi[q] = pos
-        pos += gcnt[q]
+            glo[q] = pos
+            ghi[q] = pos
+            pos += c
     for j in range(e0, e1):
         i = j if identity else np.int64(ev[j])
         q = np.int64(y[a + i]) * width + np.int64(x[a + i])
-        grp[ghi[q]] = np.int32(i)
-        ghi[q] += 1
+        r = ghi[q]
+        grp[r] = np.int32(i)
+        tg[r] = t[a + i]
+        pg[r] = p[a + i]
+        ghi[q] = r + 1
     return k
 
 
 @njit(cache=True, nogil=True)
-def walk_block(t, p, a, height, width, act, m0, m1, glo, ghi, grp, te, tlast, S, has_la_step, seg_t0, seg_inv_t,
+def walk_block(tg, pg, height, width, act, m0, m1, glo, ghi, grp, te, tlast, S, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
-    """Walk the pixels ``act[m0:m1]`` (:func:`._kernels.akf_walk_pixel`): each pixel's events in
-    stream order, t* from the neighbours' groups and ``te`` (every pixel's last event time before
+    """Walk the pixels ``act[m0:m1]`` (:func:`._kernels.akf_walk_pixel` on the gathered times
+    ``tg`` and polarities ``pg``): each pixel's events in stream order, t* from the neighbours' groups and ``te`` (every pixel's last event time before
     the window); each pixel's last event time goes to ``tlast``. Returns the events walked."""
     has_px = con_px.shape[0] > 0
     nb_pos = np.empty(8, np.int64)
@@ -118,7 +122,7 @@ def walk_block(t, p, a, height, width, act, m0, m1, glo, ghi, grp, te, tlast, S,
         n_nb, t_quiet = K.window_neighbours(q, height, width, glo, ghi, te, nb_pos, nb_hi, nb_te)
         jump_on = con_px[q] if has_px else c_on
         jump_off = -(coff_px[q] if has_px else c_off)
-        g, tl = K.akf_walk_pixel(S, q, t, p, a, grp, lo, hi, NO_BOUND, te[q], t_quiet, nb_pos, nb_hi, nb_te, n_nb,
+        g, tl = K.akf_walk_pixel(S, q, tg, pg, 0, grp, True, lo, hi, NO_BOUND, te[q], t_quiet, nb_pos, nb_hi, nb_te, n_nb,
                                  has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us,
                                  noise_form)
         tlast[q] = tl
@@ -174,6 +178,7 @@ class PixelAKFEngine(AKFEngine):
         nb = max(1, min(H, nw * BLOCKS_PER_WORKER)) if nw > 1 else 1
         edges = np.round(np.linspace(0, H, nb + 1)).astype(np.int64)
         self.block_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
+        self.block_rows = edges  # block b: rows [edges[b], edges[b + 1])
         self.n_blocks = nb
         self._cap = 0
         self._barrier = threading.Barrier(nw) if nw > 1 else None
@@ -200,8 +205,10 @@ class PixelAKFEngine(AKFEngine):
             self._grp = np.empty(cap, np.int32)
             self._ev = np.empty(cap, np.int32)
             self._act = np.empty(cap, np.int64)
+            self._tg = np.empty(cap, np.int64)
+            self._pg = np.empty(cap, np.int8)
             self._cap = cap
-        return self._grp, self._ev, self._act
+        return self._grp, self._ev, self._act, self._tg, self._pg
 
     def _map_workers(self, fn) -> list:
         """``fn(w)`` for each worker ``w``, the last in the calling thread (as ``_map_bands``)."""
@@ -240,21 +247,22 @@ class PixelAKFEngine(AKFEngine):
         pr = self.params
         H, W = self.shape
         n = i1 - i0
-        grp, ev, act = self._buffers(n)
+        grp, ev, act, tg, pg = self._buffers(n)
         args = (self.S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
                 self.con_px, self.coff_px)
         te, tlast, gcnt, glo, ghi = self.te_px, self.tlast, self.gcnt, self.glo, self.ghi
         if self._nw == 1:
             with PH.phase("filter", "parallel"):
-                k = group_block(x, y, i0, ev, 0, n, True, W, gcnt, glo, ghi, grp, act)
-                self.n_events += walk_block(t, p, i0, H, W, act, 0, k, glo, ghi, grp, te, tlast, *args)
+                k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, self.n, gcnt, glo, ghi, grp, tg, pg, act)
+                self.n_events += walk_block(tg, pg, H, W, act, 0, k, glo, ghi, grp, te, tlast, *args)
                 finish_block(act, 0, k, te, tlast, gcnt, glo, ghi)
             return
         nw, nb = self._nw, self.n_blocks
         parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
         hist = np.zeros((nw, nb), np.int64)
         bor = self.block_of_row
+        brow = self.block_rows
         bar = self._barrier
         shared: dict = {}
 
@@ -280,14 +288,14 @@ class PixelAKFEngine(AKFEngine):
             b0, b1 = deal[w]
             with PH.phase("worker_group", "worker"):
                 for b in range(b0, b1):
-                    kk[b] = group_block(x, y, i0, ev, bstart[b], bstart[b + 1], False, W, gcnt, glo, ghi, grp, act)
+                    kk[b] = group_block(t, x, y, p, i0, ev, bstart[b], bstart[b + 1], False, W, brow[b] * W,
+                                        brow[b + 1] * W, gcnt, glo, ghi, grp, tg, pg, act)
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
             m = 0
             with PH.phase("worker_walk", "worker"):
                 for b in range(b0, b1):
-                    m += walk_block(t, p, i0, H, W, act, bstart[b], bstart[b] + kk[b], glo, ghi, grp, te, tlast,
-                                    *args)
+                    m += walk_block(tg, pg, H, W, act, bstart[b], bstart[b] + kk[b], glo, ghi, grp, te, tlast, *args)
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
             with PH.phase("worker_finish", "worker"):
