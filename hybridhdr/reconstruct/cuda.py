@@ -49,6 +49,8 @@ MAX_WINDOW = 1 << 24
 #: events are. Either way the same per-pixel event sequences and t*, so the same results.
 RESIDENT_CHUNK = 1 << 25
 _STAGE_MIN = 1 << 16
+#: events per pinned staging buffer when the whole recording is uploaded (:meth:`DeviceEvents.upload`)
+UPLOAD_CHUNK = 1 << 22
 
 
 def numpy_compat() -> None:
@@ -190,6 +192,54 @@ class _Grouper:
             CK.k_sort_groups[_grid(self.n_pix)](self.start, self.n_pix, self.grp)
 
 
+class PinnedUploader:
+    """Host event columns to the device through two page-locked (pinned) staging buffers.
+
+    :meth:`copy` packs a range of the columns into one buffer (a host copy) and queues its
+    asynchronous DMA to the device on the uploader's stream; the kernels, launched on the default
+    stream after it, wait for it (the default stream orders itself against every other stream),
+    and it waits for the kernels launched before it. It returns at once, so the host packs (and
+    the driver reads and decodes) the next range while the device copies and filters this one. A buffer is reused only once its
+    previous DMA has completed (a CUDA event per buffer). Pinned memory is what lets the DMA run
+    asynchronously and at the bus's full speed (a pageable copy is staged by the driver through
+    its own pinned buffer and blocks the host).
+    """
+
+    DTYPES = (np.int64, np.uint16, np.uint16, np.int8)
+
+    def __init__(self, capacity: int):
+        cuda = _cuda()
+        self.cuda = cuda
+        self.cap = int(capacity)
+        self.bufs = [[cuda.pinned_array(self.cap, dt) for dt in self.DTYPES] for _ in range(2)]
+        self.done = [None, None]
+        self.k = 0
+        self.stream = cuda.stream()
+
+    def copy(self, cols, a: int, b: int, dst) -> None:
+        """Columns ``cols`` (t, x, y, p) ``[a, b)`` (at most the capacity) into the device arrays
+        ``dst`` (each ``b - a`` long), asynchronously."""
+        n = b - a
+        if n > self.cap:
+            raise ValueError(f"a range of {n} events exceeds the pinned staging capacity {self.cap}")
+        k = self.k
+        self.k ^= 1
+        if self.done[k] is not None:
+            self.done[k].synchronize()  # this buffer's previous DMA has finished
+        buf = self.bufs[k]
+        for src, pb, d in zip(cols, buf, dst):
+            np.copyto(pb[:n], src[a:b], casting="same_kind")
+            d.copy_to_device(pb[:n], stream=self.stream)
+        ev = self.cuda.event()
+        ev.record(stream=self.stream)
+        self.done[k] = ev
+
+    def wait(self) -> None:
+        for ev in self.done:
+            if ev is not None:
+                ev.synchronize()
+
+
 class DeviceEvents:
     """Event columns on the device (t int64, x, y uint16, p int8), with the host times for the
     window bounds (``lower(t)``: the number of events with timestamps < t)."""
@@ -201,10 +251,22 @@ class DeviceEvents:
         self._rev = reversed_of  # (forward host t, mirror): this copy is reversed
 
     @classmethod
-    def upload(cls, events) -> "DeviceEvents":
+    def upload(cls, events, pinned: bool = True, chunk_events: int = UPLOAD_CHUNK) -> "DeviceEvents":
+        """The event columns on the device. ``pinned`` (default): through page-locked staging
+        buffers, ``chunk_events`` at a time (:class:`PinnedUploader`: the copy into one buffer
+        overlaps the DMA from the other, at the bus's speed); else one pageable copy per column."""
         cuda = _cuda()
-        return cls(*(cuda.to_device(np.ascontiguousarray(a)) for a in (events.t, events.x, events.y, events.p)),
-                   host_t=events.t)
+        cols = [np.ascontiguousarray(a) for a in (events.t, events.x, events.y, events.p)]
+        if not pinned:
+            return cls(*(cuda.to_device(a) for a in cols), host_t=events.t)
+        dev = [cuda.device_array(a.shape[0], a.dtype) for a in cols]
+        up = PinnedUploader(chunk_events)
+        with PH.phase("upload_pinned", "parallel"):
+            for a in range(0, cols[0].shape[0], chunk_events):
+                b = min(cols[0].shape[0], a + chunk_events)
+                up.copy(cols, a, b, [d[a:b] for d in dev])
+            up.wait()
+        return cls(*dev, host_t=events.t)
 
     def reversed(self, t_mirror_us: int) -> "DeviceEvents":
         """:func:`.smoother.reverse_events` on the device."""
@@ -248,6 +310,8 @@ class _CudaEngine:
         self.grouper = _Grouper(self.n)
         self.n_events = 0  # every event of a window is applied (the serial filter's count)
         self._stage = None
+        self._stage_k = 0
+        self._uploader = None
         self.con_px = self.coff_px = self._empty(np.float64)
         self.device_line = f"device: cuda ({device_name()})"
         self._cache: dict = {}
@@ -285,19 +349,25 @@ class _CudaEngine:
             self.coff_px = self.cuda.to_device(host.coff_px)
 
     def process(self, t, x, y, p, i0, i1) -> None:
-        """Host events ``[i0, i1)``: uploaded through a staging buffer, then :meth:`process_device`."""
+        """Host events ``[i0, i1)``: uploaded through pinned staging buffers
+        (:class:`PinnedUploader`, asynchronous), then :meth:`process_device` on the same stream.
+        Two device staging sets alternate, so a window's copy is queued while the previous
+        window's kernels may still read the other set."""
         for a in range(i0, i1, MAX_WINDOW):
             b = min(i1, a + MAX_WINDOW)
             n = b - a
-            if self._stage is None or self._stage[0].shape[0] < n:
-                cap = max(n, _STAGE_MIN, 0 if self._stage is None else 2 * self._stage[0].shape[0])
+            if self._stage is None or self._stage[0][0].shape[0] < n:
+                cap = max(n, _STAGE_MIN, 0 if self._stage is None else 2 * self._stage[0][0].shape[0])
                 cap = min(cap, MAX_WINDOW)
-                self._stage = tuple(self.cuda.device_array(cap, dt)
-                                    for dt in (np.int64, np.uint16, np.uint16, np.int8))
-            st = self._stage
+                self._stage = [tuple(self.cuda.device_array(cap, dt) for dt in PinnedUploader.DTYPES)
+                               for _ in range(2)]
+                if self._uploader is not None:
+                    self._uploader.wait()
+                self._uploader = PinnedUploader(cap)
+            st = self._stage[self._stage_k]
+            self._stage_k ^= 1
             with PH.phase("stage_upload", "parallel"):
-                for src, dst, dt in zip((t, x, y, p), st, (np.int64, np.uint16, np.uint16, np.int8)):
-                    dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
+                self._uploader.copy((t, x, y, p), a, b, [d[:n] for d in st])
             self.process_device(*st, 0, n)
 
     def process_resident(self, dev: "DeviceEvents", i: int, j: int) -> None:
