@@ -372,11 +372,14 @@ class PixelAKFEngine(AKFEngine):
             self.n_events += int(sum(self._map_workers(worker)))
 
 
-#: the worker count from which :func:`cpu_akf_engine` picks the pixel-parallel engine. Measured by
-#: ``benchmarks/akf.py --workers`` (both engines side by side): on one worker the row-band
-#: engine's serial filter is the faster (its prefetching event loop, no grouping pass); from two
-#: workers on the pixel-parallel engine scales further (no per-batch hand-off between bands)
-PIXEL_MIN_WORKERS = 2
+#: the worker count from which :func:`cpu_akf_engine` picks the pixel-parallel engine: the
+#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores the pixel
+#: engine ran at 0.4-0.6x the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720,
+#: forward and two-sided: its grouping pass costs about as much as the walk); the row-band engine's
+#: speed-up stops growing past 8 workers (3.3x at 8, 2.8x at 16 at 1280x720 forward on a 16-core
+#: host) where the pixel engine has no hand-off to lose, so the crossing is expected between 4 and
+#: 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
+PIXEL_MIN_WORKERS = 8
 ENGINES = ("auto", "row-band", "pixel-parallel")
 #: the engine ``reconstruct`` uses ("auto": by the worker count; a benchmark sets one to compare)
 ENGINE = "auto"

@@ -81,10 +81,13 @@ def test_choice_and_report():
     assert PX.cpu_akf_engine((4, 5), m, AKFParams(), 1, engine="pixel-parallel").kind == "pixel-parallel"
     with pytest.raises(ValueError, match="engine must be one of"):
         PX.cpu_akf_engine((4, 5), m, AKFParams(), 1, engine="fast")
-    assert PX.engine_line("akf", "cpu", 2) == "; cpu engine: pixel-parallel (2 workers)"
+    k = PX.PIXEL_MIN_WORKERS
+    assert PX.engine_line("akf", "cpu", k) == f"; cpu engine: pixel-parallel ({k} workers)"
+    assert PX.engine_line("akf", "cpu", k - 1) == f"; cpu engine: row-band ({k - 1} worker{'s' if k > 2 else ''})"
     assert PX.engine_line("akf", "cpu", 1, "offline") == "; cpu engine: row-band (1 worker)"
-    assert PX.engine_line("akf", "cpu", 4, "offline") == ("; cpu engine: pixel-parallel (2 workers), pixel-parallel "
-                                                          "(2 workers) (backward and forward pass at once)")
+    assert PX.engine_line("akf", "cpu", 2 * k, "offline") == (f"; cpu engine: pixel-parallel ({k} workers), "
+                                                              f"pixel-parallel ({k} workers) (backward and forward "
+                                                              f"pass at once)")
     assert PX.engine_line("cf", "cpu", 2) == "" and PX.engine_line("akf", "cuda", 2) == ""
 
 
