@@ -311,7 +311,9 @@ class PixelAKFEngine(AKFEngine):
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        self._flush()  # a pending frame switch, by row bands
+        if self._pending is not None:
+            with PH.phase("switch", "parallel"):
+                self._flush()  # the pending frame switch, by row bands
         pr = self.params
         H, W = self.shape
         wp = W + 2
