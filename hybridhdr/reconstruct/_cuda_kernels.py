@@ -190,7 +190,7 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         nb_te = cuda.local.array(8, np.int64)
         n_nb, t_quiet = d_window_neighbours(pix, height, width, start, start[1:], te_in, nb_pos, nb_hi, nb_te)
         jump_on, jump_off = d_jumps(pix, c_on, c_off, con_px, coff_px, has_px)
-        g, te_last = d_akf_walk_pixel(S, pix, t, p, a, grp, False, lo, hi, NO_BOUND, te_in[pix], t_quiet, nb_pos, nb_hi,
+        g, te_last = d_akf_walk_pixel(S, pix, t, p, a, grp, lo, hi, NO_BOUND, te_in[pix], t_quiet, nb_pos, nb_hi,
                                       nb_te, n_nb, has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc,
                                       s_iso, s_ref, rho_us, noise_form)
         te_out[pix] = te_last
@@ -458,7 +458,7 @@ def k_akf_walk_res(t, p, a, wb, height, width, start, grp, cur_in, cur_out, te_c
                         nb_te[n_nb] = tq0
                         n_nb += 1
         jump_on, jump_off = d_jumps(pix, c_on, c_off, con_px, coff_px, has_px)
-        g, _ = d_akf_walk_pixel(S, pix, t, p, a, grp, False, g0, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb,
+        g, _ = d_akf_walk_pixel(S, pix, t, p, a, grp, g0, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb,
                                 has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us,
                                 noise_form)
         cur_out[pix] = g

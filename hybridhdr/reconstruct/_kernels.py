@@ -149,15 +149,14 @@ def akf_event_step(lh, pp, la, tu0, ti, dte, dtstar, positive, rinv, beta, klog,
     return lhat + jump, pp + q, la
 
 
-def akf_walk_pixel(S, pix, t, p, a, grp, gathered, g, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb,
-                   has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+def akf_walk_pixel(S, pix, t, p, a, grp, g, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb, has_la_step,
+                   seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us, noise_form):
     """Pixel ``pix``'s grouped events ``grp[g:hi]`` with stream index below ``wb``, in stream order,
     each by :func:`akf_event_step`; returns (the next position in ``grp``, the last event time).
 
     The pixel-parallel schedule (one thread per pixel, a group of event indices relative to ``a``
-    per pixel, in stream order). The event at group position ``g`` has time ``t[a + grp[g]]`` and
-    polarity ``p[a + grp[g]]``, or, ``gathered``, ``t[g]`` and ``p[g]`` (the grouping copied them
-    next to the indices: the walk then reads each pixel's events in one sequential run). ``te0``: the pixel's last event time before these events. The
+    per pixel, in stream order; the event at group position ``g`` is event ``a + grp[g]`` of ``t``
+    and ``p``). ``te0``: the pixel's last event time before these events. The
     isolated-pixel term's t* at event i is the latest event time in the 3×3 window over the
     events before i in the stream: ``t_quiet`` folds in the neighbours without events here (their
     earlier last-event times, and ``te0``), and for the ``n_nb`` others ``nb_pos[k]`` /
@@ -178,7 +177,7 @@ def akf_walk_pixel(S, pix, t, p, a, grp, gathered, g, hi, wb, te0, t_quiet, nb_p
         i = grp[g]
         if i >= wb:
             break
-        e = g if gathered else a + i
+        e = a + i
         ti = t[e]
         tstar = te0 if te0 > t_quiet else t_quiet
         for k in range(n_nb):
@@ -189,7 +188,7 @@ def akf_walk_pixel(S, pix, t, p, a, grp, gathered, g, hi, wb, te0, t_quiet, nb_p
                 while kk < hk and grp[kk] < i:
                     kk += 1
                 nb_pos[k] = kk
-                nb_te[k] = t[kk - 1] if gathered else t[a + grp[kk - 1]]
+                nb_te[k] = t[a + grp[kk - 1]]
             tq = nb_te[k]
             if tq > tstar:
                 tstar = tq
