@@ -228,7 +228,7 @@ class PinnedUploader:
             self.done[k].synchronize()  # this buffer's previous DMA has finished
         buf = self.bufs[k]
         for src, pb, d in zip(cols, buf, dst):
-            np.copyto(pb[:n], src[a:b], casting="same_kind")
+            np.copyto(pb[:n], src[a:b], casting="unsafe")  # as np.asarray(src, dtype) did
             d.copy_to_device(pb[:n], stream=self.stream)
         ev = self.cuda.event()
         ev.record(stream=self.stream)
