@@ -29,7 +29,7 @@ T0=$(date +%s)
   date -u; nvidia-smi; uname -a; nproc; uptime
   python3 -c "import sys, numpy, numba; print(sys.version); print('numpy', numpy.__version__, 'numba', numba.__version__)"
   python3 -m pip list 2>/dev/null | grep -i -E "^(numba|numba-cuda|cupy|torch|llvmlite|h5py|scipy|isal|tqdm) "
-  python3 -c "from hybridhdr.reconstruct.cuda import resolve_device; print(resolve_device('auto')[1])"
+  python3 -c "from hybridhdr.reconstruct.request import Device; print(Device.resolve('auto').line)"
 } > "$OUT/env.txt" 2>&1
 cat "$OUT/env.txt"
 
