@@ -4,11 +4,11 @@ Usage: ``python benchmarks/akf.py [--quick]``. Prints progress, then ONE JSON ob
 
 Events are synthesised with a seeded generator on a 346×260 sensor: 60 Gaussian blobs (σ = 6 px)
 drifting at up to 300 px/s, events time-sorted at about 10 Mev/s, random polarity. Frames (for
-the frame-switch and R⁻¹ LUTs) come every 1/30 s. Goals (issue 3): AKF kernel ≥ 30 Mev/s on
+the frame-switch and R⁻¹ LUTs) come every 1/30 s. Goals: AKF kernel ≥ 30 Mev/s on
 one core, parallel ≥ 1.7× on 2 cores and bit-identical, end to end (container read + AKF +
 300 Hz frames in memory) ≥ 10 Mev/s, CF kernel ≥ 40 Mev/s.
 
-Issue 21 adds: the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
+It also measures the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
 loop (goal: >= 20 Mev/s with 2 workers and above 1 worker; with 2 workers the package runs the
 backward and forward passes at the same time, compared with the two passes in turn, each with
 both workers, through a benchmark-only hook), a PROTOTYPE of a proposed hook in a file this
@@ -18,14 +18,14 @@ events, 3 M with --quick; blobs, moving edges, background) with the forward AKF 
 on one core (30 Hz frame switches included, as above; goal AKF >= 20 Mev/s per core) and the
 two-sided and forward AKF in memory.
 
-Issue 30 adds the per-phase scaling study (:func:`scaling_study`): ``--workers 1,2,4,8,16``
+The per-phase scaling study (:func:`scaling_study`, both CPU engines of the AKF side by side): ``--workers 1,2,4,8,16``
 runs only it (10 M events at 346x260 and 6 M at 1280x720, 3 interleaved rounds: a few minutes on a
 16-core host), ``--quick`` runs it after the rest with 1 and 2 workers on 1 M events (3 rounds
 too). Per case (forward, causal and two-sided AKF and CF at 346x260, forward and two-sided AKF at 1280x720, in
 memory, 30 Hz outputs) it prints each phase's time, the measured serial fraction, Amdahl's
 projection to 8 and 16 workers, the measured speed-ups with the serial fraction they imply
 (Karp-Flatt), and whether every worker count gave the one-worker frames bit for bit; all of it
-under ``"scaling"`` in the JSON line. Goals (issue 30): serial fraction <= 4 % for the forward and
+under ``"scaling"`` in the JSON line. Goals: serial fraction <= 4 % for the forward and
 two-sided AKF at both sizes (projected >= 8x at 16 workers), 2-worker AKF speed-up >= 1.8x.
 
 The 2-core VMs this runs on change speed by tens of percent from minute to minute (the host's
@@ -305,12 +305,70 @@ def karp_flatt(speedup: float, n: int) -> float:
     return (1.0 / speedup - 1.0 / n) / (1.0 - 1.0 / n)
 
 
-def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: dict) -> None:
-    """Issue 30: each phase of ``reconstruct(...)`` in memory (30 Hz outputs) timed with
+def _scaling_case(rec, method, mode, workers, reps):
+    """One case of :func:`scaling_study` with the CPU engine set: per-phase times by worker count."""
+    from hybridhdr._util import phases as PH
+    from hybridhdr.reconstruct import reconstruct
+    n_ev = len(rec.events)
+
+    def run(nw):
+        with PH.timing() as pt:
+            v = reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20)
+        return pt.report(), v.frames
+
+    ref = run(1)[1]  # warm-up (JIT cache, first touch) and the reference frames
+    best: dict = {}
+    walls: dict = {w: [] for w in workers}
+    f_runs = []
+    identical = True
+    for _ in range(reps):
+        for w in workers:
+            rep_, fr = run(w)
+            walls[w].append(rep_["wall_s"])
+            if w == 1:
+                f_runs.append(1.0 - rep_["parallel_s"] / rep_["wall_s"])
+                if f_runs[-1] == min(f_runs):
+                    r_f = rep_
+            identical &= bool(np.array_equal(fr, ref))
+            if w not in best or rep_["wall_s"] < best[w]["wall_s"]:
+                best[w] = rep_
+    r1 = best[workers[0]]
+    # the least disturbed one-worker run's fraction (as timeit's minimum: a descheduled thread
+    # or another tenant only ever adds time, to whichever phase it hits); every run's beside it
+    f = min(f_runs)
+    c = {"events": n_ev, "bit_identical": identical, "serial_fraction": round(f, 4),
+         "serial_fraction_runs": [round(v, 4) for v in f_runs],
+         "serial_fraction_of_best_run": round(1.0 - r1["parallel_s"] / r1["wall_s"], 4),
+         # the same run's split: named serial phases, and time in no phase (Python in between)
+         "serial_fraction_named": round(r_f["serial_s"] / r_f["wall_s"], 4),
+         "untimed_fraction": round(r_f["untimed_s"] / r_f["wall_s"], 4),
+         "projected_speedup": {str(k): round(amdahl(f, k), 2) for k in (2, 8, 16)},
+         "mev_s": {str(w): round(n_ev / best[w]["wall_s"] / 1e6, 2) for w in workers},
+         "mev_s_median": {str(w): round(n_ev / float(np.median(walls[w])) / 1e6, 2) for w in workers},
+         "speedup": {}, "speedup_median": {}, "efficiency": {}, "karp_flatt": {}, "phases": {}, "_frames": ref}
+    for w in workers[1:]:
+        sp = r1["wall_s"] / best[w]["wall_s"]
+        c["speedup"][str(w)] = round(sp, 2)
+        c["speedup_median"][str(w)] = round(float(np.median(walls[1])) / float(np.median(walls[w])), 2)
+        c["efficiency"][str(w)] = round(sp / w, 2)
+        c["karp_flatt"][str(w)] = round(karp_flatt(sp, w), 4)
+    for w in workers:
+        b = best[w]
+        c["phases"][str(w)] = {"wall_s": round(b["wall_s"], 4), "untimed_s": round(b["untimed_s"], 4),
+                               **{k: [v["kind"], round(v["s"], 4), v["calls"]] for k, v in b["phases"].items()}}
+    return c
+
+
+def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: dict, only=None) -> None:
+    """Each phase of ``reconstruct(...)`` in memory (30 Hz outputs) timed with
     :mod:`hybridhdr._util.phases`, for the forward, causal and two-sided AKF and CF at 346x260 and
     the forward and two-sided AKF at 1280x720, with every worker count in ``workers``, interleaved
     (one run of each count in turn, ``reps`` rounds; the best round per count is kept, its phases
-    reported).
+    reported). Every AKF case runs with both CPU engines (the row-band engine, and the
+    pixel-parallel one under ``<case>_pixel``), side by side under ``engines_side_by_side``:
+    each's speed-up and efficiency (speed-up / workers) over its own one worker, and the
+    pixel-parallel engine's speed over the row-band engine's at each worker count. ``only``: the
+    case names to run (default all).
 
     The serial fraction is measured on the single-worker runs: ``f = 1 - parallel / wall``, where
     ``parallel`` is the wall time of the row-band calls (the work that the workers split), so
@@ -322,8 +380,6 @@ def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: d
     measured figures are meaningless (threads share cores), and on a loaded machine they are low.
     """
     from hybridhdr import Recording, SensorSize, make_events
-    from hybridhdr._util import phases as PH
-    from hybridhdr.reconstruct import reconstruct
 
     t0 = time.perf_counter()
     t, x, y, p, dur = synth_events(n_small)
@@ -336,62 +392,49 @@ def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: d
     cases = [("forward_346x260", rec_small, "akf", "forward"), ("two_sided_346x260", rec_small, "akf", "offline"),
              ("causal_346x260", rec_small, "akf", "causal"), ("cf_346x260", rec_small, "cf", "forward"),
              ("forward_1280x720", rec_hd, "akf", "forward"), ("two_sided_1280x720", rec_hd, "akf", "offline")]
+    if only:
+        unknown = set(only) - {c[0] for c in cases}
+        if unknown:
+            raise ValueError(f"unknown scaling cases {sorted(unknown)}; known: {[c[0] for c in cases]}")
+        cases = [c for c in cases if c[0] in only]
     out: dict = {"workers": workers, "rounds": reps, "cases": {}}
+    from hybridhdr.reconstruct import _pixel_engine as PX
     for name, rec, method, mode in cases:
-        n_ev = len(rec.events)
-
-        def run(nw):
-            with PH.timing() as pt:
-                v = reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20)
-            return pt.report(), v.frames
-
-        ref = run(1)[1]  # warm-up (JIT cache, first touch) and the reference frames
-        best: dict = {}
-        walls: dict = {w: [] for w in workers}
-        f_runs = []
-        identical = True
-        for _ in range(reps):
-            for w in workers:
-                rep_, fr = run(w)
-                walls[w].append(rep_["wall_s"])
-                if w == 1:
-                    f_runs.append(1.0 - rep_["parallel_s"] / rep_["wall_s"])
-                    if f_runs[-1] == min(f_runs):
-                        r_f = rep_
-                identical &= bool(np.array_equal(fr, ref))
-                if w not in best or rep_["wall_s"] < best[w]["wall_s"]:
-                    best[w] = rep_
-        r1 = best[workers[0]]
-        if workers[0] != 1:
-            raise ValueError("--workers must start with 1 (the serial fraction is measured there)")
-        # the least disturbed one-worker run's fraction (as timeit's minimum: a descheduled thread
-        # or another tenant only ever adds time, to whichever phase it hits); every run's beside it
-        f = min(f_runs)
-        c = {"events": n_ev, "bit_identical": identical, "serial_fraction": round(f, 4),
-             "serial_fraction_runs": [round(v, 4) for v in f_runs],
-             "serial_fraction_of_best_run": round(1.0 - r1["parallel_s"] / r1["wall_s"], 4),
-             # the same run's split: named serial phases, and time in no phase (Python in between)
-             "serial_fraction_named": round(r_f["serial_s"] / r_f["wall_s"], 4),
-             "untimed_fraction": round(r_f["untimed_s"] / r_f["wall_s"], 4),
-             "projected_speedup": {str(k): round(amdahl(f, k), 2) for k in (2, 8, 16)},
-             "mev_s": {str(w): round(n_ev / best[w]["wall_s"] / 1e6, 2) for w in workers},
-             "mev_s_median": {str(w): round(n_ev / float(np.median(walls[w])) / 1e6, 2) for w in workers},
-             "speedup": {}, "karp_flatt": {}, "phases": {}}
-        for w in workers[1:]:
-            sp = r1["wall_s"] / best[w]["wall_s"]
-            c["speedup"][str(w)] = round(sp, 2)
-            c["karp_flatt"][str(w)] = round(karp_flatt(sp, w), 4)
-        for w in workers:
-            b = best[w]
-            c["phases"][str(w)] = {"wall_s": round(b["wall_s"], 4), "untimed_s": round(b["untimed_s"], 4),
-                                   **{k: [v["kind"], round(v["s"], 4), v["calls"]] for k, v in b["phases"].items()}}
-        out["cases"][name] = c
-        ph = ", ".join(f"{k} {v[1]:.3f} s ({v[0]})" for k, v in c["phases"]["1"].items()
-                       if isinstance(v, list) and v[0] != "worker")
-        print(f"{name}: {c['mev_s']} Mev/s by workers (best of {reps}); serial fraction {100 * f:.1f} % "
-              f"(named serial {100 * c['serial_fraction_named']:.1f} %, untimed {100 * c['untimed_fraction']:.1f} %) "
-              f"-> Amdahl {c['projected_speedup']}; measured speed-up {c['speedup']}, Karp-Flatt {c['karp_flatt']}; "
-              f"bit-identical {identical}\n    1 worker: wall {c['phases']['1']['wall_s']:.3f} s: {ph}",
+        engines = ("row-band", "pixel-parallel") if method == "akf" else ("row-band",)
+        for engine in engines:
+            PX.ENGINE = engine
+            try:
+                c = _scaling_case(rec, method, mode, workers, reps)
+            finally:
+                PX.ENGINE = "auto"
+            key = name if engine == "row-band" else f"{name}_pixel"
+            c["engine"] = engine
+            out["cases"][key] = c
+            ph = ", ".join(f"{k} {v[1]:.3f} s ({v[0]})" for k, v in c["phases"]["1"].items()
+                           if isinstance(v, list) and v[0] != "worker")
+            print(f"{key} ({engine} engine): {c['mev_s']} Mev/s by workers (best of {reps}); serial fraction "
+                  f"{100 * c['serial_fraction']:.1f} % (named serial {100 * c['serial_fraction_named']:.1f} %, untimed "
+                  f"{100 * c['untimed_fraction']:.1f} %) -> Amdahl {c['projected_speedup']}; measured speed-up "
+                  f"{c['speedup']}, efficiency {c['efficiency']}, Karp-Flatt {c['karp_flatt']}; bit-identical "
+                  f"{c['bit_identical']}\n    1 worker: wall {c['phases']['1']['wall_s']:.3f} s: {ph}", file=sys.stderr)
+    # the two CPU engines side by side: each's speed-up over its own one worker, and the
+    # pixel-parallel engine's speed against the row-band engine's at the same worker count
+    side = {}
+    for name, c in out["cases"].items():
+        if not name.endswith("_pixel"):
+            continue
+        base = out["cases"][name[:-len("_pixel")]]
+        side[name[:-len("_pixel")]] = {
+            "pixel_over_row_band": {str(w): round(c["mev_s"][str(w)] / base["mev_s"][str(w)], 2) for w in workers},
+            "pixel_speedup": c["speedup"], "row_band_speedup": base["speedup"],
+            "pixel_efficiency": c["efficiency"], "row_band_efficiency": base["efficiency"],
+            "identical_frames": bool(np.array_equal(c.pop("_frames"), base["_frames"]))}
+    for c in out["cases"].values():
+        c.pop("_frames", None)
+    out["engines_side_by_side"] = side
+    for name, d in side.items():
+        print(f"{name}: pixel-parallel / row-band by workers {d['pixel_over_row_band']}; speed-up pixel "
+              f"{d['pixel_speedup']} vs row-band {d['row_band_speedup']}; same frames {d['identical_frames']}",
               file=sys.stderr)
     res["scaling"] = out
 
@@ -415,7 +458,10 @@ def main(argv=None) -> int:
     ap.add_argument("--hd-only", action="store_true", help="run only the 346x260 kernel and the 1280x720 case")
     ap.add_argument("--workers", type=str, default=None,
                     help="comma-separated worker counts starting with 1 (e.g. 1,2,4,8,16): only the per-phase "
-                         "scaling study (issue 30); --quick runs it with 1,2 after the rest")
+                         "scaling study (both CPU engines); --quick runs it with 1,2 after the rest")
+    ap.add_argument("--cases", type=str, default=None,
+                    help="with --workers: comma-separated scaling cases to run (e.g. forward_1280x720,two_sided_1280x720)")
+    ap.add_argument("--rounds", type=int, default=3, help="with --workers: interleaved rounds (default 3)")
     ap.add_argument("--scaling-events", type=str, default=None,
                     help="events of the scaling study at 346x260 and 1280x720 (default 10M,6M; 1M,1M with --quick)")
     args = ap.parse_args(argv)
@@ -436,7 +482,8 @@ def main(argv=None) -> int:
         sc_n = [1_000_000, 1_000_000] if args.quick else [10_000_000, 6_000_000]
     if args.workers is not None:
         res = {"cpu_count": os.cpu_count(), "loadavg_start": loadavg(), "quick": bool(args.quick)}
-        scaling_study(workers, sc_n[0], sc_n[1], 3, res)
+        scaling_study(workers, sc_n[0], sc_n[1], max(1, args.rounds), res,
+                      only=args.cases.split(",") if args.cases else None)
         res["loadavg_end"] = loadavg()
         print(json.dumps(res))
         return 0
@@ -552,7 +599,7 @@ def main(argv=None) -> int:
                     res[f"end_to_end{tag}_{nw}w_output_frames"] = int(k)
                     print(f"end to end ({mode}{', augmented' if aug else ''}, {nw} worker(s)): "
                           f"{n / el / 1e6:.1f} Mev/s, {k} frames at 300 Hz", file=sys.stderr)
-            # the same file, default AKF, 1 vs 2 workers interleaved in one loop (issue 21); with 2
+            # the same file, default AKF, 1 vs 2 workers interleaved in one loop; with 2
             # workers also the passes in turn (each with both workers: the package's order before the
             # concurrent passes, through a benchmark-only hook) and the prototype reader hook, each
             # checked bit for bit against 1 worker
@@ -610,11 +657,19 @@ def main(argv=None) -> int:
         res["end_to_end_error"] = str(e)
     if args.quick:
         scaling_study([1, 2], sc_n[0], sc_n[1], 3, res)
+        # the pixel-parallel engine's goals on 2 cores: 2 workers >= 1.8x its own 1 worker (forward
+        # and two-sided, both sizes), and its 1 worker >= 0.8x the row-band engine's
+        sc = res["scaling"]["cases"]
+        res["pixel_engine_checks"] = {
+            name: {"speedup_2w": sc[f"{name}_pixel"]["speedup"]["2"],
+                   "over_row_band_1w": res["scaling"]["engines_side_by_side"][name]["pixel_over_row_band"]["1"]}
+            for name in ("forward_346x260", "two_sided_346x260", "forward_1280x720", "two_sided_1280x720")}
     res["loadavg_end"] = loadavg()
     res["goals"] = {"akf_kernel_mev_s": 30, "akf_parallel_speedup": 1.7, "end_to_end_mev_s": 10, "cf_kernel_mev_s": 40,
                     "two_sided_over_forward": 0.45, "default_akf_2w_mev_s": 20, "hd_akf_kernel_mev_s": 20,
                     "scaling_serial_fraction_max": 0.04, "scaling_projected_speedup_16": 8,
-                    "akf_parallel_speedup_issue30": 1.8}
+                    "akf_parallel_speedup_2w": 1.8, "pixel_engine_speedup_2w": 1.8,
+                    "pixel_engine_over_row_band_1w": 0.8}
     print(json.dumps(res))
     return 0
 

@@ -3,14 +3,21 @@
 Usage: ``python benchmarks/gpu.py [--quick] [--profile] [--no-cpu] [--skip hd,agreement,firenet]
 [--hd-events N] [--reps N]``. Prints progress on stderr, then ONE JSON object on the last stdout
 line. ``--profile`` adds, for each resident case, a run with every phase synchronised and timed
-(``reconstruct.cuda.PhaseTimer``: grouping steps, walks, frame switches, output kernels and
+(``hybridhdr._util.phases`` with the device synchronised: grouping steps, walks, frame switches, output kernels and
 copies, fusion; the plain run stays the figure), the previous per-window grouping beside the
 forward AKF, and host profiles (cProfile) of ``reconstruct`` and FireNet. Without a usable CUDA device (or without ``numba.cuda``) it prints
 ``{"skipped": "<why>"}`` and exits 0.
 
-Measured (issue 30, "Must show"; goals on an H100/H200):
+Measured (goals on an H100/H200):
 
-* ``transfer``: host -> device copy of the events (13 bytes each), reported separately.
+* ``transfer_pageable`` / ``transfer_pinned``: host -> device copy of the events (13 bytes each),
+  one pageable copy per column vs chunked through pinned staging buffers (what the package uses).
+* ``walk_breakdown``: where the resident walk's time goes: the events grouped once, then
+  simplified walks (events alone; plus process noise; plus frame fusion) and the package's walk
+  (plus the isolated-pixel term, the refractory term, R's interpolation, censored bounds) over
+  the same groups, in Gev/s, with each added term's share of the package's walk.
+* ``end_to_end_file``: ``reconstruct(path, device="cuda")`` forward at 30 Hz from a container
+  file against reading (decoding) the file's events alone (goal: >= 0.5x the decoder's rate).
 * ``akf_forward_hd``: the forward AKF at 1280x720 on ``benchmarks/akf.py``'s ``synth_events_hd``
   stream (20 M events over 1 s; 5 M with --quick), 30 Hz frames and 30 Hz outputs copied back,
   events resident on the device: Mev/s (goal >= 1000). Beside it the same through
@@ -81,18 +88,18 @@ def _make_engine_factory(shape, method="akf", params=None):
 
 
 def _phases(fn):
-    """``fn()`` once more with :class:`hybridhdr.reconstruct.cuda.PhaseTimer` active: every phase
-    synchronised and timed (slower than the plain run, which is the figure; this says where the
-    time goes). Returns (seconds of the profiled run, phase table)."""
-    import hybridhdr.reconstruct.cuda as C
-    C.PHASES = tm = C.PhaseTimer()
-    try:
+    """``fn()`` once more under :func:`hybridhdr._util.phases.timing` with the device synchronised
+    around every phase (slower than the plain run, which is the figure; this says where the time
+    goes). Returns (seconds of the profiled run, phase table)."""
+    from hybridhdr._util import phases as PH
+    from hybridhdr.reconstruct.cuda import _cuda
+    with PH.timing(sync=_cuda().synchronize) as tm:
         t0 = time.perf_counter()
         fn()
         el = time.perf_counter() - t0
-    finally:
-        C.PHASES = None
-    tab = tm.table()
+    rows = tm.report()["phases"]
+    tab = {k: {"calls": v["calls"], "total_s": round(v["s"], 5), "host_s": round(v.get("host_s", 0.0), 5)}
+           for k, v in sorted(rows.items(), key=lambda kv: -kv[1]["s"])}
     tab["_unaccounted_s"] = round(el - sum(v["total_s"] for v in tab.values()), 5)
     return round(el, 4), tab
 
@@ -147,13 +154,18 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
     times = output_times(frames.t_mid_us, int(t[-1]), fps=30.0)
     out: dict = {"sensor": f"{shape[1]}x{shape[0]}", "n_events": int(n), "n_outputs": int(times.size)}
 
-    def upload():
-        d = DeviceEvents.upload(ev)
+    def upload(pinned):
+        d = DeviceEvents.upload(ev, pinned=pinned)
         cuda.synchronize()
         return d
-    tr, dev = _best(upload, reps)
-    out["transfer"] = {"seconds": round(tr, 4), "gb_per_s": round(13 * n / tr / 1e9, 2)}
-    log(f"  transfer of {n} events: {tr * 1e3:.1f} ms ({13 * n / tr / 1e9:.1f} GB/s)")
+    for pinned in (False, True):
+        tr, dev = _best(lambda: upload(pinned), reps)
+        key = "transfer_pinned" if pinned else "transfer_pageable"
+        out[key] = {"seconds": round(tr, 4), "gb_per_s": round(13 * n / tr / 1e9, 2),
+                    "mev_s": round(n / tr / 1e6, 1)}
+        log(f"  transfer of {n} events, {'pinned, chunked' if pinned else 'pageable'}: {tr * 1e3:.1f} ms "
+            f"({13 * n / tr / 1e9:.1f} GB/s, {n / tr / 1e6:.0f} Mev/s)")
+    out["transfer"] = out["transfer_pinned"]
 
     make, params = _make_engine_factory(shape)
 
@@ -214,7 +226,9 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         out["cf_resident"]["phases_run_s"], out["cf_resident"]["phases"] = pe = _phases(cf)
         _log_phases("the resident CF", *pe)
 
+    section_breakdown(dev, shape, frames, out)
     rec = _recording(t, x, y, p, frames, shape)
+    section_file(rec, n, out, reps)
     for mode, key in (("forward", "akf_forward"), ("offline", "akf_two_sided")):
         el, v = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"), 1)
         out[f"{key}_reconstruct_gpu"] = {"seconds": round(el, 3), "mev_s": round(n / el / 1e6, 1),
@@ -233,6 +247,104 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
             log(f"  {key} through reconstruct on the CPU ({cpu_workers} workers): {n / el_c / 1e6:.1f} Mev/s")
     res[res_key] = out
     return dev
+
+
+def section_breakdown(dev, shape, frames, out):
+    """Where the resident walk's time goes: the events grouped by pixel once (all of them, one
+    window), then the package's walk and the simplified walks of :func:`_simple_walk_kernel` over
+    the same groups, and one output kernel; each term's share is the time it adds over the
+    simpler variant, as a share of the package's walk (:mod:`_gpu_simple`)."""
+    import numpy as np
+    from numba import cuda
+
+    from hybridhdr.reconstruct.cuda import _grid, _Grouper
+    H, W = shape
+    n_pix = H * W
+    n = min(dev.n, 1 << 24)
+    make, params = _make_engine_factory(shape)
+    eng = make(frames, None, False)
+    eng.start(None)
+    gr = _Grouper(n_pix)
+    gr.group(dev.x, dev.y, 0, n, W)
+    cuda.synchronize()
+    S0 = eng.S.copy_to_host()
+    from _gpu_simple import k_simple
+    g = _grid(n_pix)
+    pr = params
+
+    def timed(fn, reps=3):
+        best = float("inf")
+        for _ in range(reps):
+            eng.S.copy_to_device(S0)
+            cuda.synchronize()
+            t0 = time.perf_counter()
+            fn()
+            cuda.synchronize()
+            best = min(best, time.perf_counter() - t0)
+        return best
+    rows = {}
+    for level, name in ((0, "events"), (1, "events+process_noise"), (2, "events+process_noise+frame_fusion")):
+        fn = (lambda lv=level: k_simple[g](dev.t, dev.p, gr.start, gr.grp, eng.S, lv, pr.c_on, pr.c_off,
+                                             pr.process_noise_per_s, n_pix))
+        fn()
+        rows[name] = timed(fn)
+    te_in = cuda.to_device(np.full(n_pix, int(frames.t_mid_us[0]), np.int64))
+    te_out = cuda.device_array(n_pix, np.int64)
+
+    def full():  # the package's walk, launched as CudaAKFEngine._walk launches it
+        eng.ck.k_akf_walk[g](dev.t, dev.x, dev.y, dev.p, 0, H, W, gr.start, gr.grp, te_in, te_out, eng.S,
+                              eng.has_la_step, eng.seg_t0, eng.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+                              pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us),
+                              eng.noise_form, eng.con_px, eng.coff_px, eng.ccount)
+    full()
+    rows["package_walk"] = timed(full)
+    outl = cuda.device_array(n_pix, np.float32)
+    e0 = cuda.device_array(0, np.float64)
+    rows["one_output"] = timed(lambda: eng.ck.k_akf_output[g](eng.S, eng.seg_t0, eng.seg_inv_t,
+                                                               float(frames.t_mid_us[-1]), outl, e0, e0, n_pix))
+    tot = rows["package_walk"]
+    prev = 0.0
+    shares = {}
+    for name in ("events", "events+process_noise", "events+process_noise+frame_fusion", "package_walk"):
+        shares[name.split("+")[-1] if name != "package_walk" else "isolated_refractory_interpolation_bounds"] = \
+            round((rows[name] - prev) / tot, 3)
+        prev = rows[name]
+    out["walk_breakdown"] = {"events": int(n), "seconds": {k: round(v, 5) for k, v in rows.items()},
+                             "gev_s": {k: round(n / v / 1e9, 2) for k, v in rows.items() if k != "one_output"},
+                             "share_of_package_walk": shares}
+    log(f"  walk breakdown over {n} grouped events: " + ", ".join(f"{k} {n / v / 1e9:.2f} Gev/s"
+                                                                 for k, v in rows.items() if k != "one_output")
+        + f"; one output {rows['one_output'] * 1e3:.2f} ms; shares of the walk {shares}")
+
+
+def section_file(rec, n, out, reps):
+    """End to end from a file: the container's events read (decoded) alone, then
+    ``reconstruct(path, device="cuda")`` forward at 30 Hz; the ratio of the two rates."""
+    import tempfile
+    from hybridhdr.formats.container import RecordingFile, write_recording
+    from hybridhdr.reconstruct import reconstruct
+    with tempfile.TemporaryDirectory() as d:
+        path = Path(d) / "hd.h5"
+        write_recording(rec, path)
+
+        def decode():  # the columns as reconstruct reads them (RecordingFile.iter_event_columns)
+            k = 0
+            with RecordingFile(path) as f:
+                for c in f.iter_event_columns(1 << 21):
+                    k += len(c[0])
+            return k
+        el_d, k = _best(decode, reps)
+
+        def e2e():
+            with RecordingFile(path) as f:
+                return reconstruct(f, "akf", mode="forward", fps=30.0, device="cuda", chunk_events=1 << 21)
+        e2e()
+        el_e, v = _best(e2e, reps)
+    out["end_to_end_file"] = {"decode_mev_s": round(n / el_d / 1e6, 1), "reconstruct_cuda_forward_mev_s":
+                              round(n / el_e / 1e6, 1), "ratio_to_decoder": round(el_d / el_e, 2),
+                              "device_line": v.info.get("device")}
+    log(f"  end to end from a file: decoding alone {n / el_d / 1e6:.1f} Mev/s, reconstruct --device cuda "
+        f"(forward, 30 Hz) {n / el_e / 1e6:.1f} Mev/s: {el_d / el_e:.2f}x the decoder's rate")
 
 
 def agreement(res):

@@ -1,8 +1,9 @@
 """CUDA kernels of the AKF and CF (private; imported only by :mod:`.cuda` when the GPU path runs).
 
 Numba's CUDA target (``numba.cuda``; with ``NUMBA_ENABLE_CUDASIM=1`` its simulator, which is how
-the tests run them without a GPU). The arithmetic per pixel is that of :mod:`._kernels`, line for
-line (same equations, same order of operations); only the schedule differs:
+the tests run them without a GPU). The arithmetic per pixel is not written here: it is the
+plain per-pixel functions of :mod:`._kernels` (``PIXEL_FUNCTIONS``) compiled as device
+functions, the same source the CPU kernels inline; only the schedule differs:
 
 * **Grouped by pixel.** The events of one time window (between two breakpoints of the driver:
   frame switches and output times) are grouped by pixel on the device: a count per pixel
@@ -10,8 +11,8 @@ line (same equations, same order of operations); only the schedule differs:
   exclusive scan of the counts (:func:`scan_block` / :func:`k_add_offsets`), a scatter of event
   indices into the groups (:func:`k_scatter`) and a sort of each group by event index
   (:func:`k_sort_groups`): the groups are then in stream order, which is time order.
-* **One thread per pixel** (:func:`k_akf_walk`) walks its group in order and applies the serial
-  kernel's event update (:func:`._kernels._akf_event`) to its state record.
+* **One thread per pixel** (:func:`k_akf_walk`) walks its group in order and applies the event
+  step (:func:`._kernels.akf_event_step`) to its state record (:func:`._kernels.akf_walk_pixel`).
 * **The isolated-pixel term** needs, at each event i of pixel p, the latest event time t* in the
   3x3 window of p over the events *before i in the stream* (eq. 2, §3.1.1). For a neighbour q
   that is the last of q's events with index < i in this window (a merge of p's and q's sorted
@@ -32,107 +33,45 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from numba import config as _nb_config
+from numba import cuda
 
-if not hasattr(np, "row_stack"):  # numba-cuda 0.30 with NumPy >= 2.5 (cuda.numpy_compat, which imports us)
-    np.row_stack = np.vstack
-from numba import config as _nb_config  # noqa: E402
-from numba import cuda  # noqa: E402
-
-from ._kernels import (A_BETA, A_KLOG, A_L, A_LA, A_LASTEP, A_P, A_RINV, A_TU, C_ALPHA, C_L, C_LF, C_TU)
-
-US = 1e-6  # seconds per microsecond (as _kernels.US)
+from . import _kernels as K
+from ._kernels import A_BETA, A_KLOG, A_L, A_LA, A_P, A_RINV, A_TU, C_ALPHA, C_L, C_LF, C_TU
 
 #: scan tile: threads per block and items per thread; the simulator runs each thread as a Python
 #: thread, so it gets a small block (same algorithm)
 SCAN_BLOCK = 32 if getattr(_nb_config, "ENABLE_CUDASIM", 0) else 512
 SCAN_ITEMS = 4
 SCAN_TILE = SCAN_BLOCK * SCAN_ITEMS
+#: a window bound above every event index (the streamed walk takes all of a pixel's group)
+NO_BOUND = np.int64(np.iinfo(np.int32).max)
 
+# -- device functions: the per-pixel arithmetic of _kernels, compiled for the device -------------
 
-# -- device functions: the serial kernels' per-pixel arithmetic --------------------------------
-
-@cuda.jit(device=True)
-def d_rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
-    """:func:`._kernels.rinv_integral`, the same operations."""
-    dt = t1 - tu0
-    if beta == 0.0:
-        return rinv * (dt * US)
-    iw0 = 1.0 / (1.0 + beta * ((tu0 - seg_t0) * seg_inv_t))
-    x = beta * (dt * seg_inv_t) * iw0
-    if abs(x) < 1e-2:
-        s = 1.0 - x * (0.5 - x * (1.0 / 3.0 - x * (0.25 - x * (0.2 - x * (1.0 / 6.0 - x * (
-            1.0 / 7.0 - x * 0.125))))))
-        return rinv * (dt * US) * iw0 * s
-    return klog * math.log1p(x)
-
-
-@cuda.jit(device=True)
-def d_pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
-    """:func:`._kernels._pull_integral` (0 where a censored frame's bound holds)."""
-    beta = S[pix, A_BETA]
-    tu0 = S[pix, A_TU]
-    if beta == 0.0:
-        kl = S[pix, A_KLOG]
-        if kl * (S[pix, A_L] - S[pix, A_LA]) > 0.0:
-            return 0.0
-        return S[pix, A_RINV] * ((t_to - tu0) * US)
-    return d_rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, t_to, seg_t0, seg_inv_t)
-
-
-@cuda.jit(device=True)
-def d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
-    """:func:`._kernels._akf_propagate_pixel`."""
-    integ = d_pull_integral(S, pix, t_to, seg_t0, seg_inv_t)
-    d = 1.0 / (1.0 + S[pix, A_P] * integ)
-    lav = S[pix, A_LA]
-    S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
-    if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:
-        S[pix, A_P] = S[pix, A_P] * d
-    S[pix, A_TU] = t_to
-
-
-@cuda.jit(device=True)
-def d_frame_update(S, pix, r_log, cz, lf):
-    """:func:`._kernels._frame_update`."""
-    lh = S[pix, A_L]
-    pp = S[pix, A_P]
-    if cz * (lh - lf) > 0.0:
-        return
-    g = pp / (pp + r_log)
-    S[pix, A_L] = lh + g * (lf - lh)
-    if cz == 0.0:
-        S[pix, A_P] = pp - g * pp
+_D = K.compile_pixel_functions(cuda.jit(device=True))
+d_akf_walk_pixel = _D["akf_walk_pixel"]
+d_window_neighbours = _D["window_neighbours"]
+d_akf_switch_arrays_pixel = _D["akf_switch_arrays_pixel"]
+d_akf_switch_codes_pixel = _D["akf_switch_codes_pixel"]
+d_akf_initial_covariance = _D["akf_initial_covariance"]
+d_output_pixel_values = _D["output_pixel"]
+d_akf_output_store = _D["akf_output_store"]
+d_cf_decayed = _D["cf_decayed"]
+d_cf_event_step = _D["cf_event_step"]
 
 
 @cuda.jit(device=True)
 def d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out):
-    """:func:`._kernels._output_pixel`: (L̂, P) at ``t_out`` without changing the state."""
-    beta = S[pix, A_BETA]
-    kl = S[pix, A_KLOG]
-    lh = S[pix, A_L]
-    lav = S[pix, A_LA]
-    pp = S[pix, A_P]
-    rinv = S[pix, A_RINV]
-    tu0 = S[pix, A_TU]
-    held = rinv * ((t_out - tu0) * US)
-    integ = 0.0 if kl * (lh - lav) > 0.0 else held
-    if beta != 0.0:
-        integ = d_rinv_integral(rinv, beta, kl, tu0, t_out, seg_t0, seg_inv_t)
-    d = 1.0 / (1.0 + pp * integ)
-    cens = (beta == 0.0) and (kl != 0.0)
-    return lav + (lh - lav) * d, (pp if cens else pp * d)
+    """:func:`._kernels.output_pixel` of record ``pix``: (L̂, P) at ``t_out``, the state unchanged."""
+    return d_output_pixel_values(S[pix, A_L], S[pix, A_P], S[pix, A_LA], S[pix, A_RINV], S[pix, A_BETA],
+                                 S[pix, A_KLOG], S[pix, A_TU], t_out, seg_t0, seg_inv_t)
 
 
 @cuda.jit(device=True)
-def d_lower_bound(grp, lo, hi, key):
-    """First position in ``grp[lo:hi]`` (ascending) whose value is >= ``key`` (``hi`` if none)."""
-    while lo < hi:
-        mid = (lo + hi) >> 1
-        if grp[mid] < key:
-            lo = mid + 1
-        else:
-            hi = mid
-    return lo
+def d_jumps(pix, c_on, c_off, con_px, coff_px, has_px):
+    """The ON jump and the (negative) OFF jump of pixel ``pix`` (eq. 15)."""
+    return (con_px[pix] if has_px else c_on), -(coff_px[pix] if has_px else c_off)
 
 
 # -- grouping -------------------------------------------------------------------------------
@@ -231,7 +170,7 @@ def k_sort_groups(start, n_pix, grp):
 @cuda.jit
 def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, ccount):
-    """One thread per pixel: its window events in stream order, each as :func:`._kernels._akf_event`.
+    """One thread per pixel: its window events in stream order, each by :func:`._kernels.akf_walk_pixel`.
 
     ``te_in`` holds every pixel's last event time before the window (absolute µs, the start
     time where none); ``te_out`` receives it after the window. ``ccount`` (float32, or empty):
@@ -246,113 +185,15 @@ def k_akf_walk(t, x, y, p, a, height, width, start, grp, te_in, te_out, S, has_l
         if lo == hi:
             te_out[pix] = te_in[pix]
             continue
-        yy = pix // width
-        xx = pix - yy * width
-        ylo = max(yy - 1, 0)
-        yhi = min(yy + 1, height - 1)
-        xlo = max(xx - 1, 0)
-        xhi = min(xx + 1, width - 1)
-        te0 = te_in[pix]
-        # neighbours without events in this window contribute their time from before it, the same
-        # for every event of p: folded into one maximum; only the others are searched per event
         nb_pos = cuda.local.array(8, np.int32)
         nb_hi = cuda.local.array(8, np.int32)
         nb_te = cuda.local.array(8, np.int64)
-        n_nb = 0
-        t_quiet = te0
-        for qy in range(ylo, yhi + 1):
-            for qx in range(xlo, xhi + 1):
-                q = qy * width + qx
-                if q != pix:
-                    q_lo = start[q]
-                    q_hi = start[q + 1]
-                    if q_lo == q_hi:
-                        if te_in[q] > t_quiet:
-                            t_quiet = te_in[q]
-                    else:
-                        nb_pos[n_nb] = q_lo
-                        nb_hi[n_nb] = q_hi
-                        nb_te[n_nb] = te_in[q]
-                        n_nb += 1
-        # the state record in registers for the walk (one load and one store of each field per
-        # window, not per event); the fields a frame switch sets are constant here
-        sl = S[pix, A_L]
-        sp = S[pix, A_P]
-        sla = S[pix, A_LA]
-        stu = S[pix, A_TU]
-        rinv = S[pix, A_RINV]
-        beta = S[pix, A_BETA]
-        klog = S[pix, A_KLOG]
-        lastep = S[pix, A_LASTEP]
-        scale_p = beta != 0.0 or klog == 0.0
-        jump_on = con_px[pix] if has_px else c_on
-        jump_off = -(coff_px[pix] if has_px else c_off)
-        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
-        for g in range(lo, hi):
-            i = grp[g]
-            ti = t[a + i]
-            tif = np.float64(ti)
-            tu0 = stu
-            # d_pull_integral on the registers
-            if beta == 0.0:
-                if klog * (sl - sla) > 0.0:
-                    integ = 0.0
-                else:
-                    integ = rinv * ((tif - tu0) * US)
-            else:
-                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
-            pp = sp
-            d = 1.0 / (1.0 + pp * integ)
-            lav = sla
-            lhat = lav + (sl - lav) * d
-            if scale_p:
-                pp = pp * d
-            # t*: the latest event time in the 3x3 window before this event (p itself: te0)
-            tstar = te0 if te0 > t_quiet else t_quiet
-            for k in range(n_nb):
-                # q's last event before i: p's events come in increasing i, so each neighbour's
-                # position only moves forward (a merge: O(events of p and q) per window, where a
-                # binary search per event costs O(events of p x log events of q))
-                kk = nb_pos[k]
-                hk = nb_hi[k]
-                if kk < hk and grp[kk] < i:
-                    kk += 1
-                    while kk < hk and grp[kk] < i:
-                        kk += 1
-                    nb_pos[k] = kk
-                    nb_te[k] = t[a + grp[kk - 1]]
-                tq = nb_te[k]
-                if tq > tstar:
-                    tstar = tq
-            dte = ti - te0
-            q_ = s_iso * ((ti - tstar) * US)
-            if noise_form == 0:
-                q_ += s_proc * (dte * US)
-                if dte <= rho_us:
-                    q_ += s_ref
-            else:
-                q_ += s_proc * ((tif - tu0) * US)
-                if dte <= rho_us:
-                    q_ += s_ref * (dte * US)
-            sp = pp + q_
-            positive = p[a + i] > 0
-            jump = jump_on if positive else jump_off
-            sl = lhat + jump
-            if has_la_step:
-                st = lastep
-                if st < 0.0:
-                    sla = lav + jump
-                elif positive:
-                    sla = lav + st
-                else:
-                    sla = lav - st * off_ratio
-            stu = tif
-            te0 = ti
-        S[pix, A_L] = sl
-        S[pix, A_P] = sp
-        S[pix, A_LA] = sla
-        S[pix, A_TU] = stu
-        te_out[pix] = te0
+        n_nb, t_quiet = d_window_neighbours(pix, height, width, start, start[1:], te_in, nb_pos, nb_hi, nb_te)
+        jump_on, jump_off = d_jumps(pix, c_on, c_off, con_px, coff_px, has_px)
+        g, te_last = d_akf_walk_pixel(S, pix, t, p, a, grp, lo, hi, NO_BOUND, te_in[pix], t_quiet, nb_pos, nb_hi,
+                                      nb_te, n_nb, has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc,
+                                      s_iso, s_ref, rho_us, noise_form)
+        te_out[pix] = te_last
         if has_cc:
             ccount[pix] += np.float32(hi - lo)
 
@@ -366,22 +207,9 @@ def k_akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, l
     has_cens = censor.shape[0] > 0
     has_uf = update_frame.shape[0] > 0
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
-        if propagate:
-            q = s_proc * ((t_to - S[pix, A_TU]) * US)
-            d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
-            S[pix, A_P] += q
-        r = rinv[pix]
-        S[pix, A_LA] = log_frame[pix]
-        S[pix, A_RINV] = r
-        b = beta[pix] if has_beta else 0.0
-        cz = censor[pix] if has_cens else 0.0
-        if cz != 0.0:
-            b = 0.0
-        S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
-        S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
-        if discrete:
-            d_frame_update(S, pix, 1.0 / r, cz, update_frame[pix] if has_uf else log_frame[pix])
+        d_akf_switch_arrays_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, log_frame, rinv, beta,
+                                  la_step, censor, update_frame, seg_t_s, discrete, has_beta, has_step, has_cens,
+                                  has_uf)
 
 
 @cuda.jit
@@ -391,25 +219,8 @@ def k_akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max
     has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
     has_cens = cens_l.shape[0] > 0
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
-        if propagate:
-            q = s_proc * ((t_to - S[pix, A_TU]) * US)
-            d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
-            S[pix, A_P] += q
-        c = min(max(np.int64(code[pix]), 0), max_code)
-        r = rinv_l[c]
-        S[pix, A_LA] = logf_l[c]
-        S[pix, A_RINV] = r
-        cz = cens_l[c] if has_cens else 0.0
-        b = 0.0
-        if has_beta and cz == 0.0:
-            c1 = min(max(np.int64(code_next[pix]), 0), max_code)
-            if not (has_cens and cens_l[c1] != 0.0):
-                b = rbar_l[c1] / rbar_l[c] - 1.0
-        S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
-        S[pix, A_LASTEP] = la_step
-        if discrete:
-            d_frame_update(S, pix, 1.0 / r, cz, logf_l[c])
+        d_akf_switch_codes_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, code, code_next, max_code,
+                                 rbar_l, logf_l, rinv_l, cens_l, la_step, seg_t_s, discrete, has_beta, has_cens)
 
 
 @cuda.jit
@@ -418,12 +229,7 @@ def k_akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, n_pix):
     want_log = out_log.shape[0] > 0
     want_var = out_var.shape[0] > 0
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
-        lhat, pv = d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
-        out_l32[pix] = np.float32(lhat)
-        if want_log:
-            out_log[pix] = lhat
-        if want_var:
-            out_var[pix] = pv
+        d_akf_output_store(S, pix, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, want_log, want_var)
 
 
 @cuda.jit
@@ -487,12 +293,7 @@ def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, c
         for g in range(lo, hi):
             i = grp[g]
             tif = np.float64(t[a + i])
-            b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
-            lhat = lfv + (cl - lfv) * b
-            if p[a + i] > 0:
-                cl = lhat + j_on
-            else:
-                cl = lhat - j_off
+            cl = d_cf_event_step(cl, lfv, alpha, ctu, tif, p[a + i] > 0, j_on, j_off, event_decay)
             ctu = tif
         C[pix, C_L] = cl
         C[pix, C_TU] = ctu
@@ -502,8 +303,7 @@ def k_cf_walk(t, p, a, n_pix, start, grp, C, c_on, c_off, event_decay, con_px, c
 def k_cf_propagate(C, t_to, n_pix):
     """:func:`._kernels.cf_propagate`."""
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
-        lfv = C[pix, C_LF]
-        C[pix, C_L] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_to - C[pix, C_TU]) * US))
+        C[pix, C_L] = d_cf_decayed(C[pix, C_L], C[pix, C_LF], C[pix, C_ALPHA], C[pix, C_TU], t_to, 0.0)
         C[pix, C_TU] = t_to
 
 
@@ -512,8 +312,7 @@ def k_cf_output(C, t_out, out_log, n_pix):
     """L̂ of :func:`._kernels.cf_output` at ``t_out`` (float64; the host takes exp, as the CPU
     kernel's ``math.exp``)."""
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
-        lfv = C[pix, C_LF]
-        out_log[pix] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_out - C[pix, C_TU]) * US))
+        out_log[pix] = d_cf_decayed(C[pix, C_L], C[pix, C_LF], C[pix, C_ALPHA], C[pix, C_TU], t_out, 0.0)
 
 
 @cuda.jit(device=True)
@@ -588,14 +387,8 @@ def k_akf_init(S, p0, p_cens, has_off, log_off, t_init, n_pix):
     offset) the square of its interval's width, at least ``p0``; tu = ``t_init``."""
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
         S[pix, A_L] = S[pix, A_LA]
-        p = p0
-        cens = (S[pix, A_BETA] == 0.0) and (S[pix, A_KLOG] != 0.0)
-        if cens:
-            p = p_cens
-            if has_off and S[pix, A_KLOG] < 0.0:
-                w = S[pix, A_LA] - log_off
-                p = max(w * w, p0)
-        S[pix, A_P] = p
+        S[pix, A_P] = d_akf_initial_covariance(S[pix, A_LA], S[pix, A_BETA], S[pix, A_KLOG], p0, p_cens, has_off,
+                                               log_off)
         S[pix, A_TU] = t_init
 
 
@@ -642,18 +435,14 @@ def k_akf_walk_res(t, p, a, wb, height, width, start, grp, cur_in, cur_out, te_c
             continue
         yy = pix // width
         xx = pix - yy * width
-        ylo = max(yy - 1, 0)
-        yhi = min(yy + 1, height - 1)
-        xlo = max(xx - 1, 0)
-        xhi = min(xx + 1, width - 1)
         te0 = t[a + grp[g0 - 1]] if g0 > lo else te_c[pix]
         nb_pos = cuda.local.array(8, np.int32)
         nb_hi = cuda.local.array(8, np.int32)
         nb_te = cuda.local.array(8, np.int64)
         n_nb = 0
         t_quiet = te0
-        for qy in range(ylo, yhi + 1):
-            for qx in range(xlo, xhi + 1):
+        for qy in range(max(yy - 1, 0), min(yy + 1, height - 1) + 1):
+            for qx in range(max(xx - 1, 0), min(xx + 1, width - 1) + 1):
                 q = qy * width + qx
                 if q != pix:
                     q_lo = start[q]
@@ -668,81 +457,10 @@ def k_akf_walk_res(t, p, a, wb, height, width, start, grp, cur_in, cur_out, te_c
                         nb_hi[n_nb] = q_hi
                         nb_te[n_nb] = tq0
                         n_nb += 1
-        sl = S[pix, A_L]
-        sp = S[pix, A_P]
-        sla = S[pix, A_LA]
-        stu = S[pix, A_TU]
-        rinv = S[pix, A_RINV]
-        beta = S[pix, A_BETA]
-        klog = S[pix, A_KLOG]
-        lastep = S[pix, A_LASTEP]
-        scale_p = beta != 0.0 or klog == 0.0
-        jump_on = con_px[pix] if has_px else c_on
-        jump_off = -(coff_px[pix] if has_px else c_off)
-        off_ratio = ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on)) if has_la_step else 0.0
-        g = g0
-        while g < hi:
-            i = grp[g]
-            if i >= wb:
-                break
-            ti = t[a + i]
-            tif = np.float64(ti)
-            tu0 = stu
-            if beta == 0.0:
-                if klog * (sl - sla) > 0.0:
-                    integ = 0.0
-                else:
-                    integ = rinv * ((tif - tu0) * US)
-            else:
-                integ = d_rinv_integral(rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
-            pp = sp
-            d = 1.0 / (1.0 + pp * integ)
-            lav = sla
-            lhat = lav + (sl - lav) * d
-            if scale_p:
-                pp = pp * d
-            tstar = te0 if te0 > t_quiet else t_quiet
-            for k in range(n_nb):
-                kk = nb_pos[k]
-                hk = nb_hi[k]
-                if kk < hk and grp[kk] < i:
-                    kk += 1
-                    while kk < hk and grp[kk] < i:
-                        kk += 1
-                    nb_pos[k] = kk
-                    nb_te[k] = t[a + grp[kk - 1]]
-                tq = nb_te[k]
-                if tq > tstar:
-                    tstar = tq
-            dte = ti - te0
-            q_ = s_iso * ((ti - tstar) * US)
-            if noise_form == 0:
-                q_ += s_proc * (dte * US)
-                if dte <= rho_us:
-                    q_ += s_ref
-            else:
-                q_ += s_proc * ((tif - tu0) * US)
-                if dte <= rho_us:
-                    q_ += s_ref * (dte * US)
-            sp = pp + q_
-            positive = p[a + i] > 0
-            jump = jump_on if positive else jump_off
-            sl = lhat + jump
-            if has_la_step:
-                st = lastep
-                if st < 0.0:
-                    sla = lav + jump
-                elif positive:
-                    sla = lav + st
-                else:
-                    sla = lav - st * off_ratio
-            stu = tif
-            te0 = ti
-            g += 1
-        S[pix, A_L] = sl
-        S[pix, A_P] = sp
-        S[pix, A_LA] = sla
-        S[pix, A_TU] = stu
+        jump_on, jump_off = d_jumps(pix, c_on, c_off, con_px, coff_px, has_px)
+        g, _ = d_akf_walk_pixel(S, pix, t, p, a, grp, g0, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb,
+                                has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us,
+                                noise_form)
         cur_out[pix] = g
         if has_cc:
             ccount[pix] += np.float32(g - g0)
@@ -767,12 +485,7 @@ def k_cf_walk_res(t, p, a, wb, n_pix, start, grp, cur_in, cur_out, C, c_on, c_of
                 if i >= wb:
                     break
                 tif = np.float64(t[a + i])
-                b = math.exp(-alpha * ((tif - ctu) * US) - event_decay)
-                lhat = lfv + (cl - lfv) * b
-                if p[a + i] > 0:
-                    cl = lhat + j_on
-                else:
-                    cl = lhat - j_off
+                cl = d_cf_event_step(cl, lfv, alpha, ctu, tif, p[a + i] > 0, j_on, j_off, event_decay)
                 ctu = tif
                 g += 1
             C[pix, C_L] = cl

@@ -161,6 +161,8 @@ class Engine:
 class AKFEngine(Engine):
     """Asynchronous Kalman filter state (eqs. 14-21) over a measurement provider."""
 
+    kind = "row-band"  # the events of each batch split by row band (see _pixel_engine for the other)
+
     lookahead = True  # compute a generic provider's next segment in the background
 
     def __init__(self, shape, measurements, params, n_workers: int = 1):
@@ -311,21 +313,22 @@ class AKFEngine(Engine):
         p_cens = float(getattr(self.params, "censored_initial_covariance", p0))
         off = getattr(self.params, "intensity_offset", None)
         log_off = math.log(off) if off is not None else 0.0
-        if self.te[0].dtype != np.int32:  # a restart after the int64 fallback
+        if self.te and self.te[0].dtype != np.int32:  # a restart after the int64 fallback
             self.te = self._int32_te()
         W = self.shape[1]
-        te = self.te
 
         def band(b, lo, hi):
             K.akf_start(self._S, p0, p_cens, log_off, off is not None, float(t_init), lo * W, hi * W)
-            te[b][:] = 0  # each worker its own last-event times (first touch of their pages)
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        self._map_bands(band, self.n)
-        if tm is not None:
-            tm.add("start", c0, "parallel")
+            self._start_band_te(b)
+        with PH.phase("start", "parallel"):
+            self._map_bands(band, self.n)
         self.te_base = t_init
         return t_init
+
+    def _start_band_te(self, b: int) -> None:
+        """Zero band ``b``'s last-event times (relative to the start: each worker first touches
+        its own pages)."""
+        self.te[b][:] = 0
 
     def _int32_te(self) -> list:
         """One zeroed int32 last-event-time array per band (times relative to ``te_base``)."""
@@ -348,20 +351,15 @@ class AKFEngine(Engine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        if tm is not None and self._pending is not None:  # two switches with no call in between
-            self._flush()
-            c0 = tm.add("switch", c0, "parallel")
-        self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
-        if tm is not None:
-            tm.add("load_segment", c0, "serial")
+        if PH.ACTIVE is not None and self._pending is not None:  # two switches with no call in between
+            with PH.phase("switch", "parallel"):
+                self._flush()
+        with PH.phase("load_segment"):
+            self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
         pr = self.params
         H, W = self.shape
         self._te_fit(int(t[i0]), int(t[i1 - 1]))
@@ -370,18 +368,16 @@ class AKFEngine(Engine):
         args = (self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, rho, self.noise_form, self.con_px, self.coff_px)
         if len(self.bands) == 1:
-            if tm is not None:
-                c0 = tm.add("plan_bands", c0, "serial")
-                if self._pending is not None:
+            if PH.ACTIVE is not None and self._pending is not None:
+                with PH.phase("switch", "parallel"):
                     self._flush()
-                    c0 = tm.add("switch", c0, "parallel")
-            self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], tb, *args)
-            if tm is not None:
-                tm.add("filter", c0, "parallel")
+            with PH.phase("filter", "parallel"):
+                self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self.S, self.te[0], tb, *args)
             return
         if i1 - i0 >= PARALLEL_MIN_WORK:
             # a 1-in-8 sample of the rows balances as well, 8x cheaper
-            self._rebalance(K.row_histogram(y, i0, i1, 8, self._hist))
+            with PH.phase("plan_bands"):
+                self._rebalance(K.row_histogram(y, i0, i1, 8, self._hist))
 
         if i1 - i0 < PARALLEL_MIN_WORK:
             def band(b, lo, hi):
@@ -389,62 +385,50 @@ class AKFEngine(Engine):
                 idx = self._index_buffer(("band", b), i1 - i0)[0]
                 m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
                 return K.akf_events_indexed(t, x, y, p, i0, idx, m, lo, hi, W, H, self._S, self.te[b], tb, *args)
-            if tm is not None:
-                c0 = tm.add("plan_bands", c0, "serial")
-            self.n_events += int(sum(self._map_bands(band, i1 - i0)))
-            if tm is not None:
-                tm.add("filter_small", c0, "parallel")
+            with PH.phase("filter_small", "parallel"):
+                self.n_events += int(sum(self._map_bands(band, i1 - i0)))
             return
         # threaded (every band has its own thread): worker w splits part w of the batch for all
         # bands (own rows plus the two ghost rows), then each band filters its events part by
         # part, in time order, waiting only for the part it reaches next to be split (no barrier
         # for all the parts: a band filters part 0 while part 1 is still being split)
-        nb = len(self.bands)
-        parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
-        los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
-        his = np.array([hi + 1 for _, hi in self.bands], np.int64)
-        bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
-        counts = np.zeros((nb, nb), np.int64)
-        ready = [threading.Event() for _ in range(nb)]
-        failed: list = []
-        lut = self._band_lut() if nb > SPLIT_LUT_MIN_BANDS else None
+        with PH.phase("plan_bands"):
+            nb = len(self.bands)
+            parts = np.linspace(i0, i1, nb + 1).astype(np.int64)
+            los = np.array([lo - 1 for lo, _ in self.bands], np.int64)
+            his = np.array([hi + 1 for _, hi in self.bands], np.int64)
+            bufs = [self._index_buffer(("split", w), int(parts[w + 1] - parts[w]), nb) for w in range(nb)]
+            counts = np.zeros((nb, nb), np.int64)
+            ready = [threading.Event() for _ in range(nb)]
+            failed: list = []
+            lut = self._band_lut() if nb > SPLIT_LUT_MIN_BANDS else None
 
         def band_threaded(b, lo, hi):
-            tm = PH.ACTIVE
-            c0 = PH.now() if tm is not None else 0
-            try:
-                if lut is None:
-                    K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
-                else:
-                    K.band_split_lut(y, i0, parts[b], parts[b + 1], lut[0], lut[1], bufs[b], counts[b])
-            except BaseException:
-                failed.append(b)
-                for e in ready:  # release the other workers (they raise BrokenBarrierError)
-                    e.set()
-                raise
-            ready[b].set()
-            if tm is not None:
-                c0 = tm.add("worker_split", c0, "worker")
+            with PH.phase("worker_split", "worker"):
+                try:
+                    if lut is None:
+                        K.band_split(y, i0, parts[b], parts[b + 1], los, his, bufs[b], counts[b])
+                    else:
+                        K.band_split_lut(y, i0, parts[b], parts[b + 1], lut[0], lut[1], bufs[b], counts[b])
+                except BaseException:
+                    failed.append(b)
+                    for e in ready:  # release the other workers (they raise BrokenBarrierError)
+                        e.set()
+                    raise
+                ready[b].set()
             n = 0
             for w in range(nb):
                 if not ready[w].is_set():
-                    if tm is not None:
-                        c0 = tm.add("worker_filter", c0, "worker")
-                    ready[w].wait()
-                    if tm is not None:
-                        c0 = tm.add("worker_wait_split", c0, "worker")
+                    with PH.phase("worker_wait_split", "worker"):
+                        ready[w].wait()
                 if failed:
                     raise threading.BrokenBarrierError(f"worker {failed[0]} failed")
-                n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
-                                          self.te[b], tb, *args)
-            if tm is not None:
-                tm.add("worker_filter", c0, "worker")
+                with PH.phase("worker_filter", "worker"):
+                    n += K.akf_events_indexed(t, x, y, p, i0, bufs[w][b], counts[w, b], lo, hi, W, H, self._S,
+                                              self.te[b], tb, *args)
             return n
-        tm = PH.ACTIVE
-        c0 = tm.add("plan_bands", c0, "serial") if tm is not None else 0
-        self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
-        if tm is not None:
-            tm.add("filter", c0, "parallel")
+        with PH.phase("filter", "parallel"):
+            self.n_events += int(sum(self._map_bands(band_threaded, i1 - i0)))
 
     def _band_lut(self):
         """(band of each row, edge flags of each row) for :func:`_kernels.band_split_lut`,
@@ -506,8 +490,6 @@ class AKFEngine(Engine):
 
     def _output(self, t_us: int, with_state: bool, clamp: bool = False):
         """(image or (image, L̂, P), clamped count); each band clamps its own rows when ``clamp``."""
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
         lg = np.empty(self.n if with_state else 0)
@@ -518,9 +500,8 @@ class AKFEngine(Engine):
             K.akf_output(self._S, self.seg_t0, self.seg_inv_t, float(t_us), out, lg, var, lo * W, hi * W)
             K.log_to_linear(out[lo * W:hi * W], off)  # numpy's ufunc loop releases the GIL
             return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
-        n_clamped = int(sum(self._map_bands(band, self.n)))
-        if tm is not None:
-            tm.add("output", c0, "parallel")
+        with PH.phase("output", "parallel"):
+            n_clamped = int(sum(self._map_bands(band, self.n)))
         if with_state:
             return (out.reshape(self.shape), lg.reshape(self.shape), var.reshape(self.shape)), n_clamped
         return out.reshape(self.shape), n_clamped
@@ -561,27 +542,15 @@ class CFEngine(Engine):
         """Load segment ``k``: each row band its pixels' L^F = ln(I + offset) and gain (the same
         elementwise numpy operations, on slices); segment ``k + 1`` is then computed in the
         background (as :meth:`AKFEngine._segment`), off the critical path."""
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        codes_fn = getattr(self.m, "segment_codes", None)
-        sc = codes_fn(k) if codes_fn is not None else None
+        with PH.phase("load_segment"):
+            codes_fn = getattr(self.m, "segment_codes", None)
+            sc = codes_fn(k) if codes_fn is not None else None
+            if sc is None or sc.intensity is None:
+                seg = self._segment_ahead(k)
         if sc is not None and sc.intensity is not None:  # per-code tables: each band looks its pixels up
-            self._load_codes(sc, c0)
+            self._load_codes(sc)
             self.k = k
             return
-        ahead, self._ahead = self._ahead, None
-        if ahead is not None and ahead[0] == k:
-            seg = ahead[1].result()
-        else:
-            if ahead is not None:
-                ahead[1].exception()  # wait for the stale one (providers are not re-entrant)
-            seg = self.m.segment(k)
-        if k + 1 < len(self.m):
-            if self._ahead_pool is None:
-                self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
-            self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
-        if tm is not None:
-            c0 = tm.add("load_segment", c0, "serial")
         pr = self.params
         W = self.shape[1]
         inten = seg.intensity
@@ -599,17 +568,28 @@ class CFEngine(Engine):
                 bad = (inten[a:z] < pr.adaptive_low) | (inten[a:z] > pr.adaptive_high)
                 al[bad] *= pr.adaptive_gain_scale
             C[a:z, K.C_ALPHA] = al
-        self._map_bands(band, self.n)
-        if tm is not None:
-            tm.add("load_bands", c0, "parallel")
+        with PH.phase("load_bands", "parallel"):
+            self._map_bands(band, self.n)
         self.k = k
 
-    def _load_codes(self, sc, c0) -> None:
+    def _segment_ahead(self, k: int):
+        """``m.segment(k)`` (computed ahead when it was asked for); then segment ``k + 1`` in the background."""
+        ahead, self._ahead = self._ahead, None
+        if ahead is not None and ahead[0] == k:
+            seg = ahead[1].result()
+        else:
+            if ahead is not None:
+                ahead[1].exception()  # wait for the stale one (providers are not re-entrant)
+            seg = self.m.segment(k)
+        if k + 1 < len(self.m):
+            if self._ahead_pool is None:
+                self._ahead_pool = ThreadPoolExecutor(1, thread_name_prefix="hybridhdr-measure")
+            self._ahead = (k + 1, self._ahead_pool.submit(self.m.segment, k + 1))
+        return seg
+
+    def _load_codes(self, sc) -> None:
         """:meth:`_load` from a segment's codes: I = the per-code intensity of each pixel's
         clipped code, exactly what ``FrameMeasurements.segment`` holds, then the same operations."""
-        tm = PH.ACTIVE
-        if tm is not None:
-            c0 = tm.add("load_segment", c0, "serial")
         pr = self.params
         W = self.shape[1]
         C = self.C
@@ -628,9 +608,8 @@ class CFEngine(Engine):
             if self.mode == "cf" and pr.adaptive_gain:
                 al[(inten < pr.adaptive_low) | (inten > pr.adaptive_high)] *= pr.adaptive_gain_scale
             C[a:z, K.C_ALPHA] = al
-        self._map_bands(band, self.n)
-        if tm is not None:
-            tm.add("load_bands", c0, "parallel")
+        with PH.phase("load_bands", "parallel"):
+            self._map_bands(band, self.n)
 
     def close(self):
         """Stop the worker threads; wait for a measurement being computed ahead (idempotent)."""
@@ -669,25 +648,19 @@ class CFEngine(Engine):
             self.C[:, K.C_L] = self.C[:, K.C_LF]
             self.C[:, K.C_TU] = t_to
             return
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
-        if tm is not None:
-            tm.add("switch", c0, "parallel")
+        with PH.phase("switch", "parallel"):
+            self._map_bands(lambda b, lo, hi: K.cf_propagate(self.C, t_to, lo * W, hi * W), self.n)
         self._load(self.k + 1)
 
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
         pr = self.params
         W = self.shape[1]
         if len(self.bands) == 1:
-            self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
-                                         self.event_decay, self.con_px, self.coff_px)
-            if tm is not None:
-                tm.add("filter", c0, "parallel")
+            with PH.phase("filter", "parallel"):
+                self.n_events += K.cf_events(t, x, y, p, i0, i1, 0, self.shape[0], W, self.C, pr.c_on, pr.c_off,
+                                             self.event_decay, self.con_px, self.coff_px)
             return
 
         def band(b, lo, hi):
@@ -695,9 +668,8 @@ class CFEngine(Engine):
             m = K.band_select(y, i0, i1, lo, hi, idx)
             return K.cf_events_indexed(t, x, y, p, i0, idx, m, W, self.C, pr.c_on, pr.c_off, self.event_decay,
                                        self.con_px, self.coff_px)
-        self.n_events += int(sum(self._map_bands(band, i1 - i0)))
-        if tm is not None:
-            tm.add("filter", c0, "parallel")
+        with PH.phase("filter", "parallel"):
+            self.n_events += int(sum(self._map_bands(band, i1 - i0)))
 
     def output(self, t_us: int) -> np.ndarray:
         return self._output(t_us)[0]
@@ -707,17 +679,14 @@ class CFEngine(Engine):
 
     def _output(self, t_us: int, clamp: bool = False):
         """(image, clamped count); each band clamps its own rows when ``clamp``."""
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
         W = self.shape[1]
         out = np.empty(self.n, np.float32)
 
         def band(b, lo, hi):
             K.cf_output(self.C, float(t_us), self.offset, out, lo * W, hi * W)
             return K.clamp_linear(out[lo * W:hi * W]) if clamp else 0
-        n_clamped = int(sum(self._map_bands(band, self.n)))
-        if tm is not None:
-            tm.add("output", c0, "parallel")
+        with PH.phase("output", "parallel"):
+            n_clamped = int(sum(self._map_bands(band, self.n)))
         return out.reshape(self.shape), n_clamped
 
 
@@ -865,12 +834,9 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
 
     it = iter(chunks)
     while True:
-        tm = PH.ACTIVE
-        if tm is not None:
-            c0, par0 = PH.now(), tm.total("parallel")
-        c = next(it, None)
-        if tm is not None:  # less a parallel read nested in it (in-memory records split by the workers)
-            tm.add_ns("read_wait", PH.now() - c0 - (tm.total("parallel") - par0), "serial")
+        # less a parallel read nested in it (in-memory records split by the workers)
+        with PH.phase("read_wait", less="parallel"):
+            c = next(it, None)
         if c is None:
             break
         t, x, y, p = c

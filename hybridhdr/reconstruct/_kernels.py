@@ -23,6 +23,7 @@ Hybrid Event Cameras", ICCV 2021, doi:10.1109/ICCV48922.2021.00050.
 from __future__ import annotations
 
 import math
+import types
 
 import numpy as np
 from numba import njit
@@ -46,7 +47,17 @@ C_L, C_LF, C_ALPHA, C_TU = range(4)
 CF_FIELDS = 4
 
 
-@njit(cache=True, nogil=True)
+# -- the per-pixel arithmetic, written once ----------------------------------------------------
+#
+# Plain Python functions of one pixel's numbers: the integral of R⁻¹ (eq. 7), the propagation
+# (eqs. 17, 20), the event step (eqs. 2, 15, 21), the frame switch and discrete frame update, the
+# closed-form output, the isolated-pixel term's walk over a pixel's grouped events, and the CF's
+# exact decay. Each is compiled twice from this one source: for the CPU kernels of this module
+# with ``njit(inline="always")`` (bound to these names at the end of the section), and for the
+# CUDA kernels with ``cuda.jit(device=True)`` (:func:`compile_pixel_functions`, used by
+# ``_cuda_kernels``). They call each other by the names below, which each compilation binds to
+# its own versions, so a change to an equation is made once and both targets get it.
+
 def rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
     """∫ R⁻¹(s) ds over [tu0, t1] (µs in, s·R⁻¹ out) for R(t) = R_k (1 + beta u), eq. 7.
 
@@ -66,6 +77,333 @@ def rinv_integral(rinv, beta, klog, tu0, t1, seg_t0, seg_inv_t):
             1.0 / 7.0 - x * 0.125))))))
         return rinv * (dt * US) * iw0 * s
     return klog * math.log1p(x)
+
+
+def pull_integral(lh, la, rinv, beta, klog, tu0, t_to, seg_t0, seg_inv_t):
+    """∫ R⁻¹ ds from the pixel's last update ``tu0`` to ``t_to`` µs, or 0 where a censored frame's bound holds.
+
+    A saturated code is a bound, not a value (``docs/reconstruct.md``, "Saturation as a bound"):
+    the segment stores the bound's direction in ``klog`` with β = 0 (+1: L ≥ L^A, a clipped
+    bright pixel; -1: L ≤ L^A, a clipped dark pixel; 0: an ordinary two-sided measurement). Where
+    the state ``lh`` satisfies the bound the frame carries no information and the pull is off;
+    where it violates it the ordinary update of eqs. 17 and 20 pulls it towards the bound, which
+    it approaches monotonically without crossing, so testing at the start of the interval is
+    exact for the whole interval (a projection onto the constraint; Simon 2010, Allik et al.
+    2016). A bound moves L̂ but leaves P alone: it says nothing of how far above (below) it the
+    intensity is, so P is not shrunk for a censored pixel (:func:`propagated`).
+    """
+    if beta == 0.0:
+        if klog * (lh - la) > 0.0:
+            return 0.0
+        return rinv * ((t_to - tu0) * US)
+    return rinv_integral(rinv, beta, klog, tu0, t_to, seg_t0, seg_inv_t)
+
+
+def propagated(lh, pp, la, rinv, beta, klog, tu0, t_to, seg_t0, seg_inv_t):
+    """(L̂, P) carried from ``tu0`` to ``t_to`` µs (eqs. 17, 20): g = P ∫R⁻¹, P ← P/(1+g),
+    L̂ ← L^A + (L̂ - L^A)/(1+g); a censored pixel's P is held (a bound moves L̂, not P)."""
+    integ = pull_integral(lh, la, rinv, beta, klog, tu0, t_to, seg_t0, seg_inv_t)
+    d = 1.0 / (1.0 + pp * integ)
+    lh = la + (lh - la) * d
+    if beta != 0.0 or klog == 0.0:
+        pp = pp * d
+    return lh, pp
+
+
+def akf_event_step(lh, pp, la, tu0, ti, dte, dtstar, positive, rinv, beta, klog, lastep, has_la_step, seg_t0,
+                   seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+    """One AKF event at time ``ti`` µs: the new (L̂, P, L^A) of the pixel (its update time becomes ``ti``).
+
+    In order: propagate L̂ and P from the last update ``tu0`` (:func:`propagated`, eqs. 17, 20);
+    add Q = Q_proc + Q_iso + Q_ref to P (eq. 21 with the Q of eq. 2 and §3.1.1); jump L̂ by
+    ``jump_on`` (ON) or ``jump_off`` (OFF, negative) (eq. 15); with ``has_la_step`` (the
+    measurement is event-driven, frame augmentation) move L^A by ``lastep`` (ON) or by
+    -``lastep`` c_off/c_on (OFF: ``lastep`` is the calibrated ON step, the OFF step keeps the
+    thresholds' ratio), or by the event's own jump where ``lastep`` is negative.
+
+    ``dte = t_i - t_{i-1}`` (the pixel's previous event, or the filter's start) and
+    ``dtstar = t_i - t*`` (t*: the latest event time in the 3×3 window before this event,
+    the pixel included) are integer µs, computed by the caller's schedule. Q (``noise_form`` 0,
+    paper §3.1.1): σ²_proc Δt_e + σ²_iso (t_i - t*) + σ²_ref·[Δt_e ≤ ρ]; ``noise_form`` 1
+    (reference code): σ_p (t_i - tu) + σ_i (t_i - t*) + σ_r Δt_e·[Δt_e ≤ ρ].
+    """
+    tif = np.float64(ti)
+    lhat, pp = propagated(lh, pp, la, rinv, beta, klog, tu0, tif, seg_t0, seg_inv_t)
+    q = s_iso * (dtstar * US)
+    if noise_form == 0:
+        q += s_proc * (dte * US)
+        if dte <= rho_us:
+            q += s_ref
+    else:
+        q += s_proc * ((tif - tu0) * US)
+        if dte <= rho_us:
+            q += s_ref * (dte * US)
+    jump = jump_on if positive else jump_off
+    if has_la_step:
+        if lastep < 0.0:  # L^A follows the event's own jump (frames carried forward by the events)
+            la = la + jump
+        elif positive:
+            la = la + lastep
+        else:  # the ON step times c_off/c_on (1 when symmetric: the same bits)
+            la = la - lastep * ((-jump_off) / jump_on)
+    return lhat + jump, pp + q, la
+
+
+def akf_walk_pixel(S, pix, t, p, a, grp, g, hi, wb, te0, t_quiet, nb_pos, nb_hi, nb_te, n_nb, has_la_step,
+                   seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us, noise_form):
+    """Pixel ``pix``'s grouped events ``grp[g:hi]`` with stream index below ``wb``, in stream order,
+    each by :func:`akf_event_step`; returns (the next position in ``grp``, the last event time).
+
+    The pixel-parallel schedule (one thread per pixel, a group of event indices relative to ``a``
+    per pixel, in stream order; the event at group position ``g`` is event ``a + grp[g]`` of ``t``
+    and ``p``). ``te0``: the pixel's last event time before these events. The
+    isolated-pixel term's t* at event i is the latest event time in the 3×3 window over the
+    events before i in the stream: ``t_quiet`` folds in the neighbours without events here (their
+    earlier last-event times, and ``te0``), and for the ``n_nb`` others ``nb_pos[k]`` /
+    ``nb_hi[k]`` bound their groups' unread part and ``nb_te[k]`` holds the last time read: each
+    neighbour's position only moves forward as the pixel's events come (a merge, O(events of p
+    and q) per window where a binary search per event costs O(events of p × log events of q)).
+    The state record is held in registers for the walk and stored once at the end.
+    """
+    sl = S[pix, A_L]
+    sp = S[pix, A_P]
+    sla = S[pix, A_LA]
+    stu = S[pix, A_TU]
+    rinv = S[pix, A_RINV]
+    beta = S[pix, A_BETA]
+    klog = S[pix, A_KLOG]
+    lastep = S[pix, A_LASTEP]
+    while g < hi:
+        i = grp[g]
+        if i >= wb:
+            break
+        e = a + i
+        ti = t[e]
+        tstar = te0 if te0 > t_quiet else t_quiet
+        for k in range(n_nb):
+            kk = nb_pos[k]
+            hk = nb_hi[k]
+            if kk < hk and grp[kk] < i:
+                kk += 1
+                while kk < hk and grp[kk] < i:
+                    kk += 1
+                nb_pos[k] = kk
+                nb_te[k] = t[a + grp[kk - 1]]
+            tq = nb_te[k]
+            if tq > tstar:
+                tstar = tq
+        sl, sp, sla = akf_event_step(sl, sp, sla, stu, ti, ti - te0, ti - tstar, p[e] > 0, rinv, beta, klog,
+                                     lastep, has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso,
+                                     s_ref, rho_us, noise_form)
+        stu = np.float64(ti)
+        te0 = ti
+        g += 1
+    S[pix, A_L] = sl
+    S[pix, A_P] = sp
+    S[pix, A_LA] = sla
+    S[pix, A_TU] = stu
+    return g, te0
+
+
+def window_neighbours(pix, height, width, glo, ghi, te_in, nb_pos, nb_hi, nb_te):
+    """The 3×3 neighbours of ``pix`` (clipped at the border) for :func:`akf_walk_pixel` over one
+    window grouped by pixel (pixel q's group is ``[glo[q], ghi[q])`` of the group array, empty for
+    a pixel without events; ``te_in``: last event times before the window): returns ``(n_nb, t_quiet)``, the neighbours with events in the window
+    listed in ``nb_*``, the others' times (and the pixel's own) folded into ``t_quiet``."""
+    yy = pix // width
+    xx = pix - yy * width
+    ylo = max(yy - 1, 0)
+    yhi = min(yy + 1, height - 1)
+    xlo = max(xx - 1, 0)
+    xhi = min(xx + 1, width - 1)
+    n_nb = 0
+    t_quiet = te_in[pix]
+    for qy in range(ylo, yhi + 1):
+        for qx in range(xlo, xhi + 1):
+            q = qy * width + qx
+            if q != pix:
+                q_lo = glo[q]
+                q_hi = ghi[q]
+                if q_lo == q_hi:
+                    if te_in[q] > t_quiet:
+                        t_quiet = te_in[q]
+                else:
+                    nb_pos[n_nb] = q_lo
+                    nb_hi[n_nb] = q_hi
+                    nb_te[n_nb] = te_in[q]
+                    n_nb += 1
+    return n_nb, t_quiet
+
+
+def frame_update(lh, pp, r_log, cz, lf):
+    """Discrete Kalman update of one pixel with the just-loaded frame (continuous-discrete KF).
+
+    The switch has added the process noise σ²_proc accrued since the pixel's last update to P
+    (changes below the threshold that no event reported). The frame ``lf`` (log) is one
+    measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R),
+    L̂ ← L̂ + κ(lf - L̂), P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state
+    violates its bound (projection towards it, as in :func:`pull_integral`), and leaves P.
+    """
+    if cz * (lh - lf) > 0.0:
+        return lh, pp
+    g = pp / (pp + r_log)
+    lh = lh + g * (lf - lh)
+    if cz == 0.0:  # a bound moves L̂, not P (projection)
+        pp = pp - g * pp
+    return lh, pp
+
+
+def akf_switch_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, la, r, b, cz, lastep, seg_t_s, discrete,
+                     uf):
+    """Frame switch of pixel ``pix``: propagate, then load the new segment (see :func:`akf_switch`).
+
+    When ``propagate``, the pixel is carried to ``t_to`` µs under the current segment
+    (:func:`propagated`), ``s_proc`` times the time since its last update is added to P, and
+    ``tu = t_to``. Then L^A = ``la``, 1/R = ``r``, β = ``b``, ``klog = r T / β`` (β ≠ 0, T =
+    ``seg_t_s``) else the censoring direction ``cz``, the L^A step ``lastep``; with
+    ``discrete``, the frame ``uf`` (log) is applied as one measurement (:func:`frame_update`).
+    """
+    if propagate:
+        tu0 = S[pix, A_TU]
+        q = s_proc * ((t_to - tu0) * US)
+        lh, pp = propagated(S[pix, A_L], S[pix, A_P], S[pix, A_LA], S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG],
+                            tu0, t_to, seg_t0, seg_inv_t)
+        S[pix, A_L] = lh
+        S[pix, A_P] = pp + q
+        S[pix, A_TU] = t_to
+    S[pix, A_LA] = la
+    S[pix, A_RINV] = r
+    S[pix, A_BETA] = b
+    S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
+    S[pix, A_LASTEP] = lastep
+    if discrete:
+        lh, pp = frame_update(S[pix, A_L], S[pix, A_P], 1.0 / r, cz, uf)
+        S[pix, A_L] = lh
+        S[pix, A_P] = pp
+
+def akf_switch_arrays_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, log_frame, rinv, beta, la_step,
+                            censor, update_frame, seg_t_s, discrete, has_beta, has_step, has_cens, has_uf):
+    """:func:`akf_switch_pixel` with the new segment read from per-pixel arrays (:func:`akf_switch`):
+    β is 0 where the frame is censored; an empty array (its ``has_*`` false) reads as zeros, and
+    the discrete update uses ``update_frame`` where given, else ``log_frame``."""
+    lf = log_frame[pix]
+    b = beta[pix] if has_beta else 0.0
+    cz = censor[pix] if has_cens else 0.0
+    if cz != 0.0:
+        b = 0.0
+    akf_switch_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, lf, rinv[pix], b, cz,
+                     la_step[pix] if has_step else 0.0, seg_t_s, discrete, update_frame[pix] if has_uf else lf)
+
+
+def akf_switch_codes_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, code, code_next, max_code, rbar_l,
+                           logf_l, rinv_l, cens_l, la_step, seg_t_s, discrete, has_beta, has_cens):
+    """:func:`akf_switch_pixel` with the new segment looked up from the pixel's clipped code in
+    per-code tables (:func:`akf_switch_lut`): β = R̄(code_next)/R̄(code) - 1 of eq. 7, 0 where
+    either frame is censored."""
+    c = min(max(np.int64(code[pix]), 0), max_code)
+    lf = logf_l[c]
+    cz = cens_l[c] if has_cens else 0.0
+    b = 0.0
+    if has_beta and cz == 0.0:
+        c1 = min(max(np.int64(code_next[pix]), 0), max_code)
+        if not (has_cens and cens_l[c1] != 0.0):
+            b = rbar_l[c1] / rbar_l[c] - 1.0
+    akf_switch_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, lf, rinv_l[c], b, cz, la_step, seg_t_s,
+                     discrete, lf)
+
+
+def akf_initial_covariance(la, beta, klog, p0, p_cens, has_off, log_off):
+    """P of a pixel initialised from the first frame (:func:`akf_start`): ``p0``; clipped in that
+    frame (β = 0, ``klog`` ≠ 0) ``p_cens``, and clipped dark (``klog`` < 0, ``has_off``)
+    max(w², ``p0``) with w = L^A - ``log_off`` (the interval ln I0 <= L <= L^A as one standard
+    deviation; NaN as np.maximum gives it)."""
+    pp = p0
+    if beta == 0.0 and klog != 0.0:
+        pp = p_cens
+        if has_off and klog < 0.0:
+            w = la - log_off
+            ww = w * w
+            pp = p0 if ww < p0 else ww
+    return pp
+
+
+def output_pixel(lh, pp, la, rinv, beta, kl, tu0, t_out, seg_t0, seg_inv_t):
+    """(L̂, P) at ``t_out`` µs in closed form (eqs. 17, 20), the state unchanged; P of a censored
+    pixel is its held P (a bound moves L̂, not P).
+
+    The values of :func:`propagated`, arranged for the output loops: for R held (β = 0, most
+    pixels) whether a bound holds is a select rather than a branch (data dependent: its
+    mispredictions cost more than the product), 20-25 % less time per 346x260 image. Same bits.
+    """
+    held = rinv * ((t_out - tu0) * US)
+    integ = 0.0 if kl * (lh - la) > 0.0 else held
+    if beta != 0.0:
+        integ = rinv_integral(rinv, beta, kl, tu0, t_out, seg_t0, seg_inv_t)
+    d = 1.0 / (1.0 + pp * integ)
+    cens = (beta == 0.0) & (kl != 0.0)
+    return la + (lh - la) * d, (pp if cens else pp * d)
+
+def akf_output_store(S, pix, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, want_log, want_var):
+    """:func:`output_pixel` of record ``pix`` of ``S`` into ``out_l32`` (L̂ rounded to float32) and,
+    when wanted, ``out_log`` (L̂) and ``out_var`` (P)."""
+    lhat, pv = output_pixel(S[pix, A_L], S[pix, A_P], S[pix, A_LA], S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG],
+                            S[pix, A_TU], t_out, seg_t0, seg_inv_t)
+    out_l32[pix] = np.float32(lhat)
+    if want_log:
+        out_log[pix] = lhat
+    if want_var:
+        out_var[pix] = pv
+
+
+
+def cf_decayed(lh, lf, alpha, tu0, t, extra):
+    """CF estimate at ``t`` µs: L^F + (L̂ - L^F) exp(-α (t - tu) - ``extra``), exact for a held
+    L^F (Scheerlinck et al. 2018; ``extra``: the high-pass variant's per-event decay, else 0)."""
+    return lf + (lh - lf) * math.exp(-alpha * ((t - tu0) * US) - extra)
+
+
+def cf_event_step(lh, lf, alpha, tu0, tif, positive, j_on, j_off, event_decay):
+    """CF at an event at ``tif`` µs: the exact decay towards L^F, then the jump +``j_on`` or -``j_off``."""
+    lhat = cf_decayed(lh, lf, alpha, tu0, tif, event_decay)
+    return lhat + j_on if positive else lhat - j_off
+
+
+#: the functions above, in an order in which each calls only earlier ones
+PIXEL_FUNCTIONS = (rinv_integral, pull_integral, propagated, akf_event_step, akf_walk_pixel, window_neighbours,
+                   frame_update, akf_switch_pixel, akf_switch_arrays_pixel,
+                   akf_switch_codes_pixel, akf_initial_covariance, output_pixel, akf_output_store, cf_decayed,
+                   cf_event_step)
+
+
+def compile_pixel_functions(jit) -> dict:
+    """``{name: jit(function)}`` for :data:`PIXEL_FUNCTIONS`, each calling the others' ``jit``
+    versions: copies of the plain functions whose globals are this module's with those names
+    rebound (the CUDA kernels' device functions: ``compile_pixel_functions(cuda.jit(device=True))``)."""
+    ns = dict(globals())
+    out = {}
+    for f in PIXEL_FUNCTIONS:
+        g = types.FunctionType(f.__code__, ns, f.__name__, f.__defaults__, f.__closure__)
+        g.__doc__, g.__qualname__ = f.__doc__, f.__qualname__
+        out[f.__name__] = ns[f.__name__] = jit(g)
+    return out
+
+
+_cpu_inline = njit(cache=True, nogil=True, inline="always")
+rinv_integral = _cpu_inline(rinv_integral)
+pull_integral = _cpu_inline(pull_integral)
+propagated = _cpu_inline(propagated)
+akf_event_step = _cpu_inline(akf_event_step)
+akf_walk_pixel = _cpu_inline(akf_walk_pixel)
+window_neighbours = _cpu_inline(window_neighbours)
+frame_update = _cpu_inline(frame_update)
+akf_switch_pixel = _cpu_inline(akf_switch_pixel)
+akf_switch_arrays_pixel = _cpu_inline(akf_switch_arrays_pixel)
+akf_switch_codes_pixel = _cpu_inline(akf_switch_codes_pixel)
+akf_initial_covariance = _cpu_inline(akf_initial_covariance)
+output_pixel = _cpu_inline(output_pixel)
+akf_output_store = _cpu_inline(akf_output_store)
+cf_decayed = _cpu_inline(cf_decayed)
+cf_event_step = _cpu_inline(cf_event_step)
 
 
 @njit(cache=True, nogil=True)
@@ -168,82 +506,33 @@ def row_histogram(y, i0, i1, step, hist):
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _pull_integral(S, pix, t_to, seg_t0, seg_inv_t):
-    """∫ R⁻¹ ds from the pixel's last update to ``t_to`` µs, or 0 where a censored frame's bound holds.
-
-    A saturated code is a bound, not a value (``docs/reconstruct.md``, "Saturation as a bound"):
-    the segment stores the bound's direction in ``A_KLOG`` with β = 0 (+1: L ≥ L^A, a clipped
-    bright pixel; -1: L ≤ L^A, a clipped dark pixel; 0: an ordinary two-sided measurement). Where
-    the state satisfies the bound the frame carries no information and the pull is off; where it
-    violates it the ordinary update of eqs. 17 and 20 pulls it towards the bound, which it
-    approaches monotonically without crossing, so testing at the start of the interval is exact
-    for the whole interval (a projection onto the constraint; Simon 2010, Allik et al. 2016).
-    A bound moves L̂ but leaves P alone: it says nothing of how far above (below) it the
-    intensity is, so the callers do not shrink P for a censored pixel.
-    """
-    beta = S[pix, A_BETA]
-    tu0 = S[pix, A_TU]
-    if beta == 0.0:
-        kl = S[pix, A_KLOG]
-        if kl * (S[pix, A_L] - S[pix, A_LA]) > 0.0:
-            return 0.0
-        return S[pix, A_RINV] * ((t_to - tu0) * US)
-    return rinv_integral(S[pix, A_RINV], beta, S[pix, A_KLOG], tu0, t_to, seg_t0, seg_inv_t)
-
-
-@njit(cache=True, nogil=True, inline="always")
 def _akf_event(S, te, te_base, pix, tp, wp, ti, positive, has_la_step, seg_t0, seg_inv_t,
                c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
-    """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs.
+    """One AKF event at pixel ``pix`` (padded index ``tp``, padded width ``wp``), time ``ti`` µs:
+    :func:`akf_event_step` with t* from the 3×3 window of ``te``. See :func:`akf_events`.
 
-    See :func:`akf_events`. Indices are unsigned (no negative-index wraparound code) and ``te``
-    is padded by one pixel on every side, so the 3×3 window needs no border branch. ``te`` holds
-    times relative to ``te_base`` µs; every use is a difference of two times, taken in int64, so
-    an int32 ``te`` gives the int64 one's bits wherever its values fit.
+    Indices are unsigned (no negative-index wraparound code) and ``te`` is padded by one pixel on
+    every side, so the 3×3 window needs no border branch. ``te`` holds times relative to
+    ``te_base`` µs; every use is a difference of two times, taken in int64, so an int32 ``te``
+    gives the int64 one's bits wherever its values fit.
     """
-    tif = np.float64(ti)
-    tu0 = S[pix, A_TU]
-    # -- propagate to t_i (eqs. 17, 20): g = P ∫R⁻¹, P ← P/(1+g), L̂ ← L^A + (L̂ - L^A)/(1+g) -------
-    integ = _pull_integral(S, pix, tif, seg_t0, seg_inv_t)  # 0 where a censored bound holds
-    pp = S[pix, A_P]
-    d = 1.0 / (1.0 + pp * integ)
-    lav = S[pix, A_LA]
-    lhat = lav + (S[pix, A_L] - lav) * d
-    if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:  # a bound moves L̂, not P (projection)
-        pp = pp * d
-    # -- event noise (eq. 2, §3.1.1): t* = latest event time in the 3×3 window ------------------
     tr = ti - te_base  # relative to te's origin
     te0 = np.int64(te[tp])
     b = tp - wp
     c = tp + wp
     tstar = max(max(max(te[b - ONE], te[b]), max(te[b + ONE], te[tp - ONE])),
                 max(max(te0, te[tp + ONE]), max(max(te[c - ONE], te[c]), te[c + ONE])))
-    dte = tr - te0
-    q = s_iso * ((tr - tstar) * US)
-    if noise_form == 0:
-        q += s_proc * (dte * US)
-        if dte <= rho_us:
-            q += s_ref
-    else:
-        q += s_proc * ((tif - tu0) * US)
-        if dte <= rho_us:
-            q += s_ref * (dte * US)
-    S[pix, A_P] = pp + q
-    # -- event jump (eq. 15), per pixel and polarity when a threshold map is given ----------------
-    if positive:
-        jump = con_px[pix] if has_px else c_on
-    else:
-        jump = -(coff_px[pix] if has_px else c_off)
-    S[pix, A_L] = lhat + jump
+    jump_on = con_px[pix] if has_px else c_on
+    jump_off = -(coff_px[pix] if has_px else c_off)
+    lh, pp, la = akf_event_step(S[pix, A_L], S[pix, A_P], S[pix, A_LA], S[pix, A_TU], ti, tr - te0, tr - tstar,
+                                positive, S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG], S[pix, A_LASTEP],
+                                has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref, rho_us,
+                                noise_form)
+    S[pix, A_L] = lh
+    S[pix, A_P] = pp
     if has_la_step:
-        st = S[pix, A_LASTEP]
-        if st < 0.0:  # L^A follows the event's own jump (frames carried forward by the events)
-            S[pix, A_LA] = lav + jump
-        elif positive:
-            S[pix, A_LA] = lav + st
-        else:  # st is the ON step; OFF steps keep the thresholds' ratio (1 when symmetric: same bits)
-            S[pix, A_LA] = lav - st * ((coff_px[pix] / con_px[pix]) if has_px else (c_off / c_on))
-    S[pix, A_TU] = tif
+        S[pix, A_LA] = la
+    S[pix, A_TU] = np.float64(ti)
     te[tp] = tr
 
 
@@ -255,17 +544,9 @@ def akf_start(S, p0, p_cens, log_off, has_off, t_init, pix_lo, pix_hi):
     with w = L^A - ``log_off`` (the interval ln I0 <= L <= L^A as one standard deviation).
     The numpy column operations it replaces, in one pass per row band: the same bits."""
     for pix in range(pix_lo, pix_hi):
-        la = S[pix, A_LA]
-        S[pix, A_L] = la
-        pp = p0
-        kl = S[pix, A_KLOG]
-        if S[pix, A_BETA] == 0.0 and kl != 0.0:
-            pp = p_cens
-            if has_off and kl < 0.0:
-                w = la - log_off
-                ww = w * w
-                pp = p0 if ww < p0 else ww  # np.maximum's result, NaN included
-        S[pix, A_P] = pp
+        S[pix, A_L] = S[pix, A_LA]
+        S[pix, A_P] = akf_initial_covariance(S[pix, A_LA], S[pix, A_BETA], S[pix, A_KLOG], p0, p_cens, has_off,
+                                             log_off)
         S[pix, A_TU] = t_init
     return pix_hi - pix_lo
 
@@ -421,39 +702,6 @@ def akf_events_indexed(t, x, y, p, i0, idx, m, row_lo, row_hi, width, height, S,
                         c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, False)
 
 
-@njit(cache=True, nogil=True, inline="always")
-def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
-    """Propagate pixel ``pix`` to ``t_to`` µs (eqs. 17, 20) and set ``tu = t_to``."""
-    integ = _pull_integral(S, pix, t_to, seg_t0, seg_inv_t)
-    d = 1.0 / (1.0 + S[pix, A_P] * integ)
-    lav = S[pix, A_LA]
-    S[pix, A_L] = lav + (S[pix, A_L] - lav) * d
-    if S[pix, A_BETA] != 0.0 or S[pix, A_KLOG] == 0.0:  # a bound moves L̂, not P (projection)
-        S[pix, A_P] = S[pix, A_P] * d
-    S[pix, A_TU] = t_to
-
-
-@njit(cache=True, nogil=True, inline="always")
-def _frame_update(S, pix, r_log, cz, lf):
-    """Discrete Kalman update of pixel ``pix`` with the just-loaded frame (continuous-discrete KF).
-
-    The switch has added the process noise σ²_proc accrued since the pixel's last update to P
-    (changes below the threshold that no event reported). The frame ``lf`` (log) is one
-    measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(lf - L̂),
-    P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state violates its bound
-    (projection towards it, as in :func:`_pull_integral`).
-    """
-    lh = S[pix, A_L]
-    la = lf
-    pp = S[pix, A_P]
-    if cz * (lh - la) > 0.0:
-        return
-    g = pp / (pp + r_log)
-    S[pix, A_L] = lh + g * (la - lh)
-    if cz == 0.0:  # a bound moves L̂, not P (projection)
-        S[pix, A_P] = pp - g * pp
-
-
 @njit(cache=True, nogil=True)
 def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_step, censor, seg_t_s,
                discrete, s_proc, update_frame, pix_lo, pix_hi):
@@ -467,10 +715,10 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
     Pass ``seg_t_s = 0`` for an open-ended segment (β is then stored as 0: R held), and empty
     ``beta`` / ``la_step`` / ``censor`` arrays for zeros. ``censor`` is +1 where ``log_frame`` is
     a lower bound (clipped bright), -1 where it is an upper bound (clipped dark), 0 otherwise;
-    a censored pixel holds R (β = 0) and keeps the direction in ``klog`` (:func:`_pull_integral`).
+    a censored pixel holds R (β = 0) and keeps the direction in ``klog`` (:func:`pull_integral`).
     A propagating switch adds ``s_proc`` (log²/s) times the time since the pixel's last update
     to P (0: the paper's model, process noise at events only). With ``discrete``, the loaded
-    frame is then applied as one discrete measurement (:func:`_frame_update`, R = 1/``rinv``):
+    frame is then applied as one discrete measurement (:func:`frame_update`, R = 1/``rinv``):
     the log frame ``update_frame`` when not empty (the plain frame under an augmented L^A),
     else ``log_frame``.
     """
@@ -479,22 +727,8 @@ def akf_switch(S, propagate, seg_t0, seg_inv_t, t_to, log_frame, rinv, beta, la_
     has_cens = censor.shape[0] > 0
     has_uf = update_frame.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        if propagate:
-            q = s_proc * ((t_to - S[pix, A_TU]) * US)
-            _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
-            S[pix, A_P] += q
-        r = rinv[pix]
-        S[pix, A_LA] = log_frame[pix]
-        S[pix, A_RINV] = r
-        b = beta[pix] if has_beta else 0.0
-        cz = censor[pix] if has_cens else 0.0
-        if cz != 0.0:
-            b = 0.0
-        S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
-        S[pix, A_LASTEP] = la_step[pix] if has_step else 0.0
-        if discrete:
-            _frame_update(S, pix, 1.0 / r, cz, update_frame[pix] if has_uf else log_frame[pix])
+        akf_switch_arrays_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, log_frame, rinv, beta, la_step,
+                                censor, update_frame, seg_t_s, discrete, has_beta, has_step, has_cens, has_uf)
     return pix_hi - pix_lo
 
 
@@ -515,52 +749,16 @@ def akf_switch_lut(S, propagate, seg_t0, seg_inv_t, t_to, code, code_next, max_c
     has_beta = code_next.shape[0] > 0 and seg_t_s > 0.0
     has_cens = cens_l.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        if propagate:
-            q = s_proc * ((t_to - S[pix, A_TU]) * US)
-            _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to)
-            S[pix, A_P] += q
-        c = min(max(np.int64(code[pix]), 0), max_code)
-        r = rinv_l[c]
-        S[pix, A_LA] = logf_l[c]
-        S[pix, A_RINV] = r
-        cz = cens_l[c] if has_cens else 0.0
-        b = 0.0
-        if has_beta and cz == 0.0:
-            c1 = min(max(np.int64(code_next[pix]), 0), max_code)
-            if not (has_cens and cens_l[c1] != 0.0):
-                b = rbar_l[c1] / rbar_l[c] - 1.0
-        S[pix, A_BETA] = b
-        S[pix, A_KLOG] = r * seg_t_s / b if b != 0.0 else cz
-        S[pix, A_LASTEP] = la_step
-        if discrete:
-            _frame_update(S, pix, 1.0 / r, cz, logf_l[c])
+        akf_switch_codes_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, code, code_next, max_code, rbar_l,
+                               logf_l, rinv_l, cens_l, la_step, seg_t_s, discrete, has_beta, has_cens)
     return pix_hi - pix_lo
 
 
 @njit(cache=True, nogil=True, inline="always")
 def _output_pixel(S, pix, seg_t0, seg_inv_t, t_out):
-    """(L̂, P) of pixel ``pix`` at ``t_out`` µs in closed form (eqs. 17, 20), the state unchanged;
-    P of a censored pixel is its held P (a bound moves L̂, not P).
-
-    The same operations as :func:`_pull_integral` followed by the propagation, arranged for the
-    output loops: the fields are loaded once, and for R held (β = 0, most pixels) whether a
-    bound holds is a select rather than a branch (data dependent: its mispredictions cost more
-    than the product), 20-25 % less time per 346x260 image. Same bits.
-    """
-    beta = S[pix, A_BETA]
-    kl = S[pix, A_KLOG]
-    lh = S[pix, A_L]
-    lav = S[pix, A_LA]
-    pp = S[pix, A_P]
-    rinv = S[pix, A_RINV]
-    tu0 = S[pix, A_TU]
-    held = rinv * ((t_out - tu0) * US)
-    integ = 0.0 if kl * (lh - lav) > 0.0 else held
-    if beta != 0.0:
-        integ = rinv_integral(rinv, beta, kl, tu0, t_out, seg_t0, seg_inv_t)
-    d = 1.0 / (1.0 + pp * integ)
-    cens = (beta == 0.0) & (kl != 0.0)
-    return lav + (lh - lav) * d, (pp if cens else pp * d)
+    """:func:`output_pixel` of record ``pix`` of ``S``."""
+    return output_pixel(S[pix, A_L], S[pix, A_P], S[pix, A_LA], S[pix, A_RINV], S[pix, A_BETA], S[pix, A_KLOG],
+                        S[pix, A_TU], t_out, seg_t0, seg_inv_t)
 
 
 @njit(cache=True, nogil=True)
@@ -575,12 +773,7 @@ def akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, pix_lo, p
     want_log = out_log.shape[0] > 0
     want_var = out_var.shape[0] > 0
     for pix in range(pix_lo, pix_hi):
-        lhat, pv = _output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
-        out_l32[pix] = np.float32(lhat)
-        if want_log:
-            out_log[pix] = lhat
-        if want_var:
-            out_var[pix] = pv
+        akf_output_store(S, pix, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, want_log, want_var)
     return pix_hi - pix_lo
 
 
@@ -691,13 +884,8 @@ def lut_segment(code, code_next, max_code, inten_l, rbar_l, logf_l, rinv_l, cens
 @njit(cache=True, nogil=True, inline="always")
 def _cf_update(C, pix, tif, pol, c_on, c_off, event_decay, con_px, coff_px, has_px):
     """One CF event at pixel ``pix``, time ``tif`` µs: exact decay towards L^F, then the jump."""
-    lfv = C[pix, C_LF]
-    b = math.exp(-C[pix, C_ALPHA] * ((tif - C[pix, C_TU]) * US) - event_decay)
-    lhat = lfv + (C[pix, C_L] - lfv) * b
-    if pol > 0:
-        C[pix, C_L] = lhat + (con_px[pix] if has_px else c_on)
-    else:
-        C[pix, C_L] = lhat - (coff_px[pix] if has_px else c_off)
+    C[pix, C_L] = cf_event_step(C[pix, C_L], C[pix, C_LF], C[pix, C_ALPHA], C[pix, C_TU], tif, pol > 0,
+                                con_px[pix] if has_px else c_on, coff_px[pix] if has_px else c_off, event_decay)
     C[pix, C_TU] = tif
 
 
@@ -758,8 +946,7 @@ def _cf_indexed(t, x, y, p, i0, idx, m, width, C, c_on, c_off, event_decay, con_
 def cf_propagate(C, t_to, pix_lo, pix_hi):
     """Propagate the CF state of pixels ``[pix_lo, pix_hi)`` to ``t_to`` µs (exact exponential)."""
     for pix in range(pix_lo, pix_hi):
-        lfv = C[pix, C_LF]
-        C[pix, C_L] = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_to - C[pix, C_TU]) * US))
+        C[pix, C_L] = cf_decayed(C[pix, C_L], C[pix, C_LF], C[pix, C_ALPHA], C[pix, C_TU], t_to, 0.0)
         C[pix, C_TU] = t_to
     return pix_hi - pix_lo
 
@@ -768,8 +955,7 @@ def cf_propagate(C, t_to, pix_lo, pix_hi):
 def cf_output(C, t_out, offset, out_lin, pix_lo, pix_hi):
     """Write ``exp(L̂(t_out)) - offset`` (float32) without changing the CF state."""
     for pix in range(pix_lo, pix_hi):
-        lfv = C[pix, C_LF]
-        lhat = lfv + (C[pix, C_L] - lfv) * math.exp(-C[pix, C_ALPHA] * ((t_out - C[pix, C_TU]) * US))
+        lhat = cf_decayed(C[pix, C_L], C[pix, C_LF], C[pix, C_ALPHA], C[pix, C_TU], t_out, 0.0)
         out_lin[pix] = math.exp(lhat) - offset
     return pix_hi - pix_lo
 

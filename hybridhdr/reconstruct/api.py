@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import contextlib
 import itertools
 import os
 from dataclasses import dataclass, field
@@ -160,7 +159,7 @@ def _record_columns(ev, n_workers: int = 1):
     x = np.empty(n, np.uint16)
     y = np.empty(n, np.uint16)
     p = np.empty(n, np.int8)
-    with _phase("read_split", "parallel"):  # split over the workers, in the driving thread
+    with PH.phase("read_split", "parallel"):  # split over the workers, in the driving thread
         map_ranges(n, n_workers, lambda i0, i1: split_range(ev, i0, i1, t, x, y, p))
     return t, x, y, p
 
@@ -246,16 +245,6 @@ class _Opened:
 
     def has_frames(self) -> bool:
         return self.frames is not None and len(self.frames) > 0
-
-
-@contextlib.contextmanager
-def _phase(name: str, kind: str = "serial"):
-    """Time the block as phase ``name`` in the active phase timer, if one is (nothing otherwise)."""
-    tm = PH.ACTIVE
-    c0 = PH.now() if tm is not None else 0
-    yield
-    if tm is not None:
-        tm.add(name, c0, kind)
 
 
 def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
@@ -366,8 +355,9 @@ def _build_engine(req: ReconstructRequest, op: _Opened, params, frames, events, 
         if method == "akf":
             return CudaAKFEngine(shape, measurements, params), prof
         return CudaCFEngine(shape, measurements, params, method), prof
-    if method == "akf":
-        return E.AKFEngine(shape, measurements, params, n_workers), prof
+    if method == "akf":  # the row-band or the pixel-parallel engine, by the worker count (same bits)
+        from ._pixel_engine import cpu_akf_engine
+        return cpu_akf_engine(shape, measurements, params, n_workers), prof
     if method in ("cf", "direct", "highpass"):
         return E.CFEngine(shape, measurements, params, method, n_workers), prof
     if mode == "causal" and method == "frames_linear":
@@ -387,9 +377,9 @@ def engine_for(req: ReconstructRequest, shape, frames, events=None):
 def _hold_all_events(req: ReconstructRequest, op: _Opened):
     """Every event in memory (the two-sided filter reads them in both directions)."""
     if isinstance(op.source, Recording):  # in memory: columns split in n_workers threads
-        with _phase("read_all", "parallel"):
+        with PH.phase("read_all", "parallel"):
             return EventArrays.from_structured(op.source.events, op.shape, n_workers=req.run.host_workers)
-    with _phase("read_all", "serial"):
+    with PH.phase("read_all", "serial"):
         return EventArrays.from_chunks(op.chunks(req.run.chunk_events), op.shape)
 
 
@@ -415,7 +405,7 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
     engines = []
 
     def make_engine(fr, ev, backward, n_workers=run.n_workers):  # a pass's share of the workers
-        with _phase("build"):
+        with PH.phase("build"):
             pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
             e = _build_engine(req, op, pp, fr, ev, n_workers)[0]
             if op.thr is not None:
@@ -482,7 +472,7 @@ def _one_pass_stats(engine, req: ReconstructRequest, info: dict) -> None:
 def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
     """One filter forward over the recording (:func:`._engine.drive`)."""
     run = req.run
-    with _phase("build"):
+    with PH.phase("build"):
         engine, prof = _build_engine(req, op, op.params, op.frames, op.events, run.n_workers)
     if op.thr is not None:
         if not hasattr(engine, "set_thresholds"):
@@ -654,7 +644,7 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         ts.append(t)
         imgs.append(img)
     shape = imgs[0].shape if imgs else (0, 0)
-    with _phase("collect", "parallel"):
+    with PH.phase("collect", "parallel"):
         if imgs and all(im.shape == imgs[0].shape and im.dtype == np.float32 for im in imgs):
             # one array of all outputs, each worker copying its rows of every image
             from .event_arrays import map_ranges

@@ -412,7 +412,8 @@ def run(args) -> int:
                 writer.on_written = bars[1].update
             info: dict = {}
             from .request import Device
-            device_line = Device.resolve(getattr(args, "device", "cpu"), method).line
+            device = Device.resolve(getattr(args, "device", "cpu"), method)
+            device_line = device.naming_engine(method, args.mode, args.workers).line
             print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:

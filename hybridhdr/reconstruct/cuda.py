@@ -27,6 +27,7 @@ import os
 
 import numpy as np
 
+from .._util import phases as PH
 from . import _kernels as K
 
 __all__ = ["cuda_unavailable_reason", "CudaAKFEngine", "CudaCFEngine", "DeviceEvents", "cuda_two_sided_iter"]
@@ -46,67 +47,8 @@ MAX_WINDOW = 1 << 24
 #: events are. Either way the same per-pixel event sequences and t*, so the same results.
 RESIDENT_CHUNK = 1 << 25
 _STAGE_MIN = 1 << 16
-
-
-class PhaseTimer:
-    """Where the GPU path's time goes (``benchmarks/gpu.py``): while :data:`PHASES` holds one,
-    each phase of the engines is bracketed by ``cuda.synchronize()`` and timed (this serialises
-    host and device, so a profiled run is slower than a plain one: the plain figure is measured
-    apart). Per phase: ``calls``, ``total_s`` (device work and host work, synchronised) and
-    ``host_s`` (until the host had queued the phase's work: launch overhead, host arithmetic and
-    blocking copies); ``total_s - host_s`` is time spent waiting for the device."""
-
-    def __init__(self):
-        self.rows: dict = {}
-
-    def phase(self, name: str):
-        return _Phase(self, name)
-
-    def table(self) -> dict:
-        return {k: {"calls": v[0], "total_s": round(v[1], 5), "host_s": round(v[2], 5)}
-                for k, v in sorted(self.rows.items(), key=lambda kv: -kv[1][1])}
-
-
-class _Phase:
-    __slots__ = ("tm", "name", "t0", "sync")
-
-    def __init__(self, tm, name):
-        self.tm, self.name = tm, name
-
-    def __enter__(self):
-        import time
-        self.sync = _cuda().synchronize
-        self.sync()
-        self.t0 = time.perf_counter()
-
-    def __exit__(self, *exc):
-        import time
-        t1 = time.perf_counter()
-        self.sync()
-        t2 = time.perf_counter()
-        r = self.tm.rows.setdefault(self.name, [0, 0.0, 0.0])
-        r[0] += 1
-        r[1] += t2 - self.t0
-        r[2] += t1 - self.t0
-        return False
-
-
-class _NoPhase:
-    def __enter__(self):
-        return None
-
-    def __exit__(self, *exc):
-        return False
-
-
-_NO_PHASE = _NoPhase()
-#: the active :class:`PhaseTimer` (None: no timing, no synchronisation)
-PHASES: PhaseTimer | None = None
-
-
-def _phase(name: str):
-    tm = PHASES
-    return _NO_PHASE if tm is None else tm.phase(name)
+#: events per pinned staging buffer when the whole recording is uploaded (:meth:`DeviceEvents.upload`)
+UPLOAD_CHUNK = 1 << 22
 
 
 def numpy_compat() -> None:
@@ -169,21 +111,34 @@ def _simulated() -> bool:
     return bool(getattr(config, "ENABLE_CUDASIM", 0))
 
 
-def _grid(n: int):
-    """(blocks, threads) for a grid-stride loop over ``n`` items."""
+def _grid(n: int, stream=0):
+    """(blocks, threads, stream) for a grid-stride loop over ``n`` items launched on ``stream``
+    (0: the default stream)."""
     if _simulated():
-        return 1, 8  # the simulator runs each thread as a Python thread
-    return max(1, min((n + 255) // 256, 1 << 20)), 256
+        return 1, 8, stream  # the simulator runs each thread as a Python thread
+    return max(1, min((n + 255) // 256, 1 << 20)), 256, stream
+
+
+def _engine_stream(cuda):
+    """The stream an engine launches its kernels on: its own, so that the copies of the next
+    window (:class:`PinnedUploader`, on the uploader's stream) overlap them. Both are ordinary
+    (blocking) streams, so the legacy default stream, on which host copies, uploads of tables
+    and the two-sided filter's fusion run, still orders itself against both. With Numba's
+    per-thread default stream that implicit ordering is gone: the engine then launches on the
+    default stream (0), as everything else there does, and only the events order the copies."""
+    from numba import config
+    return 0 if getattr(config, "CUDA_PER_THREAD_DEFAULT_STREAM", 0) else cuda.stream()
 
 
 class _Grouper:
     """Groups a window's events by pixel on the device (count, scan, scatter, sort per group)."""
 
-    def __init__(self, n_pix: int):
+    def __init__(self, n_pix: int, stream=0):
         cuda = _cuda()
         from . import _cuda_kernels as CK
         self.ck = CK
         self.n_pix = n_pix
+        self.stream = stream  # the stream of its kernels (the engine's)
         self.cnt = cuda.to_device(np.zeros(n_pix + 1, np.int32))  # cnt[n_pix] stays 0: start[n_pix] = total
         self.start = cuda.device_array(n_pix + 1, np.int32)
         self.slot = cuda.device_array(_STAGE_MIN, np.int32)
@@ -207,24 +162,80 @@ class _Grouper:
             bufs = (cuda.device_array(nb, np.int32), cuda.device_array(nb, np.int32))
             self._scan_bufs[key] = bufs
         sums, offs = bufs
-        CK.scan_block[nb, CK.SCAN_BLOCK](src, n, dst, sums)
+        CK.scan_block[nb, CK.SCAN_BLOCK, self.stream](src, n, dst, sums)
         if nb > 1:
             self._scan(sums, nb, offs, level + 1)
-            CK.k_add_offsets[_grid(n)](dst, n, offs)
+            CK.k_add_offsets[_grid(n, self.stream)](dst, n, offs)
 
     def group(self, dx, dy, a: int, n: int, width: int) -> None:
         """Group events ``a + [0, n)`` of the device arrays: ``start`` (n_pix + 1) and ``grp``."""
         CK = self.ck
         self._ensure(n)
-        g = _grid(n)
-        with _phase("group_count"):
+        g = _grid(n, self.stream)
+        with PH.phase("group_count", "parallel"):
             CK.k_count[g](dx, dy, a, n, width, self.cnt, self.slot)
-        with _phase("group_scan"):
+        with PH.phase("group_scan", "parallel"):
             self._scan(self.cnt, self.n_pix + 1, self.start)
-        with _phase("group_scatter"):
+        with PH.phase("group_scatter", "parallel"):
             CK.k_scatter[g](dx, dy, a, n, width, self.start, self.slot, self.grp, self.cnt)
-        with _phase("group_sort"):
-            CK.k_sort_groups[_grid(self.n_pix)](self.start, self.n_pix, self.grp)
+        with PH.phase("group_sort", "parallel"):
+            CK.k_sort_groups[_grid(self.n_pix, self.stream)](self.start, self.n_pix, self.grp)
+
+
+class PinnedUploader:
+    """Host event columns to the device through two page-locked (pinned) staging buffers.
+
+    :meth:`copy` packs a range of the columns into one buffer (a host copy) and queues its
+    asynchronous DMA to the device on the uploader's own stream, ordered by CUDA events: the DMA
+    waits for ``after`` (recorded on the consumer's stream once the kernels that last read the
+    destination have been queued), and the kernels queued next on ``consumer`` (the engine's
+    stream) wait for the DMA. It returns at once, so the host packs (and the driver reads and
+    decodes) the next range while the device copies it and filters the previous one: copies
+    overlap kernels. A pinned buffer is reused only once its previous DMA has completed (an event
+    per buffer, waited on by the host). Pinned memory is what lets the DMA run asynchronously and
+    at the bus's full speed (a pageable copy is staged by the driver through its own pinned
+    buffer and blocks the host).
+    """
+
+    DTYPES = (np.int64, np.uint16, np.uint16, np.int8)
+
+    def __init__(self, capacity: int, consumer=None):
+        cuda = _cuda()
+        self.cuda = cuda
+        self.consumer = consumer  # the stream whose kernels read the copies (None: the host waits)
+        self.cap = int(capacity)
+        self.bufs = [[cuda.pinned_array(self.cap, dt) for dt in self.DTYPES] for _ in range(2)]
+        self.done = [None, None]
+        self.k = 0
+        self.stream = cuda.stream()
+
+    def copy(self, cols, a: int, b: int, dst, after=None) -> None:
+        """Columns ``cols`` (t, x, y, p) ``[a, b)`` (at most the capacity) into the device arrays
+        ``dst`` (each ``b - a`` long), asynchronously, once the event ``after`` (if any) has
+        completed; the consumer's stream waits for the copy."""
+        n = b - a
+        if n > self.cap:
+            raise ValueError(f"a range of {n} events exceeds the pinned staging capacity {self.cap}")
+        k = self.k
+        self.k ^= 1
+        if self.done[k] is not None:
+            self.done[k].synchronize()  # this buffer's previous DMA has finished
+        buf = self.bufs[k]
+        if after is not None:
+            after.wait(self.stream)  # the kernels that read ``dst`` before have run
+        for src, pb, d in zip(cols, buf, dst):
+            np.copyto(pb[:n], src[a:b], casting="unsafe")  # as np.asarray(src, dtype) did
+            d.copy_to_device(pb[:n], stream=self.stream)
+        ev = self.cuda.event()
+        ev.record(stream=self.stream)
+        self.done[k] = ev
+        if self.consumer is not None:
+            ev.wait(self.consumer)  # the consumer's next kernels read the copy
+
+    def wait(self) -> None:
+        for ev in self.done:
+            if ev is not None:
+                ev.synchronize()
 
 
 class DeviceEvents:
@@ -238,10 +249,22 @@ class DeviceEvents:
         self._rev = reversed_of  # (forward host t, mirror): this copy is reversed
 
     @classmethod
-    def upload(cls, events) -> "DeviceEvents":
+    def upload(cls, events, pinned: bool = True, chunk_events: int = UPLOAD_CHUNK) -> "DeviceEvents":
+        """The event columns on the device. ``pinned`` (default): through page-locked staging
+        buffers, ``chunk_events`` at a time (:class:`PinnedUploader`: the copy into one buffer
+        overlaps the DMA from the other, at the bus's speed); else one pageable copy per column."""
         cuda = _cuda()
-        return cls(*(cuda.to_device(np.ascontiguousarray(a)) for a in (events.t, events.x, events.y, events.p)),
-                   host_t=events.t)
+        cols = [np.ascontiguousarray(a) for a in (events.t, events.x, events.y, events.p)]
+        if not pinned:
+            return cls(*(cuda.to_device(a) for a in cols), host_t=events.t)
+        dev = [cuda.device_array(a.shape[0], a.dtype) for a in cols]
+        up = PinnedUploader(chunk_events)
+        with PH.phase("upload_pinned", "parallel"):
+            for a in range(0, cols[0].shape[0], chunk_events):
+                b = min(cols[0].shape[0], a + chunk_events)
+                up.copy(cols, a, b, [d[a:b] for d in dev])
+            up.wait()
+        return cls(*dev, host_t=events.t)
 
     def reversed(self, t_mirror_us: int) -> "DeviceEvents":
         """:func:`.smoother.reverse_events` on the device."""
@@ -252,7 +275,7 @@ class DeviceEvents:
         ry = cuda.device_array(self.n, np.uint16)
         rp = cuda.device_array(self.n, np.int8)
         if self.n:
-            with _phase("reverse_events"):
+            with PH.phase("reverse_events", "parallel"):
                 CK.k_reverse_events[_grid(self.n)](self.t, self.x, self.y, self.p, self.n, np.int64(t_mirror_us) - 1,
                                                rt, rx, ry, rp)
         return DeviceEvents(rt, rx, ry, rp, reversed_of=(self._host_t, int(t_mirror_us)))
@@ -282,9 +305,13 @@ class _CudaEngine:
         self.m = measurements
         self.params = params
         self.k = -1
-        self.grouper = _Grouper(self.n)
+        self.stream = _engine_stream(cuda)  # every kernel of the engine (:func:`_engine_stream`)
+        self.grouper = _Grouper(self.n, self.stream)
         self.n_events = 0  # every event of a window is applied (the serial filter's count)
         self._stage = None
+        self._stage_k = 0
+        self._stage_free = [None, None]  # per staging set: its readers' kernels, queued (an event)
+        self._uploader = None
         self.con_px = self.coff_px = self._empty(np.float64)
         self.device_line = f"device: cuda ({device_name()})"
         self._cache: dict = {}
@@ -322,20 +349,32 @@ class _CudaEngine:
             self.coff_px = self.cuda.to_device(host.coff_px)
 
     def process(self, t, x, y, p, i0, i1) -> None:
-        """Host events ``[i0, i1)``: uploaded through a staging buffer, then :meth:`process_device`."""
+        """Host events ``[i0, i1)``: uploaded through pinned staging buffers
+        (:class:`PinnedUploader`, asynchronous), then :meth:`process_device` on the same stream.
+        Two device staging sets alternate, so a window's copy runs while the previous window's
+        kernels read the other set; a set is refilled once the kernels that read it have run
+        (events, :class:`PinnedUploader`)."""
         for a in range(i0, i1, MAX_WINDOW):
             b = min(i1, a + MAX_WINDOW)
             n = b - a
-            if self._stage is None or self._stage[0].shape[0] < n:
-                cap = max(n, _STAGE_MIN, 0 if self._stage is None else 2 * self._stage[0].shape[0])
+            if self._stage is None or self._stage[0][0].shape[0] < n:
+                cap = max(n, _STAGE_MIN, 0 if self._stage is None else 2 * self._stage[0][0].shape[0])
                 cap = min(cap, MAX_WINDOW)
-                self._stage = tuple(self.cuda.device_array(cap, dt)
-                                    for dt in (np.int64, np.uint16, np.uint16, np.int8))
-            st = self._stage
-            with _phase("stage_upload"):
-                for src, dst, dt in zip((t, x, y, p), st, (np.int64, np.uint16, np.uint16, np.int8)):
-                    dst[:n].copy_to_device(np.ascontiguousarray(src[a:b], dtype=dt))
+                self._stage = [tuple(self.cuda.device_array(cap, dt) for dt in PinnedUploader.DTYPES)
+                               for _ in range(2)]
+                if self._uploader is not None:
+                    self._uploader.wait()
+                self._uploader = PinnedUploader(cap, consumer=self.stream)
+                self._stage_free = [None, None]
+            k = self._stage_k
+            self._stage_k ^= 1
+            st = self._stage[k]
+            with PH.phase("stage_upload", "parallel"):
+                self._uploader.copy((t, x, y, p), a, b, [d[:n] for d in st], after=self._stage_free[k])
             self.process_device(*st, 0, n)
+            ev = self.cuda.event()
+            ev.record(stream=self.stream)
+            self._stage_free[k] = ev
 
     def process_resident(self, dev: "DeviceEvents", i: int, j: int) -> None:
         """Events ``[i, j)`` of resident ``dev``: windows of a chunk grouped once
@@ -352,11 +391,11 @@ class _CudaEngine:
                 self.grouper.group(dev.x, dev.y, i, c1 - i, self.shape[1])
                 if self._cur is None:
                     self._cur = [self.cuda.device_array(self.n, np.int32), self.cuda.device_array(self.n, np.int32)]
-                with _phase("chunk_cursors"):
-                    self.ck.k_copy_i32[_grid(self.n)](self.grouper.start, self._cur[0], self.n)
+                with PH.phase("chunk_cursors", "parallel"):
+                    self.ck.k_copy_i32[_grid(self.n, self.stream)](self.grouper.start, self._cur[0], self.n)
                 rc = self._rc = [dev, i, c1, i]
             e = min(j, rc[2])
-            with _phase("walk"):
+            with PH.phase("walk", "parallel"):
                 self._walk_res(dev, rc[1], e - rc[1])
             self._cur.reverse()
             rc[3] = e
@@ -378,7 +417,7 @@ class _CudaEngine:
             m = min(a + n, s + MAX_WINDOW) - s
             if m > 0:
                 self.grouper.group(dx, dy, s, m, self.shape[1])
-                with _phase("walk"):
+                with PH.phase("walk", "parallel"):
                     self._walk(dt, dx, dy, dp, s)
                 self.n_events += m
 
@@ -419,7 +458,7 @@ class CudaAKFEngine(_CudaEngine):
         disc = prop and self.params.frame_update == "discrete"
         s_proc = float(self.params.process_noise_per_s) if self.params.frame_update == "discrete" else 0.0
         args = (self.S, prop, self.seg_t0, self.seg_inv_t, float(t_to) if prop else 0.0)
-        g = _grid(n)
+        g = _grid(n, self.stream)
         if sc is not None:
             for a, name in ((sc.code, "code"), (sc.code_next, "code_next")):
                 if a.ndim != 1 or a.shape[0] not in ((n,) if name == "code" else (0, n)):
@@ -465,11 +504,11 @@ class CudaAKFEngine(_CudaEngine):
         self._load(k0)
         pr = self.params
         off = getattr(pr, "intensity_offset", None)
-        self.ck.k_akf_init[_grid(self.n)](self.S, float(pr.initial_covariance),
+        self.ck.k_akf_init[_grid(self.n, self.stream)](self.S, float(pr.initial_covariance),
                                           float(getattr(pr, "censored_initial_covariance", pr.initial_covariance)),
                                           off is not None, math.log(off) if off is not None else 0.0,
                                           float(t_init), self.n)
-        g = _grid(self.n)
+        g = _grid(self.n, self.stream)
         for te in self.te:
             self.ck.k_fill_i64[g](te, np.int64(t_init), self.n)
         return t_init
@@ -478,14 +517,14 @@ class CudaAKFEngine(_CudaEngine):
         return int(self.m.times_us[self.k + 1]) if self.k + 1 < len(self.m) else None
 
     def switch(self) -> None:
-        with _phase("switch"):
+        with PH.phase("switch", "parallel"):
             self._load(self.k + 1, t_to=float(self.m.times_us[self.k + 1]))
 
     def _walk(self, dt, dx, dy, dp, a: int) -> None:
         pr = self.params
         H, W = self.shape
         gr = self.grouper
-        self.ck.k_akf_walk[_grid(self.n)](
+        self.ck.k_akf_walk[_grid(self.n, self.stream)](
             dt, dx, dy, dp, a, H, W, gr.start, gr.grp, self.te[0], self.te[1], self.S, self.has_la_step,
             self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s, pr.isolated_noise_per_s,
             pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form, self.con_px, self.coff_px,
@@ -496,7 +535,7 @@ class CudaAKFEngine(_CudaEngine):
         pr = self.params
         H, W = self.shape
         gr = self.grouper
-        self.ck.k_akf_walk_res[_grid(self.n)](
+        self.ck.k_akf_walk_res[_grid(self.n, self.stream)](
             dev.t, dev.p, c0, wb, H, W, gr.start, gr.grp, self._cur[0], self._cur[1], self.te[0], self.S,
             self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
             pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
@@ -504,8 +543,8 @@ class CudaAKFEngine(_CudaEngine):
 
     def _close_chunk(self, dev, c0: int) -> None:
         gr = self.grouper
-        with _phase("chunk_close"):
-            self.ck.k_chunk_te[_grid(self.n)](dev.t, c0, gr.start, gr.grp, self._cur[0], self.te[0], self.te[1],
+        with PH.phase("chunk_close", "parallel"):
+            self.ck.k_chunk_te[_grid(self.n, self.stream)](dev.t, c0, gr.start, gr.grp, self._cur[0], self.te[0], self.te[1],
                                               self.n)
         self.te.reverse()
 
@@ -517,7 +556,7 @@ class CudaAKFEngine(_CudaEngine):
             self._out = cuda.device_array(self.n, np.float32)
         lg = cuda.device_array(self.n, np.float64) if with_state else self._empty(np.float64)
         var = cuda.device_array(self.n, np.float64) if with_state else self._empty(np.float64)
-        self.ck.k_akf_output[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), self._out, lg, var,
+        self.ck.k_akf_output[_grid(self.n, self.stream)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), self._out, lg, var,
                                             self.n)
         return self._out, lg, var
 
@@ -531,11 +570,11 @@ class CudaAKFEngine(_CudaEngine):
         else:
             if self._out is None:
                 self._out = self.cuda.device_array(self.n, np.float32)
-            with _phase("output_kernel"):
-                self.ck.k_akf_output_linear[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
+            with PH.phase("output_kernel", "parallel"):
+                self.ck.k_akf_output_linear[_grid(self.n, self.stream)](self.S, self.seg_t0, self.seg_inv_t, float(t_us),
                                                            np.float32(self.params.intensity_offset), self._out,
                                                            self.n)
-            with _phase("output_copy"):
+            with PH.phase("output_copy", "parallel"):
                 out = self._out.copy_to_host()
         if with_state:
             return out.reshape(self.shape), lg.copy_to_host().reshape(self.shape), var.copy_to_host().reshape(self.shape)
@@ -546,7 +585,7 @@ class CudaAKFEngine(_CudaEngine):
         variance from :attr:`ccount` (see :class:`.smoother._CarriedVariance`)."""
         cc, q, sa = (self.ccount, carried[0], carried[1]) if carried is not None else (self._empty(np.float32), 0.0,
                                                                                          0.0)
-        self.ck.k_akf_output_state32[_grid(self.n)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), out_l, out_p,
+        self.ck.k_akf_output_state32[_grid(self.n, self.stream)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), out_l, out_p,
                                                     cc, q, sa, self.n)
 
     def enable_count(self) -> None:
@@ -554,7 +593,7 @@ class CudaAKFEngine(_CudaEngine):
         self.ccount = self.cuda.to_device(np.zeros(self.n, np.float32))
 
     def reset_count(self) -> None:
-        self.ck.k_fill_f32[_grid(self.n)](self.ccount, np.float32(0.0), self.n)
+        self.ck.k_fill_f32[_grid(self.n, self.stream)](self.ccount, np.float32(0.0), self.n)
 
 
 class CudaCFEngine(_CudaEngine):
@@ -603,7 +642,7 @@ class CudaCFEngine(_CudaEngine):
                 if hit is None:
                     hit = (table, self.cuda.to_device(lf_l), self.cuda.to_device(al_l))
                     self._cache[key] = hit
-                self.ck.k_cf_load_lut[_grid(self.n)](self.C, self._dev(sc.code), int(sc.max_code), hit[1], hit[2],
+                self.ck.k_cf_load_lut[_grid(self.n, self.stream)](self.C, self._dev(sc.code), int(sc.max_code), hit[1], hit[2],
                                                      bool(reset_l), set_tu, tu, self.n)
                 self.k = k
                 return
@@ -616,7 +655,7 @@ class CudaCFEngine(_CudaEngine):
             alpha = np.ascontiguousarray(host._alpha(seg), dtype=np.float64).reshape(-1)
             self.k = k
         cuda = self.cuda
-        self.ck.k_cf_load[_grid(self.n)](self.C, cuda.to_device(lf), cuda.to_device(alpha), bool(reset_l),
+        self.ck.k_cf_load[_grid(self.n, self.stream)](self.C, cuda.to_device(lf), cuda.to_device(alpha), bool(reset_l),
                                          set_tu, tu, self.n)
 
     def start(self, t_start_us=None) -> int:
@@ -639,34 +678,34 @@ class CudaCFEngine(_CudaEngine):
 
     def switch(self) -> None:
         t_to = float(self.m.times_us[self.k + 1])
-        with _phase("switch"):
+        with PH.phase("switch", "parallel"):
             if self.mode == "direct":
                 self._columns(self.k + 1, True, t_to)
                 return
-            self.ck.k_cf_propagate[_grid(self.n)](self.C, t_to, self.n)
+            self.ck.k_cf_propagate[_grid(self.n, self.stream)](self.C, t_to, self.n)
             self._columns(self.k + 1, False, None)
 
     def _walk(self, dt, dx, dy, dp, a: int) -> None:
         pr = self.params
         gr = self.grouper
-        self.ck.k_cf_walk[_grid(self.n)](dt, dp, a, self.n, gr.start, gr.grp, self.C, pr.c_on, pr.c_off,
+        self.ck.k_cf_walk[_grid(self.n, self.stream)](dt, dp, a, self.n, gr.start, gr.grp, self.C, pr.c_on, pr.c_off,
                                          self.event_decay, self.con_px, self.coff_px)
 
     def _walk_res(self, dev, c0: int, wb: int) -> None:
         pr = self.params
         gr = self.grouper
-        self.ck.k_cf_walk_res[_grid(self.n)](dev.t, dev.p, c0, wb, self.n, gr.start, gr.grp, self._cur[0],
+        self.ck.k_cf_walk_res[_grid(self.n, self.stream)](dev.t, dev.p, c0, wb, self.n, gr.start, gr.grp, self._cur[0],
                                              self._cur[1], self.C, pr.c_on, pr.c_off, self.event_decay,
                                              self.con_px, self.coff_px)
 
     def output(self, t_us: int, with_state: bool = False):
         if self._lg is None:
             self._lg = self.cuda.device_array(self.n, np.float64)
-        with _phase("output_kernel"):
-            self.ck.k_cf_output[_grid(self.n)](self.C, float(t_us), self._lg, self.n)
-        with _phase("output_copy"):
+        with PH.phase("output_kernel", "parallel"):
+            self.ck.k_cf_output[_grid(self.n, self.stream)](self.C, float(t_us), self._lg, self.n)
+        with PH.phase("output_copy", "parallel"):
             lg = self._lg.copy_to_host()
-        with _phase("output_host_exp"):
+        with PH.phase("output_host_exp", "parallel"):
             out = (np.exp(lg) - self.offset).astype(np.float32)
         if with_state:
             return out.reshape(self.shape), lg.reshape(self.shape)
@@ -796,10 +835,10 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
 
     def fuse_one(l1, p1, l2, p2):
         """Fused linear image on the device (fusion, exp, clamp: _kernels.fuse_to_linear's steps)."""
-        with _phase("fuse_kernel"):
+        with PH.phase("fuse_kernel", "parallel"):
             CK.k_fill_i64[1, 32](counts, np.int64(0), 2)  # on the device: no host copy per output
             CK.k_fuse_linear[g](l1, p1, l2, p2, np.float32(offset), np.float32(K.MIN_INTENSITY), out, n_pix, counts)
-        with _phase("output_copy"):
+        with PH.phase("output_copy", "parallel"):
             img = out.copy_to_host()
             nz, ncl = (int(v) for v in counts.copy_to_host())
         if nz:
@@ -820,7 +859,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
         rev_host = reverse_events(events, mirror) if (needs_host or rev_dev is None) else None
         for eng, tr, carried in passes(rev_fr, rev_host, rev_dev, True, rev_times):
             i = index[int(mirror - tr)]
-            with _phase("backward_store"):
+            with PH.phase("backward_store", "parallel"):
                 lb = cuda.device_array(n_pix, np.float32)
                 pb = cuda.device_array(n_pix, np.float32)
                 eng.output_state32(tr, lb, pb, carried)
@@ -840,7 +879,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
             t = int(t)
             if nxt is not None and nxt[1] == t:
                 eng, _, carried = nxt
-                with _phase("forward_state32"):
+                with PH.phase("forward_state32", "parallel"):
                     eng.output_state32(t, lf, pf, carried)
                 if have_b[i]:
                     lb, pb = backward_of(i)

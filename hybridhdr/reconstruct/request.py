@@ -67,6 +67,14 @@ class Device:
     def is_cuda(self) -> bool:
         return self.kind == "cuda"
 
+    def naming_engine(self, method: str, mode: str, n_workers: int) -> "Device":
+        """This device, its line also naming the CPU engine that runs the AKF (row-band or
+        pixel-parallel, by the worker count: :func:`._pixel_engine.engine_line`)."""
+        if method != "akf" or self.is_cuda:
+            return self
+        from ._pixel_engine import engine_line
+        return Device(self.kind, self.line + engine_line(method, self.kind, n_workers, mode))
+
 
 def host_workers(on_gpu: bool, n_workers: int) -> int:
     """Threads for the host-side work around the filter (column split, output collection): the
@@ -153,6 +161,7 @@ class ReconstructRequest:
             raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
         _check_count("n_workers", n_workers)
         _check_count("chunk_events", chunk_events)
+        dev = dev.naming_engine(method, mode, int(n_workers))
         for name, v in (("t_start_us", t_start_us), ("t_end_us", t_end_us)):
             if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
                 raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")

@@ -210,12 +210,9 @@ class _StateEngine:
             var = np.empty(e.n, np.float32)
         else:
             lg, var = self.dest(int(t_us))
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
-                                                              lo * W, hi * W), e.n)
-        if tm is not None:
-            tm.add("output", c0, "parallel")
+        with PH.phase("output", "parallel"):
+            e._map_bands(lambda b, lo, hi: K.akf_output_state32(e._S, e.seg_t0, e.seg_inv_t, float(t_us), lg, var,
+                                                                  lo * W, hi * W), e.n)
         self.last = (lg, var)
         return lg
 
@@ -366,11 +363,8 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
                             prefetch=False):
             lg, var = eng.last
             if acc is not None:
-                tm = PH.ACTIVE
-                c0 = PH.now() if tm is not None else 0
-                var = acc.add_to(int(t), var, eng)
-                if tm is not None:
-                    tm.add("carried_variance", c0, "parallel")
+                with PH.phase("carried_variance", "parallel"):
+                    var = acc.add_to(int(t), var, eng)
             yield t, lg, var
     finally:
         eng.close()
@@ -402,14 +396,10 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     t_lo = min(int(events.t[0]) if len(events) else int(frames.t_start_us[0]), int(frames.t_start_us[0]))
     t_hi = max(int(events.t[-1]) if len(events) else int(frames.t_end_us[-1]), int(frames.t_end_us[-1]))
     mirror = t_lo + t_hi + 1  # reversed times stay in [t_lo, t_hi]
-    tm = PH.ACTIVE
-    c0 = PH.now() if tm is not None else 0
-    rev_ev = reverse_events(events, mirror, n_workers=int(n_workers or 1))
-    if tm is not None:
-        c0 = tm.add("reverse", c0, "parallel")
-    rev_fr = reverse_frames(frames, mirror)
-    if tm is not None:
-        tm.add("reverse_frames", c0, "serial")
+    with PH.phase("reverse", "parallel"):
+        rev_ev = reverse_events(events, mirror, n_workers=int(n_workers or 1))
+    with PH.phase("reverse_frames"):
+        rev_fr = reverse_frames(frames, mirror)
     times = np.asarray(times, dtype=np.int64)
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
     cv_b = cv_f = None
@@ -436,20 +426,17 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
 def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None, engine=None) -> np.ndarray:
     """The fused linear image (float32, flat) of two pass estimates; counts the clamped pixels.
     With ``engine`` (idle in the calling thread), each of its row bands fuses its own pixels."""
-    tm = PH.ACTIVE
-    c0 = PH.now() if tm is not None else 0
-    img = np.empty(lf.shape[0], np.float32)
-    if engine is None:
-        n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
-    else:
-        W = engine.shape[1]
-        n = sum(engine._map_bands(lambda b, lo, hi: K.fuse_to_linear(
-            lf[lo * W:hi * W], pf[lo * W:hi * W], lb[lo * W:hi * W], pb[lo * W:hi * W], offset, K.MIN_INTENSITY,
-            img[lo * W:hi * W]), lf.shape[0]))
-    if stats is not None:
-        stats["n_clamped"] += int(n)
-    if tm is not None:
-        tm.add("fuse", c0, "serial" if engine is None else "parallel")
+    with PH.phase("fuse", "serial" if engine is None else "parallel"):
+        img = np.empty(lf.shape[0], np.float32)
+        if engine is None:
+            n = K.fuse_to_linear(lf, pf, lb, pb, offset, K.MIN_INTENSITY, img)
+        else:
+            W = engine.shape[1]
+            n = sum(engine._map_bands(lambda b, lo, hi: K.fuse_to_linear(
+                lf[lo * W:hi * W], pf[lo * W:hi * W], lb[lo * W:hi * W], pb[lo * W:hi * W], offset, K.MIN_INTENSITY,
+                img[lo * W:hi * W]), lf.shape[0]))
+        if stats is not None:
+            stats["n_clamped"] += int(n)
     return img
 
 

@@ -324,8 +324,10 @@ def test_cli_device_line_and_run_json(rec_path, tmp_path, capsys):
     out = tmp_path / "d"
     assert _run([rec_path, "--out", out, "--device", "cpu", "--no-exr"]) == 0
     err = capsys.readouterr().err
-    assert [ln for ln in err.splitlines() if ln.startswith("device:")] == ["device: cpu (requested)"]
-    assert json.loads((out / "run.json").read_text())["device"] == "device: cpu (requested)"
+    # the AKF's line also names the CPU engine (one worker: the row-band engine's serial filter)
+    want = "device: cpu (requested); cpu engine: row-band (1 worker)"
+    assert [ln for ln in err.splitlines() if ln.startswith("device:")] == [want]
+    assert json.loads((out / "run.json").read_text())["device"] == want
     if cuda_unavailable_reason() is not None:
         assert _run([rec_path, "--out", tmp_path / "a", "--device", "auto", "--no-exr"]) == 0
         line = [ln for ln in capsys.readouterr().err.splitlines() if ln.startswith("device:")]

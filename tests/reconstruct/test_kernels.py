@@ -373,3 +373,30 @@ def test_lut_segment_equals_numpy_tables(jit, cens):
             assert cz.any() and (~cz).any()
             want_beta = np.where(cz, 0.0, want_beta)
         np.testing.assert_array_equal(out[3], want_beta)
+
+
+def test_pixel_functions_compile_for_another_target():
+    """The per-pixel arithmetic is one source compiled per target: compiled with an identity "jit"
+    (plain Python calling plain Python, as the CUDA simulator runs it) it gives the CPU kernels'
+    bits for an event step, a frame switch and an output."""
+    py = K.compile_pixel_functions(lambda f: f)
+    assert set(py) == {f.__name__ for f in K.PIXEL_FUNCTIONS}
+    rng = np.random.default_rng(5)
+    for _ in range(200):
+        lh, pp, la = rng.normal(0, 0.3), rng.uniform(0.005, 0.1), rng.normal(0, 0.3)
+        rinv, beta = rng.uniform(10, 1e4), (0.0 if rng.random() < 0.3 else rng.uniform(-0.5, 2.0))
+        klog = rinv * 0.1 / beta if beta else float(rng.choice([-1.0, 0.0, 1.0]))
+        args = (lh, pp, la, 1_000.0, int(rng.integers(1_000, 90_000)), int(rng.integers(0, 20_000)),
+                int(rng.integers(0, 20_000)), bool(rng.random() < 0.5), rinv, beta, klog, rng.uniform(-0.1, 0.2),
+                bool(rng.random() < 0.5), 0.0, 1e-5, 0.12, -0.09, 0.05, 0.03, 0.01, np.int64(10_000),
+                int(rng.integers(0, 2)))
+        assert K.akf_event_step(*args) == py["akf_event_step"](*args)
+        out = (lh, pp, la, rinv, beta, klog, 1_000.0, 60_000.0, 0.0, 1e-5)
+        assert K.output_pixel(*out) == py["output_pixel"](*out)
+    S = _akf_state(40, censored=True)
+    S2 = S.copy()
+    for pix in range(40):
+        a = (pix, True, 1_000.0, 1e-5, 50_000.0, 0.05, 0.1, 200.0, 0.3, float(pix % 3 - 1), 0.1, 0.08, True, 0.2)
+        K.akf_switch_pixel(S, *a)
+        py["akf_switch_pixel"](S2, *a)
+    np.testing.assert_array_equal(S, S2)

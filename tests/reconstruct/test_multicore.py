@@ -230,3 +230,21 @@ def test_threaded_carried_variance_count_gives_the_serial_bits(monkeypatch, n_wo
     got = reconstruct(rec, "akf", fps=30.0, n_workers=n_workers)
     assert calls, "the threaded count did not run"
     assert np.array_equal(got.frames, ref.frames) and got.info["n_clamped"] == ref.info["n_clamped"]
+
+
+def test_phase_context_manager_sync_and_nested_subtraction():
+    """One context manager times every phase: off it is a shared no-op; with ``sync`` (the GPU's
+    ``cuda.synchronize``) it calls it around the block and reports the host's share; ``less``
+    subtracts the nested phases of a kind (a wait that holds timed work)."""
+    import time
+    assert PH.phase("x") is PH.phase("y")  # no timer: the shared no-op
+    calls = []
+    with PH.timing(sync=lambda: calls.append(1)) as pt:
+        with PH.phase("outer", "serial", less="parallel"):
+            with PH.phase("inner", "parallel"):
+                time.sleep(0.02)
+    r = pt.report()["phases"]
+    assert len(calls) == 4  # around each of the two phases
+    assert r["inner"]["s"] >= 0.02 and 0.0 <= r["inner"]["host_s"] <= r["inner"]["s"]
+    assert r["outer"]["s"] < 0.02  # the nested parallel phase is not counted twice
+    assert PH.ACTIVE is None

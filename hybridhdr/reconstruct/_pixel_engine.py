@@ -1,0 +1,417 @@
+"""The pixel-parallel CPU engine of the AKF (private): the GPU's decomposition on CPU threads.
+
+The row-band engine (:class:`._engine.AKFEngine` with several workers) splits each batch of
+events by row band, and every batch hands off between the bands; at 8-16 workers those hand-offs
+and the memory traffic dominate. This engine takes the CUDA path's route instead
+(:mod:`._cuda_kernels`): the events of one window (between two breakpoints of the driver: frame
+switches, output times, chunk ends) are grouped by pixel, and each worker walks whole pixels,
+each pixel's events in stream order, with its state record in registers
+(:func:`walk_block`; the per-event step is :func:`._kernels.akf_event_step`, the function the
+serial kernel and the CUDA kernels compile). So the per-event arithmetic is the serial filter's,
+in the same order for every pixel, with the same inputs: the outputs are bit-identical to
+:class:`._engine.AKFEngine` for any window split and any number of workers.
+
+The isolated-pixel term's t* (eq. 2, §3.1.1: the latest event time in the 3×3 window before each
+event) is computed while grouping, not while walking: the grouping pass reads each block's events
+in stream order anyway, so it keeps the last-event times ``te`` as the serial filter does (nine
+independent loads per event) and stores each event's Δt to its pixel's previous event and to t*
+beside it in the group. The GPU reads t* from the neighbours' groups instead (a merge per pair
+of pixels); on a CPU core that merge is bound by the latency of its compare-and-advance chain
+(about 100 ns per event at 346x260, five times the whole serial filter), where the ``te`` loads
+overlap.
+
+One window, ``n`` events, ``w`` workers, ``B`` row blocks (contiguous rows; more blocks than
+workers, so the blocks are dealt out by their event counts):
+
+1. each worker counts the blocks' events in its ``1/w`` of the window (:func:`block_histogram`);
+   an event in a block's first (last) row also counts for the block above (below): it is that
+   block's *ghost row*, whose times its t* reads;
+2. each worker scatters its part's event indices into per-block lists, in stream order
+   (:func:`block_scatter`), and copies its blocks' two ghost rows of ``te`` (they change under
+   their owners in step 3);
+3. each worker groups its blocks' events by pixel (:func:`group_block`: a stable counting sort
+   over the block's pixels, in pixel order, with t* and the Δt computed on the way, the ghost
+   rows' events only moving the copies), then walks each block's pixels (:func:`walk_block`).
+
+Steps are separated by a barrier. With one worker there is one block and steps 1 and 2 are
+skipped. ``te`` is padded by one pixel (the serial filter's :func:`._kernels.padded_te`, int64
+absolute µs). Frame switches and outputs are the row-band engine's (one pass over the pixels,
+split by rows).
+"""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+from numba import njit
+
+from .._util import phases as PH
+from . import _kernels as K
+from ._engine import AKFEngine
+
+#: row blocks per worker: the blocks are dealt out to the workers by their events, so a few per
+#: worker balance clustered events (a bright object, a moving edge) without making blocks tiny
+BLOCKS_PER_WORKER = 8
+#: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
+#: most this many per event of the window (then the walk reads the state in address order)
+SCAN_PIXELS_PER_EVENT = 1
+
+
+@njit(cache=True, nogil=True)
+def block_histogram(y, j0, j1, block_of_row, edge_of_row, hist):
+    """``hist[b]`` = the events ``[j0, j1)`` block ``b`` reads: its rows' and its ghost rows'
+    (``edge_of_row`` bit 1: the row is also the ghost row of the block above, bit 2: below)."""
+    hist[:] = 0
+    for i in range(j0, j1):
+        r = y[i]
+        b = block_of_row[r]
+        hist[b] += 1
+        e = edge_of_row[r]
+        if e & 1:
+            hist[b - 1] += 1
+        if e & 2:
+            hist[b + 1] += 1
+    return j1 - j0
+
+
+@njit(cache=True, nogil=True)
+def block_scatter(y, a, j0, j1, block_of_row, edge_of_row, pos, out):
+    """Event indices (relative to the window start ``a``) of ``[j0, j1)`` into ``out`` at the write
+    position ``pos[b]`` (advanced) of every block that reads them, in stream order."""
+    for i in range(j0, j1):
+        r = y[i]
+        b = block_of_row[r]
+        v = np.int32(i - a)
+        e = edge_of_row[r]
+        if e & 1:
+            out[pos[b - 1]] = v
+            pos[b - 1] += 1
+        out[pos[b]] = v
+        pos[b] += 1
+        if e & 2:
+            out[pos[b + 1]] = v
+            pos[b + 1] += 1
+    return j1 - j0
+
+
+@njit(cache=True, nogil=True)
+def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, top, bot, gcnt, glo, ghi, rec, act):
+    """Group a block's events by pixel with each event's Δt and t*; returns the pixels with events.
+
+    The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
+    included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``.
+    Pixel ``q``'s group becomes rows ``[glo[q], ghi[q])`` of ``rec``, one record of three int64 per
+    event (one cache line for most, where four arrays would touch four): t_i, 2 (t_i - the
+    pixel's previous event time) + (1 if ON), and t_i - t*; in the block's range ``[e0, e1)``; the pixels with events are listed in ``act[e0:e0 + k]``, and
+    ``k`` is returned. ``te`` is the padded last-event-time
+    array (:func:`._kernels.padded_te`, absolute µs), updated in place for the block's rows; ``top``
+    and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and ``row_hi``,
+    which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for every pixel without events
+    (:func:`walk_block` restores that).
+    """
+    wp = width + 2
+    # the pixels with events in pixel order (a scan of the block's pixels) when the events are
+    # many enough to pay for it, else in the order of their first event (no pass over the pixels:
+    # a 1280x720 window of 300 k events has 3x as many pixels as events); the bits are the same
+    scan = (row_hi - row_lo) * width <= SCAN_PIXELS_PER_EVENT * (e1 - e0)
+    k = 0
+    for j in range(e0, e1):
+        i = j if identity else np.int64(ev[j])
+        r = np.int64(y[a + i])
+        if r >= row_lo and r < row_hi:
+            q = r * width + np.int64(x[a + i])
+            if not scan and gcnt[q] == 0:
+                act[e0 + k] = q
+                k += 1
+            gcnt[q] += 1
+    pos = np.int32(e0)
+    if scan:
+        for q in range(row_lo * width, row_hi * width):
+            c = gcnt[q]
+            if c != 0:
+                act[e0 + k] = q
+                k += 1
+                glo[q] = pos
+                ghi[q] = pos
+                pos += c
+    else:
+        for m in range(e0, e0 + k):
+            q = act[m]
+            glo[q] = pos
+            ghi[q] = pos
+            pos += gcnt[q]
+    for j in range(e0, e1):
+        i = j if identity else np.int64(ev[j])
+        r = np.int64(y[a + i])
+        c = np.int64(x[a + i])
+        ti = t[a + i]
+        if r < row_lo:
+            top[c + 1] = ti
+            continue
+        if r >= row_hi:
+            bot[c + 1] = ti
+            continue
+        tp = (r + 1) * wp + c + 1
+        up = top[c:c + 3] if r == row_lo else te[tp - wp - 1:tp - wp + 2]
+        dn = bot[c:c + 3] if r == row_hi - 1 else te[tp + wp - 1:tp + wp + 2]
+        te0 = te[tp]
+        tstar = max(max(max(up[0], up[1]), max(up[2], te[tp - 1])),
+                    max(max(te0, te[tp + 1]), max(max(dn[0], dn[1]), dn[2])))
+        q = r * width + c
+        g = ghi[q]
+        rec[g, 0] = ti
+        rec[g, 1] = 2 * (ti - te0) + np.int64(p[a + i] > 0)
+        rec[g, 2] = ti - tstar
+        ghi[q] = g + 1
+        te[tp] = ti
+    return k
+
+
+@njit(cache=True, nogil=True)
+def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso,
+               s_ref, rho_us, noise_form, con_px, coff_px):
+    """Walk the pixels ``act[m0:m1]`` (:func:`group_block`'s groups): each pixel's events in stream
+    order, each by :func:`._kernels.akf_event_step`, the state record in registers; then the
+    pixel's group bounds cleared. Returns the events walked."""
+    has_px = con_px.shape[0] > 0
+    n = 0
+    for m in range(m0, m1):
+        q = act[m]
+        lo = glo[q]
+        hi = ghi[q]
+        jump_on = con_px[q] if has_px else c_on
+        jump_off = -(coff_px[q] if has_px else c_off)
+        sl = S[q, K.A_L]
+        sp = S[q, K.A_P]
+        sla = S[q, K.A_LA]
+        stu = S[q, K.A_TU]
+        rinv = S[q, K.A_RINV]
+        beta = S[q, K.A_BETA]
+        klog = S[q, K.A_KLOG]
+        lastep = S[q, K.A_LASTEP]
+        for e in range(lo, hi):
+            ti = rec[e, 0]
+            v = rec[e, 1]
+            sl, sp, sla = K.akf_event_step(sl, sp, sla, stu, ti, v >> 1, rec[e, 2], (v & 1) != 0, rinv, beta, klog,
+                                           lastep, has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso,
+                                           s_ref, rho_us, noise_form)
+            stu = np.float64(ti)
+        S[q, K.A_L] = sl
+        S[q, K.A_P] = sp
+        S[q, K.A_LA] = sla
+        S[q, K.A_TU] = stu
+        gcnt[q] = 0
+        glo[q] = 0
+        ghi[q] = 0
+        n += hi - lo
+    return n
+
+
+def deal_blocks(weights: np.ndarray, n_workers: int) -> list[tuple[int, int]]:
+    """Contiguous ranges of blocks, one per worker, of about equal total ``weights`` (greedy on
+    the running sum): ``[(b0, b1), ...]``, possibly empty ranges at the end."""
+    nb = weights.shape[0]
+    cum = np.cumsum(weights, dtype=np.float64)
+    total = float(cum[-1]) if nb else 0.0
+    cuts = [0]
+    for w in range(1, n_workers):
+        c = int(np.searchsorted(cum, total * w / n_workers, side="left")) + 1 if total > 0 else (nb * w) // n_workers
+        cuts.append(min(max(c, cuts[-1]), nb))
+    cuts.append(nb)
+    return [(cuts[w], cuts[w + 1]) for w in range(n_workers)]
+
+
+class PixelAKFEngine(AKFEngine):
+    """:class:`._engine.AKFEngine` whose events are filtered pixel by pixel (module docstring): the
+    same interface, the same state and the same bits; frame switches and outputs are inherited."""
+
+    kind = "pixel-parallel"
+
+    def __init__(self, shape, measurements, params, n_workers: int = 1):
+        super().__init__(shape, measurements, params, n_workers)
+        H, W = self.shape
+        n = self.n
+        self.te_px = K.padded_te(H, W, 0, np.int64)  # last event times, absolute µs
+        self.gcnt = np.zeros(n, np.int32)
+        self.glo = np.zeros(n, np.int32)
+        self.ghi = np.zeros(n, np.int32)
+        # one worker per row band of the base engine (its pool: fewer than n_workers on a sensor
+        # with fewer rows than workers)
+        self._nw = nw = len(self.bands)
+        nb = max(1, min(H, nw * BLOCKS_PER_WORKER)) if nw > 1 else 1
+        edges = np.round(np.linspace(0, H, nb + 1)).astype(np.int64)
+        self.block_rows = edges  # block b: rows [edges[b], edges[b + 1])
+        self.block_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
+        self.edge_of_row = np.zeros(H, np.uint8)
+        for b in range(nb):
+            if b > 0:
+                self.edge_of_row[edges[b]] |= 1  # the ghost row below block b - 1
+            if b + 1 < nb:
+                self.edge_of_row[edges[b + 1] - 1] |= 2  # the ghost row above block b + 1
+        self.ghost = np.zeros((nb, 2, W + 2), np.int64)  # each block's copies of its ghost rows
+        self.n_blocks = nb
+        self._cap = 0
+        self._barrier = threading.Barrier(nw) if nw > 1 else None
+
+    def _int32_te(self) -> list:
+        return []  # the row-band engine's per-band arrays are not used here
+
+    def _start_band_te(self, b: int) -> None:
+        return None
+
+    def _te_fit(self, t_first: int, t_last: int) -> None:
+        return None  # int64 absolute times throughout
+
+    def start(self, t_start_us=None) -> int:
+        t_init = super().start(t_start_us)
+        self.te_px[:] = t_init
+        return t_init
+
+    def _buffers(self, n: int):
+        if self._cap < n:
+            cap = max(n, 2 * self._cap, 1 << 16)
+            if cap >= 1 << 31:
+                raise ValueError(f"a window of {n} events is too large for the pixel-parallel engine (< 2**31)")
+            self._bufs_px = (np.empty(cap, np.int32), np.empty(cap, np.int64), np.empty((cap, 3), np.int64))
+            self._cap = cap
+        return self._bufs_px
+
+    def _map_workers(self, fn) -> list:
+        """``fn(w)`` for each worker ``w``, the last in the calling thread (as ``_map_bands``); a
+        failing worker breaks the barrier, so the others stop too."""
+        nw = self._nw
+        if nw == 1:
+            return [fn(0)]
+        bar = self._barrier
+
+        def run(w):
+            try:
+                return fn(w)
+            except BaseException:
+                bar.abort()  # the others leave their barrier with BrokenBarrierError
+                raise
+        futs = [self._pool.submit(run, w) for w in range(nw - 1)]
+        errors = []
+        try:
+            last = run(nw - 1)
+        except BaseException as e:  # noqa: BLE001 - re-raised once every worker has stopped
+            errors.append(e)
+        out = []
+        for f in futs:
+            try:
+                out.append(f.result())
+            except BaseException as e:  # noqa: BLE001
+                errors.append(e)
+        if errors:
+            self._barrier.reset()
+            raise next((e for e in errors if not isinstance(e, threading.BrokenBarrierError)), errors[0])
+        return out + [last]
+
+    def process(self, t, x, y, p, i0, i1) -> None:
+        if i1 <= i0:
+            return
+        if self._pending is not None:
+            with PH.phase("switch", "parallel"):
+                self._flush()  # the pending frame switch, by row bands
+        pr = self.params
+        H, W = self.shape
+        wp = W + 2
+        n = i1 - i0
+        args = (self.S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+                pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
+                self.con_px, self.coff_px)
+        te, gcnt, glo, ghi, ghost = self.te_px, self.gcnt, self.glo, self.ghi, self.ghost
+        if self._nw == 1:
+            ev, act, rec = self._buffers(n)
+            with PH.phase("filter", "parallel"):
+                # one block, all rows: its ghost rows are te's padding (never written)
+                k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, te[0:wp], te[(H + 1) * wp:], gcnt, glo,
+                                ghi, rec, act)
+                self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
+            return
+        nw, nb = self._nw, self.n_blocks
+        parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
+        hist = np.zeros((nw, nb), np.int64)
+        bor, eor, brow = self.block_of_row, self.edge_of_row, self.block_rows
+        bar = self._barrier
+        shared: dict = {}
+
+        def worker(w):
+            with PH.phase("worker_histogram", "worker"):
+                block_histogram(y, parts[w], parts[w + 1], bor, eor, hist[w])
+            with PH.phase("worker_wait", "worker"):
+                bar.wait()
+            if w == nw - 1:  # the calling thread: block offsets, buffers, the blocks dealt out by events
+                tot = hist.sum(axis=0)
+                bstart = np.zeros(nb + 1, np.int64)
+                np.cumsum(tot, out=bstart[1:])
+                pos = bstart[:-1][None, :] + np.cumsum(hist, axis=0) - hist
+                shared.update(bstart=bstart, pos=np.ascontiguousarray(pos), deal=deal_blocks(tot, nw),
+                              bufs=self._buffers(int(bstart[-1])))
+            with PH.phase("worker_wait", "worker"):
+                bar.wait()
+            bstart, deal = shared["bstart"], shared["deal"]
+            ev, act, rec = shared["bufs"]
+            b0, b1 = deal[w]
+            with PH.phase("worker_scatter", "worker"):
+                block_scatter(y, i0, parts[w], parts[w + 1], bor, eor, shared["pos"][w], ev)
+                for b in range(b0, b1):  # the ghost rows as they are before any block moves its own
+                    ghost[b, 0] = te[brow[b] * wp:(brow[b] + 1) * wp]
+                    ghost[b, 1] = te[(brow[b + 1] + 1) * wp:(brow[b + 1] + 2) * wp]
+            with PH.phase("worker_wait", "worker"):
+                bar.wait()
+            m = 0
+            with PH.phase("worker_group_walk", "worker"):
+                for b in range(b0, b1):
+                    e0, e1 = bstart[b], bstart[b + 1]
+                    k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, brow[b], brow[b + 1], te, ghost[b, 0],
+                                    ghost[b, 1], gcnt, glo, ghi, rec, act)
+                    m += walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
+            return m
+
+        with PH.phase("filter", "parallel"):
+            self.n_events += int(sum(self._map_workers(worker)))
+
+
+#: the worker count from which :func:`cpu_akf_engine` picks the pixel-parallel engine: the
+#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores the pixel
+#: engine ran at 0.4-0.6x the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720,
+#: forward and two-sided: its grouping pass costs about as much as the walk); the row-band engine's
+#: speed-up stops growing past 8 workers (3.3x at 8, 2.8x at 16 at 1280x720 forward on a 16-core
+#: host) where the pixel engine has no hand-off to lose, so the crossing is expected between 4 and
+#: 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
+PIXEL_MIN_WORKERS = 8
+ENGINES = ("auto", "row-band", "pixel-parallel")
+#: the engine ``reconstruct`` uses ("auto": by the worker count; a benchmark sets one to compare)
+ENGINE = "auto"
+
+
+def engine_kind(n_workers: int, engine: str | None = None) -> str:
+    """"row-band" or "pixel-parallel": ``engine`` (default :data:`ENGINE`), "auto" resolved by
+    :data:`PIXEL_MIN_WORKERS`."""
+    engine = ENGINE if engine is None else engine
+    if engine not in ENGINES:
+        raise ValueError(f"engine must be one of {ENGINES}, got {engine!r}")
+    if engine == "auto":
+        return "pixel-parallel" if int(n_workers) >= PIXEL_MIN_WORKERS else "row-band"
+    return engine
+
+
+def cpu_akf_engine(shape, measurements, params, n_workers: int = 1, engine: str | None = None) -> AKFEngine:
+    """The AKF's CPU engine for ``n_workers`` (:func:`engine_kind`): :class:`._engine.AKFEngine`
+    or :class:`PixelAKFEngine`. Both give the same bits; ``engine.kind`` says which ran."""
+    cls = PixelAKFEngine if engine_kind(n_workers, engine) == "pixel-parallel" else AKFEngine
+    return cls(shape, measurements, params, n_workers)
+
+
+def engine_line(method: str, device: str, n_workers: int, mode: str = "forward") -> str:
+    """``"; cpu engine: ..."``, which CPU engine runs the AKF with ``n_workers`` in ``mode`` (the
+    two-sided filter's passes run at once with half the workers each), else "" (another method
+    or device); appended to the device line a run reports."""
+    if method != "akf" or device != "cpu":
+        return ""
+    nw = int(n_workers)
+    passes = [(nw + 1) // 2, nw // 2] if mode == "offline" and nw >= 2 else [nw]
+    text = ", ".join(f"{engine_kind(w)} ({w} worker{'s' if w != 1 else ''})" for w in passes)
+    return f"; cpu engine: {text}" + (" (backward and forward pass at once)" if len(passes) == 2 else "")
