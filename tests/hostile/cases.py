@@ -994,9 +994,20 @@ def convert_ecd_user_folder_named_partial(d):
 
 @case("partial", "ok")
 def convert_after_a_killed_run_left_partial(d):
-    (d / "out.h5.partial").write_bytes(b"half a file")  # no live writer holds it: stale
+    part = d / "out.h5.partial"
+    part.write_bytes(b"half a file")  # no live writer holds it: stale
+    os.setxattr(part, "user.hybridhdr.partial", b"pid 999999999 host x")  # the mark a writer of ours puts on it
     argv = ["convert", str(_container(d / "r.h5")), str(d / "out.h5")]
     return argv, lambda out: ((d / "out.h5").is_file() and not (d / "out.h5.partial").exists(), out[-300:])
+
+
+@case("partial")
+def convert_user_file_named_partial(d):
+    user = d / "out.h5.partial"
+    user.write_text("my notes")  # a user's own file: never taken for an interrupted run's
+    argv = ["convert", str(_container(d / "r.h5")), str(d / "out.h5")]
+    return argv, lambda out: (user.read_text() == "my notes" and not (d / "out.h5").exists(),
+                              "the user's file was deleted")
 
 
 @case("partial", "ok")
