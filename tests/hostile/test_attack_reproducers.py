@@ -197,3 +197,182 @@ def test_overwrite_commit_is_all_or_nothing_under_sigterm(tmp_path):
     assert names == sorted([f"frame_{i:02d}.txt" for i in range(20)] + ["timestamps.txt", "run.json", "notes.md"])
     assert all((out / n).read_text() == ("mine" if n == "notes.md" else "new") for n in names)
     assert not (tmp_path / "o.partial").exists()
+
+
+# -- the bench: one --out, orphans, --resume, tampered run files, the headline ---------------------
+_BENCH = """[bench]
+name = "t"
+jod = false
+warmup = false
+strips = 2
+
+[[datasets]]
+kind = "procedural"
+width = 32
+height = 24
+duration_us = 60000
+grid = { noise_rate_hz = [SEEDS] }
+
+[[methods]]
+method = "highpass"
+"""
+
+
+def _bench_file(d, seeds=(0,)):
+    b = d / "b.toml"
+    b.write_text(_BENCH.replace("SEEDS", ", ".join(f"{float(s):.1f}" for s in seeds)))
+    return b
+
+
+def test_two_benches_on_one_out_are_refused(tmp_path, capsys):
+    from hybridhdr.evaluate.bench import claim_bench_out
+    out = tmp_path / "o"
+    argv = ["evaluate", "bench", _bench_file(tmp_path, (0, 1)), "--out", out, "--workers", "0", "--no-progress"]
+    assert _run(argv, capsys)[0] == 0
+    first = sorted(p.name for p in (out / "strips").iterdir())
+    assert len(first) == 2
+    rc, _, err = _run(argv, capsys)  # a second bench on the same non-empty --out
+    assert rc == 1 and "--overwrite" in err
+    # a bench running there now (it holds the lock): refused even with --overwrite
+    fd = claim_bench_out(tmp_path / "busy")
+    try:
+        rc, _, err = _run([*argv[:4], tmp_path / "busy", *argv[5:], "--overwrite"], capsys)
+        assert rc == 1 and "another running bench" in err
+    finally:
+        os.close(fd)
+    # --overwrite with another bench: its report, and no strip of the first beside it
+    argv2 = ["evaluate", "bench", _bench_file(tmp_path, (5,)), "--out", out, "--workers", "0", "--no-progress",
+             "--overwrite"]
+    assert _run(argv2, capsys)[0] == 0
+    assert len(list((out / "strips").iterdir())) == 1
+
+
+def test_resume_digests_the_data_not_the_path(tmp_path):
+    from hybridhdr.evaluate import bench as B
+    p = _rec(tmp_path / "d.h5", seed=1)
+    task = ("d", {"kind": "file", "path": str(p)}, {}, [])
+    k1 = B._task_key(task, {"seed": 0})
+    _rec(tmp_path / "d.h5", seed=2)  # same name, other data
+    assert B._task_key(task, {"seed": 0}) != k1
+
+
+def _load_in_thread(fn, *args, timeout=10.0):
+    import threading
+    box = {}
+    t = threading.Thread(target=lambda: box.setdefault("v", fn(*args)), daemon=True)
+    t.start()
+    t.join(timeout)
+    assert not t.is_alive(), "hung"
+    return box.get("v", "raised")
+
+
+@pytest.mark.parametrize("tamper", ["made_up_values", "fifo", "dev_zero", "deep_json", "list_value", "npz_fifo"])
+def test_tampered_run_files_are_run_again(tmp_path, tamper):
+    from hybridhdr.evaluate import bench as B
+    rows = [{"dataset": "d", "status": "ok", "mse": 0.01, "ssim": 0.9, "_strip": {"a": np.zeros((4, 4))}}]
+    B._save_task(tmp_path, 0, "k", rows)
+    f = tmp_path / "task_00000.json"
+    if tamper == "made_up_values":
+        f.write_text(json.dumps({"key": "k", "task": 0, "rows": [{"dataset": "d", "status": "ok", "mse": -5.0,
+                                                                 "ssim": 7.0}]}))
+    elif tamper == "fifo":
+        f.unlink()
+        os.mkfifo(f)
+    elif tamper == "dev_zero":
+        f.unlink()
+        os.symlink("/dev/zero", f)
+    elif tamper == "deep_json":
+        f.write_text('{"key": "k", "rows": ' + "[" * 5000 + "]" * 5000 + "}")
+    elif tamper == "list_value":
+        f.write_text(json.dumps({"key": "k", "rows": [{"dataset": "d", "status": "ok", "mse": [1] * 10}]}))
+    elif tamper == "npz_fifo":
+        z = tmp_path / "task_00000.npz"
+        z.unlink()
+        os.mkfifo(z)
+    assert _load_in_thread(B._load_task, tmp_path, 0, "k") is None
+
+
+def test_results_csv_quotes_cells_a_spreadsheet_would_run(tmp_path):
+    from hybridhdr.evaluate import bench as B
+    rows = [{"task": 0, "run": 0, "dataset": "=cmd|' /C calc'!A0", "status": "ok", "mse": -0.0,
+             "ds.=HYPERLINK(\"x\")": "@SUM(1)", "method_label": "+1"}]
+    B.write_results(rows, tmp_path, None, charts=False)
+    import csv
+    with open(tmp_path / "results.csv", newline="", encoding="utf-8") as fh:
+        cells = [c for line in csv.reader(fh) for c in line]
+    assert not any(c[:1] in ("=", "+", "@") for c in cells), cells
+    assert "-0.0" in cells  # numbers stay numbers
+
+
+def test_stability_headline_is_not_carried_by_blown_up_runs():
+    from hybridhdr.evaluate.report import akf_vs_cf, akf_vs_cf_text, summary_table
+    rows = []
+    for ds, (akf, cf) in {"a": (0.010, 0.020), "b": (0.002, 0.004), "c": (0.05, 0.1)}.items():
+        for k in range(3):
+            rows.append({"dataset": ds, "method_label": "akf", "status": "ok", "mse": akf, "ssim": 0.8,
+                         "log_mse": akf, "log_ssim": 0.8, "pu_ssim": 0.8, "n_nonfinite": 0})
+            rows.append({"dataset": ds, "method_label": "cf", "status": "ok", "mse": cf, "ssim": 0.7,
+                         "log_mse": cf, "log_ssim": 0.7, "pu_ssim": 0.7, "n_nonfinite": 0})
+    rows.append({"dataset": "a", "method_label": "akf", "status": "ok", "mse": 1.4e29, "ssim": 0.0,
+                 "log_mse": 50.0, "log_ssim": 0.0, "pu_ssim": 0.0, "n_nonfinite": 0})  # diverged, finite
+    c = akf_vs_cf(rows)
+    assert c["mse_reduction_pct"] == pytest.approx(50.0)  # AKF half of CF on every dataset
+    assert c["akf_failed"] == 1 and c["akf_runs"] == 10 and c["cf_failed"] == 0
+    assert "higher" not in akf_vs_cf_text(c) and "1/10" in akf_vs_cf_text(c)
+    a = {s["dataset"]: s for s in summary_table(rows) if s["method"] == "akf"}
+    assert a["a"]["blown_up"] == 1 and a["a"]["mse"] == pytest.approx(0.01) and a["a"]["ok"] == 3
+
+
+_BENCH_KILL = r"""
+import sys
+from hybridhdr.cli import main
+sys.exit(main(["evaluate", "bench", sys.argv[1], "--out", sys.argv[2], "--workers", "2", "--no-progress"]))
+"""
+
+
+def _descendants(pid):
+    kids = {}
+    for d in Path("/proc").iterdir():
+        if d.name.isdigit():
+            try:
+                ppid = int((d / "stat").read_text().rsplit(")", 1)[1].split()[1])
+            except (OSError, IndexError, ValueError):
+                continue
+            kids.setdefault(ppid, []).append(int(d.name))
+    out, todo = [], [pid]
+    while todo:
+        for c in kids.get(todo.pop(), []):
+            out.append(c)
+            todo.append(c)
+    return out
+
+
+def _alive(pid):
+    try:
+        st = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+        return st != "Z"
+    except OSError:
+        return False
+
+
+def test_kill9_of_a_bench_with_workers_leaves_no_process(tmp_path):
+    proc = _child(_BENCH_KILL, _bench_file(tmp_path, tuple(range(8))), tmp_path / "o")
+    helpers = []
+    t_end = time.monotonic() + 120
+    while time.monotonic() < t_end:  # the forkserver, the resource tracker and two workers
+        helpers = _descendants(proc.pid)
+        if len(helpers) >= 4:
+            break
+        time.sleep(0.2)
+    assert len(helpers) >= 4, helpers
+    time.sleep(1.0)
+    helpers = _descendants(proc.pid)
+    proc.kill()
+    proc.communicate()
+    t_end = time.monotonic() + 20
+    while time.monotonic() < t_end and any(_alive(p) for p in helpers):
+        time.sleep(0.2)
+    left = [p for p in helpers if _alive(p)]
+    for p in left:  # never leave them to the next test
+        os.kill(p, signal.SIGKILL)
+    assert not left, f"left running after kill -9: {left}"
