@@ -47,15 +47,24 @@ def die_with_process(pid: int, period_s: float = 0.5) -> None:
     command (a multiprocessing forkserver's child), a daemon thread polls the command's pid."""
     pid = int(pid)
 
+    def _gone() -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:
+            return False
+        try:  # killed but not yet reaped by its parent (a zombie) is gone too
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                return f.read().rsplit(b")", 1)[1].split()[0] == b"Z"
+        except (OSError, IndexError):
+            return False
+
     def _watch():
         import time
         while True:
-            try:
-                os.kill(pid, 0)
-            except ProcessLookupError:
+            if _gone():
                 os._exit(1)
-            except PermissionError:
-                pass
             time.sleep(period_s)
     threading.Thread(target=_watch, name="hybridhdr-command-watch", daemon=True).start()
 

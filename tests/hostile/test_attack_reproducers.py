@@ -46,8 +46,9 @@ def _run(argv, capsys):
 
 def _child(code: str, *args, **kw):
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
-    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=REPO, env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
+    kw.setdefault("stdout", subprocess.PIPE)
+    kw.setdefault("stderr", subprocess.PIPE)
+    return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=REPO, env=env, text=True, **kw)
 
 
 # -- data loss and inputs overwritten --------------------------------------------------------------
@@ -356,7 +357,8 @@ def _alive(pid):
 
 
 def test_kill9_of_a_bench_with_workers_leaves_no_process(tmp_path):
-    proc = _child(_BENCH_KILL, _bench_file(tmp_path, tuple(range(8))), tmp_path / "o")
+    proc = _child(_BENCH_KILL, _bench_file(tmp_path, tuple(range(8))), tmp_path / "o",
+                  stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     helpers = []
     t_end = time.monotonic() + 120
     while time.monotonic() < t_end:  # the forkserver, the resource tracker and two workers
@@ -368,7 +370,7 @@ def test_kill9_of_a_bench_with_workers_leaves_no_process(tmp_path):
     time.sleep(1.0)
     helpers = _descendants(proc.pid)
     proc.kill()
-    proc.communicate()
+    proc.wait()
     t_end = time.monotonic() + 20
     while time.monotonic() < t_end and any(_alive(p) for p in helpers):
         time.sleep(0.2)
