@@ -135,10 +135,8 @@ def _check_codes(fr: Frames, prof) -> None:
     im = fr.images
     if im.dtype.kind not in "ui":
         raise TypeError(f"overexpose needs integer frame codes (uint8, uint16), got frames of dtype {im.dtype}")
-    top = int(im.max()) if im.size else 0
-    if top > prof.max_code:
-        raise ValueError(f"frame codes reach {top} but the camera profile {prof.name!r} stops at code "
-                         f"{prof.max_code}; give the frames' profile (--profile)")
+    from ..camera.profile import check_codes_in_profile
+    check_codes_in_profile(im, prof)
 
 
 def _encode(prof, intensity) -> np.ndarray:
