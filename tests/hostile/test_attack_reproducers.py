@@ -378,3 +378,174 @@ def test_kill9_of_a_bench_with_workers_leaves_no_process(tmp_path):
     for p in left:  # never leave them to the next test
         os.kill(p, signal.SIGKILL)
     assert not left, f"left running after kill -9: {left}"
+
+
+# -- sensor profiles: physics bounds, an event budget, signals honoured -----------------------------
+def _profile(path, **params):
+    d = {"format": "hybridhdr-sensor-profile", "version": 1, "name": "x", "sensor": {}, "simulator_params": params,
+         "estimates": {}, "provenance": {}}
+    path.write_text(json.dumps(d))
+    return path
+
+
+@pytest.mark.parametrize("params", [{"photoreceptor_cutoff_hz": 1e308},
+                                    {"contrast_threshold_on": 1e-300, "contrast_threshold_off": 1e-300,
+                                     "refractory_period_us": 0},
+                                    {"shot_noise_rate_hz": 1e300}, {"refractory_period_us": 10**30}])
+def test_sensor_profile_values_are_bounded_by_physics(tmp_path, params):
+    from hybridhdr.formats.sensor_profile import SensorProfileError, load_sensor_profile
+    from hybridhdr.simulate.sensor import EventSensorParams
+    with pytest.raises(SensorProfileError, match="physical range"):
+        load_sensor_profile(_profile(tmp_path / "p.json", **params))
+    with pytest.raises(ValueError, match="physical range"):
+        EventSensorParams(**{"min_threshold": 1e-300, **params})
+
+
+def test_simulator_event_budget_is_checked_before_the_kernel(monkeypatch):
+    from hybridhdr._util import limits
+    from hybridhdr.simulate.sensor import EventSensor, EventSensorParams
+    s = EventSensor((8, 8), EventSensorParams(contrast_threshold_on=1e-4, contrast_threshold_off=1e-4,
+                                              min_threshold=1e-4), seed=0)
+    s.start(0, np.full((8, 8), 1e-3))
+    monkeypatch.setitem(limits.LIMITS, "max_events", 100_000)
+    t0 = time.perf_counter()
+    with pytest.raises(limits.LimitExceeded, match="budget"):
+        s.step(1000, np.full((8, 8), 1e3))  # 13.8 log units / 1e-4 = 138,000 crossings a pixel
+    assert time.perf_counter() - t0 < 5
+    with limits.allow_huge():  # lifted: it runs, and the events are all there
+        ev = s.step(1000, np.full((8, 8), 1e3))
+    assert len(ev) == 64 * int(np.log((1e3 + 1e-3) / (1e-3 + 1e-3)) / 1e-4)
+
+
+_SIM_SIGTERM = r"""
+import sys, numpy as np
+from hybridhdr._util.limits import allow_huge
+from hybridhdr._util.procs import signals_exit
+from hybridhdr.simulate.sensor import EventSensor, EventSensorParams
+s = EventSensor((8, 8), EventSensorParams(contrast_threshold_on=1e-4, contrast_threshold_off=1e-4,
+                                          min_threshold=1e-4), seed=0)
+s.start(0, np.full((8, 8), 1e-3))
+print("start", flush=True)
+with signals_exit(), allow_huge():
+    for k in range(1, 100000):  # about 9e6 crossings a step, for minutes
+        s.step(k * 1000, np.full((8, 8), 1e3 if k % 2 else 1e-3))
+"""
+
+
+def test_a_step_with_many_crossings_is_split_so_signals_act(monkeypatch):
+    """A compiled kernel cannot take a signal: no call may walk more than MAX_CROSSINGS_PER_CALL."""
+    from hybridhdr.simulate import _kernels as K
+    from hybridhdr.simulate import sensor as S
+    from hybridhdr.simulate.sensor import EventSensor, EventSensorParams
+    monkeypatch.setattr(S, "MAX_CROSSINGS_PER_CALL", 1 << 16, raising=False)
+    calls = []
+    real = K.crossings
+
+    def counting(*a):
+        if not a[13]:  # the counting pass of each call
+            calls.append(1)
+        return real(*a)
+    monkeypatch.setattr(K, "crossings", counting)
+    s = EventSensor((4, 4), EventSensorParams(contrast_threshold_on=1e-4, contrast_threshold_off=1e-4,
+                                              min_threshold=1e-4), seed=0)
+    s.start(0, np.full((4, 4), 1e-3))
+    ev = s.step(1000, np.full((4, 4), 1e3))  # 16 x 138,000 crossings
+    assert len(ev) > 2_000_000 and len(calls) >= len(ev) // (1 << 16)
+    assert np.all(np.diff(ev["t"]) >= 0)
+
+
+@pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT])
+def test_crossing_kernel_honours_sigterm_and_sigint(sig):
+    proc = _child(_SIM_SIGTERM)
+    assert proc.stdout.readline().strip() == "start"
+    time.sleep(3.0)  # inside the kernel by now
+    t0 = time.monotonic()
+    proc.send_signal(sig)
+    try:
+        proc.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        proc.kill()
+        proc.communicate()
+        pytest.fail(f"{signal.Signals(sig).name} ignored for 30 s")
+    assert proc.returncode != 0 and time.monotonic() - t0 < 30
+
+
+# -- unbounded reads, deep JSON, thresholds maps -----------------------------------------------------
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "deep", "big"])
+def test_sensor_profile_read_is_bounded(tmp_path, kind):
+    from hybridhdr.formats.sensor_profile import SensorProfileError, load_sensor_profile
+    p = tmp_path / "p.json"
+    if kind == "fifo":
+        os.mkfifo(p)
+    elif kind == "dev_zero":
+        os.symlink("/dev/zero", p)
+    elif kind == "deep":
+        p.write_text("[" * 5000 + "]" * 5000)
+    else:
+        p.write_text(" " * (2 << 20) + "{}")
+    assert _load_in_thread(_raises(load_sensor_profile, SensorProfileError), p) == "refused"
+
+
+def _raises(fn, exc):
+    def call(*a):
+        try:
+            return fn(*a)
+        except exc:
+            return "refused"
+    return call
+
+
+def _npz_declaring(path, shape):
+    import io
+    import zipfile
+    hdr = io.BytesIO()
+    np.lib.format.write_array_header_1_0(hdr, {"descr": "<f8", "fortran_order": False, "shape": shape})
+    with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("c_on.npy", "w", force_zip64=True) as f:
+            f.write(hdr.getvalue())
+            f.write(b"\0" * (7 << 20))  # 7 MB of zeros: deflates to a few kB
+    return path
+
+
+@pytest.mark.parametrize("kind", ["30000_square", "zip_magic_only", "fifo", "c_1e308", "c_1e-300"])
+def test_thresholds_npz_is_checked_before_allocation(tmp_path, kind):
+    from hybridhdr.formats.thresholds import load_thresholds
+    p = tmp_path / "t.npz"
+    if kind == "30000_square":
+        _npz_declaring(p, (30000, 30000))
+    elif kind == "zip_magic_only":
+        p.write_bytes(b"PK\x03\x04" + os.urandom(200))
+    elif kind == "fifo":
+        os.mkfifo(p)
+    else:
+        c = 1e308 if kind == "c_1e308" else 1e-300
+        np.savez(p, format=np.array("hybridhdr-thresholds"), version=np.array(1), c_on=np.full((24, 32), c),
+                 c_off=np.full((24, 32), 0.2), fallback_on=np.array(0.2), fallback_off=np.array(0.2))
+    import resource
+    r0 = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    assert _load_in_thread(_raises(load_thresholds, ValueError), p) == "refused"
+    assert resource.getrusage(resource.RUSAGE_SELF).ru_maxrss - r0 < 500_000  # kB: never the 6.7 GB it declares
+
+
+def test_reconstruct_with_huge_threshold_map_writes_no_inf_frame(tmp_path, capsys):
+    p = _rec(tmp_path / "r.h5", frames=_frames())
+    t = tmp_path / "t.npz"
+    np.savez(t, format=np.array("hybridhdr-thresholds"), version=np.array(1), c_on=np.full((24, 32), 1e308),
+             c_off=np.full((24, 32), 1e308), fallback_on=np.array(0.2), fallback_off=np.array(0.2))
+    rc, _, err = _run(["reconstruct", p, "--out", tmp_path / "o", "--fps", "20", "--thresholds", t, "--no-progress"],
+                      capsys)
+    assert rc != 0 and "contrast threshold" in err and not (tmp_path / "o").exists()
+
+
+def test_16bit_frames_without_a_profile_are_refused_by_reconstruct(tmp_path, capsys):
+    p = _rec(tmp_path / "r.h5", frames=_frames(dtype=np.uint16, value=40000))
+    rc, _, err = _run(["reconstruct", p, "--out", tmp_path / "o", "--fps", "20", "--no-progress"], capsys)
+    assert rc != 0 and "frame codes reach 40000" in err and not (tmp_path / "o").exists()
+
+
+def test_reconstruct_quiet_still_prints_its_error(tmp_path):
+    p = _rec(tmp_path / "r.h5")  # no frames: the AKF needs them
+    env = dict(os.environ, PYTHONPATH=str(REPO))
+    r = subprocess.run([sys.executable, "-m", "hybridhdr", "reconstruct", str(p), "--out", str(tmp_path / "o"),
+                        "--fps", "10", "-q"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
+    assert r.returncode != 0 and "error:" in r.stderr and "needs frames" in r.stderr, r.stderr
