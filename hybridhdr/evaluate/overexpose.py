@@ -476,6 +476,13 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                          f"event, k >= 1 so that an earlier frame exists)")
     if len(set(scored)) != len(scored) or scored != sorted(scored):
         raise ValueError(f"scored frames must be increasing and distinct, got {scored}")
+    mid_all = rec.frames.t_mid_us[kept]
+    for k in scored:  # a held-out frame is predicted from the others: none may share its instant
+        same = [int(j) for j in np.flatnonzero(mid_all == mid_all[k]) if j != k]
+        if same:
+            raise ValueError(f"frame {k} has the mid-exposure time {int(mid_all[k])} µs of frame(s) {same[:5]}: a "
+                             f"held-out frame cannot be scored at an instant another input frame covers (the "
+                             f"recording's frame times are not distinct instants)")
     fr_all = rec.frames.select(kept)
     rec_k = Recording(rec.events, rec.sensor_size, fr_all, rec.triggers, None, rec.metadata)
     prof = _frames_profile(rec_k, profile)

@@ -549,3 +549,72 @@ def test_reconstruct_quiet_still_prints_its_error(tmp_path):
     r = subprocess.run([sys.executable, "-m", "hybridhdr", "reconstruct", str(p), "--out", str(tmp_path / "o"),
                         "--fps", "10", "-q"], cwd=REPO, env=env, capture_output=True, text=True, timeout=300)
     assert r.returncode != 0 and "error:" in r.stderr and "needs frames" in r.stderr, r.stderr
+
+
+# -- frame times the model accepts -------------------------------------------------------------------
+def test_sorted_starts_with_unsorted_mid_exposures_reconstruct(tmp_path, capsys):
+    ts = np.array([0, 30_000, 40_000, 90_000, 120_000, 150_000])
+    te = ts + 5_000
+    te[1] = 80_000  # a long exposure: its mid (55 ms) comes after the next frame's (42.5 ms)
+    p = _rec(tmp_path / "r.h5", n=3000, frames=_frames(t_start=ts, t_end=te))
+    rc, out, err = _run(["reconstruct", p, "--out", tmp_path / "o", "--fps", "50", "--no-progress"], capsys)
+    assert rc == 0, err
+    assert (tmp_path / "o" / "run.json").is_file()
+
+
+def test_overexpose_refuses_frames_at_one_instant(tmp_path, capsys):
+    ts = np.zeros(6, np.int64)
+    p = _rec(tmp_path / "r.h5", n=3000, frames=_frames(t_start=ts, t_end=ts + 5000))
+    rc, _, err = _run(["evaluate", "overexpose", p, "--gain", "4", "--method", "akf", "--out", tmp_path / "e",
+                       "--no-progress", "--no-figures"], capsys)
+    assert rc == 1 and "mid-exposure time" in err and not (tmp_path / "e").exists()
+
+
+# -- view --recon ---------------------------------------------------------------------------------------
+def _recon_of(tmp_path, capsys, ss, name):
+    p = _rec(tmp_path / f"{name}.h5", ss=ss)
+    rc, _, err = _run(["reconstruct", p, "--out", tmp_path / name, "--fps", "20", "--method", "highpass",
+                       "--no-progress"], capsys)
+    assert rc == 0, err
+    return p, tmp_path / name
+
+
+def test_view_recon_of_another_size_is_refused(tmp_path, capsys):
+    p, _ = _recon_of(tmp_path, capsys, (24, 32), "a")
+    _, other = _recon_of(tmp_path, capsys, (30, 40), "b")
+    rc, _, err = _run(["view", p, "--recon", other, "--out", tmp_path / "v.mp4", "--no-progress"], capsys)
+    assert rc == 1 and "40x30" in err and "32x24" in err and not (tmp_path / "v.mp4").exists()
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "deep"])
+def test_view_recon_run_json_read_is_bounded(tmp_path, capsys, kind):
+    p, rec = _recon_of(tmp_path, capsys, (24, 32), "a")
+    run = rec / "run.json"
+    run.unlink()
+    if kind == "fifo":
+        os.mkfifo(run)
+    elif kind == "dev_zero":
+        os.symlink("/dev/zero", run)
+    else:
+        run.write_text("[" * 5000 + "]" * 5000)
+    res = _load_in_thread(lambda: _run(["view", p, "--recon", rec, "--out", tmp_path / "v.mp4", "--no-progress"],
+                                       capsys))
+    assert res[0] == 1 and "run.json" in res[2]
+
+
+@pytest.mark.parametrize("kind", ["fifo", "dev_zero", "deep"])
+def test_brackets_json_read_is_bounded(tmp_path, kind):
+    from hybridhdr.errors import FormatError
+    from hybridhdr.formats.brackets import read_bracket_set, write_bracket_set
+    b = tmp_path / "br"
+    write_bracket_set(b, [np.full((8, 8), 60, np.uint8), np.full((8, 8), 120, np.uint8)], [0.01, 0.02],
+                      encoding="linear")
+    meta = b / "brackets.json"
+    meta.unlink()
+    if kind == "fifo":
+        os.mkfifo(meta)
+    elif kind == "dev_zero":
+        os.symlink("/dev/zero", meta)
+    else:
+        meta.write_text('{"a": ' + "[" * 5000 + "]" * 5000 + "}")
+    assert _load_in_thread(_raises(read_bracket_set, FormatError), b) == "refused"
