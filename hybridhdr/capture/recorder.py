@@ -152,13 +152,18 @@ class JournalWriter:
         if self.fsync:
             os.fsync(self._f.fileno())
 
-    def close(self) -> None:
-        """Close the file; the lock stays until :meth:`release_lock` (the journal is still ours)."""
-        if not self._f.closed:
-            try:
-                self.flush()
-            finally:
-                self._f.close()
+    def close(self, keep_lock: bool = False) -> None:
+        """Close the file; with ``keep_lock`` the lock stays until :meth:`release_lock` (the
+        recorder converts the journal before it lets anyone else at it)."""
+        try:
+            if not self._f.closed:
+                try:
+                    self.flush()
+                finally:
+                    self._f.close()
+        finally:
+            if not keep_lock:
+                self.release_lock()
 
     def release_lock(self) -> None:
         fd, self._lock_fd = getattr(self, "_lock_fd", None), None
@@ -639,12 +644,12 @@ class Recorder:
         if not self._errors:
             try:
                 self._jw.write_json(T_END, self.stats.to_dict())
-                self._jw.close()
+                self._jw.close(keep_lock=True)
             except OSError as e:
                 self._errors.append(e)
         if self._errors:
             try:
-                self._jw.close()
+                self._jw.close(keep_lock=True)
             except OSError:
                 pass  # the journal's intact records are what recover reads; a torn tail is skipped
             self._jw.release_lock()
