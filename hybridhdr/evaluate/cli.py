@@ -382,17 +382,17 @@ def run_bench_cmd(args) -> int:
     from .bench import claim_bench_out, load_bench, remove_stale_outputs, run_bench, write_results
     import dataclasses
     from .report import akf_vs_cf, summary_table
+    bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)  # checked before --out is made
     lock = claim_bench_out(args.out, overwrite=args.overwrite, resume=args.resume)  # held until this returns
     try:
-        return _run_bench_locked(args, load_bench, run_bench, write_results, remove_stale_outputs, dataclasses,
+        return _run_bench_locked(args, bench, run_bench, write_results, remove_stale_outputs, dataclasses,
                                  akf_vs_cf, summary_table)
     finally:
         os.close(lock)
 
 
-def _run_bench_locked(args, load_bench, run_bench, write_results, remove_stale_outputs, dataclasses, akf_vs_cf,
+def _run_bench_locked(args, bench, run_bench, write_results, remove_stale_outputs, dataclasses, akf_vs_cf,
                       summary_table) -> int:
-    bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)
     hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
     if hv:
         bench = dataclasses.replace(bench, hdrvdp_dir=str(hv))
