@@ -67,6 +67,7 @@ def add_parser(sub) -> None:
                    help="panel height in pixels (default: the sensor's, doubled until at least 360)")
     p.add_argument("--still", type=Path, default=None, metavar="PNG",
                    help="also write the clip's middle frame as a PNG (e.g. for documentation)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out (and --still) file")
     add_time_window(p, "the clip")
     p.set_defaults(func=run)
 
@@ -216,9 +217,10 @@ def run(args) -> int:
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
         raise ValueError(f"--out {args.out}: expected an .mp4 file name")
-    from ._util.atomic import refuse_overwriting_inputs
-    refuse_overwriting_inputs({"--out": args.out, "--still": args.still},
-                              [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []))
+    from ._util.atomic import check_outputs
+    check_outputs({"--out": args.out, "--still": args.still},
+                  [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []),
+                  overwrite=args.overwrite, command="view")
     recon = _Recon(args.recon) if args.recon is not None else None
     span = recording_span(args.recording, args.format)
     if span.origin_us is None:
