@@ -36,6 +36,7 @@ def add_parsers(sub) -> None:
                         "IEC 61966-2-1), replacing what the input states or its reader assumes; stored in the "
                         "output (the container's /frames encoding). Default: as read")
     add_time_window(p, "events, triggers and frames")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing OUTPUT (refused without it)")
     p.add_argument("--allow-huge", action="store_true",
                    help="lift the size limits on what file headers may ask for (sensor/frame side 8192, 4 GiB of "
                         "frames, 256 MiB packets; docs/security.md) for genuinely huge data")
@@ -200,10 +201,10 @@ def run_convert(args) -> int:
     from ._util.limits import allow_huge
     from ._util.timearg import check_window, empty_window_error, resolve_window, window_given
     from .formats.span import recording_span
-    from ._util.atomic import refuse_overwriting_inputs
+    from ._util.atomic import check_outputs
     windowed = window_given(args)
     check_window(args)
-    refuse_overwriting_inputs({"OUTPUT": args.output}, [args.input])
+    check_outputs({"OUTPUT": args.output}, [args.input], overwrite=args.overwrite, command="convert")
     with allow_huge(args.allow_huge):
         t0 = t1 = None
         if windowed:

@@ -40,13 +40,29 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 class _NullWriter:
-    """stderr under --quiet: everything but main's own error line is dropped."""
+    """stderr under --quiet: everything is dropped but error lines (``...: error: ...``, whoever
+    prints them: main, or a command that reports a usage error itself and exits 2), which go to
+    the real stderr: ``-q`` hides progress and notes, never why a command failed."""
+
+    def __init__(self, real=None):
+        self._real = real if real is not None else sys.stderr
+        self._buf = ""
 
     def write(self, s):
+        self._buf += s
+        *lines, self._buf = self._buf.split("\n")
+        for ln in lines:
+            if "error:" in ln:
+                self._real.write(ln + "\n")
+        if len(self._buf) > 65536:  # a progress bar's carriage returns, never a line end
+            self._buf = self._buf[-4096:]
         return len(s)
 
     def flush(self):
-        pass
+        if "error:" in self._buf:
+            self._real.write(self._buf + "\n")
+        self._buf = ""
+        self._real.flush()
 
     def isatty(self):
         return False
@@ -75,7 +91,7 @@ def main(argv=None) -> int:
     try:
         # SIGTERM/SIGHUP end a command as Ctrl-C does: partial outputs and temp files are removed
         from ._util.limits import allow_huge
-        with signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter()) if quiet else contextlib.nullcontext():
+        with signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter(sys.stderr)) if quiet else contextlib.nullcontext():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)

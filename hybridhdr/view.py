@@ -67,6 +67,7 @@ def add_parser(sub) -> None:
                    help="panel height in pixels (default: the sensor's, doubled until at least 360)")
     p.add_argument("--still", type=Path, default=None, metavar="PNG",
                    help="also write the clip's middle frame as a PNG (e.g. for documentation)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out (and --still) file")
     add_time_window(p, "the clip")
     p.set_defaults(func=run)
 
@@ -152,11 +153,20 @@ class _Recon:
 def _events_only_run(folder: Path) -> bool:
     """True when the folder's run.json names an events-only method (high-pass, E2VID, FireNet):
     its outputs get the centred log map (display_map_centred), as its previews do."""
-    import json
+    from ._util.limits import read_json_bounded
+    from .errors import FormatError
     from .reconstruct.api import METHODS
-    try:
-        method = json.loads((folder / "run.json").read_text(encoding="utf-8")).get("method")
-    except (OSError, ValueError, AttributeError):
+    run = folder / "run.json"
+    if not (run.exists() or run.is_symlink()):
+        return False
+    try:  # a regular file of at most 16 MiB, nesting bounded: a FIFO or /dev/zero is refused
+        d = read_json_bounded(run, "--recon run.json", limit=16 << 20)
+    except FormatError:
+        raise
+    except (OSError, ValueError):
+        return False
+    method = d.get("method") if isinstance(d, dict) else None
+    if not isinstance(method, str):
         return False
     return method in METHODS and METHODS[method].events_only
 
@@ -206,9 +216,10 @@ def run(args) -> int:
     check_window(args)
     if args.out.suffix.lower() != ".mp4":
         raise ValueError(f"--out {args.out}: expected an .mp4 file name")
-    from ._util.atomic import refuse_overwriting_inputs
-    refuse_overwriting_inputs({"--out": args.out, "--still": args.still},
-                              [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []))
+    from ._util.atomic import check_outputs
+    check_outputs({"--out": args.out, "--still": args.still},
+                  [args.recording] + ([args.recon / "timestamps.txt"] if args.recon is not None else []),
+                  overwrite=args.overwrite, command="view")
     recon = _Recon(args.recon) if args.recon is not None else None
     span = recording_span(args.recording, args.format)
     if span.origin_us is None:
@@ -238,6 +249,12 @@ def run(args) -> int:
         frames = r.read_frames()
         if frames is not None and not len(frames):
             frames = None
+        if recon is not None:
+            rshape = tuple(recon._sample.shape[1:3])
+            if rshape != shape:  # as evaluate metrics does: outputs of another recording are refused
+                raise ValueError(f"--recon {args.recon}: its outputs are {rshape[1]}x{rshape[0]} (width x height) but "
+                                 f"{args.recording} is {shape[1]}x{shape[0]}; give the reconstruction of this "
+                                 f"recording")
         if recon is not None and frames is not None:
             recon.set_frame_encoding(frames.encoding)
         height = args.height or shape[0] * 2 ** max(0, int(np.ceil(np.log2(360 / shape[0]))))

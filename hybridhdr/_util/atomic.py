@@ -28,7 +28,8 @@ from pathlib import Path
 
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
            "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
-           "atomic_outputs", "remap_paths", "refuse_overwriting_inputs"]
+           "atomic_outputs", "remap_paths", "refuse_overwriting_inputs", "refuse_existing_output",
+           "unmark_partial", "signals_deferred", "check_outputs"]
 
 _log = logging.getLogger(__name__)
 
@@ -69,6 +70,31 @@ def _try_lock(fd: int) -> bool:
 
 #: The file inside a partial output folder that says hybridhdr made it (and who holds it).
 PARTIAL_MARK = ".hybridhdr-partial"
+_MARK = PARTIAL_MARK
+#: extended attribute that marks a partial *file* as ours (a folder holds the ``_MARK`` file instead):
+#: a file named ``NAME.partial`` without it is a user's file, refused and never deleted
+_XATTR = "user.hybridhdr.partial"
+
+
+def _mark_file(fd: int) -> None:
+    """Mark an open partial file as made by hybridhdr (where the filesystem keeps extended
+    attributes; elsewhere a stale partial is refused instead of removed, never lost)."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.setxattr(fd, _XATTR, _marker_text().encode())
+
+
+def _file_is_ours(path) -> bool:
+    try:
+        os.getxattr(path, _XATTR, follow_symlinks=False)
+        return True
+    except (OSError, AttributeError):
+        return False
+
+
+def unmark_partial(path) -> None:
+    """Drop the partial-file mark from a finished file (before or after its rename); never raises."""
+    with contextlib.suppress(OSError, AttributeError):
+        os.removexattr(path, _XATTR, follow_symlinks=False)
 
 
 def _marker_text() -> str:
@@ -106,6 +132,8 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
       goes), or a folder without our marker, is refused and never deleted.
     * A ``tmp`` whose lock another live writer holds is refused (:class:`PartialInUse`): two runs
       writing the same output never share a partial file.
+    * A file ``tmp`` carries a mark (an extended attribute) saying hybridhdr made it; a file
+      without it is a user's file, refused and never deleted.
     * A ``tmp`` left by an interrupted run (ours, lock free) is removed with a warning, then claimed.
     """
     tmp = Path(tmp)
@@ -126,6 +154,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                 fd = os.open(own, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                 try:
                     _try_lock(fd)
+                    _mark_file(fd)
                     os.link(own, tmp, follow_symlinks=False)
                 except FileExistsError:
                     os.close(fd)
@@ -136,6 +165,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                         raise
                     fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                     _try_lock(fd)
+                    _mark_file(fd)
                 except BaseException:
                     os.close(fd)
                     raise
@@ -149,7 +179,8 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
         if tmp.is_symlink():
             raise PartialInUse(errno.EEXIST, f"{tmp} exists and is a symbolic link; refusing to write through it "
                                              f"(remove it if it is yours)")
-        if directory != tmp.is_dir() or (directory and not (tmp / PARTIAL_MARK).is_file()):
+        if directory != tmp.is_dir() or (directory and not (tmp / PARTIAL_MARK).is_file()) \
+                or (not directory and not _file_is_ours(tmp)):
             raise PartialInUse(errno.EEXIST, f"{tmp} exists and was not made by hybridhdr (a "
                                              f"{'folder' if tmp.is_dir() else 'file'}); it is never deleted: "
                                              f"move it away or choose another output name")
@@ -274,9 +305,7 @@ class AtomicFolder:
         if self.target.exists():
             if not self.target.is_dir():
                 raise ValueError(f"--out {out} exists and is not a folder")
-            if any(self.target.iterdir()) and not self.overwrite:
-                raise ValueError(f"--out {out} exists and is not empty; choose another folder or pass --overwrite "
-                                 f"(replaces the files a {command} run writes, keeps everything else)")
+            refuse_existing_output(out, overwrite=self.overwrite, flag="--out", command=command)
         self.path = self.target.with_name(self.target.name + ".partial")
         self.target.parent.mkdir(parents=True, exist_ok=True)
         self._created = False
@@ -298,7 +327,15 @@ class AtomicFolder:
         return any(fnmatch.fnmatchcase(rel, p) for p in self.outputs)
 
     def commit(self) -> Path:
-        """Move the finished output to OUT (see the class docstring); returns OUT."""
+        """Move the finished output to OUT (see the class docstring); returns OUT.
+
+        All or nothing for SIGTERM, SIGINT and SIGHUP: they are held back while the entries move
+        and act right after (the complete new output is then in OUT), so an interrupt never leaves
+        an old output half replaced under its final name."""
+        with signals_deferred():
+            return self._commit()
+
+    def _commit(self) -> Path:
         os.unlink(self.path / _MARKER)
         release_partial(self._lock)
         self._lock = None
@@ -342,6 +379,41 @@ class AtomicFolder:
         self._created = False
         release_partial(self._lock)
         self._lock = None
+
+
+_DEFERRED = ("SIGTERM", "SIGINT", "SIGHUP")
+
+
+@contextlib.contextmanager
+def signals_deferred():
+    """Hold SIGTERM, SIGINT and SIGHUP back while the block runs (a few renames that must happen
+    together); one that arrives meanwhile is raised again, with the handler it would have met,
+    when the block ends. Python runs signal handlers in the main thread only, so the block is
+    protected whichever thread the kernel delivers the signal to; outside the main thread the
+    block runs as is."""
+    import signal
+    import threading
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+
+    def _hold(signum, frame):
+        pending.append(signum)
+
+    old = {}
+    for name in _DEFERRED:
+        sg = getattr(signal, name, None)
+        if sg is not None:
+            with contextlib.suppress(OSError, ValueError):
+                old[sg] = signal.signal(sg, _hold)
+    try:
+        yield
+    finally:
+        for sg, h in old.items():
+            signal.signal(sg, h if h is not None else signal.SIG_DFL)
+        for sg in dict.fromkeys(pending):
+            signal.raise_signal(sg)
 
 
 def current_umask() -> int:
@@ -455,3 +527,20 @@ def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command
         what = "exists"
     raise ValueError(f"{flag} {out} {what}; choose another name or pass --overwrite "
                      f"(replaces what a {command} run writes)")
+
+
+def check_outputs(outputs, inputs=(), *, overwrite: bool = False, command: str = "this command") -> None:
+    """The one check every verb that writes makes before any work: no output is an input (nor
+    holds one), no two outputs are the same file, and an existing output is refused unless
+    ``overwrite`` (:func:`refuse_existing_output`). ``outputs``: ``{"--out": path, ...}``
+    (None values skipped)."""
+    outs = {flag: Path(os.fspath(o)) for flag, o in outputs.items() if o is not None}
+    refuse_overwriting_inputs(outs, inputs)
+    seen: dict[str, str] = {}
+    for flag, o in outs.items():
+        key = os.path.realpath(o)
+        if key in seen:
+            raise ValueError(f"{flag} {o} is also {seen[key]}; two outputs cannot be one file")
+        seen[key] = f"{flag} {o}"
+    for flag, o in outs.items():
+        refuse_existing_output(o, overwrite=overwrite, flag=flag, command=command)

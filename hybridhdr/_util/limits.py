@@ -35,7 +35,8 @@ __all__ = ["LimitExceeded", "LIMITS", "allow_huge", "huge_allowed", "check_senso
            "check_frame_bytes", "check_output_count", "output_count_for_fps", "check_fps_outputs",
            "check_packet_size", "check_declared_count", "check_h5_stored", "check_finite", "open_image",
            "check_h5_self_contained", "check_number", "check_input_file", "read_bytes_bounded",
-           "read_text_bounded", "check_memory", "memory_budget_bytes",
+           "read_text_bounded", "read_json_bounded", "check_json_depth", "MAX_JSON_DEPTH", "check_memory",
+           "memory_budget_bytes",
            "OVERRIDE_HINT"]
 
 LIMITS = {
@@ -48,6 +49,7 @@ LIMITS = {
     "max_spp": 4096,                    # renderer samples per pixel
     "max_subdivisions": 8,              # icosphere subdivisions (20 * 4^8 = 1.3 M faces)
     "max_text_bytes": 64 << 20,         # a config / profile / CRF / --times-us file read whole
+    "max_events": 1_000_000_000,        # events one simulation may emit (16 GB as records)
 }
 
 OVERRIDE_HINT = "if the data really is that large, pass --allow-huge (or set HYBRIDHDR_ALLOW_HUGE=1)"
@@ -347,6 +349,39 @@ def read_text_bounded(path, what: str = "file", encoding: str = "utf-8", limit: 
         return data.decode(encoding)
     except UnicodeDecodeError as e:
         raise FormatError(path, f"{what} is not {encoding} text ({e.reason} at byte {e.start})") from None
+
+
+#: Deepest JSON nesting any input may have (a profile, a run record, a bracket set's metadata
+#: nest a few levels); deeper is refused before anything walks it.
+MAX_JSON_DEPTH = 64
+
+
+def check_json_depth(obj, path=None, what: str = "JSON", max_depth: int = MAX_JSON_DEPTH) -> None:
+    """Refuse a parsed JSON value nested deeper than ``max_depth`` (iterative: never recursion)."""
+    stack = [(obj, 1)]
+    while stack:
+        o, d = stack.pop()
+        if isinstance(o, (dict, list)):
+            if d > max_depth:
+                raise FormatError(path, f"{what} is nested more than {max_depth} levels deep")
+            stack.extend((v, d + 1) for v in (o.values() if isinstance(o, dict) else o))
+
+
+def read_json_bounded(path, what: str = "JSON file", limit: int | None = None, max_depth: int = MAX_JSON_DEPTH,
+                      **loads_kw):
+    """A small JSON input: :func:`read_text_bounded` (a regular file within ``limit`` bytes),
+    parsed with its nesting bounded (5,000 levels of ``[`` is a clean error, never a
+    RecursionError traceback)."""
+    import json
+    text = read_text_bounded(path, what, limit=limit)
+    try:
+        obj = json.loads(text, **loads_kw)
+    except RecursionError:
+        raise FormatError(path, f"{what} is nested more than {max_depth} levels deep") from None
+    except ValueError as e:
+        raise FormatError(path, f"{what} is not valid JSON ({e})") from None
+    check_json_depth(obj, path, what, max_depth)
+    return obj
 
 
 def check_h5_self_contained(f, path=None, max_objects: int = 1_000_000) -> None:

@@ -17,7 +17,7 @@ import signal
 import sys
 import threading
 
-__all__ = ["signals_exit", "die_with_parent"]
+__all__ = ["signals_exit", "die_with_parent", "die_with_process"]
 
 
 @contextlib.contextmanager
@@ -40,6 +40,33 @@ def signals_exit():
     finally:
         for sg, h in old.items():
             signal.signal(sg, h)
+
+
+def die_with_process(pid: int, period_s: float = 0.5) -> None:
+    """End this (worker) process when process ``pid`` ends: for a worker whose parent is not the
+    command (a multiprocessing forkserver's child), a daemon thread polls the command's pid."""
+    pid = int(pid)
+
+    def _gone() -> bool:
+        try:
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            return True
+        except PermissionError:
+            return False
+        try:  # killed but not yet reaped by its parent (a zombie) is gone too
+            with open(f"/proc/{pid}/stat", "rb") as f:
+                return f.read().rsplit(b")", 1)[1].split()[0] == b"Z"
+        except (OSError, IndexError):
+            return False
+
+    def _watch():
+        import time
+        while True:
+            if _gone():
+                os._exit(1)
+            time.sleep(period_s)
+    threading.Thread(target=_watch, name="hybridhdr-command-watch", daemon=True).start()
 
 
 def die_with_parent(parent_pid: int | None = None) -> None:

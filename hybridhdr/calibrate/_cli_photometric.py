@@ -62,6 +62,8 @@ def register(steps) -> None:
     q.add_argument("--register", type=Path, default=None, metavar="REC", help="recording whose frames to register to")
     q.add_argument("--out-recording", type=Path, default=None, metavar="REC2",
                    help="new recording (hybridhdr HDF5) with the warped references; required with --register")
+    q.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out EXR (and its .json/.png beside it) and --out-recording")
     q.add_argument("--features", default="surf", choices=["surf", "sift"],
                    help="keypoints: SURF (mahotas, or OpenCV non-free when present) or SIFT")
     q.add_argument("--ecc", action=argparse.BooleanOptionalAction, default=True,
@@ -187,11 +189,15 @@ def run_hdr_reference(args) -> int:
     if args.out.suffix.lower() in (".png", ".json"):
         raise ValueError(f"--out {args.out}: the reference is an EXR (its .json report and .png plot are written "
                          f"beside it); give a name ending in .exr")
-    from .._util.atomic import refuse_overwriting_inputs
-    refuse_overwriting_inputs({"--out": args.out, "--out (report)": args.out.with_suffix(".json"),
-                               "--out (plot)": args.out.with_suffix(".png"), "--out-recording": args.out_recording},
-                              [args.brackets, args.crf, args.register]
-                              + (sorted(Path(args.brackets).iterdir()) if Path(args.brackets).is_dir() else []))
+    from .._util.atomic import check_outputs
+    check_outputs({"--out": args.out, "--out-recording": args.out_recording},
+                  [args.brackets, args.crf, args.register]
+                  + (sorted(Path(args.brackets).iterdir()) if Path(args.brackets).is_dir() else []),
+                  overwrite=args.overwrite, command="calibrate hdr-reference")
+    # the report and plot beside the EXR are replaced with it: never an input
+    check_outputs({"--out (report)": args.out.with_suffix(".json"), "--out (plot)": args.out.with_suffix(".png")},
+                  [args.brackets, args.crf, args.register]
+                  + (sorted(Path(args.brackets).iterdir()) if Path(args.brackets).is_dir() else []), overwrite=True)
     if args.register is not None and args.out_recording is None:
         raise ValueError("--register needs --out-recording (the input recording is never modified)")
     if args.out_recording is not None and args.register is None:

@@ -21,6 +21,7 @@ def register(steps) -> None:
                     "'hybridhdr simulate --sensor PROFILE' reads. See docs/calibrate.md, 'Sensor profile'.")
     p.add_argument("recording", type=Path, metavar="REC", help="recording with events and frames (any readable format)")
     p.add_argument("--out", type=Path, required=True, help="profile JSON to write (atomically)")
+    p.add_argument("--overwrite", action="store_true", help="replace an existing --out file (refused without it)")
     add_format_arg(p)
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON of the frames (default: the recording's declared one, else the built-in "
@@ -36,10 +37,12 @@ def register(steps) -> None:
 
 @json_output
 def run_sensor(args) -> int:
-    from .._util.atomic import write_json_atomic
+    from .._util.atomic import check_outputs, write_json_atomic
     from ..formats import read
     from .sensor_profile import estimate_sensor_profile
 
+    check_outputs({"--out": args.out}, [args.recording, args.profile], overwrite=args.overwrite,
+                  command="calibrate sensor")
     t0 = time.perf_counter()
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,

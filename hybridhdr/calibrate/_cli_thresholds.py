@@ -58,6 +58,9 @@ def run_thresholds(args) -> int:
     from ..formats import read
     from .thresholds import estimate_thresholds, plot_thresholds
 
+    from .._util.atomic import refuse_overwriting_inputs
+    refuse_overwriting_inputs({f"--out ({n})": args.out / n for n in ("thresholds.npz", "thresholds.png", "report.json")},
+                              [args.recording, args.profile])
     t0 = time.perf_counter()
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     tm = estimate_thresholds(

@@ -33,7 +33,7 @@ from .._util.atomic import write_json_atomic
 from .._util.checks import check_shape
 
 __all__ = ["CameraProfile", "default_profile", "load_profile", "profile_for_frames", "profile_from_inverse_crf",
-           "weighting_from_inverse_crf", "PROFILE_FORMAT", "PROFILE_VERSION"]
+           "weighting_from_inverse_crf", "check_codes_in_profile", "PROFILE_FORMAT", "PROFILE_VERSION"]
 
 PROFILE_FORMAT = "hybridhdr-camera-profile"
 PROFILE_VERSION = 1
@@ -341,6 +341,20 @@ def profile_from_inverse_crf(inverse_crf, *, clip_codes=None, frame_precision_sc
         w[hi:] = 0.0
     return CameraProfile(weighting=w, inverse_crf=inv, frame_precision_scale=frame_precision_scale,
                          name=name, source=source, clip_low_code=lo, clip_high_code=hi)
+
+
+def check_codes_in_profile(images, profile: CameraProfile) -> None:
+    """Integer frame codes above the profile's last code are refused (ValueError): 16-bit frames
+    read with an 8-bit profile would all clip to its top code without a word. Every verb that
+    reads frame codes through a profile (reconstruct, evaluate overexpose) makes this check."""
+    im = np.asarray(images)
+    if im.dtype.kind not in "ui" or im.size == 0:
+        return
+    top = int(im.max())
+    if top > profile.max_code:
+        raise ValueError(f"frame codes reach {top} but the camera profile {profile.name!r} stops at code "
+                         f"{profile.max_code} ({im.dtype} frames); give the frames' profile (--profile), e.g. "
+                         f"one of {int(top).bit_length()} bits from 'hybridhdr calibrate crf'")
 
 
 def profile_for_frames(profile: CameraProfile, frames) -> CameraProfile:

@@ -110,6 +110,7 @@ def add_parser(sub) -> None:
     s.add_argument("--out", type=Path, default=None, help="write the synchronised recording here")
     s.add_argument("--report", type=Path, default=None, help="write the report as JSON")
     s.add_argument("--plot", type=Path, default=None, help="PNG of the fit residuals")
+    s.add_argument("--overwrite", action="store_true", help="replace existing --out/--report/--plot files")
     s.set_defaults(func=run_sync)
 
     sv = cs.add_parser("serve-dv", help="serve an AEDAT4 recording as DV network streams (a stand-in for a live DAVIS)",
@@ -454,15 +455,18 @@ def _plot_sync(frames_in, frames_out, report, path):
 
 @json_command
 def run_sync(args) -> int:
+    from .._util.atomic import check_outputs, write_json_atomic
     from ..formats.container import read_recording, write_recording
     from .sync import sync_recording
+    check_outputs({"--out": args.out, "--report": args.report, "--plot": args.plot}, [args.recording],
+                  overwrite=args.overwrite, command="capture sync")
     rec = read_recording(args.recording)
     rec2, rep = sync_recording(rec, channel=args.trigger_channel, edge_mode=args.edge_mode, use=args.use,
                                frame_period_us=args.frame_period_us)
     print(rep.summary())
     d = rep.to_dict()
     if args.report is not None:
-        args.report.write_text(json.dumps(d, indent=1) + "\n")
+        write_json_atomic(args.report, d, indent=1)
     if args.plot is not None:
         _plot_sync(rec.frames, rec2.frames, rep, args.plot)
     if args.out is not None:

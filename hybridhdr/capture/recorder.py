@@ -31,6 +31,7 @@ length, JSON, pixel bytes), 5 FLUSH (JSON cumulative counts), 6 END (JSON final 
 
 from __future__ import annotations
 
+import errno
 import json
 import logging
 import os
@@ -96,6 +97,11 @@ class JournalWriter:
                                   f"run 'hybridhdr capture recover' on it or delete it first")
         self.fsync = bool(fsync)
         self._f = open(self.path, "xb", buffering=1 << 20)
+        # an exclusive lock held until the journal is converted and deleted (release_lock): a
+        # 'capture recover' meanwhile would convert, and then lose, a recording still being written
+        self._lock_fd = os.open(self.path, os.O_RDWR | os.O_CLOEXEC)
+        from .._util.atomic import _try_lock
+        _try_lock(self._lock_fd)
         self._f.write(_MAGIC)
         self.bytes_written = len(_MAGIC)
         self._record(T_HEADER, json.dumps(header).encode(), compress=False)
@@ -146,12 +152,36 @@ class JournalWriter:
         if self.fsync:
             os.fsync(self._f.fileno())
 
-    def close(self) -> None:
-        if not self._f.closed:
-            try:
-                self.flush()
-            finally:
-                self._f.close()
+    def close(self, keep_lock: bool = False) -> None:
+        """Close the file; with ``keep_lock`` the lock stays until :meth:`release_lock` (the
+        recorder converts the journal before it lets anyone else at it)."""
+        try:
+            if not self._f.closed:
+                try:
+                    self.flush()
+                finally:
+                    self._f.close()
+        finally:
+            if not keep_lock:
+                self.release_lock()
+
+    def release_lock(self) -> None:
+        fd, self._lock_fd = getattr(self, "_lock_fd", None), None
+        if fd is not None:
+            os.close(fd)
+
+
+def journal_in_use(path) -> bool:
+    """True when a live recorder holds the journal's lock (it is still being written)."""
+    from .._util.atomic import _try_lock
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
+    except OSError:
+        return False
+    try:
+        return not _try_lock(fd)
+    finally:
+        os.close(fd)  # closing the open file description drops the probe's own lock
 
 
 @dataclass
@@ -658,14 +688,15 @@ class Recorder:
         if not self._errors:
             try:
                 self._jw.write_json(T_END, self.stats.to_dict())
-                self._jw.close()
+                self._jw.close(keep_lock=True)
             except OSError as e:
                 self._errors.append(e)
         if self._errors:
             try:
-                self._jw.close()
+                self._jw.close(keep_lock=True)
             except OSError:
                 pass  # the journal's intact records are what recover reads; a torn tail is skipped
+            self._jw.release_lock()
             e = self._errors[0]
             msg = (f"recording failed ({type(e).__name__}: {e}); the journal {self.journal_path} keeps every "
                    f"record written intact so far: run 'hybridhdr capture recover {self.path}'")
@@ -677,10 +708,15 @@ class Recorder:
             _convert(self.journal_path, self.path, compression=self.compression, progress=self.progress,
                      final_stats=self.stats)
         except OSError as e:
-            raise OSError(e.errno, f"{e.strerror or e}; the journal {self.journal_path} is kept: free space, "
-                                   f"then run 'hybridhdr capture recover {self.path}'") from e
+            self._jw.release_lock()
+            kept = self.journal_path.is_file()
+            fix = ("free space, then " if e.errno == errno.ENOSPC else "") + f"run 'hybridhdr capture recover {self.path}'"
+            raise OSError(e.errno, f"finishing {self.path} failed ({e.strerror or e}); " +
+                          (f"the journal {self.journal_path} is kept: {fix}" if kept else
+                           f"the journal {self.journal_path} is gone (removed by another process)")) from e
         self.stats.finish_s = time.perf_counter() - t
         self.journal_path.unlink()
+        self._jw.release_lock()
         if self.stats.dropped_anything:
             log.warning("recording %s: %d events, %d triggers and %d frames were dropped (queue full)",
                         self.path, self.stats.events_dropped, self.stats.triggers_dropped,
@@ -793,6 +829,9 @@ def recover(path, out=None, *, compression="gzip", progress: bool = False) -> di
         raise FileNotFoundError(f"{jp}: no journal to recover (expected the '.journal' file an interrupted "
                                 f"'hybridhdr capture record' leaves next to its output)")
     out = Path(out) if out is not None else jp.with_name(jp.name[: -len(".journal")])
+    if journal_in_use(jp):
+        raise FileExistsError(f"{jp} is being written by a running recorder (it holds the journal's lock); "
+                              f"recover only a recording whose recorder has ended")
     if out.exists():
         raise FileExistsError(f"{out} already exists; pass another output name (if that recording was "
                               f"finished normally, {jp.name} is a left-over of an interrupted clean-up)")

@@ -16,7 +16,9 @@ import copy
 import csv
 import itertools
 import json
+import math
 import os
+import re
 import sys
 import time
 from dataclasses import dataclass, field
@@ -547,9 +549,13 @@ def _bench_opts(bench: Bench) -> dict:
             "jod": bench.jod, "jod_frames": bench.jod_frames, "jod_display": bench.jod_display}
 
 
-def _bench_worker_init():
-    from .._util.procs import die_with_parent
-    die_with_parent()  # a kill -9 of the bench ends its workers too
+def _bench_worker_init(bench_pid: int | None = None):
+    from .._util.procs import die_with_parent, die_with_process
+    die_with_parent()  # its parent (the forkserver) gone: end
+    if bench_pid is not None:
+        # the forkserver outlives a kill -9 of the bench: watch the bench itself, so that the
+        # workers end, and with them the forkserver's and the resource tracker's last clients
+        die_with_process(bench_pid)
 
 
 def _stop_pool(ex) -> None:
@@ -589,14 +595,63 @@ def _pool_context():
 RUNS_DIR = "runs"
 
 
-def _task_key(task, opts: dict) -> str:
-    """A digest of everything a task's rows depend on (dataset, grid values, runs, bench options),
-    so that ``--resume`` reuses a finished task only for the same bench."""
+def _file_digest(path: Path, cache: dict) -> str:
+    """SHA-256 of a file's bytes (a folder: of its files' relative names and bytes, in order)."""
+    import hashlib
+    key = os.path.realpath(path)
+    if key in cache:
+        return cache[key]
+    h = hashlib.sha256()
+    p = Path(key)
+    if p.is_file():
+        files = [p]
+    else:  # a dataset folder (ECD, brackets): its files, up to a bound that no dataset reaches
+        files = []
+        for q in p.rglob("*"):
+            if q.is_file() and not q.is_symlink():
+                files.append(q)
+                if len(files) > 100_000:
+                    raise ValueError(f"{p} holds more than 100,000 files; not a dataset folder")
+        files.sort()
+    for q in files:
+        h.update(str(q.relative_to(p) if q != p else q.name).encode() + b"\0")
+        with open(q, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+    cache[key] = h.hexdigest()
+    return cache[key]
+
+
+def _data_digests(obj, cache: dict, out: dict) -> dict:
+    """Digest of every file or folder that a task's spec, grid values or runs name (dataset
+    recordings, profiles, weights, thresholds maps): ``--resume`` must see a changed file."""
+    if isinstance(obj, dict):
+        for v in obj.values():
+            _data_digests(v, cache, out)
+    elif isinstance(obj, (list, tuple)):
+        for v in obj:
+            _data_digests(v, cache, out)
+    elif isinstance(obj, (str, Path)) and str(obj) and len(str(obj)) < 4096:
+        p = Path(obj)
+        try:
+            if (p.is_file() or p.is_dir()) and (p.is_absolute() or os.sep in str(obj) or p.suffix):
+                out[str(obj)] = _file_digest(p, cache)
+        except (OSError, ValueError) as e:
+            out[str(obj)] = f"unreadable: {e}"
+    return out
+
+
+def _task_key(task, opts: dict, cache: dict | None = None) -> str:
+    """A digest of everything a task's rows depend on (dataset, grid values, runs, bench options,
+    and the bytes of every file they name), so that ``--resume`` reuses a finished task only for
+    the same bench on the same data."""
     import dataclasses
     import hashlib
     ds_name, spec, ds_gv, runs = task
-    blob = json.dumps([ds_name, spec, ds_gv, [dataclasses.asdict(r) for r in runs],
-                       {k: v for k, v in opts.items() if k != "warmup"}], sort_keys=True, default=str)
+    run_dicts = [dataclasses.asdict(r) for r in runs]
+    data = _data_digests([spec, ds_gv, run_dicts], {} if cache is None else cache, {})
+    blob = json.dumps([ds_name, spec, ds_gv, run_dicts,
+                       {k: v for k, v in opts.items() if k != "warmup"}, data], sort_keys=True, default=str)
     return hashlib.sha256(blob.encode()).hexdigest()
 
 
@@ -621,22 +676,112 @@ def _save_task(runs_dir: Path, i: int, key: str, rows: list[dict]) -> list[dict]
     return _load_task(runs_dir, i, key)
 
 
-def _load_task(runs_dir: Path, i: int, key: str) -> list[dict] | None:
-    """Task ``i``'s rows from a run file written for the same ``key``, else None."""
-    f = runs_dir / f"task_{i:05d}.json"
+#: Bounds on a run file read back by ``--resume`` (a task's rows are a few kB; its strip a few MB).
+_RUN_FILE_BYTES = 16 << 20
+_STRIP_FILE_BYTES = 256 << 20
+
+#: Ranges a measured value can take (anything else in a run file is made up: the task runs again).
+_ROW_RANGES = {"mse": (0.0, math.inf), "log_mse": (0.0, math.inf), "ssim": (-1.0, 1.0), "global_ssim": (-1.0, 1.0),
+               "log_ssim": (-1.0, 1.0), "pu_ssim": (-1.0, 1.0), "psnr_db": (-math.inf, math.inf),
+               "pu_psnr_db": (-math.inf, math.inf), "jod": (-math.inf, 10.0), "q": (-math.inf, math.inf),
+               "n_frames": (0, math.inf), "n_nonfinite": (0, math.inf), "n_events": (0, math.inf)}
+
+
+def _run_file(path: Path, limit: int) -> bytes | None:
+    """The bytes of a run file: a regular file (never through a link, never a FIFO or a device)
+    of at most ``limit`` bytes, else None (the task is run again)."""
+    import stat
     try:
-        d = json.loads(f.read_text(encoding="utf-8"))
-    except (OSError, ValueError):
+        fd = os.open(path, os.O_RDONLY | os.O_NOFOLLOW | os.O_NONBLOCK | os.O_CLOEXEC)
+    except OSError:
+        return None
+    try:
+        st = os.fstat(fd)
+        if not stat.S_ISREG(st.st_mode) or st.st_size > limit:
+            return None
+        with os.fdopen(os.dup(fd), "rb") as f:
+            data = f.read(limit + 1)
+        return data if len(data) <= limit else None
+    finally:
+        os.close(fd)
+
+
+_COLUMN_NAME = re.compile(r"[A-Za-z_][A-Za-z0-9_.\-]{0,199}")
+
+
+def _row_ok(r) -> bool:
+    """A run-file row holds column names of the kind a run writes (words, dotted grid keys) and
+    values of the right kind and range."""
+    if not isinstance(r, dict):
+        return False
+    for k, v in r.items():
+        if not isinstance(k, str) or not _COLUMN_NAME.fullmatch(k):
+            return False
+        if v is None or isinstance(v, (bool, str)):
+            if isinstance(v, str) and len(v) > 100_000:
+                return False
+            continue
+        if not isinstance(v, (int, float)):
+            return False  # a list or a table where a run writes a number or a word
+        if k in _ROW_RANGES:
+            lo, hi = _ROW_RANGES[k]
+            if not (math.isnan(v) or lo <= v <= hi):
+                return False
+    return True
+
+
+def _load_task(runs_dir: Path, i: int, key: str) -> list[dict] | None:
+    """Task ``i``'s rows from a run file written for the same ``key``, else None.
+
+    A run file is data anyone with write access to ``OUT`` controls: it is read only when it is a
+    regular file within a size bound, parsed with the nesting bounded, and its rows are taken only
+    when every column is one a run writes and every measured value lies in its range; anything
+    else makes the task run again."""
+    data = _run_file(runs_dir / f"task_{i:05d}.json", _RUN_FILE_BYTES)
+    if data is None:
+        return None
+    try:
+        d = json.loads(data.decode("utf-8"))
+    except (ValueError, RecursionError):
         return None
     if not isinstance(d, dict) or d.get("key") != key or not isinstance(d.get("rows"), list):
         return None
     rows = d["rows"]
+    if not all(_row_ok(r) for r in rows):
+        return None
     z = runs_dir / f"task_{i:05d}.npz"
-    if rows and z.is_file():
-        with np.load(z, allow_pickle=False) as a:
-            names = [str(n) for n in a["names"]]
-            rows[0]["_strip"] = {n: a[f"s{j}"] for j, n in enumerate(names)}
+    if rows and (z.exists() or z.is_symlink()):
+        strip = _load_strip(z)
+        if strip is None:
+            return None
+        rows[0]["_strip"] = strip
     return rows
+
+
+def _load_strip(z: Path) -> dict | None:
+    """A task's strip images from its ``.npz``: a regular file within bounds, every array 2-D or
+    3-D with sides within the frame limits (checked from the headers, before any allocation)."""
+    import io
+    import zipfile
+    from .._util.limits import LIMITS
+    data = _run_file(z, _STRIP_FILE_BYTES)
+    if data is None:
+        return None
+    try:
+        with zipfile.ZipFile(io.BytesIO(data)) as zf:
+            if sum(m.file_size for m in zf.infolist()) > 4 * _STRIP_FILE_BYTES:
+                return None
+        with np.load(io.BytesIO(data), allow_pickle=False) as a:
+            names = [str(n) for n in a["names"]]
+            out = {}
+            for j, n in enumerate(names):
+                im = a[f"s{j}"]
+                if im.ndim not in (2, 3) or max(im.shape[:2]) > LIMITS["max_side"] or im.dtype.kind not in "uif":
+                    return None
+                out[n] = im
+            return out
+    except (OSError, ValueError, KeyError, EOFError, zipfile.BadZipFile, RecursionError):
+        return None
 
 
 def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None = None,
@@ -661,7 +806,8 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
     opts = _bench_opts(bench)
     bar = None
     results: list = [None] * len(tasks)
-    keys = [_task_key(t, opts) for t in tasks]
+    digests: dict = {}
+    keys = [_task_key(t, opts, digests) for t in tasks]
     runs_dir = None
     if out_dir is not None:
         runs_dir = Path(out_dir) / RUNS_DIR
@@ -719,7 +865,8 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
             elif todo:
                 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor
                 from concurrent.futures import wait as cf_wait
-                ex = ProcessPoolExecutor(max_workers=n, mp_context=_pool_context(), initializer=_bench_worker_init)
+                ex = ProcessPoolExecutor(max_workers=n, mp_context=_pool_context(), initializer=_bench_worker_init,
+                                         initargs=(os.getpid(),))
                 try:
                     futs = {ex.submit(run_task, tasks[i], opts): i for i in todo}
                     pending = set(futs)
@@ -748,6 +895,43 @@ def run_bench(bench: Bench, *, workers: int | None = None, scheduler: str | None
     return rows
 
 
+#: The lock file a running bench holds in its ``--out`` (left in place; never counted as content).
+BENCH_LOCK = ".hybridhdr-bench.lock"
+
+
+def claim_bench_out(out, *, overwrite: bool = False, resume: bool = False) -> int:
+    """Take ``out`` for one bench run: created if absent, refused while another bench holds its
+    lock, refused when it holds anything (other than the lock) unless ``overwrite`` or ``resume``.
+    Returns the locked descriptor (close it when the bench is done)."""
+    from .._util.atomic import _try_lock, refuse_existing_output
+    out = Path(out)
+    if out.exists() and not out.is_dir():
+        raise ValueError(f"--out {out} exists and is not a folder")
+    out.mkdir(parents=True, exist_ok=True)
+    fd = os.open(out / BENCH_LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
+    try:
+        if not _try_lock(fd):
+            raise ValueError(f"--out {out} is being written by another running bench; wait for it or choose "
+                             f"another folder")
+        if not resume and any(p.name != BENCH_LOCK for p in out.iterdir()):
+            refuse_existing_output(out, overwrite=overwrite, flag="--out", command="evaluate bench")
+    except BaseException:
+        os.close(fd)
+        raise
+    return fd
+
+
+def remove_stale_outputs(out, written: dict) -> None:
+    """After a report is written: remove the strips an earlier run left in ``out/strips`` that
+    this report does not show (its charts are replaced by name)."""
+    keep = {Path(p).name for p in written.get("strips", [])}
+    d = Path(out) / "strips"
+    if d.is_dir():
+        for p in d.glob("strip_*.png"):
+            if p.name not in keep and (p.is_file() or p.is_symlink()):
+                p.unlink()
+
+
 def _columns(rows):
     first = ["task", "run", "dataset", "dataset_variant", "kind"]
     ds = sorted({k for r in rows for k in r if k.startswith("ds.")})
@@ -760,10 +944,18 @@ def _columns(rows):
     return list(dict.fromkeys(first + ds + mid + mg + rest + extra))  # unique, first place kept
 
 
+def _cell(text: str) -> str:
+    """A text cell a spreadsheet would run as a formula (``=``, ``+``, ``-``, ``@``, a tab or a
+    carriage return first) is quoted with a leading apostrophe; numbers are written as numbers."""
+    return "'" + text if text[:1] in ("=", "+", "-", "@", "\t", "\r") else text
+
+
 def _fmt(v):
     if isinstance(v, float):
         return repr(v)
-    return "" if v is None else str(v)
+    if isinstance(v, (bool, int, np.integer, np.floating)):
+        return str(v)
+    return "" if v is None else _cell(str(v))
 
 
 def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = True) -> dict:
@@ -778,7 +970,7 @@ def write_results(rows, out_dir, bench: Bench | None = None, *, charts: bool = T
         path = stage / "results.csv"
         with atomic_path(path) as tmp, open(tmp, "w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
-            w.writerow(cols)
+            w.writerow([_cell(c) for c in cols])
             for r in rows:
                 w.writerow([_fmt(r.get(c)) for c in cols])
         written = {"csv": path}

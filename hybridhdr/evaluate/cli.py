@@ -69,6 +69,9 @@ def add_parser(sub) -> None:
     b.add_argument("--resume", action="store_true",
                    help="reuse the tasks an interrupted run of the same bench finished (OUT/runs/, written as "
                         "each task finishes) and run only the others; without it they are run again")
+    b.add_argument("--overwrite", action="store_true",
+                   help="run into a non-empty --out, replacing what a bench run writes there (refused without it "
+                        "or --resume)")
     b.add_argument("--allow-outside", type=Path, action="append", default=[], metavar="PATH",
                    help="let the bench file read (and cache) under PATH too (repeatable); by default the files it "
                         "names must lie inside its own folder, its cache there or in --out (docs/security.md)")
@@ -356,16 +359,27 @@ def _written(w: dict) -> dict:
 
 @json_command
 def run_bench_cmd(args) -> int:
-    from .bench import load_bench, run_bench, write_results
+    from .bench import claim_bench_out, load_bench, remove_stale_outputs, run_bench, write_results
     import dataclasses
     from .report import akf_vs_cf, summary_table
-    bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)
+    bench = load_bench(args.bench, allow_outside=args.allow_outside, out_dir=args.out)  # checked before --out is made
+    lock = claim_bench_out(args.out, overwrite=args.overwrite, resume=args.resume)  # held until this returns
+    try:
+        return _run_bench_locked(args, bench, run_bench, write_results, remove_stale_outputs, dataclasses,
+                                 akf_vs_cf, summary_table)
+    finally:
+        os.close(lock)
+
+
+def _run_bench_locked(args, bench, run_bench, write_results, remove_stale_outputs, dataclasses, akf_vs_cf,
+                      summary_table) -> int:
     hv = args.hdrvdp_dir if args.hdrvdp_dir is not None else os.environ.get("HYBRIDHDR_HDRVDP_DIR")
     if hv:
         bench = dataclasses.replace(bench, hdrvdp_dir=str(hv))
     rows = run_bench(bench, workers=args.workers, scheduler=args.scheduler, progress=not args.no_progress,
                      out_dir=args.out, resume=args.resume)
     w = write_results(rows, args.out, bench)
+    remove_stale_outputs(args.out, w)  # an earlier run's strips and charts are not this report's
     print(w["report_md"].read_text(encoding="utf-8").split("## Numerical failures")[0].rstrip())
     print(f"\nwrote {w['csv']}, {w['report_md']}, {w['report_html']}"
           + "".join(f", {w[k]}" for k in ("speed_accuracy", "sampling", "stability") if k in w))

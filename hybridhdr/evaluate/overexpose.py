@@ -135,10 +135,8 @@ def _check_codes(fr: Frames, prof) -> None:
     im = fr.images
     if im.dtype.kind not in "ui":
         raise TypeError(f"overexpose needs integer frame codes (uint8, uint16), got frames of dtype {im.dtype}")
-    top = int(im.max()) if im.size else 0
-    if top > prof.max_code:
-        raise ValueError(f"frame codes reach {top} but the camera profile {prof.name!r} stops at code "
-                         f"{prof.max_code}; give the frames' profile (--profile)")
+    from ..camera.profile import check_codes_in_profile
+    check_codes_in_profile(im, prof)
 
 
 def _encode(prof, intensity) -> np.ndarray:
@@ -478,6 +476,13 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                          f"event, k >= 1 so that an earlier frame exists)")
     if len(set(scored)) != len(scored) or scored != sorted(scored):
         raise ValueError(f"scored frames must be increasing and distinct, got {scored}")
+    mid_all = rec.frames.t_mid_us[kept]
+    for k in scored:  # a held-out frame is predicted from the others: none may share its instant
+        same = [int(j) for j in np.flatnonzero(mid_all == mid_all[k]) if j != k]
+        if same:
+            raise ValueError(f"frame {k} has the mid-exposure time {int(mid_all[k])} µs of frame(s) {same[:5]}: a "
+                             f"held-out frame cannot be scored at an instant another input frame covers (the "
+                             f"recording's frame times are not distinct instants)")
     fr_all = rec.frames.select(kept)
     rec_k = Recording(rec.events, rec.sensor_size, fr_all, rec.triggers, None, rec.metadata)
     prof = _frames_profile(rec_k, profile)

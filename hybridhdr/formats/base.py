@@ -292,6 +292,9 @@ class EventFileWriter:
             if self.partial_is_dir:
                 from .._util.atomic import PARTIAL_MARK
                 (self.tmp_path / PARTIAL_MARK).unlink(missing_ok=True)
+            else:
+                from .._util.atomic import unmark_partial
+                unmark_partial(self.tmp_path)  # the finished file no longer reads as a partial one
             os.replace(self.tmp_path, self.path)
         except BaseException:
             self.abort()

@@ -210,7 +210,8 @@ def parse_exposure(text: str) -> float:
 
 def _read_list_file(path: Path) -> dict[str, float]:
     out = {}
-    for n, line in enumerate(path.read_text(encoding="utf-8").splitlines(), 1):
+    from .._util.limits import read_text_bounded
+    for n, line in enumerate(read_text_bounded(path, "exposure list file").splitlines(), 1):
         line = line.split("#", 1)[0].strip()
         if not line:
             continue
@@ -358,11 +359,9 @@ def read_bracket_set(folder) -> BracketSet:
     meta = folder / "brackets.json"
     iso = gain = t_us = None
     camera: dict = {}
-    if meta.exists():
-        try:
-            d = json.loads(meta.read_text(encoding="utf-8"))
-        except json.JSONDecodeError as e:
-            raise FormatError(meta, f"not valid JSON ({e})") from None
+    if meta.exists() or meta.is_symlink():
+        from .._util.limits import read_json_bounded
+        d = read_json_bounded(meta, "brackets.json", limit=16 << 20)  # regular, bounded, nesting bounded
         if not isinstance(d, dict) or d.get("format") != BRACKETS_FORMAT:
             raise FormatError(meta, f"'format' must be {BRACKETS_FORMAT!r}, got "
                               f"{d.get('format') if isinstance(d, dict) else type(d).__name__!r}")

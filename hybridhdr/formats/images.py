@@ -308,20 +308,21 @@ def read_timestamps(path) -> tuple[np.ndarray, list[str]]:
     inside the file's folder."""
     from .._util.confine import inside_folder
     ts, names = [], []
-    with open(path, encoding="utf-8") as f:
-        for i, line in enumerate(f, 1):
-            s = line.strip()
-            if not s or s.startswith("#"):
-                continue
-            parts = s.split()
-            if len(parts) != 2:
-                raise ValueError(f"{path}:{i}: expected 't_us filename', found {s!r}")
-            try:
-                ts.append(int(parts[0]))
-            except ValueError:
-                raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
-            inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
-            names.append(parts[1])
+    from .._util.limits import read_text_bounded
+    text = read_text_bounded(path, "timestamps file")  # a regular file within bounds (never a FIFO)
+    for i, line in enumerate(text.splitlines(), 1):
+        s = line.strip()
+        if not s or s.startswith("#"):
+            continue
+        parts = s.split()
+        if len(parts) != 2:
+            raise ValueError(f"{path}:{i}: expected 't_us filename', found {s!r}")
+        try:
+            ts.append(int(parts[0]))
+        except ValueError:
+            raise ValueError(f"{path}:{i}: t_us must be an integer (µs), found {parts[0]!r}") from None
+        inside_folder(parts[1], Path(path).parent, what=f"line {i}: output", source=path)
+        names.append(parts[1])
     return np.asarray(ts, np.int64), names
 
 

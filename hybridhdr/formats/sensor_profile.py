@@ -45,6 +45,30 @@ SIMULATOR_FIELDS = {
     "leak_rate_hz": "nonneg", "photoreceptor_cutoff_hz": "nonneg_or_null",
     "photoreceptor_white_radiance": "pos", "log_eps": "pos",
 }
+#: Physical range of each field (inclusive; units as the names say). Values outside are no
+#: sensor's and make the simulator's crossing kernel run without end: a threshold of 1e-300 with
+#: no refractory period (1e300 crossings a pixel), a photoreceptor cut-off of 1e308 Hz (NaN
+#: crossing times). Thresholds: 1e-4 log units is a 0.01 % contrast step, two orders below the
+#: finest of any event sensor (about 1 %), 10 a factor of 22,000 per event. Rates: a pixel
+#: cannot fire faster than once a µs (1 MHz). Photoreceptor bandwidth: at most 10 MHz (real ones
+#: are kHz). Refractory period: at most 100 s. Radiance scales: 1e-9 .. 1e12 of the scene's units.
+PARAM_RANGES = {
+    "contrast_threshold_on": (1e-4, 10.0), "contrast_threshold_off": (1e-4, 10.0),
+    "threshold_mismatch_sigma": (0.0, 10.0), "min_threshold": (1e-4, 10.0),
+    "refractory_period_us": (0, 100_000_000), "shot_noise_rate_hz": (0.0, 1e6), "leak_rate_hz": (0.0, 1e6),
+    "photoreceptor_cutoff_hz": (0.0, 1e7), "photoreceptor_white_radiance": (1e-9, 1e12), "log_eps": (1e-12, 1.0),
+}
+
+
+def check_param_range(name: str, v, where: str, error=ValueError) -> None:
+    """``v`` inside :data:`PARAM_RANGES` for ``name`` (None passes: the caller checks it)."""
+    if v is None or name not in PARAM_RANGES:
+        return
+    lo, hi = PARAM_RANGES[name]
+    if not lo <= float(v) <= hi:
+        raise error(f"{where}: {name} = {v!r} is outside the physical range [{lo:g}, {hi:g}] of an event sensor")
+
+
 #: Largest profile file read (a profile is a few kB).
 MAX_PROFILE_BYTES = 1 << 20
 
@@ -64,10 +88,13 @@ def _check_param(name, v, where):
     if kind == "int":
         if not (isinstance(v, int) and not isinstance(v, bool)) or v < 0:
             raise SensorProfileError(f"{where}: simulator_params.{name} must be an integer >= 0 (µs), found {v!r}")
+        check_param_range(name, v, f"{where}: simulator_params", SensorProfileError)
         return
     if not _is_num(v) or not math.isfinite(v) or (v <= 0 if kind == "pos" else v < 0):
         rel = "> 0" if kind == "pos" else ">= 0"
         raise SensorProfileError(f"{where}: simulator_params.{name} must be a finite number {rel}, found {v!r}")
+    if not (kind == "nonneg_or_null" and v == 0):
+        check_param_range(name, v, f"{where}: simulator_params", SensorProfileError)
 
 
 def _check_estimate(name, e, where):
@@ -164,17 +191,17 @@ class SensorProfile:
 
 
 def load_sensor_profile(path) -> SensorProfile:
-    """Read and check a sensor profile JSON file (:class:`SensorProfileError` when it is not one)."""
+    """Read and check a sensor profile JSON file (:class:`SensorProfileError` when it is not one).
+
+    Read as every small input is (:func:`hybridhdr._util.limits.read_json_bounded`): a regular
+    file (never a FIFO or a device), at most :data:`MAX_PROFILE_BYTES`, nesting bounded."""
+    from .._util.limits import read_json_bounded
+    from ..errors import FormatError
     path = Path(path)
     try:
-        size = path.stat().st_size
+        d = read_json_bounded(path, "sensor profile", limit=MAX_PROFILE_BYTES, parse_constant=lambda c: float(c))
+    except FormatError as e:
+        raise SensorProfileError(str(e)) from None
     except OSError as e:
         raise SensorProfileError(f"sensor profile {path}: cannot read it ({e.strerror or e})") from None
-    if size > MAX_PROFILE_BYTES:
-        raise SensorProfileError(f"sensor profile {path}: {size} bytes, expected a JSON file under "
-                                 f"{MAX_PROFILE_BYTES} bytes")
-    try:
-        d = json.loads(path.read_text(encoding="utf-8"), parse_constant=lambda c: float(c))
-    except (UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise SensorProfileError(f"sensor profile {path}: not JSON ({e})") from None
     return SensorProfile.from_dict(d, where=f"sensor profile {path}")

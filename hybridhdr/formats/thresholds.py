@@ -147,16 +147,75 @@ def _json_default(o):
     raise TypeError(f"not JSON serialisable: {type(o).__name__}")
 
 
+#: Contrast thresholds a file may hold (natural-log units). 1e-4 is a 0.01 % change of
+#: intensity per event, two orders of magnitude below the finest threshold of any event sensor
+#: (about 1 %); 10 is a factor of 22,000 per event, more than a frame's whole dynamic range. A
+#: value outside is not a sensor's: c = 1e308 used to make reconstruct write +inf frames.
+C_MIN_LOG, C_MAX_LOG = 1e-4, 10.0
+
+#: Arrays of a thresholds file and the dtype kinds they may have.
+_ARRAYS = {"c_on": "f", "c_off": "f", "n_on": "iu", "n_off": "iu", "n_intervals": "iu"}
+
+
+def _check_members(path: Path, zf) -> None:
+    """Every array's shape and size from its .npy header (read from the zip, before anything is
+    decompressed in full): 2-D maps within the sensor-size limits, scalars for the rest, and no
+    member that inflates beyond what its header declares."""
+    from .._util.limits import check_frame_bytes, check_packet_size, check_sensor_size
+    for info in zf.infolist():
+        name = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+        with zf.open(info) as f:
+            try:
+                version = np.lib.format.read_magic(f)
+                read = np.lib.format.read_array_header_1_0 if version == (1, 0) else np.lib.format.read_array_header_2_0
+                shape, fortran, dtype = read(f, max_header_size=10000)
+            except (ValueError, OSError, EOFError) as e:
+                raise ValueError(f"{path}: member {info.filename!r} is not a .npy array ({e})") from None
+        if dtype.hasobject:
+            raise ValueError(f"{path}: member {info.filename!r} holds Python objects; not read")
+        n_bytes = int(np.prod(shape, dtype=np.float64)) * dtype.itemsize
+        if name in _ARRAYS:
+            if len(shape) != 2:
+                raise ValueError(f"{path}: {name} must be a 2-D (H, W) map, its header declares shape {shape}")
+            check_sensor_size(shape[0], shape[1], path, f"thresholds map {name}")
+            check_frame_bytes(n_bytes, path, f"thresholds map {name}")
+            if dtype.kind not in _ARRAYS[name]:
+                raise ValueError(f"{path}: {name} has dtype {dtype}, expected "
+                                 f"{'floating-point' if _ARRAYS[name] == 'f' else 'integer'}")
+        else:
+            check_packet_size(n_bytes, path, f"thresholds member {info.filename!r}")
+        if info.file_size > n_bytes + 65536:
+            raise ValueError(f"{path}: member {info.filename!r} inflates to {info.file_size:,} bytes, more than its "
+                             f"header's {n_bytes:,}")
+
+
 def load_thresholds(path) -> ThresholdMap:
     """Read a ``thresholds.npz`` written by :meth:`ThresholdMap.save` (or ``calibrate thresholds``).
 
     Raises ValueError with the reason for a file of another format or version, a missing key or
-    invalid values (shapes, non-positive or infinite thresholds).
+    invalid values (shapes, non-positive or infinite thresholds, thresholds outside
+    [:data:`C_MIN_LOG`, :data:`C_MAX_LOG`]). The file must be a regular one (never a FIFO or a
+    device); each array's shape is checked from its header before anything is allocated.
     """
+    import zipfile
+
+    from .._util.limits import check_input_file
+    from ..errors import FormatError
     path = Path(path)
     try:
+        check_input_file(path, "thresholds file")
+        if path.is_dir():
+            raise ValueError(f"{path}: is a folder; expected a thresholds .npz file")
+        with zipfile.ZipFile(path) as zf:
+            _check_members(path, zf)
         z = np.load(path, allow_pickle=False)
+    except FormatError as e:
+        raise ValueError(str(e)) from None
+    except (zipfile.BadZipFile, zipfile.LargeZipFile, EOFError, NotImplementedError, KeyError) as e:
+        raise ValueError(f"{path}: not a thresholds .npz file (a damaged zip archive: {e})") from None
     except (ValueError, OSError) as e:
+        if isinstance(e, ValueError) and str(e).startswith(str(path)):
+            raise
         raise ValueError(f"{path}: not a thresholds .npz file ({e})") from None
     with z:
         keys = set(z.files)
@@ -170,8 +229,21 @@ def load_thresholds(path) -> ThresholdMap:
         ver = int(z["version"][()])
         if ver != THRESHOLDS_VERSION:
             raise ValueError(f"{path}: version {ver}, this hybridhdr reads version {THRESHOLDS_VERSION}")
-        prov = json.loads(str(z["provenance"][()])) if "provenance" in keys else {}
         try:
+            prov = json.loads(str(z["provenance"][()])) if "provenance" in keys else {}
+        except (ValueError, RecursionError) as e:
+            raise ValueError(f"{path}: provenance is not valid JSON ({type(e).__name__})") from None
+        if not isinstance(prov, dict):
+            raise ValueError(f"{path}: provenance must be a JSON object")
+        try:
+            for name in ("c_on", "c_off"):
+                a = np.asarray(z[name], dtype=np.float64)
+                fin = a[np.isfinite(a)]
+                if fin.size and (fin.min() < C_MIN_LOG or fin.max() > C_MAX_LOG):
+                    raise ValueError(f"{name} holds values from {fin.min():g} to {fin.max():g} log units; a "
+                                     f"contrast threshold lies in [{C_MIN_LOG:g}, {C_MAX_LOG:g}]")
+            for name in ("fallback_on", "fallback_off"):
+                check_range(float(z[name][()]), name, lo=C_MIN_LOG, hi=C_MAX_LOG, unit="log units")
             return ThresholdMap(c_on=z["c_on"], c_off=z["c_off"], fallback_on=float(z["fallback_on"][()]),
                                 fallback_off=float(z["fallback_off"][()]),
                                 n_on=z["n_on"] if "n_on" in keys else None,

@@ -27,7 +27,7 @@ import numpy as np
 from ..model import Frames
 from ._kernels import lut_segment
 from ..camera.encoding import frames_to_codes  # noqa: F401 - the frames' codes (re-exported here)
-from ..camera.profile import CameraProfile, profile_for_frames
+from ..camera.profile import CameraProfile, check_codes_in_profile, profile_for_frames
 
 __all__ = ["Segment", "SegmentCodes", "FrameMeasurements", "frames_to_codes"]
 
@@ -145,6 +145,7 @@ class FrameMeasurements:
         if not isinstance(profile, CameraProfile):
             raise TypeError(f"profile must be a CameraProfile, got {type(profile).__name__}")
         profile = profile_for_frames(profile, frames)
+        check_codes_in_profile(codes, profile)  # never clipped to the profile's top code without a word
         tau = frames.t_mid_us
         order = np.argsort(tau, kind="stable")
         tau, codes_idx = tau[order], order

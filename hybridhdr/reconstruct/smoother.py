@@ -140,13 +140,17 @@ def reverse_events(ev: EventArrays, t_mirror_us: int, n_workers: int = 1) -> Eve
 
 def reverse_frames(frames: Frames, t_mirror_us: int) -> Frames:
     """Frames in reversed time: each mid-exposure time ``τ' = t_mirror_us - 1 - τ`` exactly, the
-    exposure length kept, the order reversed."""
+    exposure length kept, ordered by the reversed exposure start. Exposure starts in order do not
+    make mid-exposure times in order (a long exposure, then a short one inside it): reversing the
+    index order alone then gave starts out of order, and an error about the input that was false
+    of it; the filter orders frames by their mid-exposure time itself."""
     T = frames.exposure_us[::-1]
     mid = (np.int64(t_mirror_us) - 1) - frames.t_mid_us[::-1]
     start = mid - T // 2
-    sel = lambda a: None if a is None else a[::-1]  # noqa: E731
-    return Frames(np.ascontiguousarray(frames.images[::-1]), start, start + T, sel(frames.gain),
-                  sel(frames.iso), frames.encoding)
+    order = np.argsort(start, kind="stable")
+    sel = lambda a: None if a is None else a[::-1][order]  # noqa: E731
+    return Frames(np.ascontiguousarray(frames.images[::-1][order]), start[order], (start + T)[order],
+                  sel(frames.gain), sel(frames.iso), frames.encoding)
 
 
 def fuse(l_f, p_f, l_b, p_b):

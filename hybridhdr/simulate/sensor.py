@@ -57,6 +57,10 @@ __all__ = ["EventSensorParams", "EventSensor", "PRESETS", "sensor_preset", "gene
 #: Longest step (µs) handled in one kernel call; longer steps are cut into equal pieces on the
 #: same linear interpolation, which bounds the counting-sort histogram (8 bytes per µs).
 MAX_STEP_BINS = 1 << 20
+#: Most threshold crossings one call of the crossing kernel may have to walk: a compiled kernel
+#: cannot take Ctrl-C or SIGTERM, so a step with more is split in time, and the signals act
+#: between the pieces (a fraction of a second apart).
+MAX_CROSSINGS_PER_CALL = 1 << 24
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -125,6 +129,11 @@ class EventSensorParams:
         r = self.refractory_period_us
         if isinstance(r, bool) or not isinstance(r, (int, np.integer)) or r < 0:
             raise ValueError(f"EventSensorParams.refractory_period_us must be an int >= 0 (µs), got {r!r}")
+        from ..formats.sensor_profile import PARAM_RANGES, check_param_range
+        for name in PARAM_RANGES:  # physics: values outside make the crossing kernel run without end
+            v = getattr(self, name)
+            if not (name == "photoreceptor_cutoff_hz" and not v):
+                check_param_range(name, v, "EventSensorParams")
         for name in ("contrast_threshold_on", "contrast_threshold_off"):
             if getattr(self, name) < self.min_threshold:
                 raise ValueError(f"EventSensorParams.{name} = {getattr(self, name)} is below "
@@ -389,10 +398,15 @@ class EventSensor:
                            2.0 * math.pi * p.photoreceptor_cutoff_hz / p.photoreceptor_white_radiance, lp1)
         else:
             lp1 = x1
-        if dt <= MAX_STEP_BINS:
+        if not np.all(np.isfinite(lp1)):
+            raise ValueError(f"the sensor's log intensity at {t1} µs is not finite (photoreceptor cut-off "
+                             f"{p.photoreceptor_cutoff_hz} Hz, white radiance {p.photoreceptor_white_radiance}); "
+                             f"check the sensor parameters")
+        bound = self._crossing_bound(self._lp, lp1, dt)
+        pieces = max(-(-dt // MAX_STEP_BINS), min(dt, int(-(-bound // MAX_CROSSINGS_PER_CALL))))
+        if pieces <= 1:
             ev = self._crossings(t0, t1, self._lp, lp1)
         else:
-            pieces = -(-dt // MAX_STEP_BINS)
             bounds = [t0 + (dt * j) // pieces for j in range(pieces + 1)]
             out = []
             la = self._lp
@@ -405,6 +419,28 @@ class EventSensor:
         self._t, self._rad, self._x, self._lp = t1, r, x1, lp1
         self.n_events += len(ev)
         return ev
+
+    def _crossing_bound(self, la: np.ndarray, lb: np.ndarray, dt: int) -> float:
+        """An upper bound on the events of a step, checked against the run's event budget
+        (``max_events``, lifted by ``--allow-huge``) before the kernel walks them: per pixel, the
+        log change over its smallest threshold plus one (the reference lies within a threshold of
+        the input), plus the leak and (5 sigma above) the shot-noise events."""
+        from .._util.limits import LIMITS, LimitExceeded, huge_allowed
+        p = self.params
+        n = la.size
+        c = np.minimum(self.c_on, self.c_off)
+        cross = float(np.sum(np.abs(lb - la) / c)) + n
+        leak = p.leak_rate_hz * dt * 1e-6 * n
+        mu = p.shot_noise_rate_hz * dt * 1e-6 * n
+        bound = cross + leak + mu + 5.0 * math.sqrt(mu)
+        if not math.isfinite(bound) or (self.n_events + bound > LIMITS["max_events"] and not huge_allowed()):
+            raise LimitExceeded(None, f"the simulated sensor would emit up to {bound:,.0f} events in the step to "
+                                      f"{self._t + dt} µs (after {self.n_events:,}), above the budget of "
+                                      f"{LIMITS['max_events']:,} events a run may emit (thresholds "
+                                      f"{p.contrast_threshold_on:g}/{p.contrast_threshold_off:g}, leak "
+                                      f"{p.leak_rate_hz:g} Hz, noise {p.shot_noise_rate_hz:g} Hz); check the sensor "
+                                      f"parameters or, if the data really is that large, pass --allow-huge")
+        return bound
 
     def _noise(self, dt: int):
         rate = self.params.shot_noise_rate_hz

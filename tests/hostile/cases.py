@@ -10,7 +10,8 @@ imported hybridhdr once (so a case costs milliseconds, not an interpreter start)
 Outcome of a case (the table's columns):
 
 * ``clean``: exit 1 with exactly one ``error:`` line and no traceback (cases expecting an error;
-  ``usage`` cases: exit 2, an option refused by the parser), and the case's check (if any) holds;
+  ``usage`` cases: exit 2, an option refused by the parser; ``refused`` cases: exit 1 or 2), and
+  the case's check (if any) holds;
 * ``ok``: exit 0 and the expected result (cases that must be read, e.g. former false rejects);
 * ``traceback``: an exception escaped (any traceback on stderr, or MemoryError under the cap);
 * ``crash``: the child died from a signal (SIGSEGV, SIGABRT, SIGKILL by the OOM killer);
@@ -994,9 +995,20 @@ def convert_ecd_user_folder_named_partial(d):
 
 @case("partial", "ok")
 def convert_after_a_killed_run_left_partial(d):
-    (d / "out.h5.partial").write_bytes(b"half a file")  # no live writer holds it: stale
+    part = d / "out.h5.partial"
+    part.write_bytes(b"half a file")  # no live writer holds it: stale
+    os.setxattr(part, "user.hybridhdr.partial", b"pid 999999999 host x")  # the mark a writer of ours puts on it
     argv = ["convert", str(_container(d / "r.h5")), str(d / "out.h5")]
     return argv, lambda out: ((d / "out.h5").is_file() and not (d / "out.h5.partial").exists(), out[-300:])
+
+
+@case("partial")
+def convert_user_file_named_partial(d):
+    user = d / "out.h5.partial"
+    user.write_text("my notes")  # a user's own file: never taken for an interrupted run's
+    argv = ["convert", str(_container(d / "r.h5")), str(d / "out.h5")]
+    return argv, lambda out: (user.read_text() == "my notes" and not (d / "out.h5").exists(),
+                              "the user's file was deleted")
 
 
 @case("partial", "ok")
@@ -1212,6 +1224,329 @@ def reconstruct_config_sets_allow_pickle(d):
     return _rec_argv(d, "--fps", "10", "--method", "e2vid", "--config", str(d / "run.toml")), _nothing_at(d / "o")
 
 
+# -- an attack on outputs, the bench, sensor profiles and the newer readers -------------------------
+_KEEP: list = []  # objects a case's child must find alive (a recorder's journal lock, a running bench's lock)
+
+
+def _rec_frames(path, frames, n=3000, ss=(24, 32)):
+    import hybridhdr as hh
+    from hybridhdr.formats.container import write_recording
+    return write_recording(hh.Recording(_events(n, ss[1], ss[0], span=200_000), ss, frames), path)
+
+
+def _flat_frames(k=6, ss=(24, 32), dtype=np.uint8, value=100, t_start=None, t_end=None):
+    import hybridhdr as hh
+    ts = np.arange(k) * 30_000 if t_start is None else np.asarray(t_start)
+    te = ts + 5_000 if t_end is None else np.asarray(t_end)
+    return hh.Frames(np.full((k, *ss), value, dtype), ts, te)
+
+
+def _unchanged(*paths):
+    before = {p: Path(p).read_bytes() for p in paths}
+    return lambda out: (all(Path(p).read_bytes() == b for p, b in before.items()), "an input was replaced")
+
+
+@case("outputs")
+def capture_sync_report_is_the_recording(d):
+    p = _container(d / "r.h5")
+    return ["capture", "sync", str(p), "--report", str(p)], _unchanged(p)
+
+
+@case("outputs")
+def capture_sync_out_is_the_recording(d):
+    p = _container(d / "r.h5")
+    return ["capture", "sync", str(p), "--out", str(p)], _unchanged(p)
+
+
+@case("outputs")
+def calibrate_sensor_out_is_the_recording(d):
+    p = _rec_frames(d / "r.h5", _flat_frames())
+    return ["calibrate", "sensor", str(p), "--out", str(p)], _unchanged(p)
+
+
+@case("outputs")
+def convert_existing_output_without_overwrite(d):
+    (d / "o.h5").write_bytes(b"a two-minute simulation")
+    return ["convert", str(_container(d / "r.h5")), str(d / "o.h5")], _unchanged(d / "o.h5")
+
+
+@case("partial", "refused")
+def reconstruct_user_file_named_out_partial(d):
+    (d / "o.partial").write_text("mine")
+    argv = ["reconstruct", str(_container(d / "r.h5", n=2000)), "--out", str(d / "o"), "--fps", "10",
+            "--method", "highpass", "--no-progress"]
+    return argv, lambda out: ((d / "o.partial").read_text() == "mine", "the user's file was deleted")
+
+
+@case("outputs")
+def capture_recover_while_the_recorder_writes(d):
+    from hybridhdr.capture.recorder import JournalWriter, journal_path
+    jw = JournalWriter(journal_path(d / "rec.h5"), {"format": "hybridhdr-journal", "version": 1,
+                                                     "sensor_height": 48, "sensor_width": 64},
+                       compression=None)
+    jw.write_events(_events(100))
+    jw.flush()
+    _KEEP.append(jw)  # a live recorder: it holds the journal's lock
+    return (["capture", "recover", str(d / "rec.h5")],
+            lambda out: ((d / "rec.h5.journal").is_file() and not (d / "rec.h5").exists(), "recovered a live journal"))
+
+
+def _bench_out(d, extra=()):
+    return _bench(d, _BENCH_HEAD + '[[methods]]\nmethod = "highpass"\n') + list(extra)
+
+
+@case("bench")
+def bench_second_run_on_a_non_empty_out(d):
+    (d / "o").mkdir()
+    (d / "o" / "results.csv").write_text("first bench")
+    return _bench_out(d), _unchanged(d / "o" / "results.csv")
+
+
+@case("bench")
+def bench_out_held_by_a_running_bench(d):
+    from hybridhdr.evaluate.bench import claim_bench_out
+    _KEEP.append(claim_bench_out(d / "o"))
+    return _bench_out(d, ["--overwrite"]), _nothing_at(d / "o" / "results.csv")
+
+
+def _task_file(d, rows=None, raw=None):
+    from hybridhdr.evaluate import bench as B
+    argv = _bench_out(d)
+    bench = B.load_bench(d / "b.toml", out_dir=d / "o")
+    tasks = B.expand(bench)
+    key = B._task_key(tasks[0], B._bench_opts(bench))
+    runs = d / "o" / B.RUNS_DIR
+    runs.mkdir(parents=True)
+    f = runs / "task_00000.json"
+    if raw == "fifo":
+        os.mkfifo(f)
+    elif raw == "dev_zero":
+        os.symlink("/dev/zero", f)
+    elif raw is not None:
+        f.write_text(raw.replace("KEY", key))
+    else:
+        f.write_text(json.dumps({"key": key, "task": 0, "rows": rows}))
+    return argv + ["--resume"]
+
+
+def _no_made_up(d):
+    def check(out):
+        text = (d / "o" / "results.csv").read_text() if (d / "o" / "results.csv").is_file() else ""
+        return ("-5.0" not in text and "=cmd" not in text and bool(text)), text[:300]
+    return check
+
+
+@case("bench", "ok")
+def bench_resume_tampered_values(d):
+    rows = [{"dataset": "procedural0", "method_label": "highpass", "status": "ok", "mse": -5.0, "ssim": 7.0}]
+    return _task_file(d, rows), _no_made_up(d)
+
+
+@case("bench", "ok")
+def bench_resume_formula_column(d):
+    rows = [{"dataset": "procedural0", "status": "ok", "=cmd|' /C calc'!A0": 1.0}]
+    return _task_file(d, rows), _no_made_up(d)
+
+
+@case("bench", "ok")
+def bench_resume_task_file_is_a_fifo(d):
+    return _task_file(d, raw="fifo"), _no_made_up(d)
+
+
+@case("bench", "ok")
+def bench_resume_task_file_is_dev_zero(d):
+    return _task_file(d, raw="dev_zero"), _no_made_up(d)
+
+
+@case("bench", "ok")
+def bench_resume_task_file_5000_deep(d):
+    return _task_file(d, raw='{"key": "KEY", "rows": ' + "[" * 5000 + "]" * 5000 + "}"), _no_made_up(d)
+
+
+def _sensor_profile(d, **params):
+    p = d / "prof.json"
+    p.write_text(json.dumps({"format": "hybridhdr-sensor-profile", "version": 1, "name": "x", "sensor": {},
+                             "simulator_params": params, "estimates": {}, "provenance": {}}))
+    return p
+
+
+def _simulate_with_profile(d, prof):
+    return _scene(d, extra=("--sensor", str(prof)))
+
+
+@case("profile", "refused")
+def profile_photoreceptor_cutoff_1e308(d):
+    return _simulate_with_profile(d, _sensor_profile(d, photoreceptor_cutoff_hz=1e308))
+
+
+@case("profile", "refused")
+def profile_thresholds_1e300_refractory_0(d):
+    return _simulate_with_profile(d, _sensor_profile(d, contrast_threshold_on=1e-300, contrast_threshold_off=1e-300,
+                                                     refractory_period_us=0))
+
+
+@case("profile", "refused")
+def profile_is_a_fifo(d):
+    os.mkfifo(d / "prof.json")
+    return _simulate_with_profile(d, d / "prof.json")
+
+
+@case("profile", "refused")
+def profile_is_dev_zero(d):
+    os.symlink("/dev/zero", d / "prof.json")
+    return _simulate_with_profile(d, d / "prof.json")
+
+
+@case("profile", "refused")
+def profile_json_5000_deep(d):
+    (d / "prof.json").write_text("[" * 5000 + "]" * 5000)
+    return _simulate_with_profile(d, d / "prof.json")
+
+
+def _hdr_ref_with_meta(d, how):
+    from PIL import Image
+    b = d / "br"
+    b.mkdir()
+    for i in range(2):
+        Image.fromarray(np.full((8, 8), 60 * (i + 1), np.uint8)).save(b / f"e{i}.png")
+    m = b / "brackets.json"
+    if how == "fifo":
+        os.mkfifo(m)
+    elif how == "dev_zero":
+        os.symlink("/dev/zero", m)
+    else:
+        m.write_text('{"format": ' + "[" * 5000 + "]" * 5000 + "}")
+    return ["calibrate", "hdr-reference", str(b), "--out", str(d / "ref.exr")], _nothing_at(d / "ref.exr")
+
+
+@case("brackets")
+def brackets_json_is_a_fifo(d):
+    return _hdr_ref_with_meta(d, "fifo")
+
+
+@case("brackets")
+def brackets_json_is_dev_zero(d):
+    return _hdr_ref_with_meta(d, "dev_zero")
+
+
+@case("brackets")
+def brackets_json_5000_deep(d):
+    return _hdr_ref_with_meta(d, "deep")
+
+
+def _recon_exr(d, ss=(48, 64), run_json=None):
+    from hybridhdr.formats.images import write_exr
+    r = d / "recon"
+    r.mkdir()
+    write_exr(r / "frame_000000.exr", np.ones(ss, np.float32))
+    (r / "timestamps.txt").write_text("0 frame_000000.exr\n")
+    if run_json == "fifo":
+        os.mkfifo(r / "run.json")
+    elif run_json == "dev_zero":
+        os.symlink("/dev/zero", r / "run.json")
+    elif run_json == "deep":
+        (r / "run.json").write_text("[" * 5000 + "]" * 5000)
+    return ["view", str(_container(d / "r.h5")), "--recon", str(r), "--out", str(d / "v.mp4"), "--no-progress"]
+
+
+@case("view", "refused")
+def view_recon_of_another_size(d):
+    return _recon_exr(d, ss=(30, 40)), _nothing_at(d / "v.mp4")
+
+
+@case("view")
+def view_recon_run_json_is_a_fifo(d):
+    return _recon_exr(d, run_json="fifo"), _nothing_at(d / "v.mp4")
+
+
+@case("view")
+def view_recon_run_json_is_dev_zero(d):
+    return _recon_exr(d, run_json="dev_zero"), _nothing_at(d / "v.mp4")
+
+
+@case("view")
+def view_recon_run_json_5000_deep(d):
+    return _recon_exr(d, run_json="deep"), _nothing_at(d / "v.mp4")
+
+
+def _thresholds_case(d, make):
+    t = d / "t.npz"
+    make(t)
+    argv = ["reconstruct", str(_rec_frames(d / "r.h5", _flat_frames())), "--out", str(d / "o"), "--fps", "20",
+            "--thresholds", str(t), "--no-progress"]
+    return argv, _nothing_at(d / "o")
+
+
+def _npz_c(c):
+    return lambda t: np.savez(t, format=np.array("hybridhdr-thresholds"), version=np.array(1),
+                              c_on=np.full((24, 32), c), c_off=np.full((24, 32), c), fallback_on=np.array(0.2),
+                              fallback_off=np.array(0.2))
+
+
+def _npz_declaring_30000sq(t):
+    hdr = io.BytesIO()
+    np.lib.format.write_array_header_1_0(hdr, {"descr": "<f8", "fortran_order": False, "shape": (30000, 30000)})
+    with zipfile.ZipFile(t, "w", zipfile.ZIP_DEFLATED) as zf:
+        with zf.open("c_on.npy", "w", force_zip64=True) as f:
+            f.write(hdr.getvalue())
+            f.write(b"\0" * (7 << 20))
+
+
+@case("thresholds", "refused")
+def thresholds_c_1e308_writes_no_inf_exr(d):
+    return _thresholds_case(d, _npz_c(1e308))
+
+
+@case("thresholds", "refused")
+def thresholds_c_1e_minus_300(d):
+    return _thresholds_case(d, _npz_c(1e-300))
+
+
+@case("thresholds", "refused")
+def thresholds_npz_declares_30000sq(d):
+    return _thresholds_case(d, _npz_declaring_30000sq)
+
+
+@case("thresholds", "refused")
+def thresholds_npz_zip_magic_only(d):
+    return _thresholds_case(d, lambda t: t.write_bytes(b"PK\x03\x04" + bytes(range(256))))
+
+
+@case("thresholds", "refused")
+def thresholds_npz_is_a_fifo(d):
+    return _thresholds_case(d, lambda t: os.mkfifo(t))
+
+
+@case("frames", "refused")
+def reconstruct_16bit_frames_without_profile(d):
+    p = _rec_frames(d / "r.h5", _flat_frames(dtype=np.uint16, value=40000))
+    return ["reconstruct", str(p), "--out", str(d / "o"), "--fps", "20", "--no-progress"], _nothing_at(d / "o")
+
+
+@case("frames", "ok")
+def reconstruct_sorted_starts_unsorted_mids(d):
+    ts = np.array([0, 30_000, 40_000, 90_000, 120_000, 150_000])
+    te = ts + 5_000
+    te[1] = 80_000
+    p = _rec_frames(d / "r.h5", _flat_frames(t_start=ts, t_end=te))
+    return (["reconstruct", str(p), "--out", str(d / "o"), "--fps", "50", "--no-progress"],
+            lambda out: ((d / "o" / "run.json").is_file(), out[-300:]))
+
+
+@case("frames", "refused")
+def overexpose_every_frame_at_one_instant(d):
+    ts = np.zeros(6, np.int64)
+    p = _rec_frames(d / "r.h5", _flat_frames(t_start=ts, t_end=ts + 5000))
+    return (["evaluate", "overexpose", str(p), "--gain", "4", "--method", "akf", "--out", str(d / "e"),
+             "--no-progress", "--no-figures"], _nothing_at(d / "e"))
+
+
+@case("options", "refused")
+def reconstruct_quiet_prints_its_error(d):
+    (d / "bad.h5").write_bytes(b"\x89HDF\r\n\x1a\n" + b"\0" * 64)  # a broken file: an error to report
+    return ["reconstruct", str(d / "bad.h5"), "--out", str(d / "o"), "--fps", "10", "-q"], _nothing_at(d / "o")
+
+
 # -- runner (fork server) -----------------------------------------------------------------------
 def _preload():
     import hybridhdr.cli  # noqa: F401
@@ -1321,12 +1656,17 @@ def run_cases(quick=True, timeout=None, mem_gib=1.5, selected=None, log=None):
                 if "Traceback" in err or rc == 70:
                     outcome = "traceback"
                 elif rc == 1 and len(err_lines) == 1:
-                    outcome = "clean" if expect == "error" else "silent"
+                    outcome = "clean" if expect in ("error", "refused") else "silent"
                     if outcome == "clean" and check is not None:  # e.g. nothing written, a file untouched
                         good, why = check(out + err)
                         outcome = "clean" if good else "silent"
-                elif rc == 2 and len(err_lines) == 1 and expect == "usage":
-                    outcome = "clean"  # an option out of range: argparse's usage error (exit 2), one line
+                elif rc == 2 and len(err_lines) == 1 and expect in ("usage", "refused"):
+                    # an option out of range: argparse's usage error (exit 2), one line; "refused": a
+                    # refusal the verb may report as a usage error (2) or an error (1)
+                    outcome = "clean"
+                    if check is not None:
+                        good, why = check(out + err)
+                        outcome = "clean" if good else "silent"
                 elif rc == 0:
                     if expect == "error":
                         outcome = "silent"
