@@ -193,6 +193,11 @@ def add_format_arg(parser, *, dest: str = "format", what: str = "input format") 
 #: them ("input").
 DEFAULT_THRESHOLDS = "selfcal"
 
+#: Command-line names of the declarable frame encodings (``--frame-encoding``); the camera model
+#: (``camera.encoding.ENCODING_CHOICES``) re-exports them. They live here so that building the
+#: parser imports no numpy (``hybridhdr --help`` start-up, ``benchmarks/cli_start.py``).
+FRAME_ENCODING_CHOICES = ("linear", "gamma2.2", "srgb")
+
 #: The words ``--thresholds`` takes besides a FILE (:func:`thresholds_arg`).
 THRESHOLD_WORDS = ("auto", "input", "params", "selfcal")
 
