@@ -21,9 +21,7 @@ import argparse
 import math
 import re
 
-
-class UsageError(ValueError):
-    """Bad arguments found after parsing (e.g. --end before --start): exit status 2, like argparse's."""
+from ..errors import UsageError  # noqa: F401  (re-exported: the command line's exit-2 errors)
 
 
 class HelpFormatter(argparse.HelpFormatter):

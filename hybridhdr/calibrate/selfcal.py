@@ -44,6 +44,7 @@ import numpy as np
 
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
+from ..errors import InputMismatchError
 from ..model import Recording
 from ..reconstruct.measurement import frames_to_codes
 from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
@@ -129,7 +130,7 @@ def estimate_event_frame_calibration(recording, *, profile=None, exclude_frames=
     rec = recording
     fr = rec.frames
     if fr is None or len(fr) < 3:
-        raise ValueError("self-calibration needs at least three frames (two intervals); the recording has "
+        raise InputMismatchError("self-calibration needs at least three frames (two intervals); the recording has "
                          f"{0 if fr is None else len(fr)}")
     ev = rec.events
     if len(ev) == 0:

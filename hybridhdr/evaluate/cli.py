@@ -430,13 +430,26 @@ def _holdout_params(method: str, params_path, contrast_threshold):
     return p
 
 
+def _methods_arg(text: str) -> list[str]:
+    """``--method a,b``: the names, each a reconstruction method (or alias); a usage error (exit 2)
+    names the known ones."""
+    from .._util.cliargs import UsageError
+    from ..reconstruct.api import METHOD_ALIASES, METHODS
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    if not methods:
+        raise UsageError(f"--method names no method ({text!r})")
+    unknown = [m for m in methods if m not in METHODS and m not in METHOD_ALIASES]
+    if unknown:
+        raise UsageError(f"--method: unknown method(s) {', '.join(map(repr, unknown))}; expected one of "
+                         f"{', '.join(list(METHODS) + list(METHOD_ALIASES))}")
+    return methods
+
+
 @json_output
 def run_holdout_cmd(args) -> int:
     from ..formats import read
     from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
-    methods = [m.strip() for m in args.method.split(",") if m.strip()]
-    if not methods:
-        raise ValueError("--method names no method")
+    methods = _methods_arg(args.method)
     if args.task == "auto":
         tasks = ("leave_one_out", "next_frame") if args.mode == "causal" else ("leave_one_out",)
     elif args.task == "both":
@@ -483,20 +496,19 @@ OVEREXPOSE_OUTPUTS = ("results.json", "table.txt", "per_frame.csv", "figures/*.p
 def _overexpose_specs(args):
     import dataclasses
 
+    from .._util.cliargs import UsageError
     from ..reconstruct.api import make_params
     from .overexpose import default_specs
-    methods = [m.strip() for m in args.method.split(",") if m.strip()]
+    methods = _methods_arg(args.method)
     modes = [m.strip() for m in args.mode.split(",") if m.strip()]
-    if not methods:
-        raise ValueError("--method names no method")
     bad = [m for m in modes if m not in ("offline", "causal", "forward")]
     if not modes or bad:
-        raise ValueError(f"--mode must be offline, causal and/or forward separated by commas, got {args.mode!r}")
+        raise UsageError(f"--mode must be offline, causal and/or forward separated by commas, got {args.mode!r}")
     files = {}
     for item in args.params:
         key, sep, path = item.partition("=")
         if not sep or not key.strip() or not path.strip():
-            raise ValueError(f"--params expects METHOD=FILE (e.g. akf=akf.toml), got {item!r}")
+            raise UsageError(f"--params expects METHOD=FILE (e.g. akf=akf.toml), got {item!r}")
         if not Path(path).is_file():
             raise FileNotFoundError(f"--params {item}: {path} does not exist")
         files[key.strip()] = path.strip()
@@ -504,7 +516,7 @@ def _overexpose_specs(args):
     known = {s.label for s in specs} | {s.method for s in specs}
     unknown = sorted(set(files) - known)
     if unknown:
-        raise ValueError(f"--params names {unknown}, which is no method or label run here ({sorted(known)})")
+        raise UsageError(f"--params names {unknown}, which is no method or label run here ({sorted(known)})")
     out = []
     for s in specs:
         src = files.get(s.label, files.get(s.method))

@@ -62,6 +62,7 @@ import numpy as np
 
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import LUMINANCE_WEIGHTS, well_exposed_range
+from ..errors import InputMismatchError, UsageError
 from ..model import Frames, HDRReferences, Metadata, Recording
 from ..reconstruct import reconstruct
 from ..reconstruct.api import METHODS as RECON_METHODS
@@ -108,10 +109,10 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
     for m in methods:
         m = resolve_method(m)
         if not RECON_METHODS[m][1]:
-            raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
+            raise InputMismatchError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
                              f"frames: {', '.join(FRAME_METHODS)}")
         if m in ("frames_zoh", "frames_linear"):
-            raise ValueError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
+            raise UsageError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
                              f"scored")
         for mode in modes:
             lab = _label(m, mode)
@@ -183,7 +184,7 @@ def overexpose_recording(rec, gain: float, *, profile=None) -> tuple[Recording, 
     gain = float(gain)
     fr = rec.frames
     if fr is None or len(fr) == 0:
-        raise ValueError("overexpose needs a recording with frames; this one has none")
+        raise InputMismatchError("overexpose needs a recording with frames; this one has none")
     prof = _frames_profile(rec, profile)
     _check_codes(fr, prof)
     ref = prof.intensity(fr.images) * gain
@@ -242,9 +243,9 @@ def _kept(rec):
     """Indices of the frames with τ_k up to the last event (the input's frames)."""
     n = 0 if rec.frames is None else len(rec.frames)
     if n < 2:
-        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frame(s)")
+        raise InputMismatchError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frame(s)")
     if len(rec.events) == 0:
-        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frames "
+        raise InputMismatchError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frames "
                          f"but no events")
     return np.flatnonzero(rec.frames.t_mid_us <= int(rec.events["t"][-1]))
 
