@@ -44,8 +44,7 @@ def add_parsers(sub) -> None:
                        description="Build a procedural hybrid recording in memory, write and read it "
                                    "through every writer, print the info table, reconstruct, then run a small "
                                    "benchmark (speed-accuracy and stability charts) and the paper's Table 1 on "
-                                   "simulated HDR/AHDR sets (about 3 minutes on 2 cores, 177 s measured; longer on "
-                                   "a loaded machine).")
+                                   "simulated HDR/AHDR sets.")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--weights-e2vid", type=Path, default=None, metavar="PATH",

@@ -26,7 +26,13 @@ from ..errors import UsageError  # noqa: F401  (re-exported: the command line's 
 
 class HelpFormatter(argparse.HelpFormatter):
     """Shows ``(default: X)`` once: not when the help already states a default, not for required
-    options, positionals, flags, ``None`` or empty defaults."""
+    options, positionals, flags, ``None`` or empty defaults. An epilog that starts with
+    ``example`` is printed as it is (a command line is never re-wrapped: it stays copyable)."""
+
+    def _fill_text(self, text, width, indent):
+        if text.startswith("example"):
+            return "\n".join(indent + line for line in text.splitlines())
+        return super()._fill_text(text, width, indent)
 
     def _get_help_string(self, action):
         h = action.help or ""
@@ -65,7 +71,8 @@ COMMON_NO_JSON = _common_parent(with_json=False)
 
 def finalise(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Apply the conventions to a whole parser tree: one formatter, no abbreviations, the common
-    options on every command (leaf), and each command's full name for error messages."""
+    options on every command (leaf), each command's full name for error messages, and its example
+    (``_util.examples``) at the end of its ``--help``."""
     def walk(p):
         p.formatter_class = HelpFormatter
         p.allow_abbrev = False
@@ -87,6 +94,9 @@ def finalise(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                 mine = p.add_argument_group(grp.title)
             mine._add_action(act)
         p.set_defaults(_prog=p.prog, _parser=p)
+        if p.epilog is None:
+            from .examples import example_epilog
+            p.epilog = example_epilog(p.prog.partition(" ")[2])
     walk(parser)
     return parser
 

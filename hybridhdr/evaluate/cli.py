@@ -54,9 +54,8 @@ def add_parser(sub) -> None:
                         description="Run methods x datasets x parameter grids from BENCH (a TOML file, or a "
                                     "bundled name: demo, speed_accuracy, stability, tiny); write results.csv, "
                                     "report.md/.html, strips and charts to --out. Each finished task is kept in "
-                                    "OUT/runs/ as it finishes (--resume continues an interrupted run). Measured on "
-                                    "a loaded shared 2-core machine: tiny 156 s, demo 572 s, stability 8 min or "
-                                    "more (docs/evaluate.md).")
+                                    "OUT/runs/ as it finishes (--resume continues an interrupted run). Sizes (tasks, "
+                                    "runs): docs/evaluate.md.")
     b.add_argument("bench", help="bench TOML file or bundled bench name")
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
@@ -79,7 +78,7 @@ def add_parser(sub) -> None:
                         description="Build an HDR set and an AHDR set (simulator when available), run every "
                                     "method, print a table shaped like the paper's Table 1.")
     q.add_argument("--out", type=Path, required=True, help="output folder")
-    q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
+    q.add_argument("--quick", action="store_true", help="small scenes (48x36, 0.3 s, fixed 500 Hz sampling)")
     q.add_argument("--workers", type=worker_count, default=None, help="local worker processes")
     q.add_argument("--scheduler", default=None, help="Dask scheduler address")
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
