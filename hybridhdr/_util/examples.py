@@ -25,11 +25,11 @@ EXAMPLES = {
     "capture record": f"hybridhdr capture record --events {_DATA}/prophesee/sparklers_gen3_evt2.raw --out rec.h5 "
                       "--pace fast",
     "capture recover": "hybridhdr capture recover rec.h5",
-    "capture brackets": f"hybridhdr capture brackets {_DATA}/brackets/memorial --plot memorial_sheet.png",
+    "capture brackets": f"hybridhdr capture brackets {_DATA}/brackets/memorial --out memorial/ --plot memorial.png",
     "capture sync": "hybridhdr capture sync street.h5 --trigger-channel 3 --out street_synced.h5 "
                     "--report street_sync.json",
-    "capture session": f"hybridhdr capture session session/ --recording rec.h5 --profile crf/camera_profile.json "
-                       f"--brackets {_DATA}/brackets/memorial",
+    "capture session": "hybridhdr capture session session/ --recording rec.h5 --profile crf/camera_profile.json "
+                       "--brackets memorial/",
     "calibrate rig": f"hybridhdr calibrate rig --left '{_DATA}/checkerboard/opencv_stereo/left*.jpg' "
                      f"--right '{_DATA}/checkerboard/opencv_stereo/right*.jpg' --board 9x6 --square-mm 25 "
                      "--out stereo/",
