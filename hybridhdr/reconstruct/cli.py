@@ -210,6 +210,38 @@ def estimate_run_thresholds(args, params):
                f"{record['pixel_intervals']} pixel-intervals of {record['intervals']} frame intervals)")
 
 
+def _events_total(source, args) -> int | None:
+    """The progress bar's total: the events the recording declares (a container's count), when
+    the whole recording is read (no --start/--end); None (a bar without ETA) otherwise."""
+    if any(getattr(args, k, None) is not None for k in ("start", "end", "start_us", "end_us")):
+        return None
+    try:
+        if isinstance(source, str):
+            from ..formats import open_reader
+            with open_reader(source, getattr(args, "format", None)) as r:
+                n = getattr(r, "n_events", None)
+        else:
+            n = getattr(source, "n_events", None)
+    except (OSError, ValueError):
+        return None  # the run itself says what is wrong with the file
+    return int(n) if isinstance(n, int) and not isinstance(n, bool) and n > 0 else None
+
+
+def _frames_written(bar, files_per_frame: int):
+    """``VideoWriter.on_written`` (files: EXR, PNG, MP4 frames) shown as output frames written."""
+    import threading
+    lock = threading.Lock()
+    files = [0]
+    per = max(1, int(files_per_frame))
+
+    def on_written(k: int) -> None:
+        with lock:
+            files[0] += int(k)
+            bar.set_postfix_str(f"{files[0] // per} frames written", refresh=False)
+
+    return on_written
+
+
 #: ``--exr-compression`` names, listed without importing OpenEXR (and numpy) so that ``--help`` starts
 #: fast; the names the installed OpenEXR lacks are refused when the command runs
 #: (``formats.images.exr_compressions``; a test keeps the two lists equal).
@@ -441,28 +473,28 @@ def run(args) -> int:
         stage = "run"
         if note:
             print(note, file=sys.stderr)
-        with _signals_exit():
+        from .._util.progress import progress_bars
+        from .cuda import resolve_device
+        _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
+        print(device_line, file=sys.stderr)  # before the bar: no line cuts through it
+        with _signals_exit(), progress_bars(not args.no_progress) as new_bar:
             # the writer pool forks here, before any other thread (progress bars, readers) starts
-            bars = []
             writer = VideoWriter(folder.path, exr=not args.no_exr, compression=compression, png=args.png,
                                  mp4=args.mp4, playback_fps=args.playback_fps, writers=args.writers)
-            progress = None
-            if not args.no_progress:
-                from tqdm import tqdm
-                bars.append(tqdm(unit="ev", unit_scale=True, desc=f"reconstruct {method}", file=sys.stderr,
-                                 position=0))
-                bars.append(tqdm(unit="img", desc="written", file=sys.stderr, position=1))
-                progress = bars[0].update
-                writer.on_written = bars[1].update
             info: dict = {}
-            from .cuda import resolve_device
-            _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
-            print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
                 from ..formats import open_reader
                 opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
                 source = open_reader(args.recording, args.format, **opts)
+            # one bar: events (each once, also in the two-sided pass) out of the recording's, with
+            # an ETA when the recording declares its count; output frames written as its postfix
+            bar = new_bar(total=_events_total(source, args), unit="ev", unit_scale=True,
+                          desc=f"reconstruct {method}")
+            progress = None
+            if bar is not None:
+                progress = bar.update
+                writer.on_written = _frames_written(bar, (not args.no_exr) + bool(args.png) + bool(args.mp4))
             try:
                 for t, img in reconstruct_iter(source, method, run_params, times_us=times, fps=args.fps,
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
@@ -477,9 +509,11 @@ def run(args) -> int:
                 # the previews' display map as 'view' makes it (frames' encoding; events-only: centred)
                 writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=not METHODS[method][1])
                 written = writer.close()
+                if bar is not None and bar.total and bar.n < bar.total:
+                    bar.update(bar.total - bar.n)  # done: the events after the last output are not needed
             finally:
-                for b in bars:
-                    b.close()
+                if bar is not None:
+                    bar.close()
                 if not isinstance(source, str):
                     source.close()
             run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
