@@ -206,6 +206,11 @@ DEFAULT_THRESHOLDS = "selfcal"
 #: parser imports no numpy (``hybridhdr --help`` start-up, ``benchmarks/cli_start.py``).
 FRAME_ENCODING_CHOICES = ("linear", "gamma2.2", "srgb")
 
+#: ``simulate builtin:blinking_checkerboard --poses``: the most static views the scene has (the
+#: simulator checks it; calibrate's advice about few views names it, as calibrate may not import
+#: simulate).
+BLINKING_BOARD_MAX_POSES = 5
+
 #: The words ``--thresholds`` takes besides a FILE (:func:`thresholds_arg`).
 THRESHOLD_WORDS = ("auto", "input", "params", "selfcal")
 
@@ -240,13 +245,16 @@ _PY_TO_CLI = {"method": "--method", "mode": "--mode", "fps": "--fps", "times_us"
               "t_start_us": "--start", "t_end_us": "--end", "thresholds": "--thresholds", "cfa": "--cfa",
               "weights": "--weights", "profile": "--profile", "n_workers": "--workers",
               "chunk_events": "--chunk-events", "augment": "--augmentation", "demosaic": "--demosaic",
-              "format": "--from", "frame_encoding": "--frame-encoding"}
+              "format": "--format", "frame_encoding": "--frame-encoding"}
 _KW = re.compile(r"\b(" + "|".join(_PY_TO_CLI) + r")=(?:'([^']*)'|\"([^\"]*)\"|([\w.+-]+))")
 
 
 def cli_wording(msg: str) -> str:
-    """``method='highpass'`` -> ``--method highpass`` (and the other keyword arguments the CLI names)."""
+    """``method='highpass'`` -> ``--method highpass`` (and the other keyword arguments the CLI names);
+    a keyword inside the Python half of a hint (``read(path, format='NAME') in Python``) is kept."""
     def rep(m):
+        if "in Python" in m.string[m.end():m.end() + 40].split(",")[0]:
+            return m.group(0)
         val = next(g for g in m.groups()[1:] if g is not None)
         return f"{_PY_TO_CLI[m.group(1)]} {val}"
     return _KW.sub(rep, msg)

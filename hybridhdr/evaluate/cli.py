@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import (DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
+from .._util.cliargs import (THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
                              json_output, nonneg_int, positive_float, thresholds_arg, worker_count)
 
 
@@ -134,7 +134,7 @@ def add_parser(sub) -> None:
                                     "figures/METHOD_gainG.png to --out. See docs/evaluate.md.")
     o.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and integer frames")
     o.add_argument("--gain", type=_gain_list, default=[4.0], metavar="G[,G...]",
-                   help="over-exposure factor(s) on the frames' linear intensity, comma-separated (default 4)")
+                   help="over-exposure factor(s) on the frames' linear intensity, each > 1, comma-separated (default 4)")
     o.add_argument("--method", default="akf,cf,direct,edi",
                    help="method(s) that take frames, comma-separated: akf, cf, direct, edi")
     o.add_argument("--mode", default="offline,causal", metavar="MODE[,MODE]",
@@ -147,13 +147,9 @@ def add_parser(sub) -> None:
                    help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
     o.add_argument("--contrast-threshold", type=positive_float, default=None,
                    help="contrast threshold c (log units) for every event method")
-    o.add_argument("--thresholds", choices=["auto", "input", "params", "selfcal"], default=None,
-                   help="contrast thresholds, as reconstruct's --thresholds words: selfcal = the event/frame "
-                        "self-calibration of the over-exposed input without the scored frame; auto = pooled ON/OFF "
-                        "thresholds estimated in the method's log model on that input; input = what the recording "
-                        "declares (else the method's own); params = the method's own [default: " + DEFAULT_THRESHOLDS +
-                        " for a recording that declares no thresholds, else input; params when --params or "
-                        "--contrast-threshold is given]")
+    o.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
+                   help=THRESHOLDS_HELP + "; here auto and selfcal are estimated on the over-exposed input "
+                        "without the scored frame")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     add_format_arg(o)
@@ -166,7 +162,8 @@ def add_parser(sub) -> None:
 
 
 def _gain_list(text: str) -> list:
-    """``--gain 4`` or ``4,8``: finite factors > 0 (a usage error otherwise)."""
+    """``--gain 4`` or ``4,8``: finite factors > 1 (a usage error otherwise: a gain of 1 or less
+    over-exposes nothing, so there is no clipped pixel to recover)."""
     import argparse
     import math
     out = []
@@ -174,9 +171,10 @@ def _gain_list(text: str) -> list:
         try:
             g = float(v)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}") from None
-        if not (math.isfinite(g) and g > 0):
-            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected numbers > 1 separated by commas, got {text!r}") from None
+        if not (math.isfinite(g) and g > 1):
+            raise argparse.ArgumentTypeError(f"expected numbers > 1 separated by commas (a gain of 1 or less "
+                                             f"over-exposes nothing), got {text!r}")
         out.append(g)
     if len(set(out)) != len(out):
         raise argparse.ArgumentTypeError(f"each gain once, got {text!r}")

@@ -56,6 +56,7 @@ import csv
 import dataclasses
 import io
 import math
+import os
 import time
 
 import numpy as np
@@ -334,13 +335,17 @@ def _without(rec_in, k):
                      rec_in.triggers, None, rec_in.metadata)
 
 
-def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern):
-    """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec."""
+def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern,
+              tmap=None):
+    """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
+    per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
+        kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
+            else {}
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
-                        augment=spec.augment)
+                        augment=spec.augment, **kw_map)
         wall = time.perf_counter() - t0
         if not np.array_equal(v.t_us, tk):
             raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
@@ -429,7 +434,9 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     frames : indices into the kept frames (τ_k up to the last event) to score, each ≥ 1; default
         :func:`default_scored_frames`
     profile : the frames' camera profile (default: the recording's, else built-in)
-    thresholds : ``"params"`` (each method's own; ``"input"`` is the same here: with no parameters
+    thresholds : a per-pixel threshold map (a path to a ``.npz`` from ``calibrate thresholds`` or a
+        ``ThresholdMap``, as ``reconstruct(thresholds=...)`` takes: every threshold method uses it),
+        ``"params"`` (each method's own; ``"input"`` is the same here: with no parameters
         given, the method takes what the recording declares), ``"auto"`` (estimated without frame k) or
         ``"selfcal"`` (the event/frame self-calibration of the input without frame k,
         :func:`hybridhdr.evaluate.realdata.selfcal_params`: frame k is reconstructed at the time it
@@ -450,8 +457,14 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
     "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
-    if thresholds not in RD.THRESHOLD_SOURCES:
-        raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES}, got {thresholds!r}")
+    tmap = None
+    if not isinstance(thresholds, str):  # a map, as reconstruct's and evaluate holdout's thresholds take
+        tmap = thresholds
+        if isinstance(thresholds, os.PathLike):
+            from ..formats.thresholds import load_thresholds
+            tmap = load_thresholds(thresholds)
+    elif thresholds not in RD.THRESHOLD_SOURCES:
+        raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES} or a threshold map, got {thresholds!r}")
     if calibrate is not None and not callable(calibrate):
         raise TypeError(f"calibrate must be a callable (recording without frame k -> overrides), got "
                         f"{type(calibrate).__name__}")
@@ -459,8 +472,9 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     if not gains:
         raise ValueError("give at least one gain")
     for g in gains:
-        if not (math.isfinite(g) and g > 0):
-            raise ValueError(f"gains must be finite and > 0, got {g!r}")
+        if not (math.isfinite(g) and g > 1):
+            raise ValueError(f"gains must be finite and > 1 (a gain of 1 or less over-exposes nothing: no "
+                             f"clipped pixel to recover), got {g!r}")
     if specs is None:
         specs, sk = default_specs()
         skipped = {**sk, **(skipped or {})}
@@ -489,7 +503,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     t_us = fr_all.t_mid_us[scored]
     res = {"frames": scored, "frame_indices": [int(kept[k]) for k in scored], "t_us": [int(t) for t in t_us],
            "n_frames_kept": int(len(kept)), "n_events": int(len(rec.events)), "well_exposed_codes": [lo, hi],
-           "clip_codes": list(clip), "profile": prof.name, "thresholds": thresholds,
+           "clip_codes": list(clip), "profile": prof.name,
+           "thresholds": thresholds if isinstance(thresholds, str) else f"per-pixel map {thresholds}",
            "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
            "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "
                   "pixels the over-exposed frame shows unclipped" % LOG_FLOOR,
@@ -533,7 +548,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
             try:
                 x, wall, used = _run_spec(s, over, scored, t_us, profile=profile, thresholds=thresholds,
                                           calibrate=calibrate, cal_cache=cal_cache,
-                                          ref_ndim=ref_ndim, pattern=pattern)
+                                          ref_ndim=ref_ndim, pattern=pattern, tmap=tmap)
             except Exception as e:  # reported per method, never hidden
                 row["status"] = f"error: {type(e).__name__}: {e}"
                 if log is not None:

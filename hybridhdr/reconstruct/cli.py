@@ -425,6 +425,11 @@ def run(args) -> int:
         method = resolve_method(args.method)
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
+        if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
+            raise FileNotFoundError(f"recording {args.recording} not found")
+        # --out is claimed (a non-empty one refused) before the threshold estimation and the
+        # self-calibration, which take seconds to minutes
+        folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         auto_note = None
         thr_source = args.thresholds  # FILE (Path), auto, input, params or None: --help, THRESHOLDS_HELP
         if args.contrast_threshold == "auto":
@@ -467,9 +472,6 @@ def run(args) -> int:
             raise ValueError(f"--playback-fps must be > 0, got {args.playback_fps}")
         if args.writers is not None and args.writers < 0:
             raise ValueError(f"--writers must be >= 0, got {args.writers}")
-        if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
-            raise FileNotFoundError(f"recording {args.recording} not found")
-        folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         stage = "run"
         if note:
             print(note, file=sys.stderr)
@@ -548,8 +550,8 @@ def run(args) -> int:
         if run_info.get("thresholds", "").startswith("the method's default"):
             print(f"note: the recording declares no contrast thresholds: used the default ON "
                   f"{run_info['params'].get('contrast_threshold')} (log units); measure them with 'hybridhdr "
-                  f"calibrate thresholds' (then --thresholds), estimate them with --contrast-threshold auto, or give "
-                  f"--contrast-threshold C", file=sys.stderr)
+                  f"calibrate thresholds' (then --thresholds FILE), estimate them with --thresholds selfcal (the "
+                  f"default) or --thresholds auto, or give --contrast-threshold C", file=sys.stderr)
         if args.json:
             print(json.dumps({"method": method, "frames": writer.n, "t_first_us": writer.t_first,
                               "t_last_us": writer.t_last, "events_used": info.get("n_events_used", 0),
