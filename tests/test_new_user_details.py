@@ -84,7 +84,8 @@ def test_rig_few_views_advice_stays_within_poses_range(shared_data, tmp_path, ca
     assert rc == 0, capsys.readouterr().err
     warnings = json.loads((tmp_path / "rig" / "report.json").read_text())["warnings"]
     assert warnings
-    for w in warnings:
+    for w in warnings:  # advice a user can follow: a --poses value the simulator accepts
+        assert re.search(r"--poses \d+", w), w
         for n in re.findall(r"--poses (\d+)", w):
             assert 1 <= int(n) <= BLINKING_BOARD_MAX_POSES, w
     builtin_scene("builtin:blinking_checkerboard", poses=BLINKING_BOARD_MAX_POSES, duration_s=0.1)
