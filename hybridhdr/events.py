@@ -41,8 +41,8 @@ TRIGGER_DTYPE = np.dtype([("t", "<i8"), ("channel", "<u2"), ("edge", "i1")], ali
 class SensorSize:
     """Sensor size in pixels, ``(height, width)`` in that order (unlike OpenCV's (w, h)), as
     ``repr`` shows it (``SensorSize(height=480, width=640)``); ``str`` prints ``640x480``, width
-    first as cameras are sold, and :meth:`from_any` reads that form back. Give the fields by name
-    (``SensorSize(height=480, width=640)``) where the order could be misread.
+    first as cameras are sold. Give the fields by name (``SensorSize(height=480, width=640)``)
+    where the order could be misread.
 
     Examples
     --------
@@ -76,17 +76,10 @@ class SensorSize:
 
     @classmethod
     def from_any(cls, value) -> "SensorSize | None":
-        """Accept ``SensorSize``, ``None``, a ``(height, width)`` pair, or the printed form
-        ``"WxH"`` (``"640x480"``: width first, as ``str`` prints it and cameras are sold), so
-        that ``SensorSize.from_any(str(s)) == s``."""
+        """Accept ``SensorSize``, ``None`` or a ``(height, width)`` pair (not the printed
+        ``"WxH"`` string, whose order is the other way round)."""
         if value is None or isinstance(value, SensorSize):
             return value
-        if isinstance(value, str):
-            import re
-            m = re.fullmatch(r"\s*(\d+)\s*[x×]\s*(\d+)\s*", value)
-            if not m:
-                raise ValueError(f"sensor size {value!r}: expected WIDTHxHEIGHT, e.g. '640x480'")
-            return cls(int(m.group(2)), int(m.group(1)))
         try:
             h, w = value
         except (TypeError, ValueError):

@@ -119,12 +119,3 @@ def test_calibrate_crf_prints_width_x_height(shared_data, tmp_path, capsys):
     h, w = read_bracket_set(src).shape[:2]
     assert f"images {w}x{h} RGB" in err and f"({h}, {w}" not in err, err
 
-
-def test_sensor_size_reads_back_the_way_it_prints():
-    import hybridhdr as hh
-    s = hh.SensorSize(height=480, width=640)
-    assert str(s) == "640x480" and repr(s) == "SensorSize(height=480, width=640)"
-    assert hh.SensorSize.from_any(str(s)) == s  # the printed form (width first) builds the same size
-    assert hh.SensorSize.from_any("346 x 260") == hh.SensorSize(260, 346)
-    with pytest.raises(ValueError, match="WIDTHxHEIGHT"):
-        hh.SensorSize.from_any("64")
