@@ -548,20 +548,14 @@ def run_overexpose_cmd(args) -> int:
             from .realdata import default_threshold_source
             given = bool(args.params) or args.contrast_threshold is not None
             thresholds = "params" if given else default_threshold_source(rec)
-        bar = None
-        if not args.no_progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(args.gain) * len(specs), desc="overexpose", unit="method", file=sys.stderr,
-                       dynamic_ncols=True)
-        try:
+        from .._util.progress import progress_bars
+        with progress_bars(not args.no_progress) as new_bar:  # failures logged meanwhile go above the bar
+            bar = new_bar(total=len(args.gain) * len(specs), desc="overexpose", unit="method")
             res = evaluate_overexpose(rec, args.gain, specs, frames=frames,
                                       profile=None if args.profile is None else str(args.profile),
                                       thresholds=thresholds, skipped=skipped, keep_images=not args.no_figures,
                                       log=lambda msg: print(msg, file=sys.stderr),
                                       progress=None if bar is None else bar.update)
-        finally:
-            if bar is not None:
-                bar.close()
         images = res.pop("_images", None)
         res["recording"] = str(args.recording)
         text = format_overexpose(res, f"{args.recording.name}, ")
