@@ -222,7 +222,7 @@ def _events_total(source, args) -> int | None:
                 n = getattr(r, "n_events", None)
         else:
             n = getattr(source, "n_events", None)
-    except (OSError, ValueError):
+    except (OSError, ValueError, ImportError):
         return None  # the run itself says what is wrong with the file
     return int(n) if isinstance(n, int) and not isinstance(n, bool) and n > 0 else None
 
