@@ -251,7 +251,7 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
     assert "not empty" in capsys.readouterr().err
     assert main(["evaluate", "overexpose", str(path), "--gain", "0", "--out", str(tmp_path / "o2")]) == 2
     assert main(["evaluate", "overexpose", str(path), "--params", "akf", "--out", str(tmp_path / "o3"),
-                 "--no-progress"]) == 1
+                 "--no-progress"]) == 2  # a malformed METHOD=FILE is a usage error, as everywhere
     assert "METHOD=FILE" in capsys.readouterr().err
     assert not (tmp_path / "o3").exists() and not (tmp_path / "o3.partial").exists()
 
