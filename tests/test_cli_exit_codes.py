@@ -65,3 +65,23 @@ def test_unknown_or_unsuitable_method_is_a_usage_error(capsys, recordings, tmp_p
 def test_bad_data_exits_1(capsys, recordings, tmp_path, argv):
     rc, err = _run(capsys, recordings, tmp_path, argv)
     assert rc == 1, err
+
+
+@pytest.mark.parametrize("argv", [("reconstruct", "{hybrid}", "--out", "{out}"),
+                                  ("evaluate", "overexpose", "{hybrid}", "--out", "{out}")],
+                         ids=lambda a: " ".join(a[:2]))
+def test_a_non_empty_out_is_a_usage_error(capsys, recordings, tmp_path, argv):
+    (tmp_path / "out").mkdir()
+    (tmp_path / "out" / "mine.txt").write_text("keep")
+    rc, err = _run(capsys, recordings, tmp_path, argv)
+    assert rc == 2 and "not empty" in err and "--overwrite" in err, err
+    assert (tmp_path / "out" / "mine.txt").read_text() == "keep"
+
+
+def test_refuse_existing_output_is_a_usage_error(tmp_path):
+    from hybridhdr._util.atomic import refuse_existing_output
+    from hybridhdr.errors import UsageError
+    f = tmp_path / "x.h5"
+    f.write_bytes(b"mine")
+    with pytest.raises(UsageError, match="--overwrite"):
+        refuse_existing_output(f, overwrite=False, command="convert")

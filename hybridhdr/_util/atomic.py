@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..errors import UsageError
+
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
            "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
            "atomic_outputs", "remap_paths", "refuse_overwriting_inputs"]
@@ -272,9 +274,9 @@ class AtomicFolder:
         self.command = command
         if self.target.exists():
             if not self.target.is_dir():
-                raise ValueError(f"--out {out} exists and is not a folder")
+                raise UsageError(f"--out {out} exists and is not a folder")
             if any(self.target.iterdir()) and not self.overwrite:
-                raise ValueError(f"--out {out} exists and is not empty; choose another folder or pass --overwrite "
+                raise UsageError(f"--out {out} exists and is not empty; choose another folder or pass --overwrite "
                                  f"(replaces the files a {command} run writes, keeps everything else)")
         self.path = self.target.with_name(self.target.name + ".partial")
         self.target.parent.mkdir(parents=True, exist_ok=True)
@@ -439,8 +441,8 @@ def refuse_overwriting_inputs(outputs, inputs) -> None:
 def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command: str = "this command") -> None:
     """The one rule for an output file or folder that already exists, in every verb that writes.
 
-    An existing non-empty output is refused (``ValueError``, before any work) unless ``overwrite``;
-    an empty folder is accepted. ``flag`` names the option in the message, ``command`` the verb.
+    An existing non-empty output is refused (``errors.UsageError``, a ``ValueError``: exit 2, before
+    any work) unless ``overwrite``; an empty folder is accepted. ``flag`` names the option in the message, ``command`` the verb.
     The check is the same for files and folders, so ``simulate``, ``convert`` and ``calibrate sensor``
     refuse exactly as ``reconstruct`` does for its folder."""
     out = Path(os.fspath(out))
@@ -452,5 +454,5 @@ def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command
         what = "exists and is not empty"
     else:
         what = "exists"
-    raise ValueError(f"{flag} {out} {what}; choose another name or pass --overwrite "
+    raise UsageError(f"{flag} {out} {what}; choose another name or pass --overwrite "
                      f"(replaces what a {command} run writes)")

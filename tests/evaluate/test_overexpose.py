@@ -247,7 +247,7 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
                                                                      "hold_previous_gain4.png"]
     assert (out_f / "figures" / "akf_causal_gain4.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # a second run refuses the non-empty folder; usage errors exit 2
-    assert main(["evaluate", "overexpose", str(path), "--out", str(out), "--no-progress", "--no-figures"]) == 1
+    assert main(["evaluate", "overexpose", str(path), "--out", str(out), "--no-progress", "--no-figures"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["evaluate", "overexpose", str(path), "--gain", "0", "--out", str(tmp_path / "o2")]) == 2
     assert main(["evaluate", "overexpose", str(path), "--params", "akf", "--out", str(tmp_path / "o3"),
