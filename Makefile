@@ -2,6 +2,7 @@
 #   make demo   - create .venv, install hybridhdr[demo] (no PyTorch), run the main job on a built-in default
 #   make test   - create .venv, install with test extras (CPU PyTorch), run the test suite
 #   make test-fast - the same without the tests marked slow (the local loop; make test runs everything)
+#   make tour   - the README's tour test on the demo install (.venv-demo: hybridhdr[demo] + pytest)
 # Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
 PYTHON ?= python3
 VENV ?= .venv
@@ -13,7 +14,7 @@ CONSTRAINTS ?= constraints/ci.txt
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 PIPC := $(PIP) install --quiet -c $(CONSTRAINTS)
 
-.PHONY: demo test test-fast venv install install-test bench clean constraints
+.PHONY: demo test test-fast tour venv install install-test bench clean constraints
 
 $(VENV)/.created:
 	$(PYTHON) -m venv $(VENV)
@@ -48,6 +49,14 @@ test: $(VENV)/.installed-test
 test-fast: $(VENV)/.installed-test
 	$(PY) -m pytest -q -m "not slow"
 
+# the README's tour on what `make demo` installs (hybridhdr[demo] and pytest, no test extras), in
+# its own venv so that `make test`'s extras cannot hide a missing dependency
+DEMO_VENV ?= .venv-demo
+tour:
+	$(MAKE) VENV=$(DEMO_VENV) install
+	$(DEMO_VENV)/bin/pip install --quiet -c $(CONSTRAINTS) pytest
+	$(DEMO_VENV)/bin/python -m pytest -q tests/test_readme_tour.py
+
 bench: $(VENV)/.installed-test
 	for b in benchmarks/*.py; do $(PY) $$b --quick || exit 1; done
 
@@ -56,4 +65,4 @@ constraints:
 	$(PYTHON) tools/update_constraints.py
 
 clean:
-	rm -rf $(VENV) demo_out .pytest_cache .hypothesis *.egg-info
+	rm -rf $(VENV) $(DEMO_VENV) demo_out .pytest_cache .hypothesis *.egg-info

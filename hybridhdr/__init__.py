@@ -2,18 +2,28 @@
 
 Implements the system of Wang, Ng, Scheerlinck & Mahony, "An Asynchronous Kalman Filter for Hybrid
 Event Cameras", ICCV 2021 (doi:10.1109/ICCV48922.2021.00050): capture, calibrate, simulate,
-reconstruct and evaluate. ``import hybridhdr`` is light: it never imports h5py, numba, cv2 or
-matplotlib; those load with the parts that need them.
+reconstruct and evaluate. ``import hybridhdr`` is light: it imports neither numpy nor h5py, numba,
+cv2 or matplotlib. The top-level names below load their module on first use (PEP 562), so
+``import hybridhdr as hh; hh.read(...)`` works as before while ``hybridhdr --help`` starts
+without numpy (``benchmarks/cli_start.py``).
 """
 
+from ._util.lazy import lazy_exports
 from ._version import __version__
 from .errors import EventValidationError, FormatError, UnknownFormatError
-from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
-                     empty_triggers, make_events, make_triggers, slice_time, validate_events,
-                     validate_triggers)
-from .formats import (DataDropWarning, EventChunk, EventFileReader, EventFileWriter, detect_format,
-                      open_reader, open_writer, read, write)
-from .model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+
+_LAZY = {
+    **{name: ".events" for name in (
+        "EVENT_DTYPE", "TRIGGER_DTYPE", "SensorSize", "concatenate_events", "empty_events",
+        "empty_triggers", "make_events", "make_triggers", "slice_time", "validate_events",
+        "validate_triggers")},
+    **{name: ".formats" for name in (
+        "DataDropWarning", "EventChunk", "EventFileReader", "EventFileWriter", "detect_format",
+        "open_reader", "open_writer", "read", "write")},
+    **{name: ".model" for name in ("CameraInfo", "Frames", "HDRReferences", "Metadata", "Recording")},
+}
+
+__getattr__, __dir__ = lazy_exports(__name__, _LAZY)
 
 __all__ = [
     "__version__", "EVENT_DTYPE", "TRIGGER_DTYPE", "SensorSize", "make_events", "empty_events",

@@ -6,8 +6,6 @@ import json
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ._util.cliargs import HelpFormatter, add_format_arg, chunk_events_count, json_output
 from ._util.timearg import add_time_window
 
@@ -30,8 +28,8 @@ def add_parsers(sub) -> None:
     add_format_arg(p, dest="from_format")
     p.add_argument("--to", dest="to_format", default=None, help="output format (default: from extension)")
     p.add_argument("--chunk-events", type=chunk_events_count, default=1 << 20, help="events per streamed chunk")
-    from .camera.encoding import ENCODING_CHOICES
-    p.add_argument("--frame-encoding", choices=ENCODING_CHOICES, default=None,
+    from ._util.cliargs import FRAME_ENCODING_CHOICES
+    p.add_argument("--frame-encoding", choices=FRAME_ENCODING_CHOICES, default=None,
                    help="declare the frames' transfer function (linear; gamma2.2: code = max*I^(1/2.2); srgb: "
                         "IEC 61966-2-1), replacing what the input states or its reader assumes; stored in the "
                         "output (the container's /frames encoding). Default: as read")
@@ -47,8 +45,7 @@ def add_parsers(sub) -> None:
                        description="Build a procedural hybrid recording in memory, write and read it "
                                    "through every writer, print the info table, reconstruct, then run a small "
                                    "benchmark (speed-accuracy and stability charts) and the paper's Table 1 on "
-                                   "simulated HDR/AHDR sets (about 3 minutes on 2 cores, 177 s measured; longer on "
-                                   "a loaded machine).")
+                                   "simulated HDR/AHDR sets.")
     p.add_argument("--out", type=Path, default=Path("demo_out"), help="output folder")
     p.add_argument("--seed", type=int, default=0, help="random seed")
     p.add_argument("--weights-e2vid", type=Path, default=None, metavar="PATH",
@@ -62,6 +59,8 @@ def add_parsers(sub) -> None:
 # -- info -------------------------------------------------------------------------------------
 def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
     """Stream a file once and return its summary (format, sizes, counts, span, rate, polarity)."""
+    import numpy as np
+
     from .formats import open_reader
     with open_reader(path, format) as r:
         n = n_on = 0
@@ -238,6 +237,8 @@ def run_convert(args) -> int:
 # -- demo -------------------------------------------------------------------------------------
 def run_demo(args) -> int:
     import warnings
+
+    import numpy as np
 
     from .evaluate.demo import demo_step, perceptual_score_note
     from .evaluate.paper import demo_evaluate

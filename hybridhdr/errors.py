@@ -9,7 +9,19 @@ from __future__ import annotations
 
 import os
 
-__all__ = ["FormatError", "UnknownFormatError", "EventValidationError"]
+__all__ = ["FormatError", "UnknownFormatError", "EventValidationError", "UsageError", "InputMismatchError"]
+
+
+class UsageError(ValueError):
+    """What was asked cannot be done as asked: bad arguments found after parsing (``--end`` before
+    ``--start``), an unknown method. The command line exits 2 for it, as argparse does for the
+    arguments it refuses itself; errors of the data (an unreadable file, a failed fit) exit 1."""
+
+
+class InputMismatchError(UsageError):
+    """The input lacks what the method or command asked for needs: a method or verb that needs
+    frames given a recording without them, a method that takes no frames asked to complete
+    frames. A usage error (exit 2): another method or input is the fix, not another file."""
 
 
 class EventValidationError(ValueError):

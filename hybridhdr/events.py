@@ -39,7 +39,10 @@ TRIGGER_DTYPE = np.dtype([("t", "<i8"), ("channel", "<u2"), ("edge", "i1")], ali
 
 @dataclass(frozen=True)
 class SensorSize:
-    """Sensor size in pixels, ``(height, width)`` in that order (unlike OpenCV's (w, h)).
+    """Sensor size in pixels, ``(height, width)`` in that order (unlike OpenCV's (w, h)), as
+    ``repr`` shows it (``SensorSize(height=480, width=640)``); ``str`` prints ``640x480``, width
+    first as cameras are sold. Give the fields by name (``SensorSize(height=480, width=640)``)
+    where the order could be misread.
 
     Examples
     --------
@@ -73,7 +76,8 @@ class SensorSize:
 
     @classmethod
     def from_any(cls, value) -> "SensorSize | None":
-        """Accept ``SensorSize``, ``None`` or a ``(height, width)`` pair."""
+        """Accept ``SensorSize``, ``None`` or a ``(height, width)`` pair (not the printed
+        ``"WxH"`` string, whose order is the other way round)."""
         if value is None or isinstance(value, SensorSize):
             return value
         try:

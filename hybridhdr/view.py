@@ -28,12 +28,9 @@ from __future__ import annotations
 import sys
 from pathlib import Path
 
-import numpy as np
-
 from ._util.atomic import atomic_path
 from ._util.cliargs import COMMON, HelpFormatter, add_format_arg, image_side, json_output, positive_float
 from ._util.timearg import add_time_window, time_arg
-from .formats.images import apply_display_map, display_map
 
 BACKGROUND = (30, 37, 52)  # RGB
 ON_COLOUR = (255, 255, 255)
@@ -43,6 +40,7 @@ LABEL_HEIGHT = 20
 def recon_display_map(sample, *, gamma: float = 1.0, events_only: bool = False) -> dict:
     """How the reconstruction panel shows intensities (see the module notes): the shared preview
     display map of :func:`hybridhdr.formats.images.display_map`, from a sample of outputs."""
+    from .formats.images import display_map
     return display_map(sample, gamma=gamma, events_only=events_only)
 
 
@@ -76,6 +74,7 @@ def add_parser(sub) -> None:
 
 def _grey_frame(img) -> np.ndarray:
     """A frame as uint8 RGB (H, W, 3): integer codes scaled by the dtype's range, floats clipped to [0, 1]."""
+    import numpy as np
     a = np.asarray(img)
     if np.issubdtype(a.dtype, np.integer):
         f = a.astype(np.float64) / float(np.iinfo(a.dtype).max)
@@ -97,6 +96,7 @@ def _fit(img, height: int) -> np.ndarray:
 
 def _label(panel, text) -> np.ndarray:
     import cv2
+    import numpy as np
     strip = np.full((LABEL_HEIGHT, panel.shape[1], 3), 16, np.uint8)
     cv2.putText(strip, text, (6, LABEL_HEIGHT - 6), cv2.FONT_HERSHEY_SIMPLEX, 0.45, (235, 235, 235), 1, cv2.LINE_AA)
     return np.concatenate([strip, panel], axis=0)
@@ -104,6 +104,7 @@ def _label(panel, text) -> np.ndarray:
 
 def _time_bar(width, frac, text) -> np.ndarray:
     import cv2
+    import numpy as np
     bar = np.full((BAR_HEIGHT, width, 3), 16, np.uint8)
     x = int(round(np.clip(frac, 0, 1) * (width - 1)))
     bar[BAR_HEIGHT - 6:BAR_HEIGHT - 2, :] = 60
@@ -116,6 +117,8 @@ class _Recon:
     """Outputs of a reconstruct folder, tone-mapped with limits over (a sample of) all of them."""
 
     def __init__(self, folder: Path):
+        import numpy as np
+
         from .formats.images import read_exr, read_timestamps
         tsf = Path(folder) / "timestamps.txt"
         if not tsf.is_file():
@@ -141,6 +144,9 @@ class _Recon:
         self._cache = (None, None)
 
     def at(self, t_us) -> np.ndarray | None:
+        import numpy as np
+
+        from .formats.images import apply_display_map
         i = int(np.searchsorted(self.t, t_us, side="right")) - 1
         if i < 0:
             return None
@@ -175,6 +181,7 @@ def _events_only_run(folder: Path) -> bool:
 
 def _event_canvases(reader, shape, times, acc_us, chunk_events=1 << 20):
     """Yield, for each output time t (ascending), the RGB event image of [t - acc_us, t)."""
+    import numpy as np
     h, w = shape
     canvas = np.empty((h, w, 3), np.uint8)
     canvas[:] = BACKGROUND
@@ -207,6 +214,7 @@ def _event_canvases(reader, shape, times, acc_us, chunk_events=1 << 20):
 
 @json_output
 def run(args) -> int:
+    import numpy as np
     from ._util.limits import check_fps_outputs
     from ._util.timearg import check_window, empty_window_error, resolve_window
     from .formats.span import recording_span

@@ -3,6 +3,10 @@
 The first ``sh`` block under "## A short tour" is run line by line through ``hybridhdr.cli.main``
 (the words as a shell would split them, comments dropped) from a folder whose ``../shared/data``
 is the sample data, as it is from the repository root. The "Longer runs" block is only parsed.
+
+It needs nothing beyond what ``make demo`` installs (``hybridhdr[demo]``) and pytest: ``make tour``
+runs it in such an environment (``.venv-demo``), so a tour line that needs a test-only extra fails
+there instead of being hidden by ``make test``'s extras.
 """
 
 from __future__ import annotations

@@ -26,6 +26,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from ..errors import UsageError
+
 __all__ = ["atomic_path", "write_text_atomic", "write_json_atomic", "atomic_folder", "AtomicFolder",
            "current_umask", "umask_file_mode", "claim_partial", "release_partial", "PartialInUse",
            "atomic_outputs", "remap_paths", "refuse_overwriting_inputs", "refuse_existing_output",
@@ -304,7 +306,7 @@ class AtomicFolder:
         self.command = command
         if self.target.exists():
             if not self.target.is_dir():
-                raise ValueError(f"--out {out} exists and is not a folder")
+                raise UsageError(f"--out {out} exists and is not a folder")
             refuse_existing_output(out, overwrite=self.overwrite, flag="--out", command=command)
         self.path = self.target.with_name(self.target.name + ".partial")
         self.target.parent.mkdir(parents=True, exist_ok=True)
@@ -512,8 +514,8 @@ def refuse_overwriting_inputs(outputs, inputs) -> None:
 def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command: str = "this command") -> None:
     """The one rule for an output file or folder that already exists, in every verb that writes.
 
-    An existing non-empty output is refused (``ValueError``, before any work) unless ``overwrite``;
-    an empty folder is accepted. ``flag`` names the option in the message, ``command`` the verb.
+    An existing non-empty output is refused (``errors.UsageError``, a ``ValueError``: exit 2, before
+    any work) unless ``overwrite``; an empty folder is accepted. ``flag`` names the option in the message, ``command`` the verb.
     The check is the same for files and folders, so ``simulate``, ``convert`` and ``calibrate sensor``
     refuse exactly as ``reconstruct`` does for its folder."""
     out = Path(os.fspath(out))
@@ -525,7 +527,7 @@ def refuse_existing_output(out, *, overwrite: bool, flag: str = "--out", command
         what = "exists and is not empty"
     else:
         what = "exists"
-    raise ValueError(f"{flag} {out} {what}; choose another name or pass --overwrite "
+    raise UsageError(f"{flag} {out} {what}; choose another name or pass --overwrite "
                      f"(replaces what a {command} run writes)")
 
 

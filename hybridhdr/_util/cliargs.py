@@ -21,14 +21,18 @@ import argparse
 import math
 import re
 
-
-class UsageError(ValueError):
-    """Bad arguments found after parsing (e.g. --end before --start): exit status 2, like argparse's."""
+from ..errors import UsageError  # noqa: F401  (re-exported: the command line's exit-2 errors)
 
 
 class HelpFormatter(argparse.HelpFormatter):
     """Shows ``(default: X)`` once: not when the help already states a default, not for required
-    options, positionals, flags, ``None`` or empty defaults."""
+    options, positionals, flags, ``None`` or empty defaults. An epilog that starts with
+    ``example`` is printed as it is (a command line is never re-wrapped: it stays copyable)."""
+
+    def _fill_text(self, text, width, indent):
+        if text.startswith("example"):
+            return "\n".join(indent + line for line in text.splitlines())
+        return super()._fill_text(text, width, indent)
 
     def _get_help_string(self, action):
         h = action.help or ""
@@ -67,7 +71,8 @@ COMMON_NO_JSON = _common_parent(with_json=False)
 
 def finalise(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
     """Apply the conventions to a whole parser tree: one formatter, no abbreviations, the common
-    options on every command (leaf), and each command's full name for error messages."""
+    options on every command (leaf), each command's full name for error messages, and its example
+    (``_util.examples``) at the end of its ``--help``."""
     def walk(p):
         p.formatter_class = HelpFormatter
         p.allow_abbrev = False
@@ -89,6 +94,9 @@ def finalise(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
                 mine = p.add_argument_group(grp.title)
             mine._add_action(act)
         p.set_defaults(_prog=p.prog, _parser=p)
+        if p.epilog is None:
+            from .examples import example_epilog
+            p.epilog = example_epilog(p.prog.partition(" ")[2])
     walk(parser)
     return parser
 
@@ -186,19 +194,32 @@ def add_format_arg(parser, *, dest: str = "format", what: str = "input format") 
                         help=f"{what} (default: detected from the file; --from is a deprecated alias)")
 
 
+#: Command-line names of the declarable frame encodings (``--frame-encoding``); the camera model
+#: (``camera.encoding.ENCODING_CHOICES``) re-exports them. They live here so that building the
+#: parser imports no numpy (``hybridhdr --help`` start-up, ``benchmarks/cli_start.py``).
+FRAME_ENCODING_CHOICES = ("linear", "gamma2.2", "srgb")
+
+#: ``simulate builtin:blinking_checkerboard --poses``: the most static views the scene has (the
+#: simulator checks it; calibrate's advice about few views names it, as calibrate may not import
+#: simulate).
+BLINKING_BOARD_MAX_POSES = 5
+
 # -- CLI wording of library messages -------------------------------------------------------------
 
 _PY_TO_CLI = {"method": "--method", "mode": "--mode", "fps": "--fps", "times_us": "--times-us",
               "t_start_us": "--start", "t_end_us": "--end", "thresholds": "--thresholds", "cfa": "--cfa",
               "weights": "--weights", "profile": "--profile", "n_workers": "--workers",
               "chunk_events": "--chunk-events", "augment": "--augmentation", "demosaic": "--demosaic",
-              "format": "--from", "frame_encoding": "--frame-encoding"}
+              "format": "--format", "frame_encoding": "--frame-encoding"}
 _KW = re.compile(r"\b(" + "|".join(_PY_TO_CLI) + r")=(?:'([^']*)'|\"([^\"]*)\"|([\w.+-]+))")
 
 
 def cli_wording(msg: str) -> str:
-    """``method='highpass'`` -> ``--method highpass`` (and the other keyword arguments the CLI names)."""
+    """``method='highpass'`` -> ``--method highpass`` (and the other keyword arguments the CLI names);
+    a keyword inside the Python half of a hint (``read(path, format='NAME') in Python``) is kept."""
     def rep(m):
+        if "in Python" in m.string[m.end():m.end() + 40].split(",")[0]:
+            return m.group(0)
         val = next(g for g in m.groups()[1:] if g is not None)
         return f"{_PY_TO_CLI[m.group(1)]} {val}"
     return _KW.sub(rep, msg)

@@ -4,14 +4,14 @@ checkerboard), camera response and the AKF noise profile, HDR references, contra
 See ``docs/calibrate.md``. The camera model these produce is :mod:`hybridhdr.camera`.
 """
 
-from .event_images import BlinkParams, event_images
-from .noise_profile import noise_profile
-
 from .._util.lazy import lazy_exports
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
 # line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
 _LAZY = {
+    'BlinkParams': '.event_images',
+    'event_images': '.event_images',
+    'noise_profile': '.noise_profile',
     'CRF': '.crf',
     'estimate_crf': '.crf',
     'gamma_crf': '.crf',

@@ -124,7 +124,9 @@ def run_crf(args) -> int:
     mask = _mask(bs, _colour(args.ignore_colour))
     params = (DebevecParams(n_samples=args.samples, smoothness=args.smoothness, seed=args.seed)
               if args.method == "debevec" else RobertsonParams(seed=args.seed))
-    print(f"{args.method}: {len(bs)} images {bs.shape}, exposures {bs.exposures_s.min():g}..{bs.exposures_s.max():g} s",
+    h, w = bs.shape[:2]
+    colour = "RGB" if bs.n_channels == 3 else "grey"
+    print(f"{args.method}: {len(bs)} images {w}x{h} {colour}, exposures {bs.exposures_s.min():g}..{bs.exposures_s.max():g} s",
           file=sys.stderr)
     crf = estimate_crf(bs, None, args.method, params, mask=mask, progress=not args.no_progress)
     if args.sigma2_im is None:

@@ -253,8 +253,11 @@ def run(args) -> int:
         "hybridhdr_version": __version__,
     })
     few = {n: len(c.views) for n, c in ((n1, rig.camera1), (n2, rig.camera2)) if len(c.views) < FEW_VIEWS}
+    from .._util.cliargs import BLINKING_BOARD_MAX_POSES
     report["warnings"] = [f"{n}: only {k} views used; intrinsics from fewer than {FEW_VIEWS} views of the board at "
-                          f"varied angles are poorly constrained (more poses: simulate --poses, or record more)"
+                          f"varied angles are poorly constrained (record more views; a simulated board gives at "
+                          f"most {BLINKING_BOARD_MAX_POSES}: simulate builtin:blinking_checkerboard --poses "
+                          f"{BLINKING_BOARD_MAX_POSES})"
                           for n, k in few.items()]
     if truth_src is not None:
         report["ground_truth"] = compare_with_truth(truth_src, {n1: rig.camera1, n2: rig.camera2}, rig.stereo)

@@ -38,7 +38,6 @@ import os
 from dataclasses import dataclass
 from pathlib import Path
 
-import numpy as np
 
 __all__ = ["THRESHOLD_WORDS", "DEFAULT_THRESHOLDS", "THRESHOLD_KEYS", "THRESHOLDS_HELP", "thresholds_arg",
            "ResolvedThresholds", "resolve_thresholds", "declared_thresholds", "stored_thresholds",
@@ -175,6 +174,7 @@ def threshold_arrays(thresholds):
     """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
     a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.formats.thresholds.load_thresholds`
     reads), or None."""
+    import numpy as np  # here: building the command line's parser imports no numpy
     if thresholds is None:
         return None
     if isinstance(thresholds, (str, os.PathLike)):

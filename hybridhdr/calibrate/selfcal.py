@@ -44,6 +44,7 @@ import numpy as np
 
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import DEFAULT_INTENSITY_OFFSET, frames_to_codes, well_exposed_range
+from ..errors import InputMismatchError
 from ..model import Recording
 from .thresholds import _nnls2
 
@@ -127,7 +128,7 @@ def estimate_event_frame_calibration(recording, *, profile=None, exclude_frames=
     rec = recording
     fr = rec.frames
     if fr is None or len(fr) < 3:
-        raise ValueError("self-calibration needs at least three frames (two intervals); the recording has "
+        raise InputMismatchError("self-calibration needs at least three frames (two intervals); the recording has "
                          f"{0 if fr is None else len(fr)}")
     ev = rec.events
     if len(ev) == 0:

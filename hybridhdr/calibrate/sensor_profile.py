@@ -36,6 +36,7 @@ from pathlib import Path
 import numpy as np
 
 from .._version import __version__
+from ..errors import InputMismatchError
 from ..formats.sensor_profile import SensorProfile
 from .thresholds import _nnls2, threshold_sums
 
@@ -176,10 +177,10 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
     if int(n_boot) < 20:
         raise ValueError(f"n_boot must be >= 20 (a 95 % interval needs replicates), got {n_boot!r}")
     if rec.frames is None or len(rec.frames) < 2:
-        raise ValueError("calibrate sensor needs a recording with events and at least two frames; found "
+        raise InputMismatchError("calibrate sensor needs a recording with events and at least two frames; found "
                          f"{0 if rec.frames is None else len(rec.frames)} frame(s)")
     if len(rec.events) == 0:
-        raise ValueError("calibrate sensor needs events; the recording has none")
+        raise InputMismatchError("calibrate sensor needs events; the recording has none")
     rng = np.random.default_rng(seed)
     ss = rec.sensor_size
     h, w = rec.frames.shape

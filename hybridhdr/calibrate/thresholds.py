@@ -47,6 +47,7 @@ import numpy as np
 from .._util.atomic import atomic_path
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import DEFAULT_INTENSITY_OFFSET, frames_to_codes, well_exposed_range
+from ..errors import InputMismatchError
 from ..formats.thresholds import METHOD, ThresholdMap
 
 __all__ = ["estimate_thresholds", "threshold_sums", "pooled_thresholds", "plot_thresholds"]
@@ -130,10 +131,10 @@ def threshold_sums(recording, *, profile=None, intensity_offset: float | None = 
         from ..formats import read
         rec = read(rec)
     if rec.frames is None or len(rec.frames) < 2:
-        raise ValueError("threshold estimation needs at least two frames; the recording has "
+        raise InputMismatchError("threshold estimation needs at least two frames; the recording has "
                          f"{0 if rec.frames is None else len(rec.frames)}")
     if len(rec.events) == 0:
-        raise ValueError("threshold estimation needs events; the recording has none")
+        raise InputMismatchError("threshold estimation needs events; the recording has none")
     i0 = DEFAULT_INTENSITY_OFFSET if intensity_offset is None else float(intensity_offset)
     if not (math.isfinite(i0) and i0 > 0):
         raise ValueError(f"intensity_offset must be finite and > 0, got {intensity_offset}")

@@ -37,13 +37,14 @@ import math
 import numpy as np
 
 from .._util.checks import check_range
+from .._util.cliargs import FRAME_ENCODING_CHOICES
 from ..model import Frames
 
 __all__ = ["DEFAULT_INTENSITY_OFFSET", "frames_to_codes", "WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
            "encode", "inverse_crf_table", "to_luminance", "luminance_frames", "with_encoding"]
 
 #: Command-line names of the declarable encodings (``--frame-encoding``).
-ENCODING_CHOICES = ("linear", "gamma2.2", "srgb")
+ENCODING_CHOICES = FRAME_ENCODING_CHOICES
 _CLI_TO_MODEL = {"linear": "linear", "gamma2.2": "gamma", "srgb": "srgb"}
 #: ``Frames.encoding`` values accepted as they are (besides the command-line names).
 _MODEL_VALUES = ("raw", "linear", "gamma", "srgb", "unknown")

@@ -55,9 +55,8 @@ def add_parser(sub) -> None:
                         description="Run methods x datasets x parameter grids from BENCH (a TOML file, or a "
                                     "bundled name: demo, speed_accuracy, stability, tiny); write results.csv, "
                                     "report.md/.html, strips and charts to --out. Each finished task is kept in "
-                                    "OUT/runs/ as it finishes (--resume continues an interrupted run). Measured on "
-                                    "a loaded shared 2-core machine: tiny 156 s, demo 572 s, stability 8 min or "
-                                    "more (docs/evaluate.md).")
+                                    "OUT/runs/ as it finishes (--resume continues an interrupted run). Sizes (tasks, "
+                                    "runs): docs/evaluate.md.")
     b.add_argument("bench", help="bench TOML file or bundled bench name")
     b.add_argument("--out", type=Path, required=True, help="output folder")
     b.add_argument("--scheduler", default=None, help="Dask scheduler address (tcp://host:8786); default: local "
@@ -83,7 +82,7 @@ def add_parser(sub) -> None:
                         description="Build an HDR set and an AHDR set (simulator when available), run every "
                                     "method, print a table shaped like the paper's Table 1.")
     q.add_argument("--out", type=Path, required=True, help="output folder")
-    q.add_argument("--quick", action="store_true", help="small scenes (about a minute on 2 cores)")
+    q.add_argument("--quick", action="store_true", help="small scenes (48x36, 0.3 s, fixed 500 Hz sampling)")
     q.add_argument("--workers", type=worker_count, default=None, help="local worker processes")
     q.add_argument("--scheduler", default=None, help="Dask scheduler address")
     q.add_argument("--hdrvdp-dir", type=Path, default=None, help="HDR-VDP 3 folder for Q")
@@ -139,7 +138,7 @@ def add_parser(sub) -> None:
                                     "figures/METHOD_gainG.png to --out. See docs/evaluate.md.")
     o.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and integer frames")
     o.add_argument("--gain", type=_gain_list, default=[4.0], metavar="G[,G...]",
-                   help="over-exposure factor(s) on the frames' linear intensity, comma-separated (default 4)")
+                   help="over-exposure factor(s) on the frames' linear intensity, each > 1, comma-separated (default 4)")
     o.add_argument("--method", default="akf,cf,direct,edi",
                    help="method(s) that take frames, comma-separated: akf, cf, direct, edi")
     o.add_argument("--mode", default="offline,causal", metavar="MODE[,MODE]",
@@ -152,13 +151,9 @@ def add_parser(sub) -> None:
                    help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
     o.add_argument("--contrast-threshold", type=positive_float, default=None,
                    help="contrast threshold c (log units) for every event method")
-    o.add_argument("--thresholds", choices=list(THRESHOLD_WORDS), default=None,
-                   help="contrast thresholds, as reconstruct's --thresholds words: selfcal = the event/frame "
-                        "self-calibration of the over-exposed input without the scored frame; auto = pooled ON/OFF "
-                        "thresholds estimated in the method's log model on that input; input = what the recording "
-                        "declares (else the method's own); params = the method's own [default: " + DEFAULT_THRESHOLDS +
-                        " for a recording that declares no thresholds, else input; params when --params or "
-                        "--contrast-threshold is given]")
+    o.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
+                   help=THRESHOLDS_HELP + "; here auto and selfcal are estimated on the over-exposed input "
+                        "without the scored frame")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     add_format_arg(o)
@@ -171,7 +166,8 @@ def add_parser(sub) -> None:
 
 
 def _gain_list(text: str) -> list:
-    """``--gain 4`` or ``4,8``: finite factors > 0 (a usage error otherwise)."""
+    """``--gain 4`` or ``4,8``: finite factors > 1 (a usage error otherwise: a gain of 1 or less
+    over-exposes nothing, so there is no clipped pixel to recover)."""
     import argparse
     import math
     out = []
@@ -179,9 +175,10 @@ def _gain_list(text: str) -> list:
         try:
             g = float(v)
         except ValueError:
-            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}") from None
-        if not (math.isfinite(g) and g > 0):
-            raise argparse.ArgumentTypeError(f"expected numbers > 0 separated by commas, got {text!r}")
+            raise argparse.ArgumentTypeError(f"expected numbers > 1 separated by commas, got {text!r}") from None
+        if not (math.isfinite(g) and g > 1):
+            raise argparse.ArgumentTypeError(f"expected numbers > 1 separated by commas (a gain of 1 or less "
+                                             f"over-exposes nothing), got {text!r}")
         out.append(g)
     if len(set(out)) != len(out):
         raise argparse.ArgumentTypeError(f"each gain once, got {text!r}")
@@ -425,13 +422,26 @@ def _holdout_params(method: str, params_path, contrast_threshold):
     return p
 
 
+def _methods_arg(text: str) -> list[str]:
+    """``--method a,b``: the names, each a reconstruction method (or alias); a usage error (exit 2)
+    names the known ones."""
+    from .._util.cliargs import UsageError
+    from ..reconstruct.api import METHOD_ALIASES, METHODS
+    methods = [m.strip() for m in text.split(",") if m.strip()]
+    if not methods:
+        raise UsageError(f"--method names no method ({text!r})")
+    unknown = [m for m in methods if m not in METHODS and m not in METHOD_ALIASES]
+    if unknown:
+        raise UsageError(f"--method: unknown method(s) {', '.join(map(repr, unknown))}; expected one of "
+                         f"{', '.join(list(METHODS) + list(METHOD_ALIASES))}")
+    return methods
+
+
 @json_output
 def run_holdout_cmd(args) -> int:
     from ..formats import read
     from .realdata import HoldoutSpec, evaluate_holdout, format_holdout
-    methods = [m.strip() for m in args.method.split(",") if m.strip()]
-    if not methods:
-        raise ValueError("--method names no method")
+    methods = _methods_arg(args.method)
     if args.task == "auto":
         tasks = ("leave_one_out", "next_frame") if args.mode == "causal" else ("leave_one_out",)
     elif args.task == "both":
@@ -478,20 +488,19 @@ OVEREXPOSE_OUTPUTS = ("results.json", "table.txt", "per_frame.csv", "figures/*.p
 def _overexpose_specs(args):
     import dataclasses
 
+    from .._util.cliargs import UsageError
     from ..reconstruct.api import make_params
     from .overexpose import default_specs
-    methods = [m.strip() for m in args.method.split(",") if m.strip()]
+    methods = _methods_arg(args.method)
     modes = [m.strip() for m in args.mode.split(",") if m.strip()]
-    if not methods:
-        raise ValueError("--method names no method")
     bad = [m for m in modes if m not in ("offline", "causal", "forward")]
     if not modes or bad:
-        raise ValueError(f"--mode must be offline, causal and/or forward separated by commas, got {args.mode!r}")
+        raise UsageError(f"--mode must be offline, causal and/or forward separated by commas, got {args.mode!r}")
     files = {}
     for item in args.params:
         key, sep, path = item.partition("=")
         if not sep or not key.strip() or not path.strip():
-            raise ValueError(f"--params expects METHOD=FILE (e.g. akf=akf.toml), got {item!r}")
+            raise UsageError(f"--params expects METHOD=FILE (e.g. akf=akf.toml), got {item!r}")
         if not Path(path).is_file():
             raise FileNotFoundError(f"--params {item}: {path} does not exist")
         files[key.strip()] = path.strip()
@@ -499,7 +508,7 @@ def _overexpose_specs(args):
     known = {s.label for s in specs} | {s.method for s in specs}
     unknown = sorted(set(files) - known)
     if unknown:
-        raise ValueError(f"--params names {unknown}, which is no method or label run here ({sorted(known)})")
+        raise UsageError(f"--params names {unknown}, which is no method or label run here ({sorted(known)})")
     out = []
     for s in specs:
         src = files.get(s.label, files.get(s.method))
@@ -534,20 +543,14 @@ def run_overexpose_cmd(args) -> int:
             from .realdata import default_threshold_source
             given = bool(args.params) or args.contrast_threshold is not None
             thresholds = "params" if given else default_threshold_source(rec)
-        bar = None
-        if not args.no_progress:
-            from tqdm import tqdm
-            bar = tqdm(total=len(args.gain) * len(specs), desc="overexpose", unit="method", file=sys.stderr,
-                       dynamic_ncols=True)
-        try:
+        from .._util.progress import progress_bars
+        with progress_bars(not args.no_progress) as new_bar:  # failures logged meanwhile go above the bar
+            bar = new_bar(total=len(args.gain) * len(specs), desc="overexpose", unit="method")
             res = evaluate_overexpose(rec, args.gain, specs, frames=frames,
                                       profile=None if args.profile is None else str(args.profile),
                                       thresholds=thresholds, skipped=skipped, keep_images=not args.no_figures,
                                       log=lambda msg: print(msg, file=sys.stderr),
                                       progress=None if bar is None else bar.update)
-        finally:
-            if bar is not None:
-                bar.close()
         images = res.pop("_images", None)
         res["recording"] = str(args.recording)
         text = format_overexpose(res, f"{args.recording.name}, ")

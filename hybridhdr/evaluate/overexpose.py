@@ -56,12 +56,14 @@ import csv
 import dataclasses
 import io
 import math
+import os
 import time
 
 import numpy as np
 
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import LUMINANCE_WEIGHTS, well_exposed_range
+from ..errors import InputMismatchError, UsageError
 from ..model import Frames, HDRReferences, Metadata, Recording
 from ..reconstruct import reconstruct
 from ..reconstruct.methods import METHODS as RECON_METHODS
@@ -108,10 +110,10 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
     for m in methods:
         m = resolve_method(m)
         if not RECON_METHODS[m].needs_frames:
-            raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
+            raise InputMismatchError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
                              f"frames: {', '.join(FRAME_METHODS)}")
         if RECON_METHODS[m].frames_only:
-            raise ValueError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
+            raise UsageError(f"method {m!r} is a frames-only baseline; frames_only and hold_previous are always "
                              f"scored")
         for mode in modes:
             lab = _label(m, mode)
@@ -181,7 +183,7 @@ def overexpose_recording(rec, gain: float, *, profile=None) -> tuple[Recording, 
     gain = float(gain)
     fr = rec.frames
     if fr is None or len(fr) == 0:
-        raise ValueError("overexpose needs a recording with frames; this one has none")
+        raise InputMismatchError("overexpose needs a recording with frames; this one has none")
     prof = _frames_profile(rec, profile)
     _check_codes(fr, prof)
     ref = prof.intensity(fr.images) * gain
@@ -240,9 +242,9 @@ def _kept(rec):
     """Indices of the frames with τ_k up to the last event (the input's frames)."""
     n = 0 if rec.frames is None else len(rec.frames)
     if n < 2:
-        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frame(s)")
+        raise InputMismatchError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frame(s)")
     if len(rec.events) == 0:
-        raise ValueError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frames "
+        raise InputMismatchError(f"overexpose needs a recording with events and at least 2 frames; this one has {n} frames "
                          f"but no events")
     return np.flatnonzero(rec.frames.t_mid_us <= int(rec.events["t"][-1]))
 
@@ -331,13 +333,17 @@ def _without(rec_in, k):
                      rec_in.triggers, None, rec_in.metadata)
 
 
-def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern):
-    """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec."""
+def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern,
+              tmap=None):
+    """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
+    per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
+        kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
+            else {}
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
-                        augment=spec.augment)
+                        augment=spec.augment, **kw_map)
         wall = time.perf_counter() - t0
         if not np.array_equal(v.t_us, tk):
             raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
@@ -426,7 +432,9 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     frames : indices into the kept frames (τ_k up to the last event) to score, each ≥ 1; default
         :func:`default_scored_frames`
     profile : the frames' camera profile (default: the recording's, else built-in)
-    thresholds : ``"params"`` (each method's own; ``"input"`` is the same here: with no parameters
+    thresholds : a per-pixel threshold map (a path to a ``.npz`` from ``calibrate thresholds`` or a
+        ``ThresholdMap``, as ``reconstruct(thresholds=...)`` takes: every threshold method uses it),
+        ``"params"`` (each method's own; ``"input"`` is the same here: with no parameters
         given, the method takes what the recording declares), ``"auto"`` (estimated without frame k) or
         ``"selfcal"`` (the event/frame self-calibration of the input without frame k,
         :func:`hybridhdr.evaluate.realdata.selfcal_params`: frame k is reconstructed at the time it
@@ -447,8 +455,14 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
     "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
-    if thresholds not in RD.THRESHOLD_SOURCES:
-        raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES}, got {thresholds!r}")
+    tmap = None
+    if not isinstance(thresholds, str):  # a map, as reconstruct's and evaluate holdout's thresholds take
+        tmap = thresholds
+        if isinstance(thresholds, os.PathLike):
+            from ..formats.thresholds import load_thresholds
+            tmap = load_thresholds(thresholds)
+    elif thresholds not in RD.THRESHOLD_SOURCES:
+        raise ValueError(f"thresholds must be one of {RD.THRESHOLD_SOURCES} or a threshold map, got {thresholds!r}")
     if calibrate is not None and not callable(calibrate):
         raise TypeError(f"calibrate must be a callable (recording without frame k -> overrides), got "
                         f"{type(calibrate).__name__}")
@@ -456,8 +470,9 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     if not gains:
         raise ValueError("give at least one gain")
     for g in gains:
-        if not (math.isfinite(g) and g > 0):
-            raise ValueError(f"gains must be finite and > 0, got {g!r}")
+        if not (math.isfinite(g) and g > 1):
+            raise ValueError(f"gains must be finite and > 1 (a gain of 1 or less over-exposes nothing: no "
+                             f"clipped pixel to recover), got {g!r}")
     if specs is None:
         specs, sk = default_specs()
         skipped = {**sk, **(skipped or {})}
@@ -493,7 +508,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     t_us = fr_all.t_mid_us[scored]
     res = {"frames": scored, "frame_indices": [int(kept[k]) for k in scored], "t_us": [int(t) for t in t_us],
            "n_frames_kept": int(len(kept)), "n_events": int(len(rec.events)), "well_exposed_codes": [lo, hi],
-           "clip_codes": list(clip), "profile": prof.name, "thresholds": thresholds,
+           "clip_codes": list(clip), "profile": prof.name,
+           "thresholds": thresholds if isinstance(thresholds, str) else f"per-pixel map {thresholds}",
            "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
            "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "
                   "pixels the over-exposed frame shows unclipped" % LOG_FLOOR,
@@ -537,7 +553,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
             try:
                 x, wall, used = _run_spec(s, over, scored, t_us, profile=profile, thresholds=thresholds,
                                           calibrate=calibrate, cal_cache=cal_cache,
-                                          ref_ndim=ref_ndim, pattern=pattern)
+                                          ref_ndim=ref_ndim, pattern=pattern, tmap=tmap)
             except Exception as e:  # reported per method, never hidden
                 row["status"] = f"error: {type(e).__name__}: {e}"
                 if log is not None:

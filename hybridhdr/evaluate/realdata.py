@@ -56,6 +56,7 @@ from ..calibrate.resolve import (THRESHOLD_KEYS, THRESHOLD_WORDS, recording_decl
                                  resolve_thresholds)
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
+from ..errors import InputMismatchError
 from ..events import slice_time
 from ..model import Recording
 from ..reconstruct import reconstruct
@@ -88,9 +89,9 @@ BASELINES = (HoldoutSpec("hold_previous", "frames_zoh", "causal"),
 def _trimmed_frames(rec):
     fr = rec.frames
     if fr is None or len(fr) < 2:
-        raise ValueError("holdout scoring needs at least 2 frames")
+        raise InputMismatchError("holdout scoring needs at least 2 frames")
     if len(rec.events) == 0:
-        raise ValueError("holdout scoring needs events")
+        raise InputMismatchError("holdout scoring needs events")
     t1 = int(rec.events["t"][-1])
     keep = np.flatnonzero(fr.t_mid_us <= t1)
     return fr.select(keep)
@@ -347,7 +348,7 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
     fr = _trimmed_frames(rec)
     held = default_held_frames(rec) if held is None else [int(k) for k in held]
     if not held:
-        raise ValueError("no frame to hold out: need frames with a neighbour on each side inside the events' span")
+        raise InputMismatchError("no frame to hold out: need frames with a neighbour on each side inside the events' span")
     ref, valid, (lo, hi) = reference_frames(rec, held, profile, well_exposed)
     specs = list(methods) + (list(BASELINES) if baselines else [])
     labels = [s.label for s in specs]

@@ -73,6 +73,30 @@ def _classify(f) -> str | None:
     return None
 
 
+def undetected_hint(path: Path, head: bytes) -> str | None:
+    """For an HDF5 file no layout claims: what it holds (its top-level groups and datasets, the
+    datasets of ``/events``) and, when ``/events`` has ``t``, ``x``, ``y``, ``p`` (DSEC's event
+    datasets without its ``ms_to_idx``/``t_offset``), the ``--format dsec`` that reads it. None for
+    a file that is not HDF5 or cannot be listed."""
+    if not head.startswith(HDF5_MAGIC):
+        return None
+    try:
+        h5py = _h5py()
+        with h5py.File(path, "r") as f:
+            top = sorted(f.keys())[:20]
+            ev = f.get("events")
+            inner = sorted(ev.keys())[:20] if isinstance(ev, h5py.Group) else []
+    except Exception:  # a hint must never raise
+        return None
+    found = f"an HDF5 file holding {', '.join('/' + k for k in top) or 'nothing'}"
+    if inner:
+        found += f" (/events: {', '.join(inner)})"
+    if {"t", "x", "y", "p"} <= set(inner):
+        found += ("; its /events/{t,x,y,p} read as DSEC's layout with --format dsec (format='dsec' in Python; "
+                  "sensor size from root attributes height/width, else DSEC's 640x480)")
+    return found
+
+
 def sniff(path: Path, head: bytes) -> str | None:
     """Detect DSEC or Monash HDF5 files (HDF5 magic at offset 0, then the dataset names)."""
     if not head.startswith(HDF5_MAGIC):

@@ -69,9 +69,13 @@ def detect_format(path) -> str:
         if name:
             return name
     what = "directory" if path.is_dir() else f"{path.stat().st_size}-byte file starting with {head[:16]!r}"
+    from . import hdf5_layouts
+    hint = hdf5_layouts.undetected_hint(path, head) if path.is_file() else None
+    if hint:
+        what = f"{path.stat().st_size}-byte file, {hint}"
     raise UnknownFormatError(path, f"could not detect the event format of this {what}; expected one of "
                                    f"{sorted(formats())} (give the format explicitly to override: --format NAME "
-                                   f"on the command line, format=NAME in Python)")
+                                   f"on the command line, hybridhdr.read(path, format='NAME') in Python)")
 
 
 def open_reader(path, format: str | None = None, **options) -> EventFileReader:
@@ -86,11 +90,26 @@ def open_reader(path, format: str | None = None, **options) -> EventFileReader:
     return cls(path, **options)
 
 
+def _raw_format_in_name(stem: str) -> str | None:
+    """The Prophesee encoding a ``.raw`` file's name asks for (``x_evt3.raw``, ``rec.evt21.raw``),
+    or None when it names none, or several."""
+    import re
+    found = {{"21": "evt21", "2.1": "evt21", "2_1": "evt21", "3": "evt3", "2": "evt2"}[m.group(1)]
+             for m in re.finditer(r"(?<![a-z0-9])evt(2\.1|2_1|21|3|2)(?![0-9])", stem.lower())}
+    return found.pop() if len(found) == 1 else None
+
+
 def format_for_output(path, format: str | None = None) -> str:
+    """The format a writer uses for ``path``: ``format`` when given, else the extension's
+    (``.h5`` hybridhdr container, ``.dat``, ``.mat``, ``.aedat4``, no extension: an ECD folder).
+    A ``.raw`` file is EVT 2.0 unless its name says ``evt3`` or ``evt21`` (``x_evt3.raw`` is
+    EVT 3.0); give ``format`` to choose otherwise."""
     if format is not None:
         return _check_format(format)
     p = Path(path)
     ext = p.suffix.lower()
+    if ext == ".raw":
+        return _raw_format_in_name(p.stem) or _OUTPUT_EXTENSIONS[ext]
     if ext in _OUTPUT_EXTENSIONS:
         return _OUTPUT_EXTENSIONS[ext]
     if ext == "" or p.is_dir():

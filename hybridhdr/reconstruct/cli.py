@@ -94,8 +94,8 @@ def add_parser(subparsers) -> None:
                    help="frame rate the MP4 preview plays at (outputs at --fps 300 play 10x slowed down at 30)")
     o.add_argument("--no-exr", action="store_true", help="skip the EXR sequence")
     o.add_argument("--exr-compression", default=None, metavar="NAME",
-                   help=f"EXR compression, one of {', '.join(_exr_choices())} (pxr24 is lossy: 24-bit floats; "
-                        f"zstd and htj2k need OpenEXR >= 3.4 to read) [default: none: lossless and the fastest; "
+                   help=f"EXR compression, one of {', '.join(EXR_COMPRESSION_NAMES)} (pxr24 is lossy: 24-bit floats; "
+                        f"zstd and htj2k need OpenEXR >= 3.4 to write and read) [default: none: lossless and the fastest; "
                         f"zip saves about 6 %% of the bytes for 4x the encoding time]")
     o.add_argument("--writers", type=worker_count, default=None,
                    help="writer processes encoding files while the filter runs; 0 writes in the main thread "
@@ -170,9 +170,42 @@ def estimate_run_thresholds(args, params):
     return params.replace(**got.overrides()), got.note
 
 
-def _exr_choices() -> list[str]:
-    from ..formats.images import exr_compressions
-    return exr_compressions()
+def _events_total(source, args) -> int | None:
+    """The progress bar's total: the events the recording declares (a container's count), when
+    the whole recording is read (no --start/--end); None (a bar without ETA) otherwise."""
+    if any(getattr(args, k, None) is not None for k in ("start", "end", "start_us", "end_us")):
+        return None
+    try:
+        if isinstance(source, str):
+            from ..formats import open_reader
+            with open_reader(source, getattr(args, "format", None)) as r:
+                n = getattr(r, "n_events", None)
+        else:
+            n = getattr(source, "n_events", None)
+    except (OSError, ValueError, ImportError):
+        return None  # the run itself says what is wrong with the file
+    return int(n) if isinstance(n, int) and not isinstance(n, bool) and n > 0 else None
+
+
+def _frames_written(bar, files_per_frame: int):
+    """``VideoWriter.on_written`` (files: EXR, PNG, MP4 frames) shown as output frames written."""
+    import threading
+    lock = threading.Lock()
+    files = [0]
+    per = max(1, int(files_per_frame))
+
+    def on_written(k: int) -> None:
+        with lock:
+            files[0] += int(k)
+            bar.set_postfix_str(f"{files[0] // per} frames written", refresh=False)
+
+    return on_written
+
+
+#: ``--exr-compression`` names, listed without importing OpenEXR (and numpy) so that ``--help`` starts
+#: fast; the names the installed OpenEXR lacks are refused when the command runs
+#: (``formats.images.exr_compressions``; a test keeps the two lists equal).
+EXR_COMPRESSION_NAMES = ("none", "rle", "zips", "zip", "piz", "pxr24", "zstd", "htj2k")
 
 
 def _parse_value(s: str):
@@ -349,6 +382,11 @@ def run(args) -> int:
         method = resolve_method(args.method)
         t_start_us, t_end_us, note = output_window(args, method)
         params = build_params(args)
+        if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
+            raise FileNotFoundError(f"recording {args.recording} not found")
+        # --out is claimed (a non-empty one refused) before the threshold estimation and the
+        # self-calibration, which take seconds to minutes
+        folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         auto_note = None
         thr_source = args.thresholds  # FILE (Path), auto, input, params or None: --help, THRESHOLDS_HELP
         if args.contrast_threshold == "auto":
@@ -391,35 +429,32 @@ def run(args) -> int:
             raise ValueError(f"--playback-fps must be > 0, got {args.playback_fps}")
         if args.writers is not None and args.writers < 0:
             raise ValueError(f"--writers must be >= 0, got {args.writers}")
-        if not Path(args.recording).exists() and not str(args.recording).startswith("builtin:"):
-            raise FileNotFoundError(f"recording {args.recording} not found")
-        folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         stage = "run"
         if note:
             print(note, file=sys.stderr)
-        with _signals_exit():
+        from .._util.progress import progress_bars
+        from .request import Device
+        device_line = Device.resolve(getattr(args, "device", "cpu"), method).naming_engine(
+            method, args.mode, args.workers).line
+        print(device_line, file=sys.stderr)  # before the bar: no line cuts through it
+        with _signals_exit(), progress_bars(not args.no_progress) as new_bar:
             # the writer pool forks here, before any other thread (progress bars, readers) starts
-            bars = []
             writer = VideoWriter(folder.path, exr=not args.no_exr, compression=compression, png=args.png,
                                  mp4=args.mp4, playback_fps=args.playback_fps, writers=args.writers)
-            progress = None
-            if not args.no_progress:
-                from tqdm import tqdm
-                bars.append(tqdm(unit="ev", unit_scale=True, desc=f"reconstruct {method}", file=sys.stderr,
-                                 position=0))
-                bars.append(tqdm(unit="img", desc="written", file=sys.stderr, position=1))
-                progress = bars[0].update
-                writer.on_written = bars[1].update
             info: dict = {}
-            from .request import Device
-            device = Device.resolve(getattr(args, "device", "cpu"), method)
-            device_line = device.naming_engine(method, args.mode, args.workers).line
-            print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
                 from ..formats import open_reader
                 opts = {} if args.frame_encoding is None else {"frame_encoding": args.frame_encoding}
                 source = open_reader(args.recording, args.format, **opts)
+            # one bar: events (each once, also in the two-sided pass) out of the recording's, with
+            # an ETA when the recording declares its count; output frames written as its postfix
+            bar = new_bar(total=_events_total(source, args), unit="ev", unit_scale=True,
+                          desc=f"reconstruct {method}")
+            progress = None
+            if bar is not None:
+                progress = bar.update
+                writer.on_written = _frames_written(bar, (not args.no_exr) + bool(args.png) + bool(args.mp4))
             try:
                 for t, img in reconstruct_iter(source, method, run_params, times_us=times, fps=args.fps,
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
@@ -434,9 +469,11 @@ def run(args) -> int:
                 # the previews' display map as 'view' makes it (frames' encoding; events-only: centred)
                 writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=METHODS[method].events_only)
                 written = writer.close()
+                if bar is not None and bar.total and bar.n < bar.total:
+                    bar.update(bar.total - bar.n)  # done: the events after the last output are not needed
             finally:
-                for b in bars:
-                    b.close()
+                if bar is not None:
+                    bar.close()
                 if not isinstance(source, str):
                     source.close()
             run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
@@ -471,8 +508,8 @@ def run(args) -> int:
         if run_info.get("thresholds", "").startswith("the method's default"):
             print(f"note: the recording declares no contrast thresholds: used the default ON "
                   f"{run_info['params'].get('contrast_threshold')} (log units); measure them with 'hybridhdr "
-                  f"calibrate thresholds' (then --thresholds), estimate them with --contrast-threshold auto, or give "
-                  f"--contrast-threshold C", file=sys.stderr)
+                  f"calibrate thresholds' (then --thresholds FILE), estimate them with --thresholds selfcal (the "
+                  f"default) or --thresholds auto, or give --contrast-threshold C", file=sys.stderr)
         if args.json:
             print(json.dumps({"method": method, "frames": writer.n, "t_first_us": writer.t_first,
                               "t_last_us": writer.t_last, "events_used": info.get("n_events_used", 0),

@@ -413,6 +413,8 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     passes = {True: (rev_fr, rev_ev, rev_times, cv_b), False: (frames, events, times, cv_f)}
     stats = {"outputs_fused": 0, "outputs_one_pass": 0, "backward_outputs": 0, "spilled_to_disk": False,
              "n_clamped": 0, "n_output_pixels": 0}
+    if progress is not None:
+        progress = _each_event_once(progress)
     if n_workers is not None and int(n_workers) >= 2:
         nw = int(n_workers)
         gen = _concurrent(shape, passes, make_engine, times, mirror, float(offset), int(chunk_events), progress,
@@ -442,6 +444,26 @@ def _fuse(lf, pf, lb, pb, offset: float, stats: dict | None = None, engine=None)
         if stats is not None:
             stats["n_clamped"] += int(n)
     return img
+
+
+def _each_event_once(progress: Callable[[int], None]) -> Callable[[int], None]:
+    """``progress`` as the two passes should report it: each pass goes through the events, so
+    half of their combined count is reported, and a progress bar counts each event once (50,000
+    events: 50,000, not 100,000). Thread-safe: the concurrent passes report from two threads."""
+    import threading
+
+    lock = threading.Lock()
+    counts = [0, 0]  # events counted by the passes together, events reported
+
+    def report(k: int) -> None:
+        with lock:
+            counts[0] += int(k)
+            half = counts[0] // 2
+            step, counts[1] = half - counts[1], half
+        if step:
+            progress(step)
+
+    return report
 
 
 def _serial(shape, passes, make_engine, times, mirror, offset, chunk_events, progress, stats):

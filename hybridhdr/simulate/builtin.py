@@ -211,6 +211,8 @@ def _blinking_checkerboard(T: int, *, period_us: int = 100_000, squares=(10, 7),
     ems = (Emitter("point", position=(0.5, 2.5, 0.0), intensity=0.3),)
     # static camera, or `poses` static views with 2 ms moves between them
     views = [(0.0, 1.2, 0.45), (0.12, 1.25, 0.5), (-0.12, 1.15, 0.5), (0.05, 1.3, 0.42), (-0.05, 1.1, 0.42)]
+    from .._util.cliargs import BLINKING_BOARD_MAX_POSES
+    assert len(views) == BLINKING_BOARD_MAX_POSES
     if not 1 <= poses <= len(views):
         raise ValueError(f"poses: expected 1..{len(views)}, found {poses}")
     kfs = []

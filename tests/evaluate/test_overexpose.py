@@ -247,11 +247,11 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
                                                                      "hold_previous_gain4.png"]
     assert (out_f / "figures" / "akf_causal_gain4.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
     # a second run refuses the non-empty folder; usage errors exit 2
-    assert main(["evaluate", "overexpose", str(path), "--out", str(out), "--no-progress", "--no-figures"]) == 1
+    assert main(["evaluate", "overexpose", str(path), "--out", str(out), "--no-progress", "--no-figures"]) == 2
     assert "not empty" in capsys.readouterr().err
     assert main(["evaluate", "overexpose", str(path), "--gain", "0", "--out", str(tmp_path / "o2")]) == 2
     assert main(["evaluate", "overexpose", str(path), "--params", "akf", "--out", str(tmp_path / "o3"),
-                 "--no-progress"]) == 1
+                 "--no-progress"]) == 2  # a malformed METHOD=FILE is a usage error, as everywhere
     assert "METHOD=FILE" in capsys.readouterr().err
     assert not (tmp_path / "o3").exists() and not (tmp_path / "o3.partial").exists()
 
