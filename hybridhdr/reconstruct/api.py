@@ -347,6 +347,13 @@ def make_augment_params(augment) -> AugmentParams:
                     f"got {type(augment).__name__}")
 
 
+def _exposure_mean(params, frames) -> bool:
+    """The AKF reads its frames as exposure means (``AKFParams.exposure_mean``) and some frame
+    stamps an exposure: the events inside the exposures are then needed."""
+    return (bool(getattr(params, "exposure_mean", False)) and frames is not None and len(frames) > 0
+            and bool(np.any(frames.t_end_us > frames.t_start_us)))
+
+
 def _build_engine(method, params, shape, frames, mode, profile, n_workers, measurements, events=None,
                   augment: AugmentParams | None = None, device: str = "cpu"):
     needs_frames = METHODS[method][1]
@@ -370,13 +377,18 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
             raise ValueError(f"method {method!r} needs frames, but the recording has none "
                              f"(use method='highpass' for events only)")
         if method == "akf":
+            corr = None
+            if _exposure_mean(params, frames) and events is not None:  # frames as exposure means (EDI)
+                from .edi import exposure_log_corrections
+                corr = exposure_log_corrections(frames, events, params.c_on, params.c_off)
             measurements = FrameMeasurements(
                 frames, shape, prof, intensity_offset=params.intensity_offset,
                 bias_correction=params.bias_correction,
                 interpolate_covariance=(mode != "causal" and params.covariance_interpolation == "linear"),
                 precision_scale=params.frame_precision_scale, saturation=params.saturation,
                 min_weighting=params.min_weighting,
-                event_step=-1.0 if params.event_interpolation else 0.0)  # -1: L^A follows each jump
+                event_step=-1.0 if params.event_interpolation else 0.0,  # -1: L^A follows each jump
+                log_corrections=corr)
         else:
             off = getattr(params, "intensity_offset", 1.0)
             measurements = FrameMeasurements(frames, shape, prof, intensity_offset=off, bias_correction=False,
@@ -487,8 +499,10 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 check_fps_outputs(lo, max(hi, lo), fps)
         use_aug = (method == "akf" and mode != "causal" and measurements is None and aug.enabled
                    and frames is not None and len(frames) > 0)
-        if use_aug or method == "edi":
-            # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
+        exp_mean = method == "akf" and measurements is None and not use_aug and _exposure_mean(p, frames)
+        if use_aug or method == "edi" or exp_mean:
+            # EDI, frame augmentation and frames read as exposure means look ahead in time (the
+            # events inside an exposure): hold the events in memory (13 B/event)
             if n_declared is None:
                 events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
             else:  # read in the background: the filter starts on the first chunks
@@ -535,7 +549,7 @@ def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us
                 return e
             if device == "cuda":  # the same two-filter smoother on the GPU (reconstruct.cuda)
                 from .cuda import cuda_two_sided_iter
-                make_engine.needs_events = use_aug
+                make_engine.needs_events = use_aug or exp_mean
                 yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                                progress=progress, info=info, carried_variance=p.carried_variance())
             else:
