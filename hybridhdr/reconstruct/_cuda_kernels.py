@@ -38,7 +38,8 @@ if not hasattr(np, "row_stack"):  # numba-cuda 0.30 with NumPy >= 2.5 (cuda.nump
 from numba import config as _nb_config  # noqa: E402
 from numba import cuda  # noqa: E402
 
-from ._kernels import (A_BETA, A_KLOG, A_L, A_LA, A_LASTEP, A_P, A_RINV, A_TU, C_ALPHA, C_L, C_LF, C_TU)
+from ._kernels import (A_BETA, A_KLOG, A_L, A_LA, A_LASTEP, A_P, A_RINV, A_TU, C_ALPHA, C_L, C_LF, C_TU,
+                       TOBIT_MAX_P)
 
 US = 1e-6  # seconds per microsecond (as _kernels.US)
 
@@ -92,16 +93,30 @@ def d_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
 
 
 @cuda.jit(device=True)
+def d_inverse_mills(a):
+    """:func:`._kernels.inverse_mills`."""
+    if a > 25.0:
+        return a + 1.0 / a
+    return 0.7978845608028654 * math.exp(-0.5 * a * a) / math.erfc(a * 0.7071067811865476)
+
+
+@cuda.jit(device=True)
 def d_frame_update(S, pix, r_log, cz, lf):
     """:func:`._kernels._frame_update`."""
     lh = S[pix, A_L]
     pp = S[pix, A_P]
     if cz * (lh - lf) > 0.0:
         return
+    if cz != 0.0:
+        sd = math.sqrt(pp + r_log)
+        if sd > 0.0 and pp < TOBIT_MAX_P:
+            S[pix, A_L] = lh + cz * (pp / sd) * d_inverse_mills(cz * (lf - lh) / sd)
+        else:
+            S[pix, A_L] = lh + pp / (pp + r_log) * (lf - lh)
+        return
     g = pp / (pp + r_log)
     S[pix, A_L] = lh + g * (lf - lh)
-    if cz == 0.0:
-        S[pix, A_P] = pp - g * pp
+    S[pix, A_P] = pp - g * pp
 
 
 @cuda.jit(device=True)

@@ -40,6 +40,12 @@ NOISE_REFERENCE = 1
 
 # AKF record fields (columns of the (n_pixels, 8) float64 state array)
 A_L, A_P, A_LA, A_RINV, A_BETA, A_TU, A_KLOG, A_LASTEP = range(8)
+
+#: Largest P (log²) at which a censored frame moves the state to its conditional mean beyond the
+#: bound (:func:`_frame_update`); above it (σ > 1 ln: a pixel never seen unclipped starts at
+#: ``censored_initial_covariance`` = 1e3) the state says nothing of how far beyond the bound the
+#: intensity is, and the bound itself is taken.
+TOBIT_MAX_P = 1.0
 AKF_FIELDS = 8
 # CF record fields (columns of the (n_pixels, 4) float64 state array)
 C_L, C_LF, C_ALPHA, C_TU = range(4)
@@ -434,24 +440,46 @@ def _akf_propagate_pixel(S, pix, seg_t0, seg_inv_t, t_to):
 
 
 @njit(cache=True, nogil=True, inline="always")
+def inverse_mills(a):
+    """λ(a) = φ(a) / (1 - Φ(a)) of the standard normal, for a >= 0 (the mean of N(0, 1) truncated
+    to [a, ∞)); beyond a = 25 its asymptote a + 1/a (relative error < 1e-3 there, and the erfc
+    form would underflow further out)."""
+    if a > 25.0:
+        return a + 1.0 / a
+    return 0.7978845608028654 * math.exp(-0.5 * a * a) / math.erfc(a * 0.7071067811865476)
+
+
+@njit(cache=True, nogil=True, inline="always")
 def _frame_update(S, pix, r_log, cz, lf):
     """Discrete Kalman update of pixel ``pix`` with the just-loaded frame (continuous-discrete KF).
 
     The switch has added the process noise σ²_proc accrued since the pixel's last update to P
     (changes below the threshold that no event reported). The frame ``lf`` (log) is one
     measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(lf - L̂),
-    P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state violates its bound
-    (projection towards it, as in :func:`_pull_integral`).
+    P ← (1 - κ)P. A censored frame (``cz`` ≠ 0: ``lf`` is a bound, the measurement z = L + v says
+    only ``cz (z - lf) >= 0``) acts only where the state violates its bound, and there moves L̂ to
+    the conditional mean given the bound (the Tobit Kalman filter's update, Allik et al., IEEE TSP
+    64(2), 2016): with s = √(P + R) and a = cz (lf - L̂)/s >= 0,
+    ``L̂ ← L̂ + cz (P/s) λ(a)`` (:func:`inverse_mills`), which lies beyond the bound by
+    ``(P/s)(λ(a) - a)`` (up to 0.8 P/s): the intensity of a clipped pixel is above the clip level,
+    not at it. P is left alone as for the continuous pull (:func:`_pull_integral`): a bound says
+    little of how far beyond it the intensity is.
     """
     lh = S[pix, A_L]
     la = lf
     pp = S[pix, A_P]
     if cz * (lh - la) > 0.0:
         return
+    if cz != 0.0:  # the Tobit update: the mean of the state given the bound
+        sd = math.sqrt(pp + r_log)
+        if sd > 0.0 and pp < TOBIT_MAX_P:
+            S[pix, A_L] = lh + cz * (pp / sd) * inverse_mills(cz * (la - lh) / sd)
+        else:
+            S[pix, A_L] = lh + pp / (pp + r_log) * (la - lh)
+        return
     g = pp / (pp + r_log)
     S[pix, A_L] = lh + g * (la - lh)
-    if cz == 0.0:  # a bound moves L̂, not P (projection)
-        S[pix, A_P] = pp - g * pp
+    S[pix, A_P] = pp - g * pp
 
 
 @njit(cache=True, nogil=True)
