@@ -458,8 +458,8 @@ def _frame_update(S, pix, r_log, cz, lf):
     measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R), L̂ ← L̂ + κ(lf - L̂),
     P ← (1 - κ)P. A censored frame (``cz`` ≠ 0: ``lf`` is a bound, the measurement z = L + v says
     only ``cz (z - lf) >= 0``) acts only where the state violates its bound, and there moves L̂ to
-    the conditional mean given the bound (the Tobit Kalman filter's update, Allik et al., IEEE TSP
-    64(2), 2016): with s = √(P + R) and a = cz (lf - L̂)/s >= 0,
+    the conditional mean given the bound (the Tobit Kalman filter's update, Allik et al., IEEE TCST
+    24(1), 2016): with s = √(P + R) and a = cz (lf - L̂)/s >= 0,
     ``L̂ ← L̂ + cz (P/s) λ(a)`` (:func:`inverse_mills`), which lies beyond the bound by
     ``(P/s)(λ(a) - a)`` (up to 0.8 P/s): the intensity of a clipped pixel is above the clip level,
     not at it. P is left alone as for the continuous pull (:func:`_pull_integral`): a bound says
