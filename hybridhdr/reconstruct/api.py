@@ -380,7 +380,9 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
             corr = None
             if _exposure_mean(params, frames) and events is not None:  # frames as exposure means (EDI)
                 from .edi import exposure_log_corrections
-                corr = exposure_log_corrections(frames, events, params.c_on, params.c_off)
+                from .augment import deblur_min_events
+                n_min = deblur_min_events(min(params.c_on, params.c_off), params.exposure_min_events)
+                corr = exposure_log_corrections(frames, events, params.c_on, params.c_off, min_events=n_min)
             measurements = FrameMeasurements(
                 frames, shape, prof, intensity_offset=params.intensity_offset,
                 bias_correction=params.bias_correction,

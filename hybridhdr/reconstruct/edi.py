@@ -159,7 +159,7 @@ def edi_log_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int,
     return log_blurred - np.log(J), count
 
 
-def exposure_log_corrections(frames, events: EventArrays, c_on: float, c_off: float) -> dict:
+def exposure_log_corrections(frames, events: EventArrays, c_on: float, c_off: float, *, min_events: int = 0) -> dict:
     """Per frame, the log correction that makes its exposure mean the latent image at mid-exposure.
 
     A frame exposed over ``[s_k, e_k)`` records the mean of the intensity over its exposure,
@@ -183,13 +183,22 @@ def exposure_log_corrections(frames, events: EventArrays, c_on: float, c_off: fl
         The events (at least those inside the exposures), time-sorted.
     c_on, c_off : float
         ON and OFF thresholds (log units, > 0) of the filter's log model.
+    min_events : int
+        Correct a pixel only when at least this many events fell in the exposure (0: every pixel
+        with one). Each event reads a log change of exactly c, so the correction carries a
+        quantisation error of about c/√12, while a frame blurred by a ramp of Δ = n c is off its
+        mid-exposure value by only ``ln(sinh(Δ/2)/(Δ/2)) ≈ Δ²/24``: below
+        :func:`~hybridhdr.reconstruct.augment.deblur_min_events` events the correction costs more
+        than it saves (the same rule as frame augmentation's deblurring).
 
     Returns
     -------
     dict ``{k: (pixels int64 (m,), correction float64 (m,))}`` for the frames k with an exposure
-    and at least one event inside it; the pixels are flattened row-major, only those with
-    events in the exposure (every other pixel's correction is 0).
+    and at least one pixel with ``max(min_events, 1)`` events inside it; the pixels are flattened
+    row-major, only those (every other pixel's correction is 0).
     """
+    if isinstance(min_events, bool) or not isinstance(min_events, (int, np.integer)) or min_events < 0:
+        raise ValueError(f"min_events must be an int >= 0, got {min_events!r}")
     c_on, c_off = float(c_on), float(c_off)
     if not (math.isfinite(c_on) and math.isfinite(c_off) and c_on > 0 and c_off > 0):
         raise ValueError(f"c_on and c_off must be finite and > 0 (log units), got {c_on!r}, {c_off!r}")
@@ -207,7 +216,10 @@ def exposure_log_corrections(frames, events: EventArrays, c_on: float, c_off: fl
         if i1 <= i0:
             continue
         pix = events.y[i0:i1].astype(np.int64) * w + events.x[i0:i1].astype(np.int64)
-        touched = np.unique(pix)
+        n_ev = np.bincount(pix, minlength=n)
+        touched = np.flatnonzero(n_ev >= max(int(min_events), 1))
+        if touched.size == 0:
+            continue
         count = np.zeros(n, np.int64)
         level = np.zeros(n)
         t_last = np.full(n, float(s))

@@ -206,6 +206,13 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         the exposure are unchanged). The events are then held in memory. False: the frame is
         the intensity at τ_k (the paper's model). Without frame augmentation only (the
         augmentation deblurs its frames itself).
+    exposure_min_events : int or None
+        With ``exposure_mean``, correct a pixel only when at least this many events fell in the
+        exposure; None (default): frame augmentation's ``n* = ceil(sqrt(24 / (√12 c)))`` for the
+        smaller of the ON/OFF thresholds (6 at c = 0.2, 9 at c = 0.1), below which each event's
+        quantisation (about c/√12) costs more than the blur it removes (about Δ²/24 for a log
+        change Δ over the exposure; :class:`~hybridhdr.reconstruct.augment.AugmentParams`); 0:
+        every pixel with an event.
     """
 
     _toml_table = "akf"
@@ -230,6 +237,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
     fusion_carried_variance: bool = True  # ours (two-sided mode)
     exposure_mean: bool = True  # ours: a frame is the mean over its exposure (EDI's model)
+    exposure_min_events: int | None = None  # None: n* from c (as frame augmentation's deblurring)
 
     def __post_init__(self):
         self._check_thresholds()
@@ -250,6 +258,9 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         self._bool("event_interpolation")
         self._bool("fusion_carried_variance")
         self._bool("exposure_mean")
+        v = self.exposure_min_events
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+            raise ValueError(f"AKFParams.exposure_min_events must be None or an int >= 0, got {v!r}")
         self._choice("frame_update", ("discrete", "continuous"))
         self._num("censored_initial_covariance", lo=0, lo_open=True)
 

@@ -99,7 +99,7 @@ def test_akf_reads_blurred_frames_as_exposure_means(mode):
     ref = np.log(np.stack([truth(int(t) - 1) for t in tau]) + DEFAULT_INTENSITY_OFFSET)  # events at t < τ
     errs = {}
     for on in (True, False):
-        p = AKFParams(contrast_threshold=0.1, exposure_mean=on)
+        p = AKFParams(contrast_threshold=0.1, exposure_mean=on, exposure_min_events=0)  # exact events: every pixel
         v = reconstruct(rec, "akf", p, times_us=tau, mode=mode, augment=False)
         errs[on] = np.abs(np.log(v.frames + DEFAULT_INTENSITY_OFFSET) - ref)
     assert errs[True].max() < 0.015, errs[True].max()
@@ -118,3 +118,26 @@ def test_exposure_mean_changes_nothing_without_exposures():
     a = reconstruct(r8, "akf", AKFParams(contrast_threshold=0.1), fps=500)
     b = reconstruct(r8, "akf", AKFParams(contrast_threshold=0.1, exposure_mean=False), fps=500)
     np.testing.assert_array_equal(a.frames, b.frames)
+
+
+def test_pixels_with_few_events_in_the_exposure_are_left_alone():
+    """By default a pixel is corrected only with n* = ceil(sqrt(24 / (√12 c))) events in the exposure
+    (9 at c = 0.1): the corrected pixels are exactly those, and their values match the
+    every-pixel run there."""
+    rec, _ = shifted_sequence(c=0.1, base=np.log(0.25), I0=DEFAULT_INTENSITY_OFFSET, frame_starts=(500, 20_500),
+                              exposure_us=8_000)
+    ev = EventArrays.from_structured(rec.events, (16, 48))
+    every = exposure_log_corrections(rec.frames, ev, 0.1, 0.1)
+    some = exposure_log_corrections(rec.frames, ev, 0.1, 0.1, min_events=9)
+    for k, (pix, corr) in every.items():
+        s, e = int(rec.frames.t_start_us[k]), int(rec.frames.t_end_us[k])
+        _, n = ev.counts(s, e)
+        want = np.flatnonzero(n >= 9)
+        got = some.get(k, (np.zeros(0, np.int64), np.zeros(0)))
+        np.testing.assert_array_equal(got[0], want)
+        np.testing.assert_array_equal(got[1], corr[np.isin(pix, want)])
+    assert sum(len(v[0]) for v in some.values()) < sum(len(v[0]) for v in every.values())
+    with pytest.raises(ValueError, match="min_events must be an int >= 0"):
+        exposure_log_corrections(rec.frames, ev, 0.1, 0.1, min_events=-1)
+    with pytest.raises(ValueError, match="exposure_min_events must be None or an int >= 0"):
+        AKFParams(exposure_min_events=-2)
