@@ -43,10 +43,8 @@ import math
 import numpy as np
 
 from ..camera import load_profile, profile_for_frames
-from ..camera.encoding import well_exposed_range
+from ..camera.encoding import DEFAULT_INTENSITY_OFFSET, frames_to_codes, well_exposed_range
 from ..model import Recording
-from ..reconstruct.measurement import frames_to_codes
-from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
 from .thresholds import _nnls2
 
 __all__ = ["EventFrameCalibration", "estimate_event_frame_calibration", "apply_time_offset",
@@ -250,7 +248,7 @@ def apply_time_offset(recording, time_offset_us: int) -> Recording:
     if fr is None or int(time_offset_us) == 0:
         return recording
     dt = int(time_offset_us)
-    shifted = dataclasses.replace(fr, t_start_us=fr.t_start_us + dt, t_end_us=fr.t_end_us + dt)
+    shifted = fr.shifted(dt)
     md = recording.metadata
     if md is not None and isinstance(md.provenance, dict):
         prov = dict(md.provenance)

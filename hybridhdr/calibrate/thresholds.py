@@ -46,10 +46,8 @@ import numpy as np
 
 from .._util.atomic import atomic_path
 from ..camera import load_profile, profile_for_frames
-from ..camera.encoding import well_exposed_range
+from ..camera.encoding import DEFAULT_INTENSITY_OFFSET, frames_to_codes, well_exposed_range
 from ..formats.thresholds import METHOD, ThresholdMap
-from ..reconstruct.measurement import frames_to_codes
-from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
 
 __all__ = ["estimate_thresholds", "threshold_sums", "pooled_thresholds", "plot_thresholds"]
 
@@ -114,7 +112,7 @@ def threshold_sums(recording, *, profile=None, intensity_offset: float | None = 
         Camera profile for ``I = CRF⁻¹(code)``; None: the recording's declared profile
         (``provenance["camera_profile"]``), else the built-in one for the frames' encoding.
     intensity_offset : float, optional
-        I0 in frame-linear units; default :data:`hybridhdr.reconstruct.params.DEFAULT_INTENSITY_OFFSET`.
+        I0 in frame-linear units; default :data:`hybridhdr.camera.encoding.DEFAULT_INTENSITY_OFFSET`.
     well_exposed : (lo, hi), optional
         Codes counted as well exposed (inclusive); default 20-235 scaled to the bit depth.
     min_intervals : int

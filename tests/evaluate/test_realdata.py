@@ -147,7 +147,7 @@ def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
     from hybridhdr.container import write_recording
     p = tmp_path / "rec.h5"
     write_recording(rec, p)
-    from hybridhdr._util.cliargs import DEFAULT_THRESHOLDS
+    from hybridhdr.calibrate.resolve import DEFAULT_THRESHOLDS
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     # a recording that declares no thresholds: the one default (DEFAULT_THRESHOLDS, selfcal, as
@@ -190,13 +190,13 @@ def test_one_calibration_without_every_held_out_frame(rec, monkeypatch):
     held = RD.default_held_frames(rec)[1:4]
     fr = RD._trimmed_frames(rec)
     seen = []
-    real = RD.estimate_thresholds
+    real = RD.resolve_thresholds
 
     def spy(r, *a, **kw):
         seen.append(set(r.frames.t_mid_us.tolist()))
         return real(r, *a, **kw)
 
-    monkeypatch.setattr(RD, "estimate_thresholds", spy)
+    monkeypatch.setattr(RD, "resolve_thresholds", spy)
     specs = [RD.HoldoutSpec("akf", "akf", "offline"), RD.HoldoutSpec("akf_causal", "akf", "causal")]
     res = RD.holdout_reconstructions(rec, specs, task="leave_one_out", held=held, thresholds="auto",
                                      calibration_holdout="scored")
