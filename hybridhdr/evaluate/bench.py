@@ -445,7 +445,7 @@ def _warmup(run: RunSpec):
         return
     rec, _ = procedural_recording((16, 16), 120_000, seed=0, frame_rate_hz=20.0)
     try:
-        reconstruct(rec, run.method, _method_params(run, 0.2), mode=run.mode, augment=run.augment)
+        reconstruct(rec, run.method, _method_params(run, 0.2), mode=run.mode, augment=run.augment, thresholds="input")
     except Exception:  # the real run reports the error
         pass
     _WARM.add(key)
@@ -504,7 +504,7 @@ def run_task(task, bench_opts: dict) -> list[dict]:
             _peak_rss_reset()
             t0 = time.perf_counter()
             v = reconstruct(rec, run.method, params, times_us=times, mode=run.mode, augment=run.augment,
-                            profile=data.profile)
+                            profile=data.profile, thresholds="input")
             wall = time.perf_counter() - t0
             row["peak_rss_mb"] = _peak_rss_mb()
             vi, ri = match_frames(v.t_us, hdr.t_us, int(bench_opts["tolerance_us"]))

@@ -345,7 +345,7 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
     if not loo:
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
-                        augment=spec.augment)
+                        augment=spec.augment, thresholds="input")  # declared, else the method's own
         wall = time.perf_counter() - t0
         if not np.array_equal(v.t_us, tk):
             raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
@@ -374,7 +374,8 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
             dt += int(kw.get("frame_time_offset_us", 0))
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, params, times_us=tk[i:i + 1] + dt, mode=spec.mode,
-                        profile=kw.get("profile", profile), augment=spec.augment, thresholds=kw.get("thresholds"),
+                        profile=kw.get("profile", profile), augment=spec.augment,
+                        thresholds=kw.get("thresholds") if kw.get("thresholds") is not None else "input",
                         frame_time_offset_us=dt)
         wall += time.perf_counter() - t0
         if not np.array_equal(v.t_us, tk[i:i + 1] + dt):

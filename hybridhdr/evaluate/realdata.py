@@ -285,6 +285,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     st["thresholds"].append(used)
                 t0 = time.perf_counter()
                 record_input = kw.pop("_record_input", False)
+                kw.setdefault("thresholds", "input")  # resolved here: declared, else the method's own
                 v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
                                 profile=profile, augment=s.augment, frame_time_offset_us=dt, **kw)
                 if record_input:

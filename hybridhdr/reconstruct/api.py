@@ -13,7 +13,7 @@ import numpy as np
 from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.limits import check_fps_outputs, check_sensor_size
-from ..calibrate.resolve import resolve_thresholds
+from ..calibrate.resolve import recording_declares_thresholds, resolve_thresholds
 from ..camera import CameraProfile
 from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
@@ -234,6 +234,7 @@ class _Opened:
     use_aug: bool = False
     events: object = None
     exposure_mean: bool = False  # the AKF reads its frames as exposure means: events held
+    t_end_us: int | None = None  # the end of the outputs (:func:`_output_end`)
 
 
     def has_frames(self) -> bool:
@@ -250,6 +251,53 @@ def _phase(name: str, kind: str = "serial"):
         tm.add(name, c0, kind)
 
 
+def _self_calibration(req: ReconstructRequest, source, opened, frames, params, info: dict | None):
+    """``(params, frame_time_offset_us)`` after the default self-calibration, the command line's
+    default (:data:`hybridhdr.calibrate.resolve.DEFAULT_THRESHOLDS`): for a method with a frame
+    model and thresholds, when the caller gives no thresholds (no map, parameters that state none,
+    no frame time offset, ``thresholds`` None) and the recording declares none (nor stores a map),
+    the event/frame self-calibration of the recording
+    (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"selfcal"``): the AKF takes the
+    calibrated log offset and thresholds, CF and direct integration the thresholds in their own
+    log model, all the time each frame stands for. ``thresholds="selfcal"`` calibrates whatever
+    the recording declares (an error when it cannot tell); ``"input"``/``"params"`` never. A
+    recording that cannot tell keeps ``params`` (said in ``info["self_calibration"]``)."""
+    rd, method = req.reading, req.run.method
+    choice = rd.choice
+    if choice not in ("default", "selfcal"):
+        return params, 0
+    spec = METHODS[method]
+    if not (spec.takes_thresholds and spec.needs_frames):
+        if choice == "selfcal":
+            raise ValueError(f"thresholds='selfcal' applies to the methods with frames and thresholds, not {method!r}")
+        return params, 0
+    if choice == "default" and (rd.thresholds_stated or rd.frame_time_offset_us
+                                or recording_declares_thresholds(opened) or frames is None or len(frames) < 3):
+        return params, 0
+    rec = source if isinstance(source, Recording) else None
+    if rec is None:
+        from ..formats import read
+        path = source if isinstance(source, (str, os.PathLike)) else getattr(source, "path", None)
+        if path is None:
+            if choice == "selfcal":
+                raise ValueError("thresholds='selfcal' needs a Recording or a path (the calibration reads it whole)")
+            return params, 0
+        rec = read(path)
+    own_i0 = None if method == "akf" else float(params.intensity_offset)
+    try:
+        got = resolve_thresholds(rec, "selfcal", intensity_offset=own_i0, profile=rd.profile)
+    except ValueError as e:
+        if choice == "selfcal":
+            raise ValueError(f"thresholds='selfcal': the recording cannot tell ({e})") from None
+        if info is not None:
+            info["self_calibration"] = f"skipped: {e}"
+        return params, 0
+    if info is not None:
+        info["thresholds"] = got.note
+        info["self_calibration"] = got.record
+    return params.replace(**got.overrides()), int(got.frame_time_offset_us)
+
+
 def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
     """(params, per-pixel (c_on, c_off) or None): the caller's map, else what the recording
     declares (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"input"``) for a method
@@ -263,6 +311,36 @@ def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
     if info is not None and got.note is not None:
         info["thresholds"] = got.note
     return (p.replace(**got.overrides()) if got.overrides() else p), got.maps
+
+
+def _output_end(req: ReconstructRequest, source, opened, frames) -> int | None:
+    """The exclusive end of the outputs: the caller's ``t_end_us``; with ``fps`` and none given,
+    one past the last event for a method that reads events (the command line's ``--until
+    events``; a source that cannot tell where its events end: None, up to the last event or
+    frame), else one past the last frame (the frames-only methods)."""
+    out = req.output
+    if out.t_end_us is not None or out.fps is None or out.times_us is not None:
+        return out.t_end_us
+    last = None
+    if METHODS[req.run.method].uses_events:
+        if isinstance(opened, Recording):
+            last = int(opened.events["t"][-1]) if len(opened.events) else None
+        elif isinstance(source, (str, os.PathLike)) and not str(source).startswith("builtin:"):
+            from ..formats.span import recording_span
+            ev = recording_span(source).events
+            last = None if ev is None else int(ev[1])
+        else:
+            tr = getattr(opened, "time_range_us", None)
+            try:
+                tr = tr() if callable(tr) else tr
+            except Exception:  # noqa: BLE001 - a reader that cannot say declares nothing
+                tr = None
+            last = None if tr is None else int(tr[1])
+        if last is None:  # a source that cannot say where its events end: up to the last event or frame
+            return None
+    elif frames is not None and len(frames):
+        last = int(frames.t_mid_us[-1])
+    return None if last is None else last + 1
 
 
 def _check_fps(req: ReconstructRequest, opened, frames) -> None:
@@ -291,6 +369,12 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
                 info["frame_time_offset_us"] = dt
         op = _Opened(opened, (), frames, chunks, close, n_declared)
         op.params, op.thr = _recording_thresholds(req, opened, info)
+        op.params, cal_dt = _self_calibration(req, source, opened, frames, op.params, info)
+        if cal_dt and frames is not None and len(frames):  # the time each frame stands for, calibrated
+            op.frames = frames = frames.shifted(cal_dt)
+            if info is not None:
+                info["frame_time_offset_us"] = cal_dt
+        op.t_end_us = _output_end(req, source, opened, frames)
         op.shape = _sensor_shape(ss, frames)
         check_sensor_size(*op.shape, what="sensor (per-pixel filter state)")
         if info is not None and frames is not None:
@@ -418,7 +502,7 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
                     augment=run.augment.to_dict() if op.use_aug else {"enabled": False})
     t_last = max(int(events.t[-1]) if len(events) else int(frames.t_mid_us[-1]), int(frames.t_mid_us[-1]))
     times = output_times(frames.t_mid_us, t_last, times_us=out.times_us, fps=out.fps, t_start_us=out.t_start_us,
-                         t_end_us=out.t_end_us)
+                         t_end_us=op.t_end_us)
     engines = []
 
     def make_engine(fr, ev, backward, n_workers=run.n_workers):  # a pass's share of the workers
@@ -501,7 +585,7 @@ def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
             info.update(method=run.method, mode=run.mode, profile=prof.name, params=op.params.to_dict())
             if run.method == "akf":
                 info["augment"] = run.augment.to_dict() if op.use_aug else {"enabled": False}
-        yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=req.output.t_end_us,
+        yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=op.t_end_us,
                            progress=run.progress)
         engine.close()  # no measurement is still being computed ahead when the stats are read
         if info is not None:
