@@ -316,8 +316,8 @@ def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
 def _output_end(req: ReconstructRequest, source, opened, frames) -> int | None:
     """The exclusive end of the outputs: the caller's ``t_end_us``; with ``fps`` and none given,
     one past the last event for a method that reads events (the command line's ``--until
-    events``; a source that cannot tell where its events end: None, up to the last event or
-    frame), else one past the last frame (the frames-only methods)."""
+    events``; None, up to the last event or frame, for a source that cannot tell where its
+    events end), else one past the last frame (the frames-only methods, ``--until frames``)."""
     out = req.output
     if out.t_end_us is not None or out.fps is None or out.times_us is not None:
         return out.t_end_us
