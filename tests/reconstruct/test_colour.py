@@ -116,8 +116,8 @@ def test_colour_edge_sweep_accuracy_and_no_bleeding():
     times = np.arange(int(tm[0]), int(tm[-1]) + 1, 10_000, dtype=np.int64)
     tex = scene._tex()
     rgb = np.stack([scene.rgb(t, tex) for t in times])
-    vm = reconstruct(mono, "akf", times_us=times)
-    vc = reconstruct(col, "akf", times_us=times)
+    vm = reconstruct(mono, "akf", times_us=times, thresholds="input")  # the simulated sensor, not a calibration
+    vc = reconstruct(col, "akf", times_us=times, thresholds="input")
     e_mono = lr(vm.frames, rgb @ np.array([0.2126, 0.7152, 0.0722]))
     assert lr(mosaic(vc.frames, "RGGB"), mosaic(rgb, "RGGB")) <= 1.0 * e_mono
     assert lr(vc.frames, rgb) <= 1.25 * e_mono
