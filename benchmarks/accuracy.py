@@ -34,15 +34,20 @@ PU21-SSIM, the fraction of non-positive pixels, events/s, and log-domain RMSEs a
 or any frame saw (recoverable, offline); the whole-image log-RMSE after its own fit is reported
 but misleading (the fit trades clipped pixels against the rest).
 
-- ``real_overexpose``: ``ecd_slider_depth`` with its frames over-exposed 2, 4 and 8 times after
-  the fact (:mod:`hybridhdr.evaluate.overexpose`: linear intensity x gain, re-encoded, clipped;
-  events untouched), every frame method in offline and causal mode with its CLI-default
-  parameters, scored at the frames' times against the original frames x gain: log RMSE (after
+- ``real_overexpose``: two real sensors with their frames over-exposed after the fact
+  (:mod:`hybridhdr.evaluate.overexpose`: linear intensity x gain, re-encoded, clipped; events
+  untouched), every frame method in offline and causal mode with its CLI-default parameters,
+  scored at the frames' times against the original frames x gain: log RMSE (after
   ``a·log x + b`` on the unclipped pixels) on the pixels the over-exposed frame clips but the
   original shows well exposed and an earlier (recoverable causal) or any other (recoverable
   offline) frame saw, and on the well-exposed pixels; ratios to the clipped frame itself
-  (``frames_only``), pixel counts, non-positive fraction. Skipped, with the reason, when the
-  sample data is absent.
+  (``frames_only``), pixel counts, non-positive fraction. ``ecd_slider_depth`` (DAVIS240C, no
+  exposures stamped): gains 2, 4 and 8, every frame inside the events, each calibrated without
+  itself. ``davis346_street`` (DAVIS346, AEDAT4, 500 µs exposures stamped): gain 4 (``--quick``)
+  or 2, 4, 8, on 6 (``--quick``) or 12 scored frames evenly spread over the 58 inside the events,
+  with one calibration per gain that leaves every scored frame out (``calibration_holdout=
+  "scored"``: one per scored frame would cost 12 calibrations of 59 frames). Each recording is
+  skipped, with the reason, when its sample data is absent.
 
 Diagnostics, not targets: ``hdr_no_refractory`` (the same HDR renders with the event sensor's
 0.5 ms refractory period off) and ``event_log_change`` (per HDR dataset, how much of a > 2 ln-unit
@@ -76,6 +81,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 DATA = Path(__file__).resolve().parent / "_data" / "accuracy"
 ECD = SHARED_DATA / "ecd_slider_depth"
+STREET = SHARED_DATA / "aedat4" / "davis346_street.aedat4"
 
 COLS = (("mse", "MSE", "{:.3e}"), ("ssim", "SSIM", "{:.3f}"), ("pu_ssim", "PU-SSIM", "{:.3f}"),
         ("nonpositive_frac", "non-pos", "{:.1e}"), ("events_per_s", "Mev/s", None),
@@ -243,15 +249,30 @@ def _event_log_change(data) -> dict:
 OVEREXPOSE_GAINS = (2.0, 4.0, 8.0)
 
 
-def _real_overexpose(rec) -> dict:
-    """The ``real_overexpose`` suite: per gain and method the three class errors, the ratios to
-    frames_only, the class counts and the non-positive fraction (plus the text table)."""
+#: Scored frames of davis346_street in the real_overexpose suite: (quick, full), evenly spread.
+STREET_FRAMES = (6, 12)
+
+
+def _street_frames(rec, n: int) -> list[int]:
+    """``n`` of the default scored frames of ``rec``, evenly spread (the first and the last included)."""
+    from hybridhdr.evaluate import overexpose as OE
+    sc = OE.default_scored_frames(rec)
+    return sorted({sc[int(i)] for i in np.linspace(0, len(sc) - 1, min(n, len(sc))).round()})
+
+
+def _real_overexpose(rec, name: str = "ecd_slider_depth", gains=OVEREXPOSE_GAINS, frames=None,
+                     calibration_holdout: str = "frame") -> dict:
+    """The ``real_overexpose`` suite on one recording: per gain and method the three class errors,
+    the ratios to frames_only, the class counts and the non-positive fraction (plus the text table)."""
     from hybridhdr.evaluate import overexpose as OE
     from hybridhdr.evaluate.realdata import default_threshold_source
-    # every frame method, offline and causal, CLI defaults (self-calibrated: ecd declares no thresholds)
-    r = OE.evaluate_overexpose(rec, OVEREXPOSE_GAINS, thresholds=default_threshold_source(rec))
-    out = {"frames": r["frames"], "t_us": r["t_us"], "thresholds": r["thresholds"], "fit": r["fit"],
-           "skipped_methods": r["skipped"], "table": OE.format_overexpose(r, "ecd_slider_depth, "), "gains": {}}
+    # every frame method, offline and causal, CLI defaults (self-calibrated where the recording declares
+    # no thresholds)
+    r = OE.evaluate_overexpose(rec, gains, frames=frames, thresholds=default_threshold_source(rec),
+                               calibration_holdout=calibration_holdout)
+    out = {"recording": name, "frames": r["frames"], "t_us": r["t_us"], "thresholds": r["thresholds"],
+           "calibration_holdout": calibration_holdout, "fit": r["fit"],
+           "skipped_methods": r["skipped"], "table": OE.format_overexpose(r, f"{name}, "), "gains": {}}
     for g in r["gains"]:
         gr = r["by_gain"][OE.gain_key(g)]
         d = {"counts": gr["counts"], "clipped_fraction": gr["clipped_fraction"], "methods": {}}
@@ -301,7 +322,7 @@ def _sim_to_real(v2_data, real) -> dict:
 
 
 def _overexpose_targets(ro) -> dict:
-    """Issue 28's real_overexpose checks at gain 4 (measured, not tuned for)."""
+    """The ecd_slider_depth real_overexpose checks at gain 4 (measured, not tuned for)."""
     m = ro.get("gains", {}).get("4", {}).get("methods", {})
     if not m:
         return {}
@@ -310,8 +331,44 @@ def _overexpose_targets(ro) -> dict:
         return m.get(lab, {}).get(k, float("nan"))
     t = {"akf_causal_rec_causal_le_0.6x_frames": {"ratio": g("akf_causal", "ratio_recoverable_causal"),
                                                   "pass": bool(g("akf_causal", "ratio_recoverable_causal") <= 0.6)},
+         "akf_causal_rec_causal_le_0.65x_frames": {"ratio": g("akf_causal", "ratio_recoverable_causal"),
+                                                   "pass": bool(g("akf_causal", "ratio_recoverable_causal") <= 0.65)},
+         "two_sided_le_causal_rec_causal": {"akf": g("akf", "log_rmse_recoverable_causal"),
+                                            "akf_causal": g("akf_causal", "log_rmse_recoverable_causal"),
+                                            "pass": bool(g("akf", "log_rmse_recoverable_causal")
+                                                         <= g("akf_causal", "log_rmse_recoverable_causal"))},
          "akf_rec_offline_le_0.55x_frames": {"ratio": g("akf", "ratio_recoverable_offline"),
                                              "pass": bool(g("akf", "ratio_recoverable_offline") <= 0.55)},
+         "akf_well_exposed_le_0.08": {"akf": g("akf", "log_rmse_well_exposed"),
+                                      "akf_causal": g("akf_causal", "log_rmse_well_exposed"),
+                                      "pass": bool(max(g("akf", "log_rmse_well_exposed"),
+                                                       g("akf_causal", "log_rmse_well_exposed")) <= 0.08)},
+         "akf_no_nonpositive": {"akf": g("akf", "nonpositive_frac"), "akf_causal": g("akf_causal", "nonpositive_frac"),
+                                "pass": bool(g("akf", "nonpositive_frac") == 0 and g("akf_causal", "nonpositive_frac") == 0)}}
+    return t
+
+
+#: The default before frames were read as exposure means and the camera model was unified: the
+#: causal and two-sided AKF's recoverable-causal log RMSE on davis346_street x4, the quick frames
+#: (1, 12, 24, 35, 47, 58), self-calibrated once without them (measured on main f7f0db6 with this
+#: suite's protocol). A reference for the ">= 10 % better" check, not a result of this run.
+STREET_BEFORE = {"akf_causal": 0.113, "akf": 0.112}
+
+
+def _street_targets(rs) -> dict:
+    """The davis346_street checks at gain 4 (measured, not tuned for)."""
+    m = rs.get("gains", {}).get("4", {}).get("methods", {})
+    if not m:
+        return {}
+
+    def g(lab, k):
+        return m.get(lab, {}).get(k, float("nan"))
+    c = g("akf_causal", "log_rmse_recoverable_causal")
+    o = g("akf", "log_rmse_recoverable_causal")
+    t = {"akf_causal_rec_causal_10pct_below_before": {
+            "log_rmse": c, "before": STREET_BEFORE["akf_causal"], "ratio": c / STREET_BEFORE["akf_causal"],
+            "pass": bool(c <= 0.9 * STREET_BEFORE["akf_causal"]) and rs.get("frames") == [1, 12, 24, 35, 47, 58]},
+         "two_sided_le_causal_rec_causal": {"akf": o, "akf_causal": c, "pass": bool(o <= c)},
          "akf_well_exposed_le_0.08": {"akf": g("akf", "log_rmse_well_exposed"),
                                       "akf_causal": g("akf_causal", "log_rmse_well_exposed"),
                                       "pass": bool(max(g("akf", "log_rmse_well_exposed"),
@@ -379,6 +436,17 @@ def main() -> int:
     else:
         res["real_error"] = f"{ECD} not found"
         res["real_overexpose"] = {"skipped": f"{ECD} not found (the ../shared sample data is absent)"}
+    if STREET.exists():
+        import hybridhdr
+        t = time.perf_counter()
+        srec = hybridhdr.read(STREET)
+        res["real_overexpose_street"] = _real_overexpose(
+            srec, "davis346_street", gains=(4.0,) if args.quick else OVEREXPOSE_GAINS,
+            frames=_street_frames(srec, STREET_FRAMES[0] if args.quick else STREET_FRAMES[1]),
+            calibration_holdout="scored")
+        res["real_overexpose_street_s"] = time.perf_counter() - t
+    else:
+        res["real_overexpose_street"] = {"skipped": f"{STREET} not found (the ../shared sample data is absent)"}
     if "hdr_v2" in suites:
         t = time.perf_counter()
         res["sim_to_real"] = _sim_to_real(suites["hdr_v2"], res.get("real_overexpose"))
@@ -424,9 +492,17 @@ def main() -> int:
           "a·log x + b on the unclipped pixels, (x frames_only))")
     print(ro.pop("table", None) or f"  skipped: {ro.get('skipped')}")
     res["real_overexpose_targets"] = _overexpose_targets(ro)
-    print("  issue 28 checks at gain 4 (measured, not tuned for): " + "; ".join(
+    print("  checks at gain 4 (measured, not tuned for): " + "; ".join(
         f"{'PASS' if v['pass'] else 'FAIL'} {k} (" + ", ".join(f"{a}={b:.3g}" for a, b in v.items() if a != "pass")
         + ")" for k, v in res["real_overexpose_targets"].items()))
+    rs = res.get("real_overexpose_street", {})
+    print(f"\n## real_overexpose, davis346_street (frames {rs.get('frames')} over-exposed after the fact; one "
+          f"calibration per gain without the scored frames; (x frames_only))")
+    print(rs.pop("table", None) or f"  skipped: {rs.get('skipped')}")
+    res["real_overexpose_street_targets"] = _street_targets(rs)
+    print("  checks at gain 4 (measured, not tuned for): " + "; ".join(
+        f"{'PASS' if v['pass'] else 'FAIL'} {k} (" + ", ".join(f"{a}={b:.3g}" for a, b in v.items() if a != "pass")
+        + ")" for k, v in res["real_overexpose_street_targets"].items()))
     print("\n* whole-image log-RMSE after its own a·log x + b fit: reported, but misleading (the fit trades the "
           "clipped pixels against the rest). Unaltered MSE/SSIM/PU21-SSIM: both divided by the reference maximum, "
           "reconstruction not clipped (symmetric, as the AKF authors' anal_hdr_results.m). Mev/s of frames-only "

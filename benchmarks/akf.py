@@ -169,7 +169,7 @@ def hd_case(n: int, reps: int, res: dict) -> None:
 
     def in_memory(mode, nw=1):
         tt = time.perf_counter()
-        v = reconstruct(rec, "akf", fps=30, n_workers=nw, chunk_events=1 << 21, mode=mode)
+        v = reconstruct(rec, "akf", fps=30, n_workers=nw, chunk_events=1 << 21, mode=mode, thresholds="input")
         return time.perf_counter() - tt, len(v)
 
     akf()  # JIT / cache load for these shapes
@@ -313,7 +313,7 @@ def _scaling_case(rec, method, mode, workers, reps):
 
     def run(nw):
         with PH.timing() as pt:
-            v = reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20)
+            v = reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20, thresholds="input")
         return pt.report(), v.frames
 
     ref = run(1)[1]  # warm-up (JIT cache, first touch) and the reference frames
@@ -592,7 +592,7 @@ def main(argv=None) -> int:
                     def e2e():
                         with RecordingFile(path) as f:
                             v = reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21, augment=aug,
-                                            mode=mode)
+                                            mode=mode, thresholds="input")
                         return len(v)
                     el, k = best_of(e2e, 2 if args.quick else 3)
                     res[f"end_to_end{tag}_{nw}w_mev_s"] = round(n / el / 1e6, 2)
@@ -621,7 +621,7 @@ def main(argv=None) -> int:
                     with RecordingFile(path) as f:
                         if fast_read:  # PROTOTYPE of the proposed reader hook (hybridhdr.formats._chunk_read)
                             f._ev = {k: _FastColumn(d, read_pool) for k, d in f._ev.items()}
-                        return reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21)
+                        return reconstruct(f, "akf", fps=300, n_workers=nw, chunk_events=1 << 21, thresholds="input")
                 finally:
                     api_mod.two_sided_iter = orig
             variants = {"1w": lambda: run_default(1), "2w": lambda: run_default(2),

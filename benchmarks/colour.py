@@ -74,8 +74,8 @@ def run_seed(seed: int, log, band_limited: bool = True, methods=METHODS) -> dict
     out = {"seed": seed, "band_limited": band_limited, "n_outputs": int(len(times)), "methods": {}}
     for m in methods:
         t0 = time.perf_counter()
-        vm = reconstruct(mono, m, times_us=times)
-        vk = reconstruct(col, m, times_us=times)  # the default demosaicking, log_cubic
+        vm = reconstruct(mono, m, times_us=times, thresholds="input")
+        vk = reconstruct(col, m, times_us=times, thresholds="input")  # the default demosaicking, log_cubic
         if vk.info["cfa"]["demosaic"] != "log_cubic":
             raise RuntimeError(f"the default demosaicking is {vk.info['cfa']['demosaic']}; this benchmark expects log_cubic")
         # the filter runs once: each pixel's own channel is its estimate bit for bit, so the other

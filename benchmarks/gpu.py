@@ -230,18 +230,18 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
     rec = _recording(t, x, y, p, frames, shape)
     section_file(rec, n, out, reps)
     for mode, key in (("forward", "akf_forward"), ("offline", "akf_two_sided")):
-        el, v = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"), 1)
+        el, v = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda", thresholds="input"), 1)
         out[f"{key}_reconstruct_gpu"] = {"seconds": round(el, 3), "mev_s": round(n / el / 1e6, 1),
                                          "device_line": v.info.get("device")}
         log(f"  {key} through reconstruct on the GPU: {n / el / 1e6:.1f} Mev/s ({el * 1e3:.0f} ms)")
         if profile:
-            rows = _cprofile(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda"))
+            rows = _cprofile(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, device="cuda", thresholds="input"))
             out[f"{key}_reconstruct_gpu"]["host_profile"] = rows
             log(f"  host profile of reconstruct {mode} on the GPU (tottime cumtime ncalls function):")
             for r in rows:
                 log("    " + r)
         if run_cpu:
-            el_c, _ = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, n_workers=cpu_workers), 1)
+            el_c, _ = _best(lambda: reconstruct(rec, "akf", mode=mode, fps=30.0, n_workers=cpu_workers, thresholds="input"), 1)
             out[f"{key}_reconstruct_cpu"] = {"seconds": round(el_c, 3), "mev_s": round(n / el_c / 1e6, 1),
                                              "workers": cpu_workers}
             log(f"  {key} through reconstruct on the CPU ({cpu_workers} workers): {n / el_c / 1e6:.1f} Mev/s")
@@ -337,7 +337,7 @@ def section_file(rec, n, out, reps):
 
         def e2e():
             with RecordingFile(path) as f:
-                return reconstruct(f, "akf", mode="forward", fps=30.0, device="cuda", chunk_events=1 << 21)
+                return reconstruct(f, "akf", mode="forward", fps=30.0, device="cuda", chunk_events=1 << 21, thresholds="input")
         e2e()
         el_e, v = _best(e2e, reps)
     out["end_to_end_file"] = {"decode_mev_s": round(n / el_d / 1e6, 1), "reconstruct_cuda_forward_mev_s":
@@ -381,8 +381,8 @@ def agreement(res):
     r_l = max(rel(g[1], c[1]) for c, g in zip(*outs))
     r_p = max(rel(g[2], c[2]) for c, g in zip(*outs))
     rec = _recording(t, x, y, p, fr, (H, W))
-    a = reconstruct(rec, "akf", fps=100.0)
-    b = reconstruct(rec, "akf", fps=100.0, device="cuda")
+    a = reconstruct(rec, "akf", fps=100.0, thresholds="input")
+    b = reconstruct(rec, "akf", fps=100.0, device="cuda", thresholds="input")
     r_img = rel(b.frames, a.frames) if a.frames.shape == b.frames.shape else float("inf")
     res["agreement"] = {"case": f"{W}x{H}, {t.shape[0]} events", "forward_L_max_rel": r_l, "forward_P_max_rel": r_p,
                         "state_goal": 1e-9, "state_met": bool(max(r_l, r_p) <= 1e-9),

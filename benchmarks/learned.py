@@ -79,7 +79,7 @@ def main(argv=None) -> int:
                            "n_frames": len(v), "n_params": int(sum(p.numel() for p in net.parameters()))}
             print(f"{method} on {device}: {ne / el / 1e6:.3f} Mev/s, {1e3 * el / len(v):.1f} ms/frame", file=sys.stderr)
     t0 = time.perf_counter()
-    v = reconstruct(rec, "akf", None, times_us=times, mode="forward")
+    v = reconstruct(rec, "akf", None, times_us=times, mode="forward", thresholds="input")
     el = time.perf_counter() - t0
     res["akf"] = {"seconds": round(el, 3), "events_per_s": round(int(v.info["n_events_used"]) / el),
                   "ms_per_frame": round(1e3 * el / len(v), 2), "n_frames": len(v), "mode": "forward", "workers": 1}

@@ -342,7 +342,7 @@ def _current_frames(frames, t_us) -> np.ndarray:
 def _reconstruct(rec, spec: MethodSpec, c, profile, times):
     t0 = time.perf_counter()
     v = reconstruct(rec, spec.method, method_params(spec, c), times_us=times, mode=spec.mode, profile=profile,
-                    augment=spec.augment)
+                    augment=spec.augment, thresholds="input")  # the dataset's stated threshold, else the method's own
     return v, time.perf_counter() - t0
 
 

@@ -453,7 +453,7 @@ def _warmup(run: RunSpec, profile=None):
     times = np.arange(int(rec.frames.t_mid_us[0]), int(rec.frames.t_mid_us[-1]), 10_000, dtype=np.int64)
     try:
         reconstruct(rec, run.method, _method_params(run, 0.2), times_us=times, mode=run.mode, augment=run.augment,
-                    profile=profile)
+                    profile=profile, thresholds="input")
     except Exception:  # the real run reports the error
         pass
     _WARM.add(key)
@@ -512,7 +512,7 @@ def run_task(task, bench_opts: dict) -> list[dict]:
             _peak_rss_reset()
             t0 = time.perf_counter()
             v = reconstruct(rec, run.method, params, times_us=times, mode=run.mode, augment=run.augment,
-                            profile=data.profile)
+                            profile=data.profile, thresholds="input")
             wall = time.perf_counter() - t0
             row["peak_rss_mb"] = _peak_rss_mb()
             vi, ri = match_frames(v.t_us, hdr.t_us, int(bench_opts["tolerance_us"]))

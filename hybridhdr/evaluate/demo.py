@@ -46,7 +46,7 @@ def demo_step(recording, out_dir) -> str:
              f"(gain-matched, log range {span:.2f} = {np.exp(span):.3g}:1 mapped to [0, 1])"]
     _, lim = tone_map(ref)
     for method in ("akf", "cf"):
-        v = reconstruct(recording, method, times_us=times)
+        v = reconstruct(recording, method, times_us=times, thresholds="input")  # the simulated sensor's, else the defaults
         log_rec = np.log(np.maximum(v.frames.astype(np.float64), tiny))
         shift = float(np.mean(log_ref - log_rec))  # least-squares log offset = linear gain
         a = np.clip((log_rec + shift - lo) / span, 0, 1)

@@ -207,12 +207,21 @@ def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dic
              "intervals": got.record["intervals"]})
 
 
-def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params") -> dict:
+#: What a calibration (``"auto"``, ``"selfcal"``) leaves out of its input: the held-out frame (one
+#: calibration per held-out frame) or every held-out frame (one calibration for all of them).
+CALIBRATION_HOLDOUTS = ("frame", "scored")
+
+
+def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params",
+                            calibration_holdout: str = "frame") -> dict:
     """Reconstruct every spec at every held-out frame.
 
     ``thresholds``: ``"params"`` (each spec's own), ``"auto"`` (estimated on each input in the
     method's log model, :func:`input_thresholds`), ``"input"`` (what the recording declares, else
     the spec's own) or a per-pixel threshold map (a ThresholdMap or a path to a ``.npz``).
+    ``calibration_holdout``: ``"frame"`` (the calibration of frame k's input leaves frame k out)
+    or ``"scored"`` (one calibration leaves every held-out frame out, shared by them: the same
+    never-the-scored-frame rule at the cost of one calibration).
 
     Returns ``{label: {"frames": [(H, W) float64 or None per held-out frame], "wall_s": float,
     "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
@@ -226,9 +235,18 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
             tmap = load_thresholds(thresholds)
     elif thresholds not in THRESHOLD_SOURCES:
         raise ValueError(f"thresholds must be one of {THRESHOLD_SOURCES} or a threshold map, got {thresholds!r}")
+    if calibration_holdout not in CALIBRATION_HOLDOUTS:
+        raise ValueError(f"calibration_holdout must be one of {CALIBRATION_HOLDOUTS}, got {calibration_holdout!r}")
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
+    shared_rec, shared_cal = None, {}
+    if calibration_holdout == "scored":
+        fr = _trimmed_frames(rec)
+        shared_rec = Recording(rec.events, rec.sensor_size, fr.select(np.setdiff1d(np.arange(len(fr)), held)),
+                               rec.triggers, None, rec.metadata)
     for k in held:
         loo_k, calib_k = None, {}  # the recording without frame k, and its threshold estimates, once per k
+        if shared_rec is not None:
+            loo_k, calib_k = shared_rec, shared_cal  # without every held-out frame, once for all
         for s in specs:
             st = out[s.label]
             if st["error"] is not None:
@@ -268,6 +286,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     st["thresholds"].append(used)
                 t0 = time.perf_counter()
                 record_input = kw.pop("_record_input", False)
+                kw.setdefault("thresholds", "input")  # resolved here: declared, else the method's own
                 v = reconstruct(r_k, s.method, params, times_us=np.array([t], np.int64), mode=s.mode,
                                 profile=profile, augment=s.augment, frame_time_offset_us=dt, **kw)
                 if record_input:
@@ -325,7 +344,7 @@ def _is_causal(spec: HoldoutSpec) -> bool:
 
 
 def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well_exposed=None, baselines=True,
-                     log=None, thresholds: str = "params") -> dict:
+                     log=None, thresholds: str = "params", calibration_holdout: str = "frame") -> dict:
     """Score ``methods`` (HoldoutSpec list) and the baselines on held-out frames.
 
     Parameters
@@ -338,6 +357,7 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
     thresholds : ``"params"`` (each method's own), ``"auto"`` (estimated on each input in the
         method's own log model; module docstring), ``"input"`` (what the recording declares) or a
         per-pixel threshold map (:func:`holdout_reconstructions`)
+    calibration_holdout : ``"frame"`` or ``"scored"`` (:func:`holdout_reconstructions`)
 
     Returns
     -------
@@ -363,7 +383,7 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")
         run = [s for s in specs if task == "leave_one_out" or _is_causal(s) or s in BASELINES]
         recs = holdout_reconstructions(rec, run, task=task, held=held, profile=profile, log=log,
-                                       thresholds=thresholds)
+                                       thresholds=thresholds, calibration_holdout=calibration_holdout)
         rows = {}
         for s in specs:
             role = "baseline" if s in BASELINES else "method"

@@ -41,6 +41,12 @@ NOISE_REFERENCE = 1
 
 # AKF record fields (columns of the (n_pixels, 8) float64 state array)
 A_L, A_P, A_LA, A_RINV, A_BETA, A_TU, A_KLOG, A_LASTEP = range(8)
+
+#: Largest P (log²) at which a censored frame moves the state to its conditional mean beyond the
+#: bound (:func:`frame_update`); above it (σ > 1 ln: a pixel never seen unclipped starts at
+#: ``censored_initial_covariance`` = 1e3) the state says nothing of how far beyond the bound the
+#: intensity is, and the bound itself is taken.
+TOBIT_MAX_P = 1.0
 AKF_FIELDS = 8
 # CF record fields (columns of the (n_pixels, 4) float64 state array)
 C_L, C_LF, C_ALPHA, C_TU = range(4)
@@ -235,22 +241,40 @@ def window_neighbours(pix, height, width, glo, ghi, te_in, nb_pos, nb_hi, nb_te)
     return n_nb, t_quiet
 
 
+def inverse_mills(a):
+    """λ(a) = φ(a) / (1 - Φ(a)) of the standard normal, for a >= 0 (the mean of N(0, 1) truncated
+    to [a, ∞)); beyond a = 25 its asymptote a + 1/a (relative error < 1e-3 there, and the erfc
+    form would underflow further out)."""
+    if a > 25.0:
+        return a + 1.0 / a
+    return 0.7978845608028654 * math.exp(-0.5 * a * a) / math.erfc(a * 0.7071067811865476)
+
+
 def frame_update(lh, pp, r_log, cz, lf):
     """Discrete Kalman update of one pixel with the just-loaded frame (continuous-discrete KF).
 
     The switch has added the process noise σ²_proc accrued since the pixel's last update to P
     (changes below the threshold that no event reported). The frame ``lf`` (log) is one
     measurement of L at τ_k with log variance ``r_log`` (eq. 9's R): gain κ = P/(P + R),
-    L̂ ← L̂ + κ(lf - L̂), P ← (1 - κ)P. A censored frame (``cz`` ≠ 0) acts only where the state
-    violates its bound (projection towards it, as in :func:`pull_integral`), and leaves P.
+    L̂ ← L̂ + κ(lf - L̂), P ← (1 - κ)P. A censored frame (``cz`` ≠ 0: ``lf`` is a bound, the
+    measurement z = L + v says only ``cz (z - lf) >= 0``) acts only where the state violates its
+    bound, and there moves L̂ to the conditional mean given the bound (the Tobit Kalman filter's
+    update, Allik et al., IEEE TCST 24(1), 2016): with s = √(P + R) and a = cz (lf - L̂)/s >= 0,
+    ``L̂ ← L̂ + cz (P/s) λ(a)`` (:func:`inverse_mills`), which lies beyond the bound by
+    ``(P/s)(λ(a) - a)`` (up to 0.8 P/s): the intensity of a clipped pixel is above the clip level,
+    not at it. P is left alone as for the continuous pull (:func:`pull_integral`): a bound says
+    little of how far beyond it the intensity is. Above :data:`TOBIT_MAX_P` the bound is taken
+    as a plain measurement (projection towards it).
     """
     if cz * (lh - lf) > 0.0:
         return lh, pp
+    if cz != 0.0:  # the Tobit update: the mean of the state given the bound; P unchanged
+        sd = math.sqrt(pp + r_log)
+        if sd > 0.0 and pp < TOBIT_MAX_P:
+            return lh + cz * (pp / sd) * inverse_mills(cz * (lf - lh) / sd), pp
+        return lh + pp / (pp + r_log) * (lf - lh), pp
     g = pp / (pp + r_log)
-    lh = lh + g * (lf - lh)
-    if cz == 0.0:  # a bound moves L̂, not P (projection)
-        pp = pp - g * pp
-    return lh, pp
+    return lh + g * (lf - lh), pp - g * pp
 
 
 def akf_switch_pixel(S, pix, propagate, seg_t0, seg_inv_t, t_to, s_proc, la, r, b, cz, lastep, seg_t_s, discrete,
@@ -370,7 +394,7 @@ def cf_event_step(lh, lf, alpha, tu0, tif, positive, j_on, j_off, event_decay):
 
 #: the functions above, in an order in which each calls only earlier ones
 PIXEL_FUNCTIONS = (rinv_integral, pull_integral, propagated, akf_event_step, akf_walk_pixel, window_neighbours,
-                   frame_update, akf_switch_pixel, akf_switch_arrays_pixel,
+                   inverse_mills, frame_update, akf_switch_pixel, akf_switch_arrays_pixel,
                    akf_switch_codes_pixel, akf_initial_covariance, output_pixel, akf_output_store, cf_decayed,
                    cf_event_step)
 
@@ -395,6 +419,7 @@ propagated = _cpu_inline(propagated)
 akf_event_step = _cpu_inline(akf_event_step)
 akf_walk_pixel = _cpu_inline(akf_walk_pixel)
 window_neighbours = _cpu_inline(window_neighbours)
+inverse_mills = _cpu_inline(inverse_mills)
 frame_update = _cpu_inline(frame_update)
 akf_switch_pixel = _cpu_inline(akf_switch_pixel)
 akf_switch_arrays_pixel = _cpu_inline(akf_switch_arrays_pixel)

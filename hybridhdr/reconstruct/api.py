@@ -18,9 +18,9 @@ from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
 from ..model import Frames, Recording
 from . import _engine as E
-from .augment import AugmentedMeasurements
+from .augment import AugmentedMeasurements, deblur_min_events
 from .colour import _metadata, colour_source, rgb_to_luminance
-from .edi import EDIEngine
+from .edi import EDIEngine, exposure_log_corrections
 from .event_arrays import EventArrays, StreamingEventArrays
 from .measurement import FrameMeasurements
 from .methods import (METHOD_ALIASES, METHODS, MODES, MethodSpec, make_augment_params, make_params, method_spec,
@@ -242,9 +242,59 @@ class _Opened:
     profile: object = None
     use_aug: bool = False
     events: object = None
+    exposure_mean: bool = False  # the AKF reads its frames as exposure means: events held
+    t_end_us: int | None = None  # the end of the outputs (:func:`_output_end`)
+
 
     def has_frames(self) -> bool:
         return self.frames is not None and len(self.frames) > 0
+
+
+def _self_calibration(req: ReconstructRequest, source, opened, frames, params, info: dict | None):
+    """``(params, frame_time_offset_us)`` after the default self-calibration, the command line's
+    default (:data:`hybridhdr.calibrate.resolve.DEFAULT_THRESHOLDS`): for a method with a frame
+    model and thresholds, when the caller gives no thresholds (no map, parameters that state none,
+    no frame time offset, ``thresholds`` None) and the recording declares none (nor stores a map),
+    the event/frame self-calibration of the recording
+    (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"selfcal"``): the AKF takes the
+    calibrated log offset and thresholds, CF and direct integration the thresholds in their own
+    log model, all the time each frame stands for. ``thresholds="selfcal"`` calibrates whatever
+    the recording declares (an error when it cannot tell); ``"input"``/``"params"`` never. A
+    recording that cannot tell keeps ``params`` (said in ``info["self_calibration"]``)."""
+    rd, method = req.reading, req.run.method
+    choice = rd.choice
+    if choice not in ("default", "selfcal"):
+        return params, 0
+    spec = METHODS[method]
+    if not (spec.takes_thresholds and spec.needs_frames):
+        if choice == "selfcal":
+            raise ValueError(f"thresholds='selfcal' applies to the methods with frames and thresholds, not {method!r}")
+        return params, 0
+    if choice == "default" and (rd.thresholds_stated or rd.frame_time_offset_us
+                                or recording_declares_thresholds(opened) or frames is None or len(frames) < 3):
+        return params, 0
+    rec = source if isinstance(source, Recording) else None
+    if rec is None:
+        from ..formats import read
+        path = source if isinstance(source, (str, os.PathLike)) else getattr(source, "path", None)
+        if path is None:
+            if choice == "selfcal":
+                raise ValueError("thresholds='selfcal' needs a Recording or a path (the calibration reads it whole)")
+            return params, 0
+        rec = read(path)
+    own_i0 = None if method == "akf" else float(params.intensity_offset)
+    try:
+        got = resolve_thresholds(rec, "selfcal", intensity_offset=own_i0, profile=rd.profile)
+    except ValueError as e:
+        if choice == "selfcal":
+            raise ValueError(f"thresholds='selfcal': the recording cannot tell ({e})") from None
+        if info is not None:
+            info["self_calibration"] = f"skipped: {e}"
+        return params, 0
+    if info is not None:
+        info["thresholds"] = got.note
+        info["self_calibration"] = got.record
+    return params.replace(**got.overrides()), int(got.frame_time_offset_us)
 
 
 def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
@@ -260,6 +310,36 @@ def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
     if info is not None and got.note is not None:
         info["thresholds"] = got.note
     return (p.replace(**got.overrides()) if got.overrides() else p), got.maps
+
+
+def _output_end(req: ReconstructRequest, source, opened, frames) -> int | None:
+    """The exclusive end of the outputs: the caller's ``t_end_us``; with ``fps`` and none given,
+    one past the last event for a method that reads events (the command line's ``--until
+    events``; None, up to the last event or frame, for a source that cannot tell where its
+    events end), else one past the last frame (the frames-only methods, ``--until frames``)."""
+    out = req.output
+    if out.t_end_us is not None or out.fps is None or out.times_us is not None:
+        return out.t_end_us
+    last = None
+    if METHODS[req.run.method].uses_events:
+        if isinstance(opened, Recording):
+            last = int(opened.events["t"][-1]) if len(opened.events) else None
+        elif isinstance(source, (str, os.PathLike)) and not str(source).startswith("builtin:"):
+            from ..formats.span import recording_span
+            ev = recording_span(source).events
+            last = None if ev is None else int(ev[1])
+        else:
+            tr = getattr(opened, "time_range_us", None)
+            try:
+                tr = tr() if callable(tr) else tr
+            except Exception:  # noqa: BLE001 - a reader that cannot say declares nothing
+                tr = None
+            last = None if tr is None else int(tr[1])
+        if last is None:  # a source that cannot say where its events end: up to the last event or frame
+            return None
+    elif frames is not None and len(frames):
+        last = int(frames.t_mid_us[-1])
+    return None if last is None else last + 1
 
 
 def _check_fps(req: ReconstructRequest, opened, frames) -> None:
@@ -288,6 +368,12 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
                 info["frame_time_offset_us"] = dt
         op = _Opened(opened, (), frames, chunks, close, n_declared)
         op.params, op.thr = _recording_thresholds(req, opened, info)
+        op.params, cal_dt = _self_calibration(req, source, opened, frames, op.params, info)
+        if cal_dt and frames is not None and len(frames):  # the time each frame stands for, calibrated
+            op.frames = frames = frames.shifted(cal_dt)
+            if info is not None:
+                info["frame_time_offset_us"] = cal_dt
+        op.t_end_us = _output_end(req, source, opened, frames)
         op.shape = _sensor_shape(ss, frames)
         check_sensor_size(*op.shape, what="sensor (per-pixel filter state)")
         if info is not None and frames is not None:
@@ -295,8 +381,11 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
         _check_fps(req, opened, frames)
         op.use_aug = req.run.augmented and op.has_frames()
         op.profile = req.reading.profile if req.reading.profile is not None else source_profile(opened)
-        if op.use_aug or req.run.method == "edi":
-            # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
+        op.exposure_mean = (req.run.method == "akf" and req.run.measurements is None and not op.use_aug
+                            and _exposure_mean(op.params, frames))
+        if op.use_aug or req.run.method == "edi" or op.exposure_mean:
+            # EDI, frame augmentation and frames read as exposure means look ahead in time (the
+            # events inside an exposure): hold the events in memory (13 B/event)
             if n_declared is None:
                 op.events = EventArrays.from_chunks(chunks(req.run.chunk_events), op.shape)
             else:  # read in the background: the filter starts on the first chunks
@@ -306,6 +395,13 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
     except BaseException:
         close()
         raise
+
+
+def _exposure_mean(params, frames) -> bool:
+    """The AKF reads its frames as exposure means (``AKFParams.exposure_mean``) and some frame
+    stamps an exposure: the events inside the exposures are then needed."""
+    return (bool(getattr(params, "exposure_mean", False)) and frames is not None and len(frames) > 0
+            and bool(np.any(frames.t_end_us > frames.t_start_us)))
 
 
 def _measurements(req: ReconstructRequest, op: _Opened, params, frames, events, prof):
@@ -324,13 +420,18 @@ def _measurements(req: ReconstructRequest, op: _Opened, params, frames, events, 
         raise ValueError(f"method {method!r} needs frames, but the recording has none "
                          f"(use method='highpass' for events only)")
     if method == "akf":
+        corr = None
+        if events is not None and _exposure_mean(params, frames):  # frames as exposure means (EDI)
+            n_min = deblur_min_events(min(params.c_on, params.c_off), params.exposure_min_events)
+            corr = exposure_log_corrections(frames, events, params.c_on, params.c_off, min_events=n_min)
         return FrameMeasurements(
             frames, op.shape, prof, intensity_offset=params.intensity_offset,
             bias_correction=params.bias_correction,
             interpolate_covariance=(run.mode != "causal" and params.covariance_interpolation == "linear"),
             precision_scale=params.frame_precision_scale, saturation=params.saturation,
             min_weighting=params.min_weighting,
-            event_step=-1.0 if params.event_interpolation else 0.0)  # -1: L^A follows each jump
+            event_step=-1.0 if params.event_interpolation else 0.0,  # -1: L^A follows each jump
+            log_corrections=corr)
     off = getattr(params, "intensity_offset", 1.0)
     return FrameMeasurements(frames, op.shape, prof, intensity_offset=off, bias_correction=False,
                              interpolate_covariance=False)
@@ -401,7 +502,7 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
                     augment=run.augment.to_dict() if op.use_aug else {"enabled": False})
     t_last = max(int(events.t[-1]) if len(events) else int(frames.t_mid_us[-1]), int(frames.t_mid_us[-1]))
     times = output_times(frames.t_mid_us, t_last, times_us=out.times_us, fps=out.fps, t_start_us=out.t_start_us,
-                         t_end_us=out.t_end_us)
+                         t_end_us=op.t_end_us)
     engines = []
 
     def make_engine(fr, ev, backward, n_workers=run.n_workers):  # a pass's share of the workers
@@ -414,7 +515,7 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
         return e
     if run.device.is_cuda:  # the same two-filter smoother on the GPU (reconstruct.cuda)
         from .cuda import cuda_two_sided_iter
-        make_engine.needs_events = op.use_aug
+        make_engine.needs_events = op.use_aug or op.exposure_mean
         yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                        progress=run.progress, info=info, carried_variance=p.carried_variance())
     else:
@@ -484,7 +585,7 @@ def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
             info.update(method=run.method, mode=run.mode, profile=prof.name, params=op.params.to_dict())
             if run.method == "akf":
                 info["augment"] = run.augment.to_dict() if op.use_aug else {"enabled": False}
-        yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=req.output.t_end_us,
+        yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=op.t_end_us,
                            progress=run.progress)
         engine.close()  # no measurement is still being computed ahead when the stats are read
         if info is not None:

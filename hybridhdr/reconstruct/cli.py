@@ -460,7 +460,7 @@ def run(args) -> int:
                                                mode=args.mode, profile=args.profile, t_start_us=t_start_us,
                                                t_end_us=t_end_us, n_workers=args.workers,
                                                chunk_events=args.chunk_events, progress=progress, info=info,
-                                               augment=augment, thresholds=map_path, cfa=args.cfa,
+                                               augment=augment, thresholds=map_path if map_path is not None else "input", cfa=args.cfa,
                                                demosaic=args.demosaic, frame_time_offset_us=frame_dt,
                                                device=getattr(args, "device", "cpu")):
                     writer.write(t, img)

@@ -37,8 +37,8 @@ from .event_arrays import EventArrays
 from ..camera.encoding import frames_to_codes
 from .params import DEFAULT_INTENSITY_OFFSET, _ParamsMixin
 
-__all__ = ["EDIParams", "edi_integral", "edi_log_latent", "edi_latent", "sharpness_energy",
-           "estimate_threshold", "golden_section_minimize", "EDIEngine"]
+__all__ = ["EDIParams", "edi_integral", "edi_log_latent", "edi_latent", "exposure_log_corrections",
+           "sharpness_energy", "estimate_threshold", "golden_section_minimize", "EDIEngine"]
 
 _GOLD = (math.sqrt(5.0) - 1.0) / 2.0  # 0.618...
 
@@ -157,6 +157,85 @@ def edi_log_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int,
             raise ValueError(f"blurred frame has {b.shape[0]} pixels, the sensor {J.shape[0]}")
         log_blurred = np.log(b + float(intensity_offset))
     return log_blurred - np.log(J), count
+
+
+def exposure_log_corrections(frames, events: EventArrays, c_on: float, c_off: float, *, min_events: int = 0) -> dict:
+    """Per frame, the log correction that makes its exposure mean the latent image at mid-exposure.
+
+    A frame exposed over ``[s_k, e_k)`` records the mean of the intensity over its exposure,
+    ``B_k + I0 = (I(τ_k) + I0) · J_k`` with ``J_k = (1/T_k) ∫_{s_k}^{e_k} exp(E(τ_k, t)) dt`` and
+    ``E(τ_k, t) = c_on N_on − c_off N_off`` the log change the pixel's events report from τ_k to t
+    (negative before τ_k): the double integral of EDI (Pan et al., CVPR 2019) taken at the
+    mid-exposure τ_k = ``frames.t_mid_us`` instead of at the exposure start. So
+
+        ln(I(τ_k) + I0) = ln(B_k + I0) − ln J_k,
+
+    whatever I0 (J is a ratio of intensities plus I0). ``−ln J_k`` is 0 at a pixel without events
+    in the exposure (and for a frame without an exposure, ``t_end == t_start``), and elsewhere
+    of the order of the log change within the exposure. A clipped frame bounds the exposure
+    mean, so the same correction moves its bound.
+
+    Parameters
+    ----------
+    frames : Frames
+        With ``t_start_us`` / ``t_end_us`` the exposures (τ_k their midpoints).
+    events : EventArrays
+        The events (at least those inside the exposures), time-sorted.
+    c_on, c_off : float
+        ON and OFF thresholds (log units, > 0) of the filter's log model.
+    min_events : int
+        Correct a pixel only when at least this many events fell in the exposure (0: every pixel
+        with one). Each event reads a log change of exactly c, so the correction carries a
+        quantisation error of about c/√12, while a frame blurred by a ramp of Δ = n c is off its
+        mid-exposure value by only ``ln(sinh(Δ/2)/(Δ/2)) ≈ Δ²/24``: below
+        :func:`~hybridhdr.reconstruct.augment.deblur_min_events` events the correction costs more
+        than it saves (the same rule as frame augmentation's deblurring).
+
+    Returns
+    -------
+    dict ``{k: (pixels int64 (m,), correction float64 (m,))}`` for the frames k with an exposure
+    and at least one pixel with ``max(min_events, 1)`` events inside it; the pixels are flattened
+    row-major, only those (every other pixel's correction is 0).
+    """
+    if isinstance(min_events, bool) or not isinstance(min_events, (int, np.integer)) or min_events < 0:
+        raise ValueError(f"min_events must be an int >= 0, got {min_events!r}")
+    c_on, c_off = float(c_on), float(c_off)
+    if not (math.isfinite(c_on) and math.isfinite(c_off) and c_on > 0 and c_off > 0):
+        raise ValueError(f"c_on and c_off must be finite and > 0 (log units), got {c_on!r}, {c_off!r}")
+    h, w = events.shape
+    n = h * w
+    out = {}
+    s_all = np.asarray(frames.t_start_us, np.int64)
+    e_all = np.asarray(frames.t_end_us, np.int64)
+    mids = np.asarray(frames.t_mid_us, np.int64)
+    for k in range(len(s_all)):
+        s, e, tau = int(s_all[k]), int(e_all[k]), int(mids[k])
+        if e <= s:
+            continue
+        i0, i1 = events.window(s, e)
+        if i1 <= i0:
+            continue
+        pix = events.y[i0:i1].astype(np.int64) * w + events.x[i0:i1].astype(np.int64)
+        n_ev = np.bincount(pix, minlength=n)
+        touched = np.flatnonzero(n_ev >= max(int(min_events), 1))
+        if touched.size == 0:
+            continue
+        count = np.zeros(n, np.int64)
+        level = np.zeros(n)
+        t_last = np.full(n, float(s))
+        acc = np.zeros(n)
+        c_on_a = np.full(n, c_on)
+        c_off_a = np.full(n, c_off)
+        AK.edi_walk_asym(events.t, events.x, events.y, events.p, i0, i1, w, s, e, c_on_a, c_off_a, count,
+                         level, t_last, acc)
+        j_start = acc[touched] / float(e - s)  # (1/T) ∫ exp(E(s_k, t)) dt
+        # E(s_k, τ_k): the log change the events report from the exposure start to its middle
+        j1 = i0 + int(np.searchsorted(events.t[i0:i1], tau, side="left"))
+        step = np.where(events.p[i0:j1] > 0, c_on, -c_off)
+        e_mid = np.bincount(pix[:j1 - i0], weights=step, minlength=n)[touched]
+        # J_k = J_start · exp(−E(s_k, τ_k)): −ln J_k = E(s_k, τ_k) − ln J_start
+        out[k] = (touched, e_mid - np.log(j_start))
+    return out
 
 
 def edi_latent(blurred, events: EventArrays, t_start_us: int, t_end_us: int, contrast_threshold: float,

@@ -131,12 +131,20 @@ class FrameMeasurements:
         last two carry the frame forward with the events since it (eq. 10's forward
         interpolation from the frame itself, causal), so that an edge that arrives between two
         frames is not pulled back to the old frame's value.
+    log_corrections : dict or None
+        The exposure model: ``{k: (pixels, correction)}`` per frame index k of ``frames``
+        (:func:`~hybridhdr.reconstruct.edi.exposure_log_corrections`), added to L^F (and to a
+        clipped code's bound) at those pixels, so that a frame exposed over ``[s_k, e_k)`` is
+        read as the mean of the intensity over its exposure and L^A(τ_k) is the latent image at
+        its mid-exposure (EDI's double integral). None or empty: each frame is the intensity at
+        τ_k. Frames with a correction take the per-pixel path instead of the per-code tables.
     """
 
     def __init__(self, frames: Frames, sensor_shape, profile: CameraProfile, *,
                  intensity_offset: float, bias_correction: bool = True,
                  interpolate_covariance: bool = True, precision_scale: float | None = None,
-                 saturation: str = "value", min_weighting: float | None = None, event_step: float = 0.0):
+                 saturation: str = "value", min_weighting: float | None = None, event_step: float = 0.0,
+                 log_corrections: dict | None = None):
         if not isinstance(frames, Frames):
             raise TypeError(f"frames must be a hybridhdr Frames, got {type(frames).__name__}")
         if len(frames) == 0:
@@ -153,6 +161,19 @@ class FrameMeasurements:
         keep[:-1] = tau[1:] != tau[:-1]
         self.times_us = np.ascontiguousarray(tau[keep], dtype=np.int64)
         self._idx = codes_idx[keep]
+        self._corr = {}
+        for j, v in (log_corrections or {}).items():
+            if isinstance(j, bool) or not isinstance(j, (int, np.integer)) or not 0 <= int(j) < len(frames):
+                raise ValueError(f"log_corrections: frame index {j!r} is not among the {len(frames)} frames")
+            pix, corr = (np.asarray(a) for a in v)
+            n_pix = int(np.prod(tuple(sensor_shape)))
+            if pix.shape != corr.shape or pix.ndim != 1 or (pix.size and (pix.min() < 0 or pix.max() >= n_pix)):
+                raise ValueError(f"log_corrections[{j}]: expected equal-length 1-D pixel indices in [0, {n_pix}) and "
+                                 f"corrections, got shapes {pix.shape} and {corr.shape}")
+            if not np.all(np.isfinite(corr)):
+                raise ValueError(f"log_corrections[{j}]: corrections must be finite")
+            if pix.size:
+                self._corr[int(j)] = (pix.astype(np.int64), corr.astype(np.float64))
         self._codes = codes
         self.profile = profile
         self.offset = float(intensity_offset)
@@ -203,9 +224,15 @@ class FrameMeasurements:
 
 
     def segment_codes(self, k: int) -> SegmentCodes | None:
-        """Codes and per-code tables of segment ``k``; None when the frames are not integer codes."""
+        """Codes and per-code tables of segment ``k``; None when the frames are not integer codes
+        or frame k has an exposure correction (``log_corrections``: per pixel, not per code)."""
         if not 0 <= k < len(self):
             raise IndexError(f"segment {k} out of range 0..{len(self) - 1}")
+        if int(self._idx[k]) in self._corr:
+            return None
+        return self._codes_of(k)
+
+    def _codes_of(self, k: int) -> SegmentCodes | None:
         if self._lut is None:
             return None
         code = np.ascontiguousarray(self._codes[self._idx[k]]).reshape(-1)
@@ -219,7 +246,18 @@ class FrameMeasurements:
 
     def segment(self, k: int) -> Segment:
         """Measurement on ``[τ_k, τ_{k+1})``: L^F (eq. 8), 1/R (eq. 9), β of eq. 7."""
-        sc = self.segment_codes(k)
+        if not 0 <= k < len(self):
+            raise IndexError(f"segment {k} out of range 0..{len(self) - 1}")
+        seg = self._segment(k)
+        corr = self._corr.get(int(self._idx[k]))
+        if corr is None:
+            return seg
+        lf = np.array(seg.log_frame, dtype=np.float64, copy=True)
+        lf[corr[0]] += corr[1]  # the exposure mean's log -> the latent log at mid-exposure (EDI)
+        return dataclasses.replace(seg, log_frame=lf)
+
+    def _segment(self, k: int) -> Segment:
+        sc = self._codes_of(k)
         code = self._codes[self._idx[k]]
         last = k + 1 >= len(self)
         if sc is not None:

@@ -189,6 +189,22 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         (``docs/reconstruct.md``, "Two-sided AKF"). The continuous pull towards L^A keeps P near R
         whatever the frame's age, so fused on P alone an estimate carried 45 ms weighs as much as
         one carried 5 ms. False: P alone (the presets, which have no two-sided filter to follow).
+    exposure_mean : bool
+        Ours: where the frames stamp an exposure ``[s_k, e_k)`` (AEDAT4, the container, the
+        simulator), read each frame as the mean of the intensity over its exposure, as EDI does
+        (Pan et al., CVPR 2019; the paper's §4.1 deblurring), and correct L^F by the events inside
+        it to the latent image at mid-exposure τ_k
+        (:func:`~hybridhdr.reconstruct.edi.exposure_log_corrections`; pixels without events in
+        the exposure are unchanged). The events are then held in memory. False: the frame is
+        the intensity at τ_k (the paper's model). Without frame augmentation only (the
+        augmentation deblurs its frames itself).
+    exposure_min_events : int or None
+        With ``exposure_mean``, correct a pixel only when at least this many events fell in the
+        exposure; None (default): frame augmentation's ``n* = ceil(sqrt(24 / (√12 c)))`` for the
+        smaller of the ON/OFF thresholds (6 at c = 0.2, 9 at c = 0.1), below which each event's
+        quantisation (about c/√12) costs more than the blur it removes (about Δ²/24 for a log
+        change Δ over the exposure; :class:`~hybridhdr.reconstruct.augment.AugmentParams`); 0:
+        every pixel with an event.
     """
 
     _toml_table = "akf"
@@ -212,6 +228,8 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
     frame_update: str = "discrete"  # ours; the paper's is "continuous"
     event_interpolation: bool = True  # ours; the paper holds frames (zero-order)
     fusion_carried_variance: bool = True  # ours (two-sided mode)
+    exposure_mean: bool = True  # ours: a frame is the mean over its exposure (EDI's model)
+    exposure_min_events: int | None = None  # None: n* from c (as frame augmentation's deblurring)
 
     def __post_init__(self):
         self._check_thresholds()
@@ -231,6 +249,10 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         self._num("min_weighting", lo=0, lo_open=True, hi=1, allow_none=True)
         self._bool("event_interpolation")
         self._bool("fusion_carried_variance")
+        self._bool("exposure_mean")
+        v = self.exposure_min_events
+        if v is not None and (isinstance(v, bool) or not isinstance(v, int) or v < 0):
+            raise ValueError(f"AKFParams.exposure_min_events must be None or an int >= 0, got {v!r}")
         self._choice("frame_update", ("discrete", "continuous"))
         self._num("censored_initial_covariance", lo=0, lo_open=True)
 
@@ -254,7 +276,7 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         d = dict(process_noise_per_s=5e-4, intensity_offset=PUBLISHED_INTENSITY_OFFSET, saturation="value",
                  bias_correction=True,
                  event_interpolation=False,
-                 frame_update="continuous", fusion_carried_variance=False)
+                 frame_update="continuous", fusion_carried_variance=False, exposure_mean=False)
         d.update(overrides)
         return cls(**d)
 
@@ -265,7 +287,8 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         d = dict(process_noise_per_s=5e-3, isolated_noise_per_s=0.03, refractory_noise=0.05,
                  refractory_period_us=10_000, noise_model="reference_code", initial_covariance=0.09,
                  intensity_offset=PUBLISHED_INTENSITY_OFFSET, bias_correction=False, saturation="value",
-                 event_interpolation=False, frame_update="continuous", fusion_carried_variance=False)
+                 event_interpolation=False, frame_update="continuous", fusion_carried_variance=False,
+                 exposure_mean=False)
         d.update(overrides)
         return cls(**d)
 

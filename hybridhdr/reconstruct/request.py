@@ -132,6 +132,9 @@ class ReadSettings:
     frame_time_offset_us: int = 0
     cfa: str | None = None
     demosaic: str = "log_cubic"
+    #: the caller's thresholds word: "default" (None given: self-calibrate a recording that
+    #: declares none, as the command line's default), "input", "params" or "selfcal" (always)
+    choice: str = "default"
 
 
 def _check_count(name: str, v) -> None:
@@ -167,6 +170,9 @@ class ReconstructRequest:
                 raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
         p = make_params(method, params)
         aug = make_augment_params(augment)
+        choice = "default"
+        if isinstance(thresholds, str) and thresholds in ("input", "params", "selfcal"):
+            choice, thresholds = thresholds, None
         given = None if thresholds is None else ResolvedThresholds("map", maps=threshold_arrays(thresholds))
         if times_us is not None:
             check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
@@ -174,5 +180,6 @@ class ReconstructRequest:
             raise TypeError(f"frame_time_offset_us must be an int (µs), got {type(frame_time_offset_us).__name__}")
         run = RunSettings(method, p, aug, mode, dev, int(n_workers), int(chunk_events), measurements, progress)
         out = OutputSettings(times_us, fps, t_start_us, t_end_us)
-        read = ReadSettings(profile, given, thresholds_stated(params), int(frame_time_offset_us), cfa, demosaic)
+        read = ReadSettings(profile, given, thresholds_stated(params), int(frame_time_offset_us), cfa, demosaic,
+                            "map" if given is not None else choice)
         return cls(run, out, read)

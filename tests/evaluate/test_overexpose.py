@@ -197,6 +197,29 @@ def test_calibration_and_input_thresholds_never_see_the_scored_frame(monkeypatch
     assert all(u["thresholds"]["source"] == "auto" for u in used)
 
 
+def test_one_calibration_without_every_scored_frame():
+    """``calibration_holdout="scored"``: one calibration per gain, its input holding none of the
+    scored frames; bad values are named."""
+    rec = _analytic_recording(0.05, wobble=0.3, n_frames=6)
+    tau = rec.frames.t_mid_us
+    seen = []
+
+    def spy(rec_without):
+        seen.append(set(rec_without.frames.t_mid_us.tolist()))
+        return {"params": {"contrast_threshold": 0.05}}
+
+    specs = [O.OverexposeSpec("akf_causal", "akf", "causal"), O.OverexposeSpec("cf_causal", "cf", "causal")]
+    res = O.evaluate_overexpose(rec, [4, 2], specs, frames=[2, 4], calibrate=spy, calibration_holdout="scored")
+    assert res["calibration_holdout"] == "scored"
+    assert seen == [set(tau.tolist()) - {int(tau[2]), int(tau[4])}] * 2  # once per gain
+    per_frame = O.evaluate_overexpose(rec, [4], specs, frames=[2, 4], calibrate=lambda r: {"contrast_threshold": 0.05})
+    a = res["by_gain"]["4"]["methods"]["akf_causal"]["log_rmse"]
+    b = per_frame["by_gain"]["4"]["methods"]["akf_causal"]["log_rmse"]
+    assert a == b  # the same calibration either way: the same reconstructions
+    with pytest.raises(ValueError, match="calibration_holdout must be one of"):
+        O.evaluate_overexpose(rec, [4], specs, calibration_holdout="none")
+
+
 def test_planted_frame_changes_no_estimate_made_for_it():
     """A sentinel: frame 2 replaced by noise changes the thresholds estimated for the other frames
     (their calibration input holds it) but not those used for frame 2 itself."""

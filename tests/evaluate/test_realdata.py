@@ -182,3 +182,26 @@ def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
                  "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     assert res["thresholds"] == "params" and "thresholds" not in res["leave_one_out"]["methods"]["akf"]
+
+
+def test_one_calibration_without_every_held_out_frame(rec, monkeypatch):
+    """``calibration_holdout="scored"``: one threshold estimate, on the input without every held-out
+    frame, shared by them and by the methods of one log model; bad values are named."""
+    held = RD.default_held_frames(rec)[1:4]
+    fr = RD._trimmed_frames(rec)
+    seen = []
+    real = RD.resolve_thresholds
+
+    def spy(r, *a, **kw):
+        seen.append(set(r.frames.t_mid_us.tolist()))
+        return real(r, *a, **kw)
+
+    monkeypatch.setattr(RD, "resolve_thresholds", spy)
+    specs = [RD.HoldoutSpec("akf", "akf", "offline"), RD.HoldoutSpec("akf_causal", "akf", "causal")]
+    res = RD.holdout_reconstructions(rec, specs, task="leave_one_out", held=held, thresholds="auto",
+                                     calibration_holdout="scored")
+    assert seen == [set(fr.t_mid_us.tolist()) - {int(fr.t_mid_us[k]) for k in held}]
+    used = res["akf"]["thresholds"]
+    assert len(used) == len(held) and all(u == used[0] and u["source"] == "auto" for u in used)
+    with pytest.raises(ValueError, match="calibration_holdout must be one of"):
+        RD.holdout_reconstructions(rec, specs, task="leave_one_out", held=held, calibration_holdout="all")

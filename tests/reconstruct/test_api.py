@@ -282,8 +282,11 @@ def test_augmented_streaming_equals_read_all_first(tmp_path):
                 yield rec.events[i:i + n]
 
     # augmentation is opt-in (AugmentParams().enabled is False): ask for it
-    a = reconstruct(Undeclared(), "akf", fps=300, chunk_events=101, augment=True)
-    b = reconstruct(rec, "akf", fps=300, chunk_events=101, augment=True)
+    # the same thresholds and span for both (a reader without a path or a time range can be neither
+    # self-calibrated nor cut at its last event)
+    kw = dict(fps=300, chunk_events=101, augment=True, thresholds="input", t_end_us=int(rec.events["t"][-1]) + 1)
+    a = reconstruct(Undeclared(), "akf", **kw)
+    b = reconstruct(rec, "akf", **kw)
     assert "augmentation" in a.info and "augmentation" in b.info  # both ran the frame augmentation
     np.testing.assert_array_equal(a.frames, b.frames)
     np.testing.assert_array_equal(a.t_us, b.t_us)

@@ -159,3 +159,45 @@ def test_pixel_dark_clipped_at_the_start_keeps_the_level_the_events_give_it():
         v = reconstruct(rec, "akf", p, times_us=t_out, mode=mode)
         err = np.abs(v.frames / truth - 1.0)
         assert err.max() < 0.02, f"{mode}: worst relative error {err.max():.4f}"
+
+
+# -- the Tobit update of a censored frame -------------------------------------------------------
+
+def test_inverse_mills_matches_the_normal_distribution():
+    from scipy.stats import norm
+
+    from hybridhdr.reconstruct._kernels import inverse_mills
+    for a in (0.0, 0.5, 1.0, 3.0, 10.0, 24.9):
+        assert inverse_mills(a) == pytest.approx(norm.pdf(a) / norm.sf(a), rel=1e-12)
+    for a in (25.1, 40.0, 1e3):  # the asymptote a + 1/a beyond 25: 1 - 2/a^4 relative (< 1e-5)
+        assert inverse_mills(a) == pytest.approx(a + 1 / a - 2 / a ** 3, rel=1e-5)
+
+
+def test_censored_frame_moves_a_violating_state_to_its_conditional_mean():
+    """Closed form (Allik et al. 2016): state N(μ, P), measurement z = L + v, v ~ N(0, R), a lower
+    bound b (z >= b): E[L | z >= b] = μ + P/s λ((b - μ)/s), s = √(P + R); P unchanged. A state
+    that satisfies the bound is untouched; an upper bound mirrors it; a state of P >= TOBIT_MAX_P
+    (never seen unclipped) takes the plain update towards the bound."""
+    from scipy.stats import norm
+
+    from hybridhdr.reconstruct import _kernels as K
+
+    def run(L, P, R, cz, b):
+        S = np.zeros((1, 8))
+        S[0, K.A_L], S[0, K.A_P] = L, P
+        K.akf_switch(S, False, 0.0, 0.0, 0.0, np.array([b]), np.array([1.0 / R]), np.zeros(0), np.zeros(0),
+                     np.array([float(cz)]), 0.0, True, 0.0, np.zeros(0), 0, 1)
+        return S[0, K.A_L], S[0, K.A_P]
+
+    mu, P, R, b = 0.0, 0.04, 0.01, 0.1
+    s = np.sqrt(P + R)
+    a = (b - mu) / s
+    want = mu + P / s * norm.pdf(a) / norm.sf(a)
+    L, P1 = run(mu, P, R, +1, b)
+    assert L == pytest.approx(want, rel=1e-12) and L > b and P1 == P
+    L, P1 = run(-mu, P, R, -1, -b)  # the mirror image: an upper bound
+    assert L == pytest.approx(-want, rel=1e-12) and P1 == P
+    assert run(0.3, P, R, +1, b) == (0.3, P)  # the bound holds: nothing to do
+    big = K.TOBIT_MAX_P * 2
+    L, _ = run(mu, big, R, +1, b)
+    assert L == pytest.approx(mu + big / (big + R) * (b - mu), rel=1e-12) and L < b

@@ -304,6 +304,14 @@ def test_akf_switch_discrete_update_closed_form(jit, discrete):
             if censor.shape[0]:
                 hold = censor * (lg - z) > 0
                 assert hold.any() and (~hold & (censor != 0)).any()
+                # a violated bound: the Tobit update's conditional mean beyond it (P < TOBIT_MAX_P),
+                # else the plain update towards it
+                from scipy.stats import norm
+                sd = np.sqrt(Pq + 1.0 / rinv)
+                a = censor * (z - lg) / sd
+                tobit = lg + censor * (Pq / sd) * norm.pdf(a) / norm.sf(a)
+                viol = (censor != 0) & ~hold
+                L = np.where(viol & (Pq < K.TOBIT_MAX_P), tobit, L)
                 L = np.where(hold, lg, L)
                 P = np.where(censor != 0, Pq, P)
         else:

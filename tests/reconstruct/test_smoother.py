@@ -147,7 +147,7 @@ def test_per_pixel_threshold_map_equal_to_the_scalars_changes_nothing():
     shape = rec.sensor_size.shape
     for mode in ("offline", "causal"):
         for method in ("akf", "cf", "direct"):
-            a = reconstruct(rec, method, fps=200.0, mode=mode)
+            a = reconstruct(rec, method, fps=200.0, mode=mode, thresholds="input")  # the scalar default, no calibration
             b = reconstruct(rec, method, fps=200.0, mode=mode,
                             thresholds=(np.full(shape, 0.1), np.full(shape, 0.1)))
             np.testing.assert_array_equal(a.frames, b.frames)
@@ -356,7 +356,7 @@ def test_concurrent_passes_storing_the_same_output_at_once_fuse_it_once(monkeypa
             met.append(i)
         put(self, i, *a)
     monkeypatch.setattr(sm._Store, "put", put_meeting)
-    got = reconstruct(rec, "akf", times_us=times, n_workers=2)
+    got = reconstruct(rec, "akf", times_us=times, n_workers=2, thresholds="input")  # AKFParams(), as the reference
     assert met == [k, k]
     np.testing.assert_array_equal(got.frames, _serial_reference(rec, AKFParams(), times)[0])
 
