@@ -192,7 +192,7 @@ def _targets(s) -> dict:
     nm = {m: g("real_next", m, "mse") for m in ("akf_causal", "frames_zoh", "cf")}
     t["real_next_akf_causal_beats_hold_and_cf"] = {**nm, "pass": bool(nm["akf_causal"] < nm["frames_zoh"]
                                                                       and nm["akf_causal"] < nm["cf"])}
-    # issue 28: the causal AKF's next-frame MSE at least 20 % below causal CF's, and below hold-previous's
+    # target: the causal AKF's next-frame MSE at least 20 % below causal CF's, and below hold-previous's
     t["real_next_akf_causal_20pc_below_cf"] = {"akf_causal_over_cf": nm["akf_causal"] / nm["cf"],
                                                "pass": bool(nm["akf_causal"] <= 0.8 * nm["cf"]
                                                             and nm["akf_causal"] < nm["frames_zoh"])}
@@ -269,7 +269,7 @@ def _real_overexpose(rec) -> dict:
 
 
 def _sim_to_real(v2_data, real) -> dict:
-    """Issue 29's sim-to-real figure: the real_overexpose protocol (gain 4, CLI defaults) on each
+    """The sim-to-real figure: the real_overexpose protocol (gain 4, CLI defaults) on each
     HDR set v2 recording (simulated with the measured DAVIS240C profile) beside the real
     ecd_slider_depth figure; the ratio of the two recoverable ratios (1 = the simulator predicts the
     real sensor's recovery; no pass mark)."""
@@ -301,7 +301,7 @@ def _sim_to_real(v2_data, real) -> dict:
 
 
 def _overexpose_targets(ro) -> dict:
-    """Issue 28's real_overexpose checks at gain 4 (measured, not tuned for)."""
+    """The real_overexpose checks at gain 4 (measured, not tuned for)."""
     m = ro.get("gains", {}).get("4", {}).get("methods", {})
     if not m:
         return {}
@@ -424,7 +424,7 @@ def main() -> int:
           "a·log x + b on the unclipped pixels, (x frames_only))")
     print(ro.pop("table", None) or f"  skipped: {ro.get('skipped')}")
     res["real_overexpose_targets"] = _overexpose_targets(ro)
-    print("  issue 28 checks at gain 4 (measured, not tuned for): " + "; ".join(
+    print("  checks at gain 4 (measured, not tuned for): " + "; ".join(
         f"{'PASS' if v['pass'] else 'FAIL'} {k} (" + ", ".join(f"{a}={b:.3g}" for a, b in v.items() if a != "pass")
         + ")" for k, v in res["real_overexpose_targets"].items()))
     print("\n* whole-image log-RMSE after its own a·log x + b fit: reported, but misleading (the fit trades the "

@@ -4,11 +4,11 @@ Usage: ``python benchmarks/akf.py [--quick]``. Prints progress, then ONE JSON ob
 
 Events are synthesised with a seeded generator on a 346×260 sensor: 60 Gaussian blobs (σ = 6 px)
 drifting at up to 300 px/s, events time-sorted at about 10 Mev/s, random polarity. Frames (for
-the frame-switch and R⁻¹ LUTs) come every 1/30 s. Goals (issue 3): AKF kernel ≥ 30 Mev/s on
+the frame-switch and R⁻¹ LUTs) come every 1/30 s. Goals: AKF kernel ≥ 30 Mev/s on
 one core, parallel ≥ 1.7× on 2 cores and bit-identical, end to end (container read + AKF +
 300 Hz frames in memory) ≥ 10 Mev/s, CF kernel ≥ 40 Mev/s.
 
-Issue 21 adds: the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
+Also measured: the default AKF (two-sided) end to end with 1 and 2 workers interleaved in one
 loop (goal: >= 20 Mev/s with 2 workers and above 1 worker; with 2 workers the package runs the
 backward and forward passes at the same time, compared with the two passes in turn, each with
 both workers, through a benchmark-only hook), a PROTOTYPE of a proposed hook in a file this
@@ -18,14 +18,14 @@ events, 3 M with --quick; blobs, moving edges, background) with the forward AKF 
 on one core (30 Hz frame switches included, as above; goal AKF >= 20 Mev/s per core) and the
 two-sided and forward AKF in memory.
 
-Issue 30 adds the per-phase scaling study (:func:`scaling_study`): ``--workers 1,2,4,8,16``
+How far each phase scales with cores (:func:`scaling_study`): ``--workers 1,2,4,8,16``
 runs only it (10 M events at 346x260 and 6 M at 1280x720, 3 interleaved rounds: a few minutes on a
 16-core host), ``--quick`` runs it after the rest with 1 and 2 workers on 1 M events (3 rounds
 too). Per case (forward, causal and two-sided AKF and CF at 346x260, forward and two-sided AKF at 1280x720, in
 memory, 30 Hz outputs) it prints each phase's time, the measured serial fraction, Amdahl's
 projection to 8 and 16 workers, the measured speed-ups with the serial fraction they imply
 (Karp-Flatt), and whether every worker count gave the one-worker frames bit for bit; all of it
-under ``"scaling"`` in the JSON line. Goals (issue 30): serial fraction <= 4 % for the forward and
+under ``"scaling"`` in the JSON line. Goals: serial fraction <= 4 % for the forward and
 two-sided AKF at both sizes (projected >= 8x at 16 workers), 2-worker AKF speed-up >= 1.8x.
 
 The 2-core VMs this runs on change speed by tens of percent from minute to minute (the host's
@@ -306,7 +306,7 @@ def karp_flatt(speedup: float, n: int) -> float:
 
 
 def scaling_study(workers: list[int], n_small: int, n_hd: int, reps: int, res: dict) -> None:
-    """Issue 30: each phase of ``reconstruct(...)`` in memory (30 Hz outputs) timed with
+    """Each phase of ``reconstruct(...)`` in memory (30 Hz outputs) timed with
     :mod:`hybridhdr._util.phases`, for the forward, causal and two-sided AKF and CF at 346x260 and
     the forward and two-sided AKF at 1280x720, with every worker count in ``workers``, interleaved
     (one run of each count in turn, ``reps`` rounds; the best round per count is kept, its phases
@@ -415,7 +415,7 @@ def main(argv=None) -> int:
     ap.add_argument("--hd-only", action="store_true", help="run only the 346x260 kernel and the 1280x720 case")
     ap.add_argument("--workers", type=str, default=None,
                     help="comma-separated worker counts starting with 1 (e.g. 1,2,4,8,16): only the per-phase "
-                         "scaling study (issue 30); --quick runs it with 1,2 after the rest")
+                         "scaling study; --quick runs it with 1,2 after the rest")
     ap.add_argument("--scaling-events", type=str, default=None,
                     help="events of the scaling study at 346x260 and 1280x720 (default 10M,6M; 1M,1M with --quick)")
     args = ap.parse_args(argv)
@@ -552,7 +552,7 @@ def main(argv=None) -> int:
                     res[f"end_to_end{tag}_{nw}w_output_frames"] = int(k)
                     print(f"end to end ({mode}{', augmented' if aug else ''}, {nw} worker(s)): "
                           f"{n / el / 1e6:.1f} Mev/s, {k} frames at 300 Hz", file=sys.stderr)
-            # the same file, default AKF, 1 vs 2 workers interleaved in one loop (issue 21); with 2
+            # the same file, default AKF, 1 vs 2 workers interleaved in one loop; with 2
             # workers also the passes in turn (each with both workers: the package's order before the
             # concurrent passes, through a benchmark-only hook) and the prototype reader hook, each
             # checked bit for bit against 1 worker
@@ -614,7 +614,7 @@ def main(argv=None) -> int:
     res["goals"] = {"akf_kernel_mev_s": 30, "akf_parallel_speedup": 1.7, "end_to_end_mev_s": 10, "cf_kernel_mev_s": 40,
                     "two_sided_over_forward": 0.45, "default_akf_2w_mev_s": 20, "hd_akf_kernel_mev_s": 20,
                     "scaling_serial_fraction_max": 0.04, "scaling_projected_speedup_16": 8,
-                    "akf_parallel_speedup_issue30": 1.8}
+                    "scaling_akf_speedup_2w": 1.8}
     print(json.dumps(res))
     return 0
 

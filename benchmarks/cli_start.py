@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/cli_start.py [--quick] [--repeats N]``. Prints ONE JSON object on the
 last line.
 
-Every command pays the parser's start-up before it does anything. Since issue 31 the five parts'
+Every command pays the parser's start-up before it does anything. The five parts'
 packages load their modules lazily (PEP 562), so building the parser imports no numba, kernels,
 cv2, h5py or matplotlib; a verb's heavy modules load when that verb runs. Timed, each in a fresh
 child process (best and median of ``--repeats``, interleaved):

@@ -1,8 +1,8 @@
 #!/usr/bin/env bash
-# The GPU checks of issue 30 in one run, on a host with an NVIDIA GPU (python3 with numba,
+# The GPU checks in one run, on a host with an NVIDIA GPU (python3 with numba,
 # numba-cuda and torch preinstalled; no network; hybridhdr not installed). From the repo root:
 #     bash benchmarks/device_run.sh [benchmarks/gpu.py's options]
-# e.g. the profiled run of issue 30's second device session (under 4 min on an H200):
+# e.g. a profiled run that skips the agreement case (under 4 min on an H200):
 #     bash benchmarks/device_run.sh --profile --no-cpu --skip agreement
 # Logs go to $OUT (default: a new temporary folder, printed): env.txt (versions, nvidia-smi),
 # cuda_checks.jsonl (GPU vs CPU agreement, one JSON line per check), gpu.json (benchmarks/gpu.py's

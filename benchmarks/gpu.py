@@ -8,7 +8,7 @@ copies, fusion; the plain run stays the figure), the previous per-window groupin
 forward AKF, and host profiles (cProfile) of ``reconstruct`` and FireNet. Without a usable CUDA device (or without ``numba.cuda``) it prints
 ``{"skipped": "<why>"}`` and exits 0.
 
-Measured (issue 30, "Must show"; goals on an H100/H200):
+Measured (goals on an H100/H200):
 
 * ``transfer``: host -> device copy of the events (13 bytes each), reported separately.
 * ``akf_forward_hd``: the forward AKF at 1280x720 on ``benchmarks/akf.py``'s ``synth_events_hd``
