@@ -198,7 +198,7 @@ def _targets(s) -> dict:
     nm = {m: g("real_next", m, "mse") for m in ("akf_causal", "frames_zoh", "cf")}
     t["real_next_akf_causal_beats_hold_and_cf"] = {**nm, "pass": bool(nm["akf_causal"] < nm["frames_zoh"]
                                                                       and nm["akf_causal"] < nm["cf"])}
-    # issue 28: the causal AKF's next-frame MSE at least 20 % below causal CF's, and below hold-previous's
+    # a filter worth using on real data: the causal AKF's next-frame MSE at least 20 % below causal CF's, and below hold-previous's
     t["real_next_akf_causal_20pc_below_cf"] = {"akf_causal_over_cf": nm["akf_causal"] / nm["cf"],
                                                "pass": bool(nm["akf_causal"] <= 0.8 * nm["cf"]
                                                             and nm["akf_causal"] < nm["frames_zoh"])}
@@ -290,7 +290,7 @@ def _real_overexpose(rec, name: str = "ecd_slider_depth", gains=OVEREXPOSE_GAINS
 
 
 def _sim_to_real(v2_data, real) -> dict:
-    """Issue 29's sim-to-real figure: the real_overexpose protocol (gain 4, CLI defaults) on each
+    """The sim-to-real figure (does the simulator predict the real sensor's recovery?): the real_overexpose protocol (gain 4, CLI defaults) on each
     HDR set v2 recording (simulated with the measured DAVIS240C profile) beside the real
     ecd_slider_depth figure; the ratio of the two recoverable ratios (1 = the simulator predicts the
     real sensor's recovery; no pass mark)."""

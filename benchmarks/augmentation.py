@@ -14,7 +14,7 @@ camera's scaled-irradiance units: MSE and SSIM after clipping to [0, 1] (akf.md 
 a Gaussian window σ = 1.5, truncate 3.5, no sample covariance, data range 1, borders of 5 px
 cropped: the scikit-image settings, implemented here because scikit-image is not installed).
 
-Goals (issue 4): AKF offline with augmentation has lower MSE and higher SSIM than AKF with
+Goals: AKF offline with augmentation has lower MSE and higher SSIM than AKF with
 zero-order-hold frames; augmentation adds at most 50 % to the end-to-end AKF time at 300 Hz.
 """
 

@@ -12,11 +12,11 @@ timed from start to exit (Python start-up and imports included in every figure a
 * ``read+filter``: ``--no-exr`` (events read, default two-sided AKF, outputs computed and dropped);
 * ``exr``: the same with the default EXR output (lossless, written by the writer pool);
 * ``exr_2x``: ``exr`` at twice the output rate, for the peak RSS against the number of outputs;
-* ``exr_zip`` (not with ``--quick``): ``exr`` with ``--exr-compression zip`` (the default before
-  issue 21's measurements), for the time and bytes the default (``none``, lossless) saves.
+* ``exr_zip`` (not with ``--quick``): ``exr`` with ``--exr-compression zip`` (smaller
+  files), for the time and bytes the default (``none``, lossless) saves.
 
 ``F`` gives >= 500 outputs (``--quick``: 2 M events over 0.2 s at 2,500 Hz = 501 outputs). The
-goal (issue 21): ``exr`` wall time <= 1.5x ``read+filter`` in the same run, and the peak RSS flat
+goal: ``exr`` wall time <= 1.5x ``read+filter`` in the same run, and the peak RSS flat
 in the number of outputs (``exr_2x`` against ``exr``). Best of ``--repeats`` (default 2),
 configurations interleaved; medians and the load average are printed too.
 """
@@ -100,7 +100,7 @@ def main(argv=None) -> int:
         configs[f"read+filter_{w}w"] = (fps, ["--no-exr", "--workers", str(w)])
         configs[f"exr_{w}w"] = (fps, ["--workers", str(w)])
     configs["exr_2x_1w"] = (2 * fps, ["--workers", "1"])
-    if not a.quick:  # the default until issue 21 (--quick would pass 60 s)
+    if not a.quick:  # the smaller-file option (--quick would pass 60 s)
         configs["exr_zip_2w"] = (fps, ["--workers", "2", "--exr-compression", "zip"])
     walls: dict[str, list[float]] = {k: [] for k in configs}
     rss: dict[str, float] = {}

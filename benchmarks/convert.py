@@ -5,7 +5,7 @@ Prints progress, then ONE JSON object on the last line.
 
 Input: the real Prophesee recording ``shared/data/prophesee/sparklers_gen3_evt2.raw`` (640x480,
 521,252 events over 96 ms) laid end to end ``K`` times (70 by default: 36.5 M events, 146 MB,
-the size in issue 21; 10 with ``--quick``), written once with our EVT 2.0 writer under
+a large recording; 10 with ``--quick``), written once with our EVT 2.0 writer under
 ``benchmarks/_data/``. Timed, each in a long-lived child process per version (imports and JIT
 warmed up on the original file first), interleaved round by round, best of ``--repeats``:
 

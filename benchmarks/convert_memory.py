@@ -1,4 +1,4 @@
-"""Peak memory and speed of `hybridhdr convert` on a large file (issue 2: < 1 GB for a 1 GB file).
+"""Peak memory and speed of `hybridhdr convert` on a large file (goal: < 1 GB for a 1 GB file).
 
 Synthesises a Prophesee EVT 2.0 file of the target size with our streaming writer (cached under
 benchmarks/_data/), then converts it to the hybridhdr container and to DAT in a child process and

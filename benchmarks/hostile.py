@@ -1,4 +1,4 @@
-"""Hostile-input suite and full-disk runs: the figures of issue 17.
+"""Hostile-input suite and full-disk runs: clean failures within memory and time bounds.
 
 Usage: ``python benchmarks/hostile.py [--quick]``. Progress and the tables go to stderr; the last
 stdout line is ONE JSON object: ``table`` (per reader: tried / clean / ok / traceback / crash /

@@ -1,4 +1,4 @@
-"""Where the real-data error comes from: events against frames on ``ecd_slider_depth`` (issue 28).
+"""Where the real-data error comes from: events against frames on ``ecd_slider_depth``.
 
 Usage: ``python benchmarks/real_diagnostics.py [--quick] [--out DIR]``. Prints one table per
 cause, then ONE JSON object on the last line. ``--out`` also writes ``diagnostics.png``
@@ -308,7 +308,7 @@ def oracle_bounds(rec, gain=4.0, quick=True) -> dict:
 
 
 def next_frame_oracle(rec) -> dict:
-    """The bound of issue 28's held-out check: the causal AKF's next-frame MSE (scored as
+    """The bound of the held-out check: the causal AKF's next-frame MSE (scored as
     ``evaluate holdout``: divided by the references' maximum, well-exposed pixels) at the best
     point of a (δ, I0, c_on, c_off) grid chosen on the scored frames themselves (an oracle), beside
     the self-calibrated figure and causal CF's."""

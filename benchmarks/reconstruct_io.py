@@ -63,7 +63,7 @@ def run_cli(wt: Path, args: list[str], out: Path) -> tuple[float, int, int]:
 
 def _digest(d: Path, pattern: str) -> str:
     """sha256 of the files' names and contents; of an EXR its decoded pixels (the two trees may
-    compress differently: the default went from zip to none with issue 21's measurements)."""
+    compress differently: the default went from zip to none)."""
     h = hashlib.sha256()
     for p in sorted(d.glob(pattern)):
         h.update(p.name.encode())
@@ -165,7 +165,7 @@ def main(argv=None) -> int:
             if (tmp / s).exists():
                 same[f"{a}_vs_serial"] = all(_digest(tmp / a, p) == _digest(tmp / s, p)
                                              for p in ("frame_*.exr", "timestamps.txt", "previews/*.png"))
-        # False since the accuracy model of issue 15 changed the filter (not the writer's doing)
+        # False since the accuracy model changed the filter (not the writer's doing)
         same["after_vs_before_exr"] = _digest(tmp / "after_exr", "frame_*.exr") == _digest(tmp / "before_exr",
                                                                                            "frame_*.exr")
         res["bit_identical"] = same

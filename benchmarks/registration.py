@@ -1,4 +1,4 @@
-"""Benchmark HDR-reference registration (issue 6) and, as a peer check, CRF estimation.
+"""Benchmark HDR-reference registration and, as a peer check, CRF estimation.
 
 Usage: ``python benchmarks/registration.py [--quick]``. Prints progress to stderr, then ONE JSON
 object on the last stdout line.
@@ -11,7 +11,7 @@ detection on both images, matching, MAGSAC) and the mean corner error against th
 homography. Methods: SURF (mahotas; OpenCV's non-free SURF when available -- the pip wheels
 exclude it), SIFT (OpenCV), and each + ECC. The SURF/SIFT time ratio is printed.
 
-Real brackets (issue 18): Debevec's Memorial Church film scans (``../shared/data/brackets/memorial``)
+Real brackets: Debevec's Memorial Church film scans (``../shared/data/brackets/memorial``)
 are aligned to each other (:func:`align_brackets`: the scans are off by up to ~2 px from one another
 as published), merged into the HDR reference, and single brackets are warped by known
 homographies (rotation up to 5 degrees, scale 0.85-1.0, perspective up to 1e-4/px, shift up to 6 px)

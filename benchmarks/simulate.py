@@ -3,7 +3,7 @@
 Usage: ``python benchmarks/simulate.py [--quick]``. Prints progress on stderr, then ONE JSON object
 on the last stdout line.
 
-Issue 5 goals (Must show):
+Goals:
 
 - adaptive sampling reaches the event fidelity of a dense fixed-rate reference (per-pixel event
   count error <= 5 %, timestamp RMSE printed) with >= 3x fewer renders, on built-in scenes;

@@ -1,4 +1,4 @@
-"""Benchmark event generation of the simulator's sensor model (issue 5: >= 20 M events/s).
+"""Benchmark event generation of the simulator's sensor model (goal: >= 20 M events/s).
 
 Usage: ``python benchmarks/simulate_events.py [--quick]``. Prints progress to stderr, then ONE
 JSON object on the last stdout line.

@@ -1,4 +1,4 @@
-"""One CLI style across the verbs (issue 18 item 4; conventions in hybridhdr/_util/cliargs.py)."""
+"""One CLI style across the verbs (conventions in hybridhdr/_util/cliargs.py)."""
 
 import argparse
 import json

@@ -1,4 +1,4 @@
-"""One flag vocabulary across verbs (issue 31, item 4), checked by introspecting the parsers.
+"""One flag vocabulary across verbs (a flag means the same in each), checked by the parsers.
 
 The table below is the contract: for each shared flag, the verbs that take it. Each verb's
 argparse parser is found in ``build_parser()`` and its action for the flag is checked (same

@@ -1,4 +1,4 @@
-"""Packaging (issue 32): ranges not pins, licence metadata in the PEP 639 form, a build without
+"""Packaging: ranges not pins, licence metadata in the PEP 639 form, a build without
 setuptools deprecation warnings, and an installed PyTorch kept by ``pip install hybridhdr[learned]``."""
 
 from __future__ import annotations

@@ -72,7 +72,7 @@ def test_readme_longer_runs_parse():
 def test_readme_python_examples_return_events(tmp_path, monkeypatch):
     """The README's Python block runs on the sparklers sample (its file names mapped to the sample)
     and every window it takes returns events: the sample starts at 913,716,224 µs sensor time, so
-    a window counted from 0 used to return nothing, silently (issue 31)."""
+    a window counted from 0 used to return nothing, silently."""
     import ast
 
     import numpy as np

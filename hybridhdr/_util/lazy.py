@@ -1,6 +1,6 @@
 """Lazy package exports (PEP 562): a part's top-level names that load their module on first use,
 so that building the command line's parser (``hybridhdr --help``) imports no numba, kernels, cv2,
-h5py or matplotlib (issue 31; ``benchmarks/cli_start.py``)."""
+h5py or matplotlib, which would slow every command's start (``benchmarks/cli_start.py``)."""
 
 from __future__ import annotations
 

@@ -13,7 +13,7 @@ USB device listing :func:`list_devices` (:mod:`.devices`), the OAK backend
 from .._util.lazy import lazy_exports
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
-# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+# line's parser (hybridhdr --help) does not import numba and the kernels (a slow start).
 _LAZY = {
     'DepthaiFrameSource': '.depthai_backend',
     'NoDeviceFound': '.devices',

@@ -7,7 +7,7 @@ See ``docs/evaluate.md``.
 from .._util.lazy import lazy_exports
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
-# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+# line's parser (hybridhdr --help) does not import numba and the kernels (a slow start).
 _LAZY = {
     'bundled_bench': '.bench',
     'load_bench': '.bench',

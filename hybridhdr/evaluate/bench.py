@@ -593,7 +593,7 @@ def _pool_context():
         return mp.get_context("spawn")
 
 
-# -- runs that survive an interruption (issue 31): one file per finished task, --resume -----------
+# -- runs that survive an interruption (Ctrl-C, a killed job): one file per finished task, --resume
 
 #: Folder under ``--out`` holding one ``task_NNNNN.json`` (its rows) and ``.npz`` (its strip
 #: images) per finished task (a dataset variant with its method runs), each written atomically

@@ -387,8 +387,8 @@ def demo_evaluate(out_dir, *, seed: int = 0, workers=None, progress: bool = True
 
 def headline_lines(bench_cmp, bench_rows, paper_numbers: dict) -> list[str]:
     """The demo's one set of headline figures: AKF against CF, each figure with the set it was
-    measured on and how it was scored (issue 31: the demo had printed 96 %, 44 %, 76 % and 63 %
-    "lower" without saying that they come from different sets and scorings)."""
+    measured on and how it was scored (so that 96 %, 44 % and 63 % "lower" never appear side by
+    side without saying that they come from different sets and scorings)."""
     out = ["Headline figures (AKF MSE against CF's; each: set, scoring; lower is better):"]
     if bench_cmp:
         norm = sorted({str(r.get("normalise") or "none") for r in bench_rows

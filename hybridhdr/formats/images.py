@@ -54,7 +54,7 @@ LOSSY_EXR_COMPRESSIONS = frozenset({"pxr24"})
 #: frames carry noise in their low mantissa bits, so the lossless codecs barely shrink them: on
 #: ecd_slider_depth's AKF output (240x180) ZIP saves 7 % of the bytes for 3.5x the encoding time
 #: (3.1 vs 0.9 ms/frame), ZIPS 0 % (5.0 ms), PIZ 3 % (9.6 ms), zstd 14 % (4.1 ms, OpenEXR >= 3.4
-#: only); on benchmarks/cli.py's 346x260 recording ZIP saves 4.5 %. Issue 21 measured, see
+#: only); on benchmarks/cli.py's 346x260 recording ZIP saves 4.5 %. Measurements in
 #: docs/reconstruct.md ("EXR compression"); ``--exr-compression zip`` remains for smaller files.
 DEFAULT_EXR_COMPRESSION = "none"
 

@@ -48,7 +48,7 @@ def test_debevec_synthetic_log_error(curve, name):
     crf = debevec(imgs, ex)
     E = merge_brackets(imgs, ex, crf)
     err = log_error(E, log_e, imgs)
-    # issue 6: median log-irradiance error <= 0.02 (0.5 DN noise: calibration.md measured 0.0094)
+    # target: median log-irradiance error <= 0.02 (0.5 DN noise: calibration.md measured 0.0094)
     assert err <= 0.02, (name, err)
     # the curve itself: g(z) vs the true ln f^-1(z) on codes 20..235, offset removed
     if name == "gamma":

@@ -114,7 +114,7 @@ def test_surf_then_ecc_corner_error(reg_cases):
         assert corr is not None and corr > 0.99
         e_ecc.append(corner_error(H2, H, (H_, W_)))
     print("SURF corner error px", np.round(e_surf, 3), "after ECC", np.round(e_ecc, 3))
-    # issue 6: mean corner error <= 0.2 px with SURF (measured ~0.14) and <= 0.1 px after ECC (~0.04)
+    # target: mean corner error <= 0.2 px with SURF (measured ~0.14) and <= 0.1 px after ECC (~0.04)
     assert np.mean(e_surf) <= 0.2
     assert np.mean(e_ecc) <= 0.1
 
@@ -212,7 +212,7 @@ def _gamma_frame(E, H, size_wh, exposure, rng):
 
 @pytest.mark.parametrize("features", ["sift", "surf"])
 def test_ecc_on_frame_of_another_size(features):
-    """Issue 18: ECC used to fail ('setTo' mask size) whenever the frame's size differed from the
+    """ECC used to fail ('setTo' mask size) whenever the frame's size differed from the
     reference's; it now runs in the frame's grid and is kept only when it lowers the residual."""
     rng = np.random.default_rng(3)
     E = hdr_scene(H_, W_, seed=0)
@@ -286,7 +286,7 @@ def test_align_brackets_recovers_hand_held_motion():
 
 
 def test_cli_unrelated_recording_clean_error_no_output(tmp_path, capsys):
-    """Issue 18: '--register' on an unrelated recording ended with 'error: Singular matrix' and
+    """'--register' on an unrelated recording ended with 'error: Singular matrix' and
     still left the EXR; now one clear error line, exit status 1 and no output files."""
     from hybridhdr.formats.brackets import write_bracket_set
     from hybridhdr.cli import main

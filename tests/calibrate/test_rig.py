@@ -105,7 +105,7 @@ def test_simulated_rig_accuracy(sim_rig):
     print(f"event RMS {e.rms_px:.4f} px over {len(e.views)} views, focal error {100 * fe} %; frame RMS "
           f"{f.rms_px:.4f} px, focal error {100 * ff} %; baseline error {100 * base:.3f} %, rotation error "
           f"{rot:.4f} deg, stereo RMS {st.rms_px:.4f} px")
-    # issue 6 targets
+    # accuracy a rig calibration must reach on this simulated rig
     assert e.rms_px <= 0.15
     assert np.all(np.abs(fe) <= 0.005)
     assert abs(base) <= 0.01

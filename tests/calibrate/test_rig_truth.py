@@ -1,5 +1,5 @@
 """``calibrate rig --events`` on a simulated single camera: compared with the camera the
-recording's provenance states, no stereo baseline claimed, few views warned (issue 31)."""
+recording's provenance states, no stereo baseline claimed, few views warned."""
 
 from __future__ import annotations
 

@@ -1,4 +1,5 @@
-"""The demo's headline figures: one block, each figure naming its set and scoring (issue 31)."""
+"""The demo's headline figures: one block, each figure naming its set and scoring (figures from
+different sets and scorings must not read as comparable)."""
 
 from hybridhdr.evaluate.paper import headline_lines
 

@@ -72,7 +72,7 @@ def test_lazy_window_equals_slice(tmp_path_factory, a, b, chunk):
     t0, t1 = sorted([a - 500_000, b - 500_000])
     with RecordingFile(p) as r:
         first, last = r.data_span_us()
-        if t1 <= first or t0 > last:  # wholly outside the data: an error naming the span (issue 31)
+        if t1 <= first or t0 > last:  # wholly outside the data: an error naming the span, not empty
             from hybridhdr.errors import WindowOutsideDataError
             with pytest.raises(WindowOutsideDataError, match="spans"):
                 r.events(t0, t1)

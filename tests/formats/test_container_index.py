@@ -66,7 +66,7 @@ def test_windows_equal_slices(tmp_path_factory, version, a, b):
         assert r.format_version == version
         i0, i1 = r.index_range(t0, t1)  # the index itself, whatever the window
         assert np.array_equal(ev[i0:i1], hh.slice_time(ev, t0, t1))
-        if t1 <= _T[0] or t0 > _T[-1]:  # wholly outside the data: an error naming the span (issue 31)
+        if t1 <= _T[0] or t0 > _T[-1]:  # wholly outside the data: an error naming the span, not empty
             from hybridhdr.errors import WindowOutsideDataError
             with pytest.raises(WindowOutsideDataError, match="spans"):
                 r.events(t0, t1)

@@ -320,6 +320,6 @@ def test_convert_frame_encoding_mat_profile_follows(tmp_path, capsys):
 
 def test_convert_frame_encoding_choices(tmp_path, capsys):
     src, _ = _ecd(tmp_path)
-    # main returns argparse's usage status (2) instead of exiting (issue 18)
+    # main returns argparse's usage status (2) instead of exiting (callers keep control)
     assert main(["convert", str(src), str(tmp_path / "x.h5"), "--frame-encoding", "gamma"]) == 2
     assert "invalid choice" in capsys.readouterr().err

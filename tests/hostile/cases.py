@@ -696,7 +696,7 @@ def journal_header_sensor_65536(d):
     return _recover_argv(d), None
 
 
-# -- issue 31: trust decisions and resource bounds beyond the readers ---------------------------
+# -- trust decisions and resource bounds beyond the readers ------------------------------------
 _BENCH_HEAD = """[bench]
 name = "t"
 jod = false

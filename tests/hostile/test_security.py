@@ -1,4 +1,4 @@
-"""Issue 31's reliability findings that need processes, signals or injected failures (the file-
+"""Reliability checks that need processes, signals or injected failures (the file-
 and option-shaped ones are cases in ``tests/hostile/cases.py``): partial files locked and
 exclusive, SIGTERM like Ctrl-C, no orphans after ``kill -9``, ffmpeg's exit status, full disks
 (an ``OSError(ENOSPC)`` injected in the writer) leaving nothing at the final names."""

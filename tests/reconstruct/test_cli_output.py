@@ -61,7 +61,7 @@ def test_log_percentiles_exact(seed):
     for q in ((1.0, 99.0), (0, 100), (37.3, 62.9), (0.001, 99.999)):
         got = lp.limits(lambda: iter(parts[::-1]), *q)
         f = x.astype(np.float64)
-        lg = np.log(f[np.isfinite(f) & (f > 1e-6)])  # tone_map's valid pixels (issue 18)
+        lg = np.log(f[np.isfinite(f) & (f > 1e-6)])  # tone_map's valid pixels (finite, > 0)
         want = tuple(float(v) for v in np.percentile(lg, list(q)))
         assert got == want, (q, got, want)
 
@@ -200,7 +200,7 @@ def test_cli_existing_folders(rec_path, tmp_path, capsys):
     # bad arguments leave nothing
     assert _run([rec_path, "--out", tmp_path / "b", "--exr-compression", "jpeg"]) == 2
     assert _run([rec_path, "--out", tmp_path / "b", "--playback-fps", "0"]) == 2
-    assert _run([rec_path, "--out", tmp_path / "b", "--start-us", "10000000000"]) == 1  # empty window: rc 1 (issue 18)
+    assert _run([rec_path, "--out", tmp_path / "b", "--start-us", "10000000000"]) == 1  # empty window: rc 1
     assert not (tmp_path / "b").exists() and not (tmp_path / "b.partial").exists()
 
 

@@ -1,4 +1,5 @@
-"""Closed-form acceptance tests (akf.md §9 items 1-4, 7; issue 3 "Must show")."""
+"""Closed-form acceptance tests (akf.md §9 items 1-4, 7): the filter against cases with
+an exact answer."""
 
 from __future__ import annotations
 

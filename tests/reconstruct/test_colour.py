@@ -1,4 +1,4 @@
-"""Colour event cameras (issue 16 item 2): the mosaic path of the reconstruction."""
+"""Colour event cameras (colour filter mosaic): the mosaic path of the reconstruction."""
 
 from __future__ import annotations
 

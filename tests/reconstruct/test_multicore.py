@@ -1,4 +1,4 @@
-"""Issue 30: the parallel phases (column split, reversal, start, carried variance, fusion, band
+"""The parallel phases (column split, reversal, start, carried variance, fusion, band
 clamps, output collection) give the serial path's bits, and the phase timer measures them."""
 
 from __future__ import annotations
@@ -75,7 +75,7 @@ def test_parallel_reversal_equals_numpy(small_parts):
 
 
 def _start_reference(S, params, t_init):
-    """The numpy start of the AKF before issue 30 (the column operations akf_start replaces)."""
+    """The plain numpy start of the AKF (the column operations akf_start replaces)."""
     S[:, K.A_L] = S[:, K.A_LA]
     S[:, K.A_P] = params.initial_covariance
     cens = (S[:, K.A_BETA] == 0.0) & (S[:, K.A_KLOG] != 0.0)

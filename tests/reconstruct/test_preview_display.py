@@ -1,4 +1,4 @@
-"""One display map: ``reconstruct --png`` previews look as ``view`` shows them (issue 31, item 2)."""
+"""One display map: ``reconstruct --png`` previews look as ``view`` shows them."""
 
 from __future__ import annotations
 
