@@ -50,7 +50,7 @@ def _pid_alive(pid: int) -> bool:
     return True
 
 
-def _try_lock(fd: int) -> bool:
+def try_lock(fd: int) -> bool:
     """An exclusive lock on the open file (non-blocking): an open-file-description lock where Linux
     has one (independent of the ``flock`` HDF5 takes on the same file, and not dropped when another
     descriptor of the file is closed), else ``flock``."""
@@ -146,7 +146,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                 os.mkdir(tmp)
                 fd = os.open(tmp / PARTIAL_MARK, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                 os.write(fd, _marker_text().encode())
-                _try_lock(fd)
+                try_lock(fd)
             else:
                 # created and locked under a name of our own, then linked to ``tmp`` (atomic, and it
                 # fails if ``tmp`` exists): no other run ever sees ``tmp`` unlocked while we live
@@ -155,7 +155,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                 own = tmp.with_name(f"{tmp.name}.{os.getpid()}.{os.urandom(4).hex()}")
                 fd = os.open(own, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
                 try:
-                    _try_lock(fd)
+                    try_lock(fd)
                     _mark_file(fd)
                     os.link(own, tmp, follow_symlinks=False)
                 except FileExistsError:
@@ -166,7 +166,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
                     if e.errno not in (errno.EPERM, errno.EOPNOTSUPP, errno.ENOTSUP, errno.EXDEV):
                         raise
                     fd = os.open(tmp, os.O_RDWR | os.O_CREAT | os.O_EXCL | os.O_NOFOLLOW | os.O_CLOEXEC, mode)
-                    _try_lock(fd)
+                    try_lock(fd)
                     _mark_file(fd)
                 except BaseException:
                     os.close(fd)
@@ -195,7 +195,7 @@ def claim_partial(tmp, *, directory: bool = False) -> int:
         try:
             # a folder's marker is created, then locked: a marker not yet written, or naming a live
             # process, is a run starting now, never an interrupted one
-            if not _try_lock(fd) or (directory and _marker_in_use(lock_path)):
+            if not try_lock(fd) or (directory and _marker_in_use(lock_path)):
                 raise PartialInUse(errno.EEXIST, f"{tmp} is being written by another running hybridhdr command; "
                                                  f"wait for it or choose another output name")
             if directory:

@@ -100,8 +100,8 @@ class JournalWriter:
         # an exclusive lock held until the journal is converted and deleted (release_lock): a
         # 'capture recover' meanwhile would convert, and then lose, a recording still being written
         self._lock_fd = os.open(self.path, os.O_RDWR | os.O_CLOEXEC)
-        from .._util.atomic import _try_lock
-        _try_lock(self._lock_fd)
+        from .._util.atomic import try_lock
+        try_lock(self._lock_fd)
         self._f.write(_MAGIC)
         self.bytes_written = len(_MAGIC)
         self._record(T_HEADER, json.dumps(header).encode(), compress=False)
@@ -173,13 +173,13 @@ class JournalWriter:
 
 def journal_in_use(path) -> bool:
     """True when a live recorder holds the journal's lock (it is still being written)."""
-    from .._util.atomic import _try_lock
+    from .._util.atomic import try_lock
     try:
         fd = os.open(path, os.O_RDWR | os.O_CLOEXEC | os.O_NOFOLLOW)
     except OSError:
         return False
     try:
-        return not _try_lock(fd)
+        return not try_lock(fd)
     finally:
         os.close(fd)  # closing the open file description drops the probe's own lock
 

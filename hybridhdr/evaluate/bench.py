@@ -909,14 +909,14 @@ def claim_bench_out(out, *, overwrite: bool = False, resume: bool = False) -> in
     """Take ``out`` for one bench run: created if absent, refused while another bench holds its
     lock, refused when it holds anything (other than the lock) unless ``overwrite`` or ``resume``.
     Returns the locked descriptor (close it when the bench is done)."""
-    from .._util.atomic import _try_lock, refuse_existing_output
+    from .._util.atomic import try_lock, refuse_existing_output
     out = Path(out)
     if out.exists() and not out.is_dir():
         raise ValueError(f"--out {out} exists and is not a folder")
     out.mkdir(parents=True, exist_ok=True)
     fd = os.open(out / BENCH_LOCK, os.O_RDWR | os.O_CREAT | os.O_NOFOLLOW | os.O_CLOEXEC, 0o666)
     try:
-        if not _try_lock(fd):
+        if not try_lock(fd):
             raise ValueError(f"--out {out} is being written by another running bench; wait for it or choose "
                              f"another folder")
         if not resume and any(p.name != BENCH_LOCK for p in out.iterdir()):
