@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -22,6 +23,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("scene", nargs="?", default=None, help="SCENE.toml or builtin:NAME (see --list)")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out (and start again over an interrupted run's OUT.resume)")
+    p.add_argument("--resume", action="store_true",
+                   help="finish an interrupted run from its OUT.resume partial (bit-identical to an uninterrupted "
+                        "run with the same options and seed)")
     p.add_argument("--preset", default=None, choices=["ideal", "clean", "noisy"],
                    help="event-sensor preset (noise tiers; docs/simulate.md); default clean, or ideal under --sensor")
     p.add_argument("--fixed-rate-hz", type=positive_float, default=None,
@@ -236,23 +242,49 @@ def run(args) -> int:
         return 0
     if args.scene is None:
         raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
-    from .._util.atomic import refuse_overwriting_inputs
+    from .._util.atomic import refuse_existing_output, refuse_overwriting_inputs
     refuse_overwriting_inputs({"--out": args.out, "--preview": args.preview},
                               [] if str(args.scene).startswith("builtin:") else [args.scene])
+    human = _human(args)
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
                            spp=args.spp, render_seed=args.render_seed,
                            board_options={"poses": args.poses, "period_us": args.blink_period_us},
                            allow_outside=args.allow_outside)
     sensor = sensor_params(args)
-    from .render import MitsubaSource
-    source = MitsubaSource(scene, variant=args.variant)
+    if args.preview is None and args.out is None:
+        raise ValueError("--out REC.h5 is required (or use --list / --preview)")
+    from .resume import partial_path, partial_source_info
+    variant = args.variant
+    partial = None
+    if args.preview is None:
+        refuse_existing_output(args.out, overwrite=args.overwrite, flag="--out", command="simulate")
+        partial = partial_path(args.out)
+        if args.resume:
+            info = partial_source_info(partial) if partial.exists() else None
+            if info is None:
+                raise ValueError(f"--resume: no readable partial {partial} (an interrupted 'simulate --out "
+                                 f"{args.out}' leaves one)")
+            if variant is not None and variant != info.get("variant"):
+                raise ValueError(f"--resume: {partial} was rendered with {info.get('variant')}, not --variant {variant}")
+            variant = info.get("variant")  # the same renderer as the interrupted run: the same bits
+        elif partial.exists():
+            if not args.overwrite:
+                raise ValueError(f"{partial} exists (an interrupted run's partial): pass --resume to finish it, "
+                                 f"or --overwrite to start again")
+            partial.unlink()
+    os.environ["_HYBRIDHDR_VARIANT_NOTED"] = "1"  # the line below says it (not the renderer's own note)
+    from .render import MitsubaSource, variant_reason
+    source = MitsubaSource(scene, variant=variant)
+    why = variant_reason(source.variant, asked=variant if (args.variant or args.resume) else None)
+    if args.resume:
+        why = f"{source.variant}, the interrupted run's"
     if args.preview is not None:
         from .render import preview_strip
         preview_strip(source, args.preview, n=args.preview_frames)
-        print(f"scene {scene.name}: variant {source.variant}, wrote {args.preview}")
+        human(f"scene {scene.name}: variant {why}; wrote {args.preview}")
+        if args.json:
+            print(json.dumps({"preview": str(args.preview), "scene": scene.name, "variant": source.variant}))
         return 0
-    if args.out is None:
-        raise ValueError("--out REC.h5 is required (or use --list / --preview)")
 
     import time
 
@@ -287,27 +319,86 @@ def run(args) -> int:
         step = 1e6 / args.gt_rate_hz
         gt = np.unique(np.round(np.arange(0, scene.duration_us + 1, step)).astype(np.int64))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    print(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
-          f"variant {source.variant}, spp {source.spp}, {sampling.mode} sampling", file=sys.stderr)
+    human(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
+          f"spp {source.spp}, {sampling.mode} sampling; variant {why}", err=True)
+    res, summary = run_simulation(source, args.out, partial, resume=args.resume, sensor=sensor, camera=camera,
+                                  sampling=sampling, gt_times_us=gt, seed=args.seed,
+                                  progress=not args.no_progress, say=lambda s: human(s, err=True),
+                                  estimate=not args.quiet)
+    summary = {"out": str(args.out), "scene": scene.name, **summary}
+    human(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders "
+          f"({summary['renders_reused']} from the partial), {summary['events']} events, {summary['frames']} frames, "
+          f"{summary['hdr_references']} HDR references, {summary['wall_s']:.2f} s wall "
+          f"({summary['render_s']:.2f} s rendering)")
+    if args.json:
+        print(json.dumps(summary))
+    return 0
+
+
+def _human(args):
+    """``say(line, err=False)``: a human-readable line, on stdout, or on stderr with ``--json`` (stdout then
+    holds only the JSON object) or ``err=True``; nothing under ``--quiet``."""
+    def say(line, err=False):
+        if getattr(args, "quiet", False):
+            return
+        print(line, file=sys.stderr if (err or getattr(args, "json", False)) else sys.stdout, flush=True)
+    return say
+
+
+def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampling, gt_times_us, seed: int,
+                   progress: bool, say, estimate: bool = True, write_hdr: bool = True):
+    """One resumable simulation of ``source`` into ``out`` (the command's core, also run by
+    ``simulate dataset`` and ``simulate VIDEO``): its renders kept in ``partial``
+    (:mod:`hybridhdr.simulate.resume`) until the output is complete, the partial kept on an
+    interrupt (Ctrl-C, SIGTERM, SIGHUP) or an error, the run's time predicted after its first
+    renders (:mod:`hybridhdr.simulate.estimate`). Returns (SimulationResult, summary dict)."""
+    import time
+
+    from .estimate import RunEstimate, predict_renders
+    from .pipeline import frame_mandatory_count, simulate_to_file
+    from .resume import RenderCache
     t0 = time.perf_counter()
-    # one render before the output file exists: a renderer that aborts the process (an LLVM that
-    # cannot compile the kernels) leaves nothing behind; SIGTERM/SIGHUP end the run through the
-    # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
-    source.render(0)
-    if source.variant == "scalar_rgb":  # the slow fallback: say what would finish in about a minute
-        _MinuteAdvice(source, scene, t0).install()
-    with _signals_exit():
-        res = simulate_to_file(source, args.out, sensor=sensor, camera=camera, sampling=sampling,
-                               gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
+    cache = RenderCache(source, partial, resume=resume)
+    est = None
+    try:
+        # one render before the output file exists: a renderer that aborts the process (an LLVM that
+        # cannot compile the kernels) leaves nothing behind
+        with _signals_exit():
+            cache.render(0)
+            cache.calls = cache.reused = 0  # the warm-up render is asked for again at t = 0
+            if estimate and cache.rendered:  # a resumed run replays its renders: no prediction
+                pred = predict_renders(source, sampling, contrast_threshold=sensor.contrast_threshold,
+                                       log_eps=sensor.log_eps, n_mandatory=frame_mandatory_count(
+                                           camera, source.duration_us, gt_times_us),
+                                       max_step_fn=_tau_step(sensor))
+                est = RunEstimate(cache, pred["renders"], t0, printer=say).install()
+            if getattr(source, "variant", "") == "scalar_rgb" and not resume:
+                _MinuteAdvice(cache, source.scene, t0).install()
+            res = simulate_to_file(cache, out, sensor=sensor, camera=camera, sampling=sampling,
+                                   gt_times_us=gt_times_us, seed=seed, progress=progress, write_hdr=write_hdr)
+    except BaseException as e:
+        cache.close(keep=True)
+        n = cache._n
+        if isinstance(e, (KeyboardInterrupt, SystemExit)):
+            say(f"interrupted: {n} renders kept in {partial}; run the same command with --resume to finish "
+                f"(the output will be bit-identical to an uninterrupted run)")
+        else:
+            say(f"{n} renders kept in {partial} (--resume finishes the run)")
+        raise
+    cache.close(keep=False)
     wall = time.perf_counter() - t0
     st = res.stats
-    summary = {"out": str(args.out), "scene": scene.name, "variant": source.variant, "renders": res.renders,
+    summary = {"variant": getattr(source, "variant", None), "renders": res.renders, "renders_reused": cache.reused,
                "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
                "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
-               "render_s": round(source.render_time_s, 3)}
-    if not args.json:
-        print(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders, {summary['events']} events, "
-              f"{summary['frames']} frames, {summary['hdr_references']} HDR references, {wall:.2f} s wall "
-              f"({source.render_time_s:.2f} s rendering)")
-    print(json.dumps(summary))
-    return 0
+               "render_s": round(float(getattr(source, "render_time_s", st.get("render_s", 0.0))), 3),
+               "estimate_s": None if est is None or est.predicted_s is None else round(est.predicted_s, 2)}
+    return res, summary
+
+
+def _tau_step(sensor):
+    """The sampler's τ/3 bound of the photoreceptor low-pass (µs), or None."""
+    import numpy as np
+    if not sensor.lowpass_on:
+        return None
+    return lambda r: sensor.min_time_constant_s(float(np.max(r))) / 3.0 * 1e6
