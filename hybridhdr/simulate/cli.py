@@ -20,9 +20,16 @@ def add_parser(subparsers) -> None:
         description="Render a Mitsuba 3 scene (a TOML scene file or builtin:NAME) with adaptive time "
                     "sampling into events, LDR frames and HDR ground truth, written as a hybridhdr "
                     "recording (HDF5) that 'hybridhdr reconstruct' reads. Scene format: docs/simulate.md.")
-    p.add_argument("scene", nargs="?", default=None, help="SCENE.toml or builtin:NAME (see --list)")
+    p.add_argument("scene", nargs="?", default=None,
+                   help="SCENE.toml or builtin:NAME (see --list); a video file or a folder of images (events from "
+                        "footage, docs/simulate.md); or the word dataset followed by SPEC.toml")
+    p.add_argument("spec", nargs="?", default=None, metavar="SPEC.toml",
+                   help="with 'dataset': the dataset spec (scenes x sensor profiles x seeds; docs/simulate.md)")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="dataset: local processes running recordings at once")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="dataset: run the recordings on this Dask scheduler (tcp://HOST:PORT) instead of locally")
     p.add_argument("--overwrite", action="store_true",
                    help="replace an existing --out (and start again over an interrupted run's OUT.resume)")
     p.add_argument("--resume", action="store_true",
@@ -51,9 +58,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--height", type=image_side, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
     f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
-    f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=20.0,
-                   help="frames per second (--frame-rate-hz is the old name)")
-    f.add_argument("--exposure-us", type=positive_int, default=10_000, help="exposure time (µs)")
+    f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=None,
+                   help="frames per second (--frame-rate-hz is the old name); default 20, or the input's rate for a "
+                        "video")
+    f.add_argument("--exposure-us", type=positive_int, default=None,
+                   help="exposure time (µs); default 10000 (a video: at most half its frame period)")
     f.add_argument("--auto-exposure", action="store_true", help="adapt the exposure from frame to frame")
     f.add_argument("--crf", default="gamma", help="camera response: linear, gamma, srgb, akf_s_curve_<K>")
     f.add_argument("--bit-depth", type=int, default=8, choices=[8, 10, 12], help="frame bit depth")
@@ -91,6 +100,12 @@ def add_parser(subparsers) -> None:
                    help="static camera views of the board (1-5; 'calibrate rig' needs at least 4 with its default "
                         "--min-views); default 1")
     b.add_argument("--blink-period-us", type=positive_int, default=None, help="blink period, µs; default 100000")
+    v = p.add_argument_group("video input (simulate VIDEO: a video file or a folder of images)")
+    v.add_argument("--input-fps", type=positive_float, default=None,
+                   help="the input's frame rate when it states no times (an image folder without images.txt or "
+                        "timestamps.txt, a video without a rate)")
+    v.add_argument("--max-input-frames", type=positive_int, default=None, help="use at most this many input frames")
+    v.add_argument("--start-frame", type=nonneg_int, default=0, help="skip this many input frames first")
     p.add_argument("--preview", type=Path, default=None,
                    help="only render a PNG strip of a few frames (log radiance) to this file and exit")
     p.add_argument("--preview-frames", type=positive_int, default=4, help="frames in the --preview strip")
@@ -241,7 +256,23 @@ def run(args) -> int:
             print(f"builtin:{n:<{w}}  {d}")
         return 0
     if args.scene is None:
-        raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
+        raise ValueError("give a scene (SCENE.toml or builtin:NAME), a video, 'dataset SPEC.toml', or --list")
+    if args.scene == "dataset":
+        from .dataset_run import run_dataset
+        summary = run_dataset(args, _human(args, err_default=True))
+        _human(args)(f"wrote {summary['recordings']} recordings ({summary['ran']} run now) to {summary['out']}, "
+                     f"{summary['events']} events; manifest {summary['manifest']}")
+        if args.json:
+            print(json.dumps(summary))
+        return 0
+    if args.spec is not None:
+        raise ValueError(f"unexpected second argument {args.spec!r} (only 'simulate dataset SPEC.toml' takes one)")
+    if args.jobs != 1 or args.scheduler:
+        raise ValueError("--jobs and --scheduler apply to 'simulate dataset'")
+    from .video import is_video_input
+    if is_video_input(args.scene):
+        from .video import run_video
+        return run_video(args, _human(args))
     from .._util.atomic import refuse_existing_output, refuse_overwriting_inputs
     refuse_overwriting_inputs({"--out": args.out, "--preview": args.preview},
                               [] if str(args.scene).startswith("builtin:") else [args.scene])
@@ -307,7 +338,7 @@ def run(args) -> int:
         sampling = SamplingParams(mode="adaptive", **kw)
     camera = None
     if not args.no_frames:
-        ckw = dict(frame_rate_hz=args.frame_rate_hz, exposure_us=args.exposure_us, crf=args.crf,
+        ckw = dict(frame_rate_hz=args.frame_rate_hz or 20.0, exposure_us=args.exposure_us or 10_000, crf=args.crf,
                    bit_depth=args.bit_depth, auto_exposure=args.auto_exposure)
         if args.electrons_per_radiance_s is not None:
             ckw["electrons_per_radiance_s"] = args.electrons_per_radiance_s
@@ -335,10 +366,10 @@ def run(args) -> int:
     return 0
 
 
-def _human(args):
+def _human(args, err_default: bool = False):
     """``say(line, err=False)``: a human-readable line, on stdout, or on stderr with ``--json`` (stdout then
     holds only the JSON object) or ``err=True``; nothing under ``--quiet``."""
-    def say(line, err=False):
+    def say(line, err=err_default):
         if getattr(args, "quiet", False):
             return
         print(line, file=sys.stderr if (err or getattr(args, "json", False)) else sys.stdout, flush=True)
@@ -388,7 +419,7 @@ def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampli
     cache.close(keep=False)
     wall = time.perf_counter() - t0
     st = res.stats
-    summary = {"variant": getattr(source, "variant", None), "renders": res.renders, "renders_reused": cache.reused,
+    summary = {"variant": getattr(source, "variant", None), "renders": res.renders, "renders_reused": cache.reused if resume else 0,
                "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
                "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
                "render_s": round(float(getattr(source, "render_time_s", st.get("render_s", 0.0))), 3),
