@@ -141,8 +141,10 @@ def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=N
 
 @contextlib.contextmanager
 def _signals_exit():
-    """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only),
-    so ``finally``/``except BaseException`` clean-ups run instead of the process just ending."""
+    """SIGTERM and SIGHUP raise SystemExit(128 + signal), SIGINT KeyboardInterrupt, while the block
+    runs (main thread only), so ``finally``/``except BaseException`` clean-ups run instead of the
+    process just ending. A Mitsuba render turns an exception raised inside it into its own error:
+    a received signal decides what leaves the block."""
     import signal
     import threading
     if threading.current_thread() is not threading.main_thread():
@@ -153,16 +155,18 @@ def _signals_exit():
 
     def _exit(signum, frame):
         got.append(signum)
+        if signum == signal.SIGINT:
+            raise KeyboardInterrupt
         raise SystemExit(128 + signum)
 
-    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
+    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n)]
     old = {sg: signal.signal(sg, _exit) for sg in sigs}
     try:
         yield
     except BaseException:
-        # the SystemExit may arrive wrapped by native code it passed through (a Mitsuba render
-        # turns it into its own error): a received signal decides the exit status
         if got:
+            if got[0] == signal.SIGINT:
+                raise KeyboardInterrupt from None
             raise SystemExit(128 + got[0]) from None
         raise
     finally:

@@ -94,9 +94,10 @@ class RenderCache:
                 f.close()
                 raise ValueError(f"--resume: {self.path} is not a hybridhdr simulate partial (version {_VERSION})")
             if f.attrs["source"] != key:
+                was = json.loads(f.attrs["source"])
                 f.close()
-                raise ValueError(f"--resume: {self.path} holds renders of another source or setting "
-                                 f"({json.loads(f.attrs['source']).get('scene', '?')}, size, spp, variant or duration "
+                raise ValueError(f"--resume: {self.path} holds renders of another source or setting (it has "
+                                 f"{was.get('scene', was.get('name', '?'))}; the scene, size, spp, variant or duration "
                                  f"differ); run with the same scene options, or --overwrite to start again")
             n = int(f.attrs.get("n", 0))  # rows written before the last flush
             if f["images"].shape[1:] != (h, w):
