@@ -93,6 +93,19 @@ def _folder_frames(folder: Path, input_fps: float | None) -> tuple[list[Path], n
     return imgs, np.round(np.arange(len(imgs)) * 1e6 / input_fps).astype(np.int64)
 
 
+def _read_image(p: Path) -> np.ndarray:
+    """Linear radiance of one image: EXR with the OpenEXR package (the container's EXR reader), others
+    with :func:`hybridhdr.simulate.ahdr.load_linear_image` (sRGB-linearised)."""
+    if p.suffix.lower() == ".exr":
+        from ..formats.images import read_exr
+        try:
+            return read_exr(p)  # Y, or R, G, B
+        except KeyError as e:
+            raise ValueError(f"{p}: an EXR without a Y or R, G, B channels ({e})") from None
+    from .ahdr import load_linear_image
+    return load_linear_image(p)
+
+
 def _luminance(im: np.ndarray) -> np.ndarray:
     from .ahdr import to_luminance
     return np.asarray(to_luminance(im), np.float32)
@@ -108,7 +121,6 @@ def load_video(path, *, input_fps: float | None = None, max_frames: int | None =
     if max_frames is not None and max_frames < 2:
         raise ValueError(f"--max-input-frames: expected at least 2, found {max_frames}")
     if path.is_dir():
-        from .ahdr import load_linear_image
         paths, ts = _folder_frames(path, input_fps)
         paths, ts = paths[start_frame:], ts[start_frame:]
         if max_frames is not None:
@@ -116,13 +128,13 @@ def load_video(path, *, input_fps: float | None = None, max_frames: int | None =
         if len(paths) < 2:
             raise ValueError(f"{path}: at least 2 frames are needed, found {len(paths)}")
         hdr = {p.suffix.lower() for p in paths} <= {".exr", ".hdr"}
-        first = _luminance(load_linear_image(paths[0]))
+        first = _luminance(_read_image(paths[0]))
         check_frame_shape((len(paths),) + first.shape, path)
         check_frame_bytes(len(paths) * first.size * 4, path)
         frames = np.empty((len(paths),) + first.shape, np.float32)
         frames[0] = first
         for i, p in enumerate(paths[1:], 1):
-            im = _luminance(load_linear_image(p))
+            im = _luminance(_read_image(p))
             if im.shape != first.shape:
                 raise ValueError(f"{p}: {im.shape[1]}x{im.shape[0]} image in a {first.shape[1]}x{first.shape[0]} "
                                  f"sequence")
@@ -130,32 +142,35 @@ def load_video(path, *, input_fps: float | None = None, max_frames: int | None =
         info = {"input": str(path), "kind": "hdr image sequence" if hdr else "image sequence",
                 "first_image": paths[0].name, "last_image": paths[-1].name}
     else:
-        import imageio.v3 as iio
         try:
-            meta = iio.immeta(path)
-        except Exception as e:  # noqa: BLE001 - any reader error is a format error here
-            raise ValueError(f"{path}: cannot read this video ({e})") from None
-        fps = input_fps or meta.get("fps")
-        if not fps or not math.isfinite(float(fps)) or fps <= 0:
-            raise ValueError(f"{path}: the video states no frame rate; give --input-fps")
-        size = meta.get("size")  # (width, height)
-        n_max = max_frames if max_frames is not None else None
-        if size:
-            w, h = int(size[0]), int(size[1])
-            check_frame_shape((1, h, w), path)
-            n_est = n_max or int(round(float(meta.get("duration", 0) or 0) * fps)) or 1
-            check_frame_bytes(n_est * w * h * 4, path)
+            import imageio_ffmpeg
+        except ImportError as e:
+            raise ImportError("reading a video file needs imageio-ffmpeg: pip install 'hybridhdr[simulate]'") from e
         from .ahdr import _srgb_to_linear
+        gen = imageio_ffmpeg.read_frames(str(path), pix_fmt="gray16le", bpp=2)
         frames_l = []
-        for i, fr in enumerate(iio.imiter(path)):
-            if i < start_frame:
-                continue
-            if n_max is not None and len(frames_l) >= n_max:
-                break
-            a = np.asarray(fr)
-            top = 255.0 if a.dtype == np.uint8 else 65535.0
-            frames_l.append(_luminance(_srgb_to_linear(a[..., :3].astype(np.float64) / top).astype(np.float32)))
-            check_frame_bytes(len(frames_l) * frames_l[0].size * 4, path)
+        try:
+            try:
+                meta = next(gen)
+            except (RuntimeError, OSError, StopIteration) as e:
+                raise ValueError(f"{path}: cannot read this video ({e})") from None
+            fps = input_fps or meta.get("fps")
+            if not fps or not math.isfinite(float(fps)) or fps <= 0:
+                raise ValueError(f"{path}: the video states no frame rate; give --input-fps")
+            w, h = (int(x) for x in meta["size"])
+            check_frame_shape((1, h, w), path)
+            n_est = max_frames or max(1, int(round(float(meta.get("duration") or 0) * fps)) - start_frame)
+            check_frame_bytes(n_est * w * h * 4, path)
+            for i, buf in enumerate(gen):
+                if i < start_frame:
+                    continue
+                if max_frames is not None and len(frames_l) >= max_frames:
+                    break
+                a = np.frombuffer(buf, np.uint16).reshape(h, w)  # luma (Rec. 709 weights), sRGB-encoded
+                frames_l.append(_srgb_to_linear(a.astype(np.float64) / 65535.0).astype(np.float32))
+                check_frame_bytes(len(frames_l) * w * h * 4, path)
+        finally:
+            gen.close()
         if len(frames_l) < 2:
             raise ValueError(f"{path}: at least 2 frames are needed, found {len(frames_l)}")
         frames = np.stack(frames_l)
@@ -191,6 +206,7 @@ class VideoSource:
         if len(self.times) != len(frames) or self.times[0] != 0 or any(b <= a for a, b in zip(self.times, self.times[1:])):
             raise ValueError("times_us: one increasing time per frame, starting at 0")
         self.eps = float(log_eps)
+        self.frames = frames  # returned as they are at the input times (the HDR references there)
         self.logs = np.log(frames.astype(np.float64) + self.eps)
         self.sensor_size = SensorSize(*frames.shape[1:])
         self.duration_us = self.times[-1]
@@ -204,11 +220,10 @@ class VideoSource:
         t0, t1 = self.times[i], self.times[i + 1]
         a = (t - t0) / (t1 - t0)
         if a == 0.0:
-            lg = self.logs[i]
-        elif a == 1.0:
-            lg = self.logs[i + 1]
-        else:
-            lg = (1.0 - a) * self.logs[i] + a * self.logs[i + 1]
+            return self.frames[i].copy()
+        if a == 1.0:
+            return self.frames[i + 1].copy()
+        lg = (1.0 - a) * self.logs[i] + a * self.logs[i + 1]
         return np.maximum(np.exp(lg) - self.eps, 0.0).astype(np.float32)
 
     def max_image_speed_px_per_s(self, t0_us, t1_us) -> float:
