@@ -193,8 +193,9 @@ def _write_manifest(path: Path, manifest: dict) -> None:
         f.write("\n")
 
 
-def run_dataset(args, say) -> dict:
-    """The command (module notes); returns the summary."""
+def run_dataset(args, say, check_argv=None) -> dict:
+    """The command (module notes); returns the summary. ``check_argv(argv)`` checks a recording's
+    command line before any work (raises SystemExit on a bad one: the command's parser)."""
     from .._util.atomic import refuse_existing_output
     from .._version import __version__
     if not args.spec:
@@ -204,14 +205,9 @@ def run_dataset(args, say) -> dict:
     spec_path = Path(args.spec)
     spec = load_spec(spec_path)
     jobs = plan_jobs(spec, spec_path.resolve().parent)
-    import argparse
-
-    from .cli import add_parser
-    parser = argparse.ArgumentParser(prog="hybridhdr", add_help=False)
-    add_parser(parser.add_subparsers(dest="command"))
-    for j in jobs[:: max(1, len(jobs) // 8)] + jobs[-1:]:  # the options, checked before any work
+    for j in jobs[:: max(1, len(jobs) // 8)] + jobs[-1:] if check_argv else []:  # checked before any work
         try:
-            parser.parse_args(j["argv"])
+            check_argv(j["argv"])
         except SystemExit:
             raise ValueError(f"dataset spec {spec_path}: [options] give an invalid command: "
                              f"'hybridhdr {' '.join(j['argv'])}' (see the message above)") from None

@@ -239,7 +239,7 @@ def run_video(args, say) -> int:
     """``hybridhdr simulate VIDEO --out REC.h5`` (the command's footage path)."""
     from .._util.atomic import refuse_existing_output, refuse_overwriting_inputs
     from .camera import FrameCameraParams
-    from .cli import run_simulation, sensor_params
+    from .runner import run_simulation, sensor_params
     from .resume import partial_path
     from .sampling import SamplingParams
     if args.out is None:
