@@ -36,6 +36,10 @@ _LAZY = {
     'MitsubaSource': '.render',
     'preview_strip': '.render',
     'select_variant': '.render',
+    'RenderCache': '.resume',
+    'VideoSource': '.video',
+    'load_video': '.video',
+    'load_spec': '.dataset_run',
     'Scene': '.scene',
     'SceneError': '.scene',
     'load_scene': '.scene',
@@ -57,4 +61,6 @@ __all__: list[str] = [
     "SamplingParams", "TimeSampler", "event_fidelity",
     "simulate", "simulate_to_file", "SimulationResult",
     "MotionParams", "ImageMotionSource", "ImageSequenceSource", "build_ahdr",
+    # resumable runs, footage, datasets
+    "RenderCache", "VideoSource", "load_video", "load_spec",
 ]

@@ -53,8 +53,9 @@ class _MinuteAdvice:
     as proportional to its pixel count (the number of renders depends on the scene's motion and
     brightness changes, not on its size)."""
 
-    def __init__(self, source, scene, t_start, *, after_s: float = 10.0, target_s: float = 60.0):
+    def __init__(self, source, scene, t_start, *, after_s: float = 10.0, target_s: float = 60.0, estimate=None):
         self.source, self.scene, self.t_start = source, scene, t_start
+        self.estimate = estimate  # the run's RunEstimate: its prediction, once made, is the one quoted
         self.after_s, self.target_s = after_s, target_s
         self.t_max = 0
         self.done = False
@@ -75,8 +76,11 @@ class _MinuteAdvice:
         wall = time.perf_counter() - self.t_start
         if wall < self.after_s or self.t_max <= 0:
             return
+        if self.estimate is not None and self.estimate.predicted_s is None:
+            return  # wait for the run's own estimate (one figure, not two)
         self.done = True
-        est = wall * self.scene.duration_us / self.t_max  # the whole run at the measured pace
+        est = (self.estimate.predicted_s if self.estimate is not None
+               else wall * self.scene.duration_us / self.t_max)  # else the whole run at the measured pace
         if est < 2 * self.target_s:
             return
         w, h = self.scene.camera.width, self.scene.camera.height
@@ -149,7 +153,7 @@ def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampli
                                        max_step_fn=_tau_step(sensor))
                 est = RunEstimate(cache, pred["renders"], t0, printer=say).install()
             if getattr(source, "variant", "") == "scalar_rgb" and not resume:
-                _MinuteAdvice(cache, source.scene, t0).install()
+                _MinuteAdvice(cache, source.scene, t0, estimate=est).install()
             res = simulate_to_file(cache, out, sensor=sensor, camera=camera, sampling=sampling,
                                    gt_times_us=gt_times_us, seed=seed, progress=progress, write_hdr=write_hdr)
     except BaseException as e:
