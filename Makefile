@@ -2,6 +2,8 @@
 #   make demo   - create .venv, install hybridhdr[demo] (no PyTorch), run the main job on a built-in default
 #   make test   - create .venv, install with test extras (CPU PyTorch), run the test suite
 # Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
+# The simulate extra (in both) brings the karellen-llvm-core wheel, the libLLVM Mitsuba's fast llvm_ad_mono
+# renderer loads without root; NO_LLVM_WHEEL=1 removes it after installing (to try the scalar_rgb fallback).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -19,8 +21,12 @@ $(VENV)/.created:
 	$(PIPC) --upgrade pip
 	touch $@
 
+NO_LLVM_WHEEL ?=
+NO_WHEEL_STEP = if [ -n "$(NO_LLVM_WHEEL)" ]; then $(PIP) uninstall --quiet -y karellen-llvm-core; fi
+
 $(VENV)/.installed: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[demo]"
+	$(NO_WHEEL_STEP)
 	touch $@
 
 $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
@@ -33,6 +39,7 @@ $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
 
 $(VENV)/.installed-test: $(VENV)/.torch pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[test,bench]"
+	$(NO_WHEEL_STEP)
 	touch $@
 
 install: $(VENV)/.installed

@@ -172,7 +172,9 @@ def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampli
                "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
                "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
                "render_s": round(float(getattr(source, "render_time_s", st.get("render_s", 0.0))), 3),
-               "estimate_s": None if est is None or est.predicted_s is None else round(est.predicted_s, 2)}
+               "estimate_s": None if est is None or est.predicted_s is None else round(est.predicted_s, 2),
+               "estimate_renders": None if est is None else round(est.n_pred),
+               "estimate_ms_per_render": None if est is None or est.per_s is None else round(est.per_s * 1e3, 2)}
     return res, summary
 
 
