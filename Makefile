@@ -3,7 +3,8 @@
 #   make test   - create .venv, install with test extras (CPU PyTorch), run the test suite
 # Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
 # The simulate extra (in both) brings the karellen-llvm-core wheel, the libLLVM Mitsuba's fast llvm_ad_mono
-# renderer loads without root; NO_LLVM_WHEEL=1 removes it after installing (to try the scalar_rgb fallback).
+# renderer loads without root; NO_LLVM_WHEEL=1 removes it after installing (to try the scalar_rgb fallback;
+# after `make clean`).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python

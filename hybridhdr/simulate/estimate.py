@@ -1,85 +1,90 @@
 """How long a simulation will take, predicted before it runs.
 
 A run's time is (number of renders) x (time per render); the time per render is measured on the
-run's own first renders, the number of renders predicted from the sampler's own step rule
-(:mod:`hybridhdr.simulate.sampling`) at ``n_probes`` times spread over the duration:
+run's own first renders, the number of renders predicted by running the adaptive sampler itself
+(:mod:`hybridhdr.simulate.sampling`, with its bisections) for a few renders at ``n_probes``
+times spread over the duration:
 
-* at each probe time ``t`` the source is rendered at ``t`` and ``t + d`` (``d`` = the motion
-  rule's step, at most 1 ms), and the step the adaptive sampler would take there is computed from
-  those two renders with the sampler's rules (brightness: ``f * C / r`` with the robust per-pixel
-  log rate ``r``; motion: ``max_motion_px / v``; the photoreceptor's ``τ/3``; the rate limits);
-  when that step differs from ``d`` by more than 25 %, ``t + step`` is rendered and the step
-  computed again (at most 3 times): the sampler settles where the change over a step is ``f * C``,
-  and a change over a much shorter step overstates the rate at edges that saturate;
-* the duration is split into equal segments around the probes, each covering ``len / step``
-  renders, and every mandatory time (the frame camera's exposure bounds and mid-exposures,
-  ground-truth times) adds one, because it cuts a step short.
+* the duration is cut into ``n_probes`` equal segments; at the start of each, the sampler runs on
+  that stretch of the scene (its real speeds) for ``per_probe`` renders after its first accepted
+  step (the start-up, whose first step is the longest allowed and is bisected down, is left out),
+  and its render density there (renders per second of scene time, bisections included) is
+  measured; a segment the sampler finishes within the budget counts its own renders;
+* each segment contributes density x length, and every mandatory time (each exposure's start,
+  middle and end, ground-truth times) adds one render, because it cuts a step short.
 
-Events that last less than a probe spacing (a light switching on between probes) are missed by
-the probes and cost bisections; the same scene-independent rule is used on every scene, and
+Events shorter than a probe (a light switching between probes) are missed and cost renders the
+estimate does not count. The same scene-independent rule is used on every scene;
 ``benchmarks/simulate.py`` tabulates the prediction against the measured time on each built-in
-scene. The probes render 2 to 4 images each (about 1-3 % of a built-in scene's renders).
+scene. The probes cost about ``n_probes * (per_probe + 4)`` renders (a few % of a long run; about
+as many renders as a scene the sampler crosses in large steps has).
 """
 
 from __future__ import annotations
 
-import math
 import time
-
-import numpy as np
 
 __all__ = ["predict_renders", "RunEstimate"]
 
 
-def predict_renders(source, sampling, *, contrast_threshold: float, log_eps: float, n_mandatory: int,
-                    max_step_fn=None, n_probes: int = 12) -> dict:
-    """Predicted number of renders of a run of ``source`` (module notes), and the probe renders' time.
+class _Window:
+    """``[t0, t0 + duration]`` of a source, re-based to 0 (the scene's real speeds), its renders counted."""
 
-    Returns ``{"renders": float, "probe_renders": int, "probe_s": float, "steps_us": [...]}``."""
+    def __init__(self, src, t0_us: int, duration_us: int):
+        self.src, self.t0 = src, int(t0_us)
+        self.sensor_size = src.sensor_size
+        self.duration_us = max(1, int(duration_us))
+        self.renders = 0
+
+    def render(self, t_us):
+        self.renders += 1
+        return self.src.render(self.t0 + int(t_us))
+
+    def max_image_speed_px_per_s(self, t0_us, t1_us):
+        return self.src.max_image_speed_px_per_s(self.t0 + int(t0_us), self.t0 + int(t1_us))
+
+    def describe(self):
+        return self.src.describe()
+
+
+def predict_renders(source, sampling, *, contrast_threshold: float, log_eps: float, n_mandatory: int,
+                    max_step_fn=None, n_probes: int = 8, per_probe: int = 8) -> dict:
+    """Predicted number of renders of a run of ``source`` (module notes), and the probes' cost.
+
+    Returns ``{"renders": float, "probe_renders": int, "probe_s": float, "density_per_s": [...]}``."""
     from .sampling import TimeSampler
     p = sampling
     duration = int(source.duration_us)
     if p.mode == "fixed":
         return {"renders": duration * p.fixed_rate_hz / 1e6 + n_mandatory + 1, "probe_renders": 0, "probe_s": 0.0,
-                "steps_us": []}
-    ts = TimeSampler(source, p, contrast_threshold=contrast_threshold, log_eps=log_eps)
-    dt_max = 1e6 / p.min_rate_hz
-    dt_min = 1e6 / p.max_rate_hz
+                "density_per_s": []}
     seg = duration / n_probes
     total = 0.0
-    steps = []
-    t_render = 0.0
+    dens = []
     n_r = 0
+    t_start = time.perf_counter()
     for k in range(n_probes):
-        t = int(round((k + 0.5) * seg))
-        v = float(source.max_image_speed_px_per_s(t, int(t + math.ceil(dt_max))))
-        d_motion = p.max_motion_px / v * 1e6 if v > 0 else math.inf
-        room = max(1, duration - t)
-        d = int(round(min(max(min(d_motion, 1000.0), dt_min), room)))
-        t0 = time.perf_counter()
-        la = np.log(np.asarray(source.render(t)).astype(np.float64).ravel() + log_eps)
-        n_r += 1
-        dt = d
-        for it in range(3):
-            b = np.asarray(source.render(t + d))
-            n_r += 1
-            lb = np.log(b.astype(np.float64).ravel() + log_eps)
-            rate = ts._change(la, lb) / d
-            dt = dt_max if rate <= 0 else p.max_log_change_fraction * contrast_threshold / rate
-            dt = min(dt, d_motion, dt_max)
-            if max_step_fn is not None:
-                dt = min(dt, float(max_step_fn(b)))
-            dt = max(dt, dt_min)
-            # the sampler's steady step is where the change over the step itself is f*C: a change
-            # measured over a much shorter step (edges that saturate) overstates the rate, so
-            # measure again over the step found until it agrees within 25 %
-            if abs(dt / d - 1) <= 0.25 or int(round(min(dt, room))) == d:
+        win = _Window(source, int(round(k * seg)), int(round(seg)))
+        ts = TimeSampler(win, p, contrast_threshold=contrast_threshold, log_eps=log_eps, max_step_fn=max_step_fn)
+        first = None
+        t_last, r_last = 0, 0
+        finished = True
+        for i, (t, _r) in enumerate(ts):
+            if i == 1:  # past the start-up (the first step's bisections)
+                first = (t, win.renders)
+            t_last, r_last = t, win.renders
+            if first is not None and r_last - first[1] >= per_probe:
+                finished = False
                 break
-            d = int(round(min(dt, room)))
-        t_render += time.perf_counter() - t0
-        steps.append(round(dt, 1))
-        total += seg / dt
-    return {"renders": total + n_mandatory + 1, "probe_renders": n_r, "probe_s": t_render, "steps_us": steps}
+        n_r += win.renders
+        if finished or first is None or t_last <= first[0]:
+            d = win.renders / (win.duration_us / 1e6)  # the whole segment rendered: its own count
+        else:
+            d = (r_last - first[1]) / ((t_last - first[0]) / 1e6)
+        dens.append(round(d, 1))
+        total += d * seg / 1e6
+    return {"renders": total + n_mandatory + 1, "probe_renders": n_r, "probe_s": time.perf_counter() - t_start,
+            "density_per_s": dens}
 
 
 class RunEstimate:
