@@ -5,13 +5,15 @@ run's own first renders, the number of renders predicted by running the adaptive
 (:mod:`hybridhdr.simulate.sampling`, with its bisections) for a few renders at ``n_probes``
 times spread over the duration:
 
-* the duration is cut into ``n_probes`` equal segments; at the start of each, the sampler runs on
-  that stretch of the scene (its real speeds) for ``per_probe`` renders after its first accepted
+* the duration is cut into ``n_probes`` equal segments; from a point of each (0.382 of the way in,
+  so that no two probes meet a periodic event, a blink or the frame timing, at the same phase), the
+  sampler runs on that stretch of the scene (its real speeds, with the run's mandatory times: the
+  exposure bounds and mid-exposures cut steps and the steps then grow again, which costs renders)
+  for ``per_probe`` renders after its first accepted
   step (the start-up, whose first step is the longest allowed and is bisected down, is left out),
   and its render density there (renders per second of scene time, bisections included) is
   measured; a segment the sampler finishes within the budget counts its own renders;
-* each segment contributes density x length, and every mandatory time (each exposure's start,
-  middle and end, ground-truth times) adds one render, because it cuts a step short.
+* each segment contributes density x length.
 
 Events shorter than a probe (a light switching between probes) are missed and cost renders the
 estimate does not count. The same scene-independent rule is used on every scene;
@@ -48,7 +50,8 @@ class _Window:
 
 
 def predict_renders(source, sampling, *, contrast_threshold: float, log_eps: float, n_mandatory: int,
-                    max_step_fn=None, n_probes: int = 8, per_probe: int = 8) -> dict:
+                    max_step_fn=None, n_probes: int = 10, per_probe: int = 8, mandatory_us=None,
+                    phase: float = 0.381966) -> dict:
     """Predicted number of renders of a run of ``source`` (module notes), and the probes' cost.
 
     Returns ``{"renders": float, "probe_renders": int, "probe_s": float, "density_per_s": [...]}``."""
@@ -58,14 +61,21 @@ def predict_renders(source, sampling, *, contrast_threshold: float, log_eps: flo
     if p.mode == "fixed":
         return {"renders": duration * p.fixed_rate_hz / 1e6 + n_mandatory + 1, "probe_renders": 0, "probe_s": 0.0,
                 "density_per_s": []}
+    import bisect
     seg = duration / n_probes
     total = 0.0
     dens = []
     n_r = 0
+    mand = sorted(int(t) for t in (mandatory_us or ()))
     t_start = time.perf_counter()
     for k in range(n_probes):
-        win = _Window(source, int(round(k * seg)), int(round(seg)))
-        ts = TimeSampler(win, p, contrast_threshold=contrast_threshold, log_eps=log_eps, max_step_fn=max_step_fn)
+        # each probe starts at an irrational fraction of its segment, so that no probe lands on the
+        # same phase of a periodic scene event (a blink every 50 ms) or of the frame timing
+        a = int(round((k + phase) * seg))
+        win = _Window(source, a, max(1, min(int(round(seg)), duration - a)))
+        inside = [t - a for t in mand[bisect.bisect_right(mand, a):bisect.bisect_left(mand, a + win.duration_us)]]
+        ts = TimeSampler(win, p, contrast_threshold=contrast_threshold, log_eps=log_eps, max_step_fn=max_step_fn,
+                         mandatory_times_us=inside)
         first = None
         t_last, r_last = 0, 0
         finished = True
@@ -83,7 +93,8 @@ def predict_renders(source, sampling, *, contrast_threshold: float, log_eps: flo
             d = (r_last - first[1]) / ((t_last - first[0]) / 1e6)
         dens.append(round(d, 1))
         total += d * seg / 1e6
-    return {"renders": total + n_mandatory + 1, "probe_renders": n_r, "probe_s": time.perf_counter() - t_start,
+    # with the mandatory times inside the probes, their cost is in the densities already
+    return {"renders": total + (0 if mand else n_mandatory) + 1, "probe_renders": n_r, "probe_s": time.perf_counter() - t_start,
             "density_per_s": dens}
 
 

@@ -141,13 +141,22 @@ class _MemorySink:
         self.hdr_t.append(h.t_us)
 
 
-def frame_mandatory_count(camera, duration_us: int, gt_times_us=None) -> int:
-    """About how many mandatory render times a run has: each exposure's start, middle and end (at the
-    camera's frame rate over the duration) and the ground-truth times (used by the run-time estimate)."""
-    n = len(gt_times_us) if gt_times_us is not None else 0
+def planned_mandatory_times(camera, duration_us: int, gt_times_us=None) -> list[int]:
+    """About the mandatory render times of a run (used by the run-time estimate): each exposure's
+    start, middle and end at the camera's nominal frame rate and exposure (no auto-exposure), and
+    the ground-truth times."""
+    ts = {int(t) for t in (gt_times_us if gt_times_us is not None else [])}
     if camera is not None:
-        n += 3 * int(math.floor(duration_us * camera.frame_rate_hz / 1e6))
-    return n
+        n = int(math.floor(duration_us * camera.frame_rate_hz / 1e6)) + 1
+        for k in range(n):
+            t0 = int(round(k * 1e6 / camera.frame_rate_hz))
+            ts.update((t0, t0 + camera.exposure_us // 2, t0 + camera.exposure_us))
+    return sorted(t for t in ts if 0 <= t <= duration_us)
+
+
+def frame_mandatory_count(camera, duration_us: int, gt_times_us=None) -> int:
+    """How many :func:`planned_mandatory_times` a run has."""
+    return len(planned_mandatory_times(camera, duration_us, gt_times_us))
 
 
 #: wall-clock statistics: printed and returned, never written into the recording (a recording is a

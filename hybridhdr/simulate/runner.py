@@ -135,7 +135,7 @@ def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampli
     import time
 
     from .estimate import RunEstimate, predict_renders
-    from .pipeline import frame_mandatory_count, simulate_to_file
+    from .pipeline import planned_mandatory_times, simulate_to_file
     from .resume import RenderCache
     t0 = time.perf_counter()
     cache = RenderCache(source, partial, resume=resume)
@@ -147,9 +147,9 @@ def run_simulation(source, out, partial, *, resume: bool, sensor, camera, sampli
             cache.render(0)
             cache.calls = cache.reused = 0  # the warm-up render is asked for again at t = 0
             if estimate and cache.rendered:  # a resumed run replays its renders: no prediction
+                mand = planned_mandatory_times(camera, source.duration_us, gt_times_us)
                 pred = predict_renders(source, sampling, contrast_threshold=sensor.contrast_threshold,
-                                       log_eps=sensor.log_eps, n_mandatory=frame_mandatory_count(
-                                           camera, source.duration_us, gt_times_us),
+                                       log_eps=sensor.log_eps, n_mandatory=len(mand), mandatory_us=mand,
                                        max_step_fn=_tau_step(sensor))
                 est = RunEstimate(cache, pred["renders"], t0, printer=say).install()
             if getattr(source, "variant", "") == "scalar_rgb" and not resume:

@@ -9,7 +9,7 @@ import pytest
 from hybridhdr.simulate import SamplingParams, simulate
 from hybridhdr.simulate.camera import FrameCameraParams
 from hybridhdr.simulate.estimate import RunEstimate, predict_renders
-from hybridhdr.simulate.pipeline import frame_mandatory_count
+from hybridhdr.simulate.pipeline import planned_mandatory_times
 from hybridhdr.simulate.sensor import sensor_preset
 
 from ._sources import BlobSource, SwitchSource
@@ -26,9 +26,9 @@ def test_predicted_renders_match_the_run(make):
     cam = FrameCameraParams(frame_rate_hz=20, exposure_us=5000)
     src = make()
     pred = predict_renders(src, SamplingParams(), contrast_threshold=sen.contrast_threshold, log_eps=sen.log_eps,
-                           n_mandatory=frame_mandatory_count(cam, src.duration_us))
+                           n_mandatory=0, mandatory_us=planned_mandatory_times(cam, src.duration_us))
     res = simulate(make(), sensor=sen, camera=cam, progress=False)
-    assert 0 < pred["probe_renders"] <= 8 * 14
+    assert 0 < pred["probe_renders"] <= 10 * 14
     assert abs(pred["renders"] / res.renders - 1) <= 0.30, (pred, res.renders)
 
 
