@@ -103,8 +103,10 @@ class RunEstimate:
 
     Wraps ``source.render`` (the sampler's only call into the renderer): the wall time per render
     is measured over renders ``skip+1 .. after`` of the run itself (its pipeline work included:
-    the sensor, the frame camera and the writer run between renders), and the prediction is
-    ``predicted_renders * that + the time already spent``. ``line`` holds what was printed;
+    the sensor, the frame camera and the writer run between renders), as the mean of those
+    intervals without the longest 10 % (one-time costs: the sensor's and the camera's kernels are
+    compiled on their first call, seconds that a render count would multiply), and the prediction
+    is ``predicted_renders * that + the time already spent``. ``line`` holds what was printed;
     ``predicted_s`` the prediction (None before)."""
 
     def __init__(self, source, predicted_renders: float, t_start: float, *, after: int = 40, skip: int = 5,
@@ -113,6 +115,7 @@ class RunEstimate:
         self.after, self.skip = int(after), int(skip)
         self.calls = 0
         self._t_skip = None
+        self._ticks: list[float] = []
         self.predicted_s = None
         self.per_s = None
         self.line = ""
@@ -130,11 +133,15 @@ class RunEstimate:
 
     def tick(self):
         self.calls += 1
+        if self.skip <= self.calls <= self.after:
+            self._ticks.append(time.perf_counter())
         if self.calls == self.skip:
-            self._t_skip = time.perf_counter()
+            self._t_skip = self._ticks[-1]
         elif self.calls == self.after and self._t_skip is not None:
-            now = time.perf_counter()
-            per = self.per_s = (now - self._t_skip) / (self.after - self.skip)
+            now = self._ticks[-1]
+            iv = sorted(b - a for a, b in zip(self._ticks, self._ticks[1:]))
+            keep = iv[:max(1, len(iv) - max(1, len(iv) // 10))]
+            per = self.per_s = sum(keep) / len(keep)
             left = max(0.0, self.n_pred - self.calls) * per
             self.predicted_s = (now - self.t_start) + left
             self.line = (f"estimate: about {int(round(self.n_pred)):,} renders at {per * 1e3:.0f} ms each: "
