@@ -12,7 +12,7 @@ the demo use is :mod:`.procedural`.
 from .._util.lazy import lazy_exports
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
-# line's parser (hybridhdr --help) does not import numba and the kernels (issue 31).
+# line's parser (hybridhdr --help) does not import numba and the kernels (a fast --help).
 _LAZY = {
     'ImageMotionSource': '.ahdr',
     'ImageSequenceSource': '.ahdr',
