@@ -4,6 +4,9 @@
 #   make test-fast - the same without the tests marked slow (the local loop; make test runs everything)
 #   make tour   - the README's tour test on the demo install (.venv-demo: hybridhdr[demo] + pytest)
 # Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
+# The simulate extra (in both) brings the karellen-llvm-core wheel, the libLLVM Mitsuba's fast llvm_ad_mono
+# renderer loads without root; NO_LLVM_WHEEL=1 removes it after installing (to try the scalar_rgb fallback;
+# after `make clean`).
 PYTHON ?= python3
 VENV ?= .venv
 PY := $(VENV)/bin/python
@@ -21,8 +24,12 @@ $(VENV)/.created:
 	$(PIPC) --upgrade pip
 	touch $@
 
+NO_LLVM_WHEEL ?=
+NO_WHEEL_STEP = if [ -n "$(NO_LLVM_WHEEL)" ]; then $(PIP) uninstall --quiet -y karellen-llvm-core; fi
+
 $(VENV)/.installed: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[demo]"
+	$(NO_WHEEL_STEP)
 	touch $@
 
 $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
@@ -35,6 +42,7 @@ $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
 
 $(VENV)/.installed-test: $(VENV)/.torch pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[test,bench]"
+	$(NO_WHEEL_STEP)
 	touch $@
 
 install: $(VENV)/.installed

@@ -12,7 +12,7 @@ the demo use is :mod:`.procedural`.
 from .._util.lazy import lazy_exports
 
 # Lazy (PEP 562): the names below load their module on first use, so that building the command
-# line's parser (hybridhdr --help) does not import numba and the kernels (a slow start).
+# line's parser (hybridhdr --help) does not import numba and the kernels (a fast --help).
 _LAZY = {
     'ImageMotionSource': '.ahdr',
     'ImageSequenceSource': '.ahdr',
@@ -36,6 +36,10 @@ _LAZY = {
     'MitsubaSource': '.render',
     'preview_strip': '.render',
     'select_variant': '.render',
+    'RenderCache': '.resume',
+    'VideoSource': '.video',
+    'load_video': '.video',
+    'load_spec': '.dataset_run',
     'Scene': '.scene',
     'SceneError': '.scene',
     'load_scene': '.scene',
@@ -57,4 +61,6 @@ __all__: list[str] = [
     "SamplingParams", "TimeSampler", "event_fidelity",
     "simulate", "simulate_to_file", "SimulationResult",
     "MotionParams", "ImageMotionSource", "ImageSequenceSource", "build_ahdr",
+    # resumable runs, footage, datasets
+    "RenderCache", "VideoSource", "load_video", "load_spec",
 ]

@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-import contextlib
 import json
+import os
 import sys
 from pathlib import Path
 
+from .runner import run_simulation, sensor_params, signals_exit as _signals_exit  # noqa: F401 (re-exported)
 from .._util.cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
     positive_int, image_side
 
@@ -19,9 +20,21 @@ def add_parser(subparsers) -> None:
         description="Render a Mitsuba 3 scene (a TOML scene file or builtin:NAME) with adaptive time "
                     "sampling into events, LDR frames and HDR ground truth, written as a hybridhdr "
                     "recording (HDF5) that 'hybridhdr reconstruct' reads. Scene format: docs/simulate.md.")
-    p.add_argument("scene", nargs="?", default=None, help="SCENE.toml or builtin:NAME (see --list)")
+    p.add_argument("scene", nargs="?", default=None,
+                   help="SCENE.toml or builtin:NAME (see --list); a video file or a folder of images (events from "
+                        "footage, docs/simulate.md); or the word dataset followed by SPEC.toml")
+    p.add_argument("spec", nargs="?", default=None, metavar="SPEC.toml",
+                   help="with 'dataset': the dataset spec (scenes x sensor profiles x seeds; docs/simulate.md)")
     p.add_argument("--list", action="store_true", help="list the built-in scenes and exit")
     p.add_argument("--out", type=Path, default=None, help="output recording (.h5)")
+    p.add_argument("--jobs", type=positive_int, default=1, help="dataset: local processes running recordings at once")
+    p.add_argument("--scheduler", default=None, metavar="ADDRESS",
+                   help="dataset: run the recordings on this Dask scheduler (tcp://HOST:PORT) instead of locally")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace an existing --out (and start again over an interrupted run's OUT.resume)")
+    p.add_argument("--resume", action="store_true",
+                   help="finish an interrupted run from its OUT.resume partial (bit-identical to an uninterrupted "
+                        "run with the same options and seed)")
     p.add_argument("--preset", default=None, choices=["ideal", "clean", "noisy"],
                    help="event-sensor preset (noise tiers; docs/simulate.md); default clean, or ideal under --sensor")
     p.add_argument("--fixed-rate-hz", type=positive_float, default=None,
@@ -45,9 +58,11 @@ def add_parser(subparsers) -> None:
     p.add_argument("--height", type=image_side, default=None, help="image height in pixels")
     f = p.add_argument_group("frame camera")
     f.add_argument("--no-frames", action="store_true", help="events and ground truth only")
-    f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=20.0,
-                   help="frames per second (--frame-rate-hz is the old name)")
-    f.add_argument("--exposure-us", type=positive_int, default=10_000, help="exposure time (µs)")
+    f.add_argument("--fps", "--frame-rate-hz", dest="frame_rate_hz", type=positive_float, default=None,
+                   help="frames per second (--frame-rate-hz is the old name); default 20, or the input's rate for a "
+                        "video")
+    f.add_argument("--exposure-us", type=positive_int, default=None,
+                   help="exposure time (µs); default 10000 (a video: at most half its frame period)")
     f.add_argument("--auto-exposure", action="store_true", help="adapt the exposure from frame to frame")
     f.add_argument("--crf", default="gamma", help="camera response: linear, gamma, srgb, akf_s_curve_<K>")
     f.add_argument("--bit-depth", type=int, default=8, choices=[8, 10, 12], help="frame bit depth")
@@ -85,6 +100,12 @@ def add_parser(subparsers) -> None:
                    help="static camera views of the board (1-5; 'calibrate rig' needs at least 4 with its default "
                         "--min-views); default 1")
     b.add_argument("--blink-period-us", type=positive_int, default=None, help="blink period, µs; default 100000")
+    v = p.add_argument_group("video input (simulate VIDEO: a video file or a folder of images)")
+    v.add_argument("--input-fps", type=positive_float, default=None,
+                   help="the input's frame rate when it states no times (an image folder without images.txt or "
+                        "timestamps.txt, a video without a rate)")
+    v.add_argument("--max-input-frames", type=positive_int, default=None, help="use at most this many input frames")
+    v.add_argument("--start-frame", type=nonneg_int, default=0, help="skip this many input frames first")
     p.add_argument("--preview", type=Path, default=None,
                    help="only render a PNG strip of a few frames (log radiance) to this file and exit")
     p.add_argument("--preview-frames", type=positive_int, default=4, help="frames in the --preview strip")
@@ -118,114 +139,6 @@ def load_any_scene(spec: str, *, width=None, height=None, duration_s=None, spp=N
     return sc.with_changes(width=width, height=height, spp=spp, seed=render_seed)
 
 
-@contextlib.contextmanager
-def _signals_exit():
-    """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only),
-    so ``finally``/``except BaseException`` clean-ups run instead of the process just ending."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    got = []
-
-    def _exit(signum, frame):
-        got.append(signum)
-        raise SystemExit(128 + signum)
-
-    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
-    old = {sg: signal.signal(sg, _exit) for sg in sigs}
-    try:
-        yield
-    except BaseException:
-        # the SystemExit may arrive wrapped by native code it passed through (a Mitsuba render
-        # turns it into its own error): a received signal decides the exit status
-        if got:
-            raise SystemExit(128 + got[0]) from None
-        raise
-    finally:
-        for sg, h in old.items():
-            signal.signal(sg, h)
-
-
-class _MinuteAdvice:
-    """With the fallback renderer (``scalar_rgb``, about 50x slower than ``llvm_ad_mono``), once the
-    run has rendered for ``after_s`` seconds, print the measured render rate and the duration (at
-    this size) and the size (for the whole duration) that would finish in about a minute, when the
-    run itself would take much longer. Wraps ``source.render`` (the sampler's only call into the
-    renderer); the estimate is the measured scene time per wall second, and a render's cost taken
-    as proportional to its pixel count (the number of renders depends on the scene's motion and
-    brightness changes, not on its size)."""
-
-    def __init__(self, source, scene, t_start, *, after_s: float = 10.0, target_s: float = 60.0):
-        self.source, self.scene, self.t_start = source, scene, t_start
-        self.after_s, self.target_s = after_s, target_s
-        self.t_max = 0
-        self.done = False
-
-    def install(self):
-        render = self.source.render
-
-        def wrapped(t_us):
-            out = render(t_us)
-            self.t_max = max(self.t_max, int(t_us))
-            if not self.done:
-                self.check()
-            return out
-        self.source.render = wrapped
-
-    def check(self):
-        import time
-        wall = time.perf_counter() - self.t_start
-        if wall < self.after_s or self.t_max <= 0:
-            return
-        self.done = True
-        est = wall * self.scene.duration_us / self.t_max  # the whole run at the measured pace
-        if est < 2 * self.target_s:
-            return
-        w, h = self.scene.camera.width, self.scene.camera.height
-        k = (self.target_s / est) ** 0.5
-        w2, h2 = max(16, int(w * k) // 2 * 2), max(16, int(h * k) // 2 * 2)
-        dur = self.target_s * self.t_max / wall / 1e6
-        n = self.source.renders
-        print(f"\nnote: the renderer is scalar_rgb (the fallback when no usable LLVM is found): {n} renders of "
-              f"{w}x{h} in {wall:.0f} s ({n / wall:.2g} renders/s, {self.t_max / 1e6:.3g} s of scene time); this "
-              f"run will take about {est / 60:.0f} min. About a minute: --duration-s {dur:.2g} at this size, or --width {w2} "
-              f"--height {h2} for the whole {self.scene.duration_us / 1e6:g} s", file=sys.stderr)
-
-
-_SENSOR_FLAGS = {"pos_thres": "contrast_threshold_on", "neg_thres": "contrast_threshold_off",
-                 "sigma_thres": "threshold_mismatch_sigma", "cutoff_hz": "photoreceptor_cutoff_hz",
-                 "leak_rate_hz": "leak_rate_hz", "shot_noise_rate_hz": "shot_noise_rate_hz",
-                 "refractory_period_us": "refractory_period_us"}
-
-
-def sensor_params(args):
-    """The --preset's EventSensorParams with the v2e-named flags applied (checked before rendering)."""
-    import dataclasses
-
-    from .sensor import sensor_preset
-    over = {field: getattr(args, flag) for flag, field in _SENSOR_FLAGS.items() if getattr(args, flag, None) is not None}
-    if getattr(args, "refractory_period_s", None) is not None:  # v2e's --refractory_period, in seconds
-        s = float(args.refractory_period_s)
-        if s > 1e3:
-            raise ValueError(f"--refractory_period is in seconds (v2e's unit): expected at most 1000, got {s:g}")
-        over["refractory_period_us"] = int(round(s * 1e6))
-    profile = getattr(args, "sensor", None)
-    preset = getattr(args, "preset", None) or ("ideal" if profile else "clean")
-    base = sensor_preset(preset)
-    if profile:
-        from .sensor import sensor_from_profile
-        base = sensor_from_profile(profile, base)
-    if over.get("photoreceptor_cutoff_hz") == 0:
-        over["photoreceptor_cutoff_hz"] = None
-    for name in ("contrast_threshold_on", "contrast_threshold_off"):
-        if name in over and over[name] < base.min_threshold:
-            base = dataclasses.replace(base, min_threshold=min(base.min_threshold, over[name]))
-    return dataclasses.replace(base, **over) if over else base
-
-
 @json_output
 def run(args) -> int:
     from .builtin import BUILTIN_SCENES
@@ -235,24 +148,66 @@ def run(args) -> int:
             print(f"builtin:{n:<{w}}  {d}")
         return 0
     if args.scene is None:
-        raise ValueError("give a scene (SCENE.toml or builtin:NAME) or --list")
-    from .._util.atomic import refuse_overwriting_inputs
+        raise ValueError("give a scene (SCENE.toml or builtin:NAME), a video, 'dataset SPEC.toml', or --list")
+    if args.scene == "dataset":
+        from .dataset_run import run_dataset
+        summary = run_dataset(args, _human(args, err_default=True), check_argv=_check_argv)
+        _human(args)(f"wrote {summary['recordings']} recordings ({summary['ran']} run now) to {summary['out']}, "
+                     f"{summary['events']} events; manifest {summary['manifest']}")
+        if args.json:
+            print(json.dumps(summary))
+        return 0
+    if args.spec is not None:
+        raise ValueError(f"unexpected second argument {args.spec!r} (only 'simulate dataset SPEC.toml' takes one)")
+    if args.jobs != 1 or args.scheduler:
+        raise ValueError("--jobs and --scheduler apply to 'simulate dataset'")
+    from .video import is_video_input
+    if is_video_input(args.scene):
+        from .video import run_video
+        return run_video(args, _human(args))
+    from .._util.atomic import refuse_existing_output, refuse_overwriting_inputs
     refuse_overwriting_inputs({"--out": args.out, "--preview": args.preview},
                               [] if str(args.scene).startswith("builtin:") else [args.scene])
+    human = _human(args)
     scene = load_any_scene(args.scene, width=args.width, height=args.height, duration_s=args.duration_s,
                            spp=args.spp, render_seed=args.render_seed,
                            board_options={"poses": args.poses, "period_us": args.blink_period_us},
                            allow_outside=args.allow_outside)
     sensor = sensor_params(args)
-    from .render import MitsubaSource
-    source = MitsubaSource(scene, variant=args.variant)
+    if args.preview is None and args.out is None:
+        raise ValueError("--out REC.h5 is required (or use --list / --preview)")
+    from .resume import partial_path, partial_source_info
+    variant = args.variant
+    partial = None
+    if args.preview is None:
+        refuse_existing_output(args.out, overwrite=args.overwrite, flag="--out", command="simulate")
+        partial = partial_path(args.out)
+        if args.resume:
+            info = partial_source_info(partial) if partial.exists() else None
+            if info is None:
+                raise ValueError(f"--resume: no readable partial {partial} (an interrupted 'simulate --out "
+                                 f"{args.out}' leaves one)")
+            if variant is not None and variant != info.get("variant"):
+                raise ValueError(f"--resume: {partial} was rendered with {info.get('variant')}, not --variant {variant}")
+            variant = info.get("variant")  # the same renderer as the interrupted run: the same bits
+        elif partial.exists():
+            if not args.overwrite:
+                raise ValueError(f"{partial} exists (an interrupted run's partial): pass --resume to finish it, "
+                                 f"or --overwrite to start again")
+            partial.unlink()
+    os.environ["_HYBRIDHDR_VARIANT_NOTED"] = "1"  # the line below says it (not the renderer's own note)
+    from .render import MitsubaSource, variant_reason
+    source = MitsubaSource(scene, variant=variant)
+    why = variant_reason(source.variant, asked=variant if (args.variant or args.resume) else None)
+    if args.resume:
+        why = f"{source.variant}, the interrupted run's"
     if args.preview is not None:
         from .render import preview_strip
         preview_strip(source, args.preview, n=args.preview_frames)
-        print(f"scene {scene.name}: variant {source.variant}, wrote {args.preview}")
+        human(f"scene {scene.name}: variant {why}; wrote {args.preview}")
+        if args.json:
+            print(json.dumps({"preview": str(args.preview), "scene": scene.name, "variant": source.variant}))
         return 0
-    if args.out is None:
-        raise ValueError("--out REC.h5 is required (or use --list / --preview)")
 
     import time
 
@@ -275,7 +230,7 @@ def run(args) -> int:
         sampling = SamplingParams(mode="adaptive", **kw)
     camera = None
     if not args.no_frames:
-        ckw = dict(frame_rate_hz=args.frame_rate_hz, exposure_us=args.exposure_us, crf=args.crf,
+        ckw = dict(frame_rate_hz=args.frame_rate_hz or 20.0, exposure_us=args.exposure_us or 10_000, crf=args.crf,
                    bit_depth=args.bit_depth, auto_exposure=args.auto_exposure)
         if args.electrons_per_radiance_s is not None:
             ckw["electrons_per_radiance_s"] = args.electrons_per_radiance_s
@@ -287,27 +242,35 @@ def run(args) -> int:
         step = 1e6 / args.gt_rate_hz
         gt = np.unique(np.round(np.arange(0, scene.duration_us + 1, step)).astype(np.int64))
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    print(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
-          f"variant {source.variant}, spp {source.spp}, {sampling.mode} sampling", file=sys.stderr)
-    t0 = time.perf_counter()
-    # one render before the output file exists: a renderer that aborts the process (an LLVM that
-    # cannot compile the kernels) leaves nothing behind; SIGTERM/SIGHUP end the run through the
-    # writer's abort (no REC.h5.partial left), as an exception or Ctrl-C does
-    source.render(0)
-    if source.variant == "scalar_rgb":  # the slow fallback: say what would finish in about a minute
-        _MinuteAdvice(source, scene, t0).install()
-    with _signals_exit():
-        res = simulate_to_file(source, args.out, sensor=sensor, camera=camera, sampling=sampling,
-                               gt_times_us=gt, seed=args.seed, progress=not args.no_progress)
-    wall = time.perf_counter() - t0
-    st = res.stats
-    summary = {"out": str(args.out), "scene": scene.name, "variant": source.variant, "renders": res.renders,
-               "events": int(st.get("n_events", 0)), "frames": int(st.get("n_frames", 0)),
-               "hdr_references": int(st.get("n_hdr", 0)), "wall_s": round(wall, 3),
-               "render_s": round(source.render_time_s, 3)}
-    if not args.json:
-        print(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders, {summary['events']} events, "
-              f"{summary['frames']} frames, {summary['hdr_references']} HDR references, {wall:.2f} s wall "
-              f"({source.render_time_s:.2f} s rendering)")
-    print(json.dumps(summary))
+    human(f"scene {scene.name}: {scene.camera.width}x{scene.camera.height}, {scene.duration_us / 1e6:g} s, "
+          f"spp {source.spp}, {sampling.mode} sampling; variant {why}", err=True)
+    res, summary = run_simulation(source, args.out, partial, resume=args.resume, sensor=sensor, camera=camera,
+                                  sampling=sampling, gt_times_us=gt, seed=args.seed,
+                                  progress=not args.no_progress, say=lambda s: human(s, err=True),
+                                  estimate=not args.quiet)
+    summary = {"out": str(args.out), "scene": scene.name, **summary}
+    human(f"wrote {args.out}: variant {source.variant}, {summary['renders']} renders "
+          f"({summary['renders_reused']} from the partial), {summary['events']} events, {summary['frames']} frames, "
+          f"{summary['hdr_references']} HDR references, {summary['wall_s']:.2f} s wall "
+          f"({summary['render_s']:.2f} s rendering)")
+    if args.json:
+        print(json.dumps(summary))
     return 0
+
+
+def _human(args, err_default: bool = False):
+    """``say(line, err=False)``: a human-readable line, on stdout, or on stderr with ``--json`` (stdout then
+    holds only the JSON object) or ``err=True``; nothing under ``--quiet``."""
+    def say(line, err=err_default):
+        if getattr(args, "quiet", False):
+            return
+        print(line, file=sys.stderr if (err or getattr(args, "json", False)) else sys.stdout, flush=True)
+    return say
+
+
+def _check_argv(argv: list[str]) -> None:
+    """Parse a dataset recording's command line with this command's parser (SystemExit on a bad one)."""
+    import argparse
+    parser = argparse.ArgumentParser(prog="hybridhdr", add_help=False)
+    add_parser(parser.add_subparsers(dest="command"))
+    parser.parse_args(argv)

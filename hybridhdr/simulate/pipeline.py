@@ -28,6 +28,7 @@ return RGB, e.g. :func:`hybridhdr.simulate.procedural.colour_edge_sweep_recordin
 
 from __future__ import annotations
 
+import math
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -140,7 +141,30 @@ class _MemorySink:
         self.hdr_t.append(h.t_us)
 
 
-def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress, cfa=None):
+def planned_mandatory_times(camera, duration_us: int, gt_times_us=None) -> list[int]:
+    """About the mandatory render times of a run (used by the run-time estimate): each exposure's
+    start, middle and end at the camera's nominal frame rate and exposure (no auto-exposure), and
+    the ground-truth times."""
+    ts = {int(t) for t in (gt_times_us if gt_times_us is not None else [])}
+    if camera is not None:
+        n = int(math.floor(duration_us * camera.frame_rate_hz / 1e6)) + 1
+        for k in range(n):
+            t0 = int(round(k * 1e6 / camera.frame_rate_hz))
+            ts.update((t0, t0 + camera.exposure_us // 2, t0 + camera.exposure_us))
+    return sorted(t for t in ts if 0 <= t <= duration_us)
+
+
+def frame_mandatory_count(camera, duration_us: int, gt_times_us=None) -> int:
+    """How many :func:`planned_mandatory_times` a run has."""
+    return len(planned_mandatory_times(camera, duration_us, gt_times_us))
+
+
+#: wall-clock statistics: printed and returned, never written into the recording (a recording is a
+#: function of its inputs and seed, so a resumed or repeated run writes the same bits)
+_TIMING_STATS = ("wall_s", "sensor_s", "render_s")
+
+
+def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress, cfa=None, write_hdr=True):
     _check_source(source)
     pattern = parse_cfa(cfa)
     if pattern is not None:
@@ -205,7 +229,7 @@ def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress,
                 for tm in cam.mandatory_times(iv):
                     sampler.add_mandatory(tm)
                 hdr_times.add(iv[0] + (iv[1] - iv[0]) // 2)
-        if t in hdr_times:
+        if write_hdr and t in hdr_times:
             ref = r if pattern is None else source.rgb(t)
             sink.write_hdr(HDRReferences(np.asarray(ref, np.float32)[None], np.array([t], np.int64)))
             n_hdr += 1
@@ -225,7 +249,8 @@ def _run(source, sink, *, sensor, camera, sampling, gt_times_us, seed, progress,
             "source": source.describe(), "sensor": params.to_dict(),
             "camera": None if cam is None else {**camera.to_dict(), **cam.crf_metadata()},
             "sampling": sampling.to_dict(), "seed": seed, "seed_entropy": str(seq.entropy),
-            "gt_times_us": gt, "renders": renders, "stats": stats}
+            "gt_times_us": gt, "renders": renders,
+            "stats": {k: v for k, v in stats.items() if k not in _TIMING_STATS}}
     meta = Metadata(event_camera=CameraInfo(ss, model="hybridhdr simulated event sensor", cfa=pattern,
                                             contrast_threshold_on=params.contrast_threshold_on,
                                             contrast_threshold_off=params.contrast_threshold_off),
@@ -284,7 +309,8 @@ def simulate(source: RadianceSource, *, sensor: str | EventSensorParams = "clean
 def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorParams = "clean",
                      camera: FrameCameraParams | None = None, sampling: SamplingParams | None = None,
                      gt_times_us=None, seed: int | None = 0, progress: bool = True,
-                     compression: str | None = "gzip", cfa: str | None = None) -> SimulationResult:
+                     compression: str | None = "gzip", cfa: str | None = None,
+                     write_hdr: bool = True) -> SimulationResult:
     """Like :func:`simulate`, streaming into the hybridhdr container at ``path`` (HDF5).
 
     Events are handed to the writer after every step (it buffers at most ``buffer_events``),
@@ -311,7 +337,8 @@ def simulate_to_file(source: RadianceSource, path, *, sensor: str | EventSensorP
     w = _Writer(path, sensor_size=source.sensor_size, compression=compression)
     try:
         renders, stats, meta = _run(source, w, sensor=sensor, camera=camera, sampling=sampling,
-                                    gt_times_us=gt_times_us, seed=seed, progress=progress, cfa=cfa)
+                                    gt_times_us=gt_times_us, seed=seed, progress=progress, cfa=cfa,
+                                    write_hdr=write_hdr)
         w.final_metadata = meta
         w.close()
     except BaseException:

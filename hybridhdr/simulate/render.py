@@ -33,7 +33,7 @@ from ..events import SensorSize
 from .scene import Scene, SceneError
 from .scene import look_at_rotation
 
-__all__ = ["MitsubaSource", "select_variant", "llvm_available", "LUMINANCE_RGB", "mitsuba_camera_params", "preview_strip"]
+__all__ = ["MitsubaSource", "select_variant", "variant_reason", "llvm_source", "llvm_available", "LUMINANCE_RGB", "mitsuba_camera_params", "preview_strip"]
 
 #: Rec. ITU-R BT.709 luminance weights used to convert ``scalar_rgb`` renders to radiance.
 LUMINANCE_RGB = (0.2126, 0.7152, 0.0722)
@@ -44,7 +44,8 @@ _VARIANTS = ("llvm_ad_mono", "scalar_rgb", "llvm_ad_rgb", "cuda_ad_mono")
 #: 15 and 16 abort the process on real scenes ("LLVM ERROR: Cannot select: ... fminimum"), 14 is
 #: refused by Dr.Jit itself. A newer LLVM still has to pass the child-process probe.
 MIN_LLVM_VERSION = (17, 0, 0)
-_FAST_PATH_HINT = "apt-get install libllvm19 (Debian/Ubuntu) gives the fast llvm_ad_mono variant"
+_FAST_PATH_HINT = ("pip install 'hybridhdr[simulate]' (the karellen-llvm-core LLVM wheel, no root) or apt-get install "
+                   "libllvm19 (Debian/Ubuntu) gives the fast llvm_ad_mono variant")
 _PROBE_VERSION = 2  # bump when the probe scene changes (invalidates the on-disk decisions)
 _DECISION: tuple | None = None  # (variant, reason) of the automatic choice in this process
 _IN_PROBE = False  # set in the probe's child process
@@ -65,13 +66,83 @@ _LIB_DIRS = ("/usr/lib/x86_64-linux-gnu", "/usr/lib/aarch64-linux-gnu", "/usr/li
              "/usr/local/lib", "/opt/homebrew/opt/llvm/lib")
 
 
+#: The pip wheel that ships a libLLVM Dr.Jit can load (Apache-2.0 with LLVM exceptions; the
+#: ``simulate`` extra installs it). Its libLLVM needs the libc++ it ships beside it.
+LLVM_WHEEL = "karellen-llvm-core"
+
+
+def _wheel_libllvm() -> tuple[str, str] | None:
+    """(path of the wheel's libLLVM.so.N[.M], its version) when :data:`LLVM_WHEEL` is installed,
+    located through the distribution's file list (no guessed folders)."""
+    try:
+        from importlib.metadata import PackageNotFoundError, distribution
+        dist = distribution(LLVM_WHEEL)
+    except (ImportError, PackageNotFoundError):
+        return None
+    best = None
+    for f in dist.files or ():
+        name = f.name
+        m = re.fullmatch(r"libLLVM(?:-\d+)?\.so\.(\d+)(?:\.\d+)*", name)
+        if m:
+            p = str(f.locate())
+            if os.path.isfile(p) and not os.path.islink(p):
+                best = max(best or (0, ""), (int(m.group(1)), p))
+    return (best[1], dist.version) if best else None
+
+
+def _preload_libcxx(libllvm: str) -> list[str]:
+    """Make the wheel's libc++ resolvable for its libLLVM: wheels carry no symlinks, so the
+    ``libc++.so.1`` its libLLVM names may be missing (only ``libc++.so.1.0`` installed). Loading the
+    versioned files with RTLD_GLOBAL, dependencies first (libunwind, libc++abi, libc++), registers
+    their sonames, and the dynamic loader then resolves libLLVM's ``libc++.so.1`` to them. Nothing is
+    loaded when the soname file is already there. Returns the files loaded."""
+    import ctypes
+    dirs = [os.path.dirname(libllvm)] + sorted(glob.glob(os.path.join(os.path.dirname(libllvm), "*-linux-gnu")))
+    if any(os.path.exists(os.path.join(d, "libc++.so.1")) for d in dirs):
+        return []
+    loaded = []
+    for stem in ("libunwind.so.1", "libc++abi.so.1", "libc++.so.1"):
+        files = sorted(p for d in dirs for p in glob.glob(os.path.join(d, stem + ".*")) if not os.path.islink(p))
+        if not files:
+            continue
+        try:
+            ctypes.CDLL(files[0], mode=ctypes.RTLD_GLOBAL)
+            loaded.append(files[0])
+        except OSError:
+            break
+    return loaded
+
+
+#: Where the libLLVM given to Dr.Jit came from (one line; "" before :func:`_prepare_llvm_env`).
+_LLVM_SOURCE = ""
+
+
 def _prepare_llvm_env() -> None:
-    # Dr.Jit picks the last libLLVM*.so.* of the system folder unless told; LLVM 15/16 crash
-    # (uncatchable SIGABRT), so point it at 17-19 before drjit is first imported.
-    if "DRJIT_LIBLLVM_PATH" not in os.environ and "drjit" not in sys.modules:
-        p = _find_libllvm()
-        if p is not None:
-            os.environ["DRJIT_LIBLLVM_PATH"] = p
+    """Point Dr.Jit at a libLLVM before drjit is first imported, in this order: the user's own
+    ``DRJIT_LIBLLVM_PATH``; a system libLLVM 17-19 (``apt-get install libllvm19``: preferred, the
+    version Mitsuba 3.9 is built and tested with); the :data:`LLVM_WHEEL` pip wheel. Without any,
+    Dr.Jit picks the last libLLVM*.so.* of the system folder (LLVM 15/16 crash: uncatchable
+    SIGABRT, hence the version check and the probe)."""
+    global _LLVM_SOURCE
+    if "drjit" in sys.modules:
+        return
+    if "DRJIT_LIBLLVM_PATH" in os.environ:
+        if not _LLVM_SOURCE:
+            _LLVM_SOURCE = f"DRJIT_LIBLLVM_PATH={os.environ['DRJIT_LIBLLVM_PATH']}"
+        return
+    p = _find_libllvm()
+    if p is not None:
+        os.environ["DRJIT_LIBLLVM_PATH"] = p
+        _LLVM_SOURCE = f"the system's {p}"
+        return
+    w = _wheel_libllvm()
+    if w is not None:
+        path, ver = w
+        _preload_libcxx(path)
+        os.environ["DRJIT_LIBLLVM_PATH"] = path
+        _LLVM_SOURCE = f"the {LLVM_WHEEL} {ver} wheel's {os.path.basename(path)}"
+        return
+    _LLVM_SOURCE = "no libLLVM 17+ (system) and no " + LLVM_WHEEL + " wheel: Dr.Jit searched the system folders"
 
 
 def _drjit_llvm_version() -> tuple[int, int, int]:
@@ -298,6 +369,28 @@ def _auto_variant() -> tuple[str, str]:
             print(f"hybridhdr: rendering with Mitsuba's slower scalar_rgb variant: {dec[1]}; {_FAST_PATH_HINT}",
                   file=sys.stderr, flush=True)
     return _DECISION
+
+
+def variant_reason(variant: str, asked: str | None = None) -> str:
+    """One line saying why ``variant`` renders: asked for, or the automatic choice and where its
+    libLLVM came from (the user's ``DRJIT_LIBLLVM_PATH``, a system libLLVM 17-19, or the
+    :data:`LLVM_WHEEL` wheel), or why the automatic choice fell back to ``scalar_rgb``."""
+    asked = asked or os.environ.get("HYBRIDHDR_MITSUBA_VARIANT") or None
+    if asked:
+        return f"{variant}, as asked ({'--variant' if asked == variant else 'HYBRIDHDR_MITSUBA_VARIANT'})"
+    v, why = _auto_variant()
+    if v == "cuda_ad_mono":
+        return "cuda_ad_mono: an NVIDIA GPU passed the test render"
+    if v == "llvm_ad_mono":
+        return (f"llvm_ad_mono: LLVM {_fmt_version(_drjit_llvm_version())} from {_LLVM_SOURCE or 'Dr.Jit'} "
+                f"passed the test render")
+    return f"scalar_rgb, the slow fallback: {why}; {_FAST_PATH_HINT}"
+
+
+def llvm_source() -> str:
+    """Where the libLLVM given to Dr.Jit comes from (see :func:`_prepare_llvm_env`)."""
+    _prepare_llvm_env()
+    return _LLVM_SOURCE
 
 
 def cuda_available() -> bool:

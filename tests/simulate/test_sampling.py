@@ -72,7 +72,7 @@ def test_bisection_catches_a_sudden_switch_and_uses_every_render():
     lambda: SwitchSource(),
 ], ids=["blob+flicker", "fast-blob", "switch"])
 def test_adaptive_matches_dense_fixed_rate_with_3x_fewer_renders(make):
-    # reference: 20 kHz fixed (50 µs steps). Acceptance: per-pixel event-count error
+    # reference: 20 kHz fixed (50 µs steps). Acceptance (the sampler's goal): per-pixel event-count error
     # <= 5 % with >= 3x fewer renders; the 99th percentile of the paired timestamp differences
     # stays under 100 µs (measured 3-62 µs on these sources)
     ref = simulate(make(), sensor="ideal", sampling=SamplingParams(mode="fixed", fixed_rate_hz=20_000),

@@ -26,11 +26,11 @@ def test_end_to_end_reconstruct(tmp_path, capsys):
     # a 64x48 blinking checkerboard for 120 ms: the board switches off at 50 ms and on at 100 ms
     rc = main(["simulate", "builtin:blinking_checkerboard", "--width", "64", "--height", "48", "--duration-s", "0.12",
                "--spp", "1", "--preset", "ideal", "--out", str(rec_path), "--frame-rate-hz", "25",
-               "--exposure-us", "5000", "--no-progress"])
+               "--exposure-us", "5000", "--no-progress", "--json"])
     assert rc == 0
-    out = capsys.readouterr().out
-    summary = json.loads(out.strip().splitlines()[-1])
-    assert summary["variant"] in ("llvm_ad_mono", "scalar_rgb") and f"variant {summary['variant']}" in out
+    o = capsys.readouterr()
+    summary = json.loads(o.out)  # --json: the JSON object alone on stdout, the human lines on stderr
+    assert summary["variant"] in ("llvm_ad_mono", "scalar_rgb") and f"variant {summary['variant']}" in o.err
     assert rec_path.exists() and not (tmp_path / "rec.h5.partial").exists()
     rec = read_recording(rec_path)
     assert rec.sensor_size.width == 64 and rec.sensor_size.height == 48
@@ -52,8 +52,9 @@ def test_end_to_end_reconstruct(tmp_path, capsys):
 def test_fixed_rate_and_preview(tmp_path, capsys):
     rec_path = tmp_path / "fixed.h5"
     assert main(["simulate", "builtin:slow_static", "--width", "32", "--height", "24", "--duration-s", "0.02",
-                 "--spp", "1", "--fixed-rate-hz", "500", "--no-frames", "--out", str(rec_path), "--no-progress"]) == 0
-    summary = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+                 "--spp", "1", "--fixed-rate-hz", "500", "--no-frames", "--out", str(rec_path), "--no-progress",
+                 "--json"]) == 0
+    summary = json.loads(capsys.readouterr().out)
     assert summary["renders"] == 11  # 0, 2, ..., 20 ms
     png = tmp_path / "strip.png"
     assert main(["simulate", "builtin:slow_static", "--width", "32", "--height", "24", "--preview", str(png),
@@ -83,7 +84,8 @@ def test_errors(tmp_path, monkeypatch, capsys, argv, needle):
 
 
 def test_failures_leave_no_partial(tmp_path, monkeypatch):
-    # an exception during the run (here: the third render), and a writer that fails creating its file
+    # an exception during the run (here: the third render), and a writer that fails creating its file:
+    # no half-written REC.h5.partial, only the renders made so far in the resumable REC.h5.resume
     from hybridhdr.simulate import render as R
     out = tmp_path / "rec.h5"
     calls = {"n": 0}
@@ -100,7 +102,8 @@ def test_failures_leave_no_partial(tmp_path, monkeypatch):
             "--spp", "1", "--out", str(out), "--no-progress"]
     with pytest.raises(RuntimeError, match="renderer failed"):
         main(args)
-    assert calls["n"] == 3 and list(tmp_path.iterdir()) == []
+    assert calls["n"] == 3 and [p.name for p in tmp_path.iterdir()] == ["rec.h5.resume"]
+    (tmp_path / "rec.h5.resume").unlink()
     monkeypatch.setattr(R.MitsubaSource, "render", real)
 
     import hybridhdr.formats.container as C
@@ -111,12 +114,13 @@ def test_failures_leave_no_partial(tmp_path, monkeypatch):
 
     monkeypatch.setattr(C.RecordingWriter, "_open", bad_open)
     assert main(args) != 0  # reported as "hybridhdr simulate: error: disk full"
-    assert list(tmp_path.iterdir()) == []
+    assert [p.name for p in tmp_path.iterdir()] == ["rec.h5.resume"]
 
 
 @pytest.mark.slow
 def test_sigterm_leaves_no_partial(tmp_path):
-    # a run ended by SIGTERM removes its REC.h5.partial (SystemExit through the writer's abort)
+    # a run ended by SIGTERM removes its REC.h5.partial (SystemExit through the writer's abort) and
+    # keeps its renders in REC.h5.resume
     import signal
     import subprocess
     import sys
@@ -139,4 +143,4 @@ def test_sigterm_leaves_no_partial(tmp_path):
             if p.poll() is None:
                 p.kill()
     assert p.returncode == 128 + signal.SIGTERM, err
-    assert not partial.exists() and not out.exists()
+    assert not partial.exists() and not out.exists() and (tmp_path / "rec.h5.resume").exists()
