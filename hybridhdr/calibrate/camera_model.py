@@ -110,6 +110,9 @@ class CameraModel:
     quantiser_correction: dict | None
     mismatch_sigma: dict
     bands: dict
+    latency_us: int | None
+    r2: float
+    r2_nominal: float
     reverse_regression: dict
     fixed: dict
     per_pixel: dict | None = None  # arrays (not serialised): per-pixel sums at the chosen model
@@ -122,8 +125,6 @@ class CameraModel:
         d["offsets_us"] = [int(v) for v in self.offsets_us]
         d["intensity_offsets"] = [float(v) for v in self.intensity_offsets]
         d["score_grid"] = [[_f(v) for v in row] for row in self.score_grid]
-        # the old self-calibration's names, kept for readers of earlier run.json files
-        d["r2"] = None
         return d
 
     def akf_overrides(self) -> dict:
@@ -575,13 +576,22 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     sig = _mismatch(pp)
     ls = c
     ii_rec = None
+    latency = None
     if quantiser_correction:
-        c, ii_rec = _indirect(D, ints, i0, ls, sig, r_on, r_off, seed=seed)
-        if sd[0] is not None:  # the correction's own simulation noise (reps replicates) adds to the sampling error
+        c, ii_rec, latency, ii = _binding(D, rows, ints, i0s, offs, d, ii, sig, r_on, r_off, seed, intensity_offset is None,
+                                          time_offset_us is None)
+        i0 = float(i0s[ii])
+        if sd[0] is not None:  # the correction's own simulation noise adds to the sampling error
             sd = tuple(v * math.sqrt(1 + 1 / ii_rec["replicates"]) for v in sd)
+        lo_c, hi_c = (float(v) for v in c_range)
+        if not (lo_c <= c[0] <= hi_c and lo_c <= c[1] <= hi_c):
+            raise ValueError(f"the camera model's corrected thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside "
+                             f"c_range {tuple(c_range)}: the recording has too little usable information")
     a0 = int(np.argmin(np.abs(np.asarray(offs))))
     from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
     i_def = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(DEFAULT_INTENSITY_OFFSET))))
+    r2 = _r2(D, rows, d, ii, r_on, r_off)
+    r2_nominal = _r2(D, rows, int(offs[a0]), i_def, r_on, r_off)
     fixed = {"intensity_offset": intensity_offset is not None, "time_offset_us": time_offset_us is not None,
              "user_grid": bool(user_offs), "notes": notes}
     return CameraModel(
@@ -593,11 +603,11 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         noise={**noise, "rate_on_hz": r_on, "rate_off_hz": r_off, "shot_noise_rate_hz": 2 * r_off,
                "leak_rate_hz": max(r_on - r_off, 0.0)},
         uncorrected={"c_on": unc[0], "c_off": unc[1]}, least_squares={"c_on": ls[0], "c_off": ls[1]},
-        quantiser_correction=ii_rec, mismatch_sigma=sig, bands=homog, reverse_regression=rev, fixed=fixed,
+        quantiser_correction=ii_rec, mismatch_sigma=sig, bands=homog, latency_us=latency, r2=r2, r2_nominal=r2_nominal, reverse_regression=rev, fixed=fixed,
         per_pixel=pp if per_pixel else None)
 
 
-def _mismatch(pp, min_intervals=2, min_pixels=30):
+def _mismatch(pp, min_intervals=2, min_pixels=30, n_boot=100, seed=0):
     """Per-polarity spread of the pixels' thresholds: covariance of the even and odd intervals'
     per-pixel estimates (their estimation errors are independent, so they drop out)."""
     out = {}
@@ -607,6 +617,7 @@ def _mismatch(pp, min_intervals=2, min_pixels=30):
         ok = (hs["k_on"] >= min_intervals) & (hs["k_off"] >= min_intervals) & (a > 0) & (b > 0)
         ests.append((a, b, ok))
     both = ests[0][2] & ests[1][2]
+    xs, ys = [], []
     for j, name in enumerate(("on", "off")):
         if both.sum() < min_pixels:
             out[name] = None
@@ -617,7 +628,17 @@ def _mismatch(pp, min_intervals=2, min_pixels=30):
         keep = (np.abs(x - med) <= 8 * mad) & (np.abs(y - med) <= 8 * mad) if mad > 0 else np.ones(x.shape, bool)
         x, y = x[keep], y[keep]
         out[name] = math.sqrt(max(float(np.mean((x - x.mean()) * (y - y.mean()))), 0.0))
+        xs.append(x)
+        ys.append(y)
     out["pixels_both_halves"] = int(both.sum())
+    if len(xs) == 2 and xs[0].size == xs[1].size:
+        rng = np.random.default_rng([int(seed), 37])
+        bs = []
+        for _ in range(int(n_boot)):
+            i = rng.integers(0, xs[0].size, xs[0].size)
+            v = [float(np.mean((x[i] - x[i].mean()) * (y[i] - y[i].mean()))) for x, y in zip(xs, ys)]
+            bs.append(0.5 * (math.sqrt(max(v[0], 0.0)) + math.sqrt(max(v[1], 0.0))))
+        out["std"] = float(np.std(bs, ddof=1))
     return out
 
 
@@ -693,6 +714,87 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
                                         "iterations": history, "sigma_used": [s_on, s_off]}
 
 
+class _SimData:
+    """A :class:`_Data` view with other events (the quantiser simulation's)."""
+
+    def __init__(self, D, ev):
+        self.__dict__.update(D.__dict__)
+        self.t = ev["t"]
+        self.pix = ev["y"].astype(np.int64) * D.w + ev["x"].astype(np.int64)
+        self.on = ev["p"] > 0
+
+    frame = _Data.frame
+    G = _Data.G
+    covered = _Data.covered
+    window = _Data.window
+    weighted_counts = _Data.weighted_counts
+
+
+def _r2(D, rows, d, ii, r_on, r_off):
+    """Fraction of the frames' log-change variance (event-bearing pixel-intervals) the least-squares
+    fit at (d, I0 index ii) explains."""
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    c = _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))
+    res = tot = 0.0
+    dls = [r["L1"][ii] - r["L0"][ii] for r in rows]
+    allv = np.concatenate(dls) if dls else np.zeros(0)
+    if allv.size < 2:
+        return float("nan")
+    mu = allv.mean()
+    for r, (no, nf), dl in zip(rows, counts, dls):
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        e = dl - c[0] * (no - lo) + c[1] * (nf - lf)
+        res += float(e @ e)
+        tot += float((dl - mu) @ (dl - mu))
+    return 1.0 - res / tot if tot > 0 else float("nan")
+
+
+def _ls_at(D, rows, d, ii, r_on, r_off):
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    return _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))
+
+
+def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, free_i0, free_d, iters=3):
+    """Indirect inference on the whole estimate (δ, I0, c_on, c_off).
+
+    The grid criterion's best (δ̂, Î0) and the least-squares thresholds are biased by the DVS
+    quantiser itself (hysteresis: a reversal's first events come late, so later windows predict
+    better; thresholds attenuated where few events fall per interval). The binding function
+    θ -> (δ̂, Î0) is measured by simulation: events of the DVS model driven by the frames' own log
+    path with the candidate θ (:func:`simulate_quantiser_events`) go through the same grid
+    search; θ moves by the difference between the observed and the simulated estimates until they
+    agree. At each θ the thresholds are :func:`_indirect`'s on the observed counts between the
+    frame times shifted by θ's latency."""
+    c_span = (float(D.tau[ints[0]]), float(D.tau[ints[-1] + 1]))
+    d, ii = float(d_obs), int(ii_obs)
+    hist = []
+    c, rec = None, None
+    for it in range(iters + 1):
+        ls = _ls_at(D, rows, int(round(d)), ii, r_on, r_off)
+        c, rec = _indirect(D, ints, float(i0s[ii]), ls, sig, r_on, r_off, seed=seed)
+        if it == iters or not (free_i0 or free_d):
+            break
+        ev = simulate_quantiser_events(D, float(i0s[ii]), c[0], c[1], sigma=(sig.get("on") or 0.0, sig.get("off") or 0.0),
+                                       latency_us=int(round(d)), rate_on_hz=r_on, rate_off_hz=r_off, seed=seed + it,
+                                       k_range=(ints[0], ints[-1] + 1))
+        ev = ev[(ev["t"] >= D.t0_ev) & (ev["t"] <= D.t1_ev)]
+        if len(ev) == 0:
+            break
+        S = _SimData(D, ev)
+        _, _, sc, _ = _search(S, ints, i0s, offs, r_on, r_off, None, None)
+        if not np.isfinite(sc).any():
+            break
+        a_s, i_s = np.unravel_index(np.nanargmin(sc), sc.shape)
+        hist.append({"theta": [d, float(i0s[ii])], "c": list(c), "simulated_estimate": [int(offs[a_s]), float(i0s[i_s])]})
+        nd = d + (d_obs - offs[a_s]) if free_d else d
+        ni = int(np.clip(ii + (ii_obs - i_s), 0, len(i0s) - 1)) if free_i0 else ii
+        if abs(nd - d) < 0.5 and ni == ii:
+            break
+        d, ii = float(np.clip(nd, offs[0], offs[-1])), ni
+    rec = {**rec, "binding_iterations": hist, "span_us": list(c_span)}
+    return c, rec, int(round(d)), ii
+
+
 def _reverse(rows, counts, ii):
     """Reverse regression: counts on the frame change (both polarities), the other EIV bound."""
     a = np.zeros((2, 2))
@@ -728,7 +830,7 @@ def _per_pixel_sums(D, rows, counts, ii, r_on, r_off):
         for k, v in vals.items():
             np.add.at(tot[k], idx, v)
             np.add.at(halves[q % 2][k], idx, v)
-    return {"tot": tot, "halves": halves, "shape": (D.h, D.w)}
+    return {"tot": tot, "halves": halves, "shape": (D.h, D.w), "profile": D.prof.name}
 
 
 def _bootstrap(pp, n_boot, seed):
@@ -762,7 +864,7 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
     (James & Stein 1961; Efron & Morris, JASA 1973). A pixel the data do not identify keeps the
     pooled value, and so does every pixel when the halves show no spread (τ² <= 0).
 
-    Returns ``(c_on (H, W), c_off (H, W), record)``."""
+    Returns ``(c_on (H, W), c_off (H, W), identified (H, W) bool, record)``."""
     pp = model.per_pixel
     if pp is None:
         raise ValueError("shrink_per_pixel needs a model estimated with per_pixel=True")
@@ -806,5 +908,58 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
                         "halves' per-pixel estimates; s_i^2 from the pooled residual variance",
               "identified_pixels": int(ok.sum()), "pixels_both_halves": int(both.sum()),
               "tau2_on": tau2["on"], "tau2_off": tau2["off"], "residual_var": _f(s2) if np.isfinite(s2) else None,
-              "mean_weight_on": _f(np.mean(np.where(ok, out[0].reshape(-1) != pooled[0], False)))}
-    return out[0], out[1], record
+              "profile": pp.get("profile", "")}
+    return out[0], out[1], ok.reshape(h, w), record
+
+
+def simulate_quantiser_events(D, i0, c_on, c_off, *, sigma=(0.0, 0.0), latency_us=0, rate_on_hz=0.0,
+                              rate_off_hz=0.0, seed=0, k_range=None):
+    """Events of the DVS model (eq. 1) driven by the frames' own log path ``ln(I_k + I0)``, linear
+    in time between frame times, each pixel with a random initial phase and N(c, σ) thresholds,
+    stamped ``latency_us`` late, plus Poisson noise events: the recording the camera model says
+    this camera would have made of what its frames show (EVENT_DTYPE, sorted)."""
+    from ..events import EVENT_DTYPE
+    rng = np.random.default_rng([int(seed), 36])
+    k0, k1 = (0, len(D.tau) - 1) if k_range is None else k_range
+    con = np.maximum(c_on + sigma[0] * rng.standard_normal(D.n), 0.01)
+    coff = np.maximum(c_off + sigma[1] * rng.standard_normal(D.n), 0.01)
+
+    def L(k):
+        c_, _ = D.frame(k)
+        return np.log(D.lut[c_.astype(np.int64)] * D.scale[k] + i0)
+
+    x0 = L(k0)
+    ref = x0 - (rng.random(D.n) * (con + coff) - coff)
+    ts, ps, pol = [], [], []
+    for k in range(k0, k1):
+        x1 = L(k + 1)
+        t0, t1 = float(D.tau[k]), float(D.tau[k + 1])
+        up = np.floor(np.maximum(x1 - ref, 0.0) / con).astype(np.int64)
+        dn = np.floor(np.maximum(ref - x1, 0.0) / coff).astype(np.int64)
+        slope = np.where(x1 != x0, (t1 - t0) / np.where(x1 != x0, x1 - x0, 1.0), 0.0)
+        for cnt, sign, cc in ((up, 1, con), (dn, -1, coff)):
+            pix = np.repeat(np.arange(D.n), cnt)
+            if pix.size:
+                m = np.arange(pix.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + 1
+                lev = ref[pix] + sign * m * cc[pix]
+                tt = t0 + (lev - x0[pix]) * slope[pix]
+                ts.append(np.clip(tt, t0, t1))
+                ps.append(pix)
+                pol.append(np.full(pix.size, sign, np.int8))
+        ref = ref + up * con - dn * coff
+        x0 = x1
+    span = (float(D.tau[k0]), float(D.tau[k1]))
+    for rate, sign in ((rate_on_hz, 1), (rate_off_hz, -1)):
+        if rate > 0:
+            m = int(rng.poisson(rate * D.n * (span[1] - span[0]) * 1e-6))
+            ts.append(rng.uniform(span[0], span[1], m))
+            ps.append(rng.integers(0, D.n, m))
+            pol.append(np.full(m, sign, np.int8))
+    t = np.concatenate(ts) if ts else np.zeros(0)
+    ev = np.zeros(t.size, EVENT_DTYPE)
+    ev["t"] = np.rint(t + latency_us).astype(np.int64)
+    p_ = np.concatenate(ps) if ps else np.zeros(0, np.int64)
+    ev["x"] = p_ % D.w
+    ev["y"] = p_ // D.w
+    ev["p"] = np.concatenate(pol) if pol else np.zeros(0, np.int8)
+    return ev[np.argsort(ev["t"], kind="stable")]
