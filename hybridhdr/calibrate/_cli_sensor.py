@@ -42,9 +42,18 @@ def run_sensor(args) -> int:
 
     t0 = time.perf_counter()
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
-    prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
-                                   n_boot=args.bootstrap, seed=args.seed, name=args.name,
-                                   sensor_model=args.sensor_model)
+    import warnings
+
+    from .camera_model import GridEdgeWarning
+    with warnings.catch_warnings(record=True) as wl:
+        warnings.simplefilter("always", GridEdgeWarning)
+        prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
+                                       n_boot=args.bootstrap, seed=args.seed, name=args.name,
+                                       sensor_model=args.sensor_model)
+    notes = [str(w.message) for w in wl if issubclass(w.category, GridEdgeWarning)]
+    for n_ in notes:
+        print(f"warning: {n_}", file=sys.stderr)
+    prof.provenance["warnings"] = notes
     prof.provenance.update(command=["hybridhdr", *sys.argv[1:]], input=str(args.recording))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out, prof.to_dict(), indent=1)
