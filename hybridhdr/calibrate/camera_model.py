@@ -525,6 +525,8 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             raise ValueError("the camera model: no grid point could be scored")
         a_i, ii = np.unravel_index(np.nanargmin(score), score.shape)
         widen = False
+        if attempt == MAX_WIDEN:
+            break
         if intensity_offset is None and len(i0s) > 1:
             if ii == len(i0s) - 1 and i0s[-1] < I0_LIMITS[1]:
                 i0s = i0s + tuple(v for v in (i0s[-1] * 4, i0s[-1] * 16) if v <= I0_LIMITS[1])
@@ -907,7 +909,7 @@ def _bootstrap(pp, n_boot, seed):
 
 
 def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrelation: float = 0.05,
-                     c_range=(0.01, 3.0)):
+                     c_range=(0.01, 3.0), tau2=None):
     """Per-pixel thresholds shrunk toward the pooled ones by their own uncertainty (empirical Bayes).
 
     Each identified pixel's least-squares pair ``ĉ_i`` (its own noise-corrected sums) has a
@@ -916,9 +918,11 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
     estimates (even and odd intervals: their errors are independent, so it drops out). The
     posterior mean under a normal prior N(pooled, τ²) is ``pooled + τ²/(τ² + s_i²)·(ĉ_i − pooled)``
     (James & Stein 1961; Efron & Morris, JASA 1973). A pixel the data do not identify keeps the
-    pooled value, and so does every pixel when the halves show no spread (τ² <= 0).
+    pooled value, and so does every pixel when the halves show no spread (τ² <= 0). ``tau2``
+    (ON, OFF) replaces the measured spread (a prior known from another recording).
 
     Returns ``(c_on (H, W), c_off (H, W), identified (H, W) bool, record)``."""
+    tau2_given = tau2
     pp = model.per_pixel
     if pp is None:
         raise ValueError("shrink_per_pixel needs a model estimated with per_pixel=True")
@@ -952,6 +956,8 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
             tau2[name] = float(np.mean((xx - xx.mean()) * (yy - yy.mean())))
         else:
             tau2[name] = 0.0
+    if tau2_given is not None:
+        tau2 = {"on": float(tau2_given[0]), "off": float(tau2_given[1])}
     out = []
     for j, (name, c, v) in enumerate((("on", a, v_on), ("off", b, v_off))):
         t2 = max(tau2[name], 0.0)
