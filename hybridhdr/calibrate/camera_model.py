@@ -637,18 +637,21 @@ def _mismatch(pp, min_intervals=2, min_pixels=30, n_boot=100, seed=0):
         ests.append((a, b, ok))
     both = ests[0][2] & ests[1][2]
     xs, ys = [], []
-    for j, name in enumerate(("on", "off")):
-        if both.sum() < min_pixels:
-            out[name] = None
-            continue
-        x, y = ests[0][j][both], ests[1][j][both]
-        med = np.median(np.concatenate([x, y]))
-        mad = 1.4826 * np.median(np.abs(np.concatenate([x, y]) - med))
-        keep = (np.abs(x - med) <= 8 * mad) & (np.abs(y - med) <= 8 * mad) if mad > 0 else np.ones(x.shape, bool)
-        x, y = x[keep], y[keep]
-        out[name] = math.sqrt(max(float(np.mean((x - x.mean()) * (y - y.mean()))), 0.0))
-        xs.append(x)
-        ys.append(y)
+    if both.sum() < min_pixels:
+        out["on"] = out["off"] = None
+    else:
+        keep = np.ones(int(both.sum()), bool)
+        for j in range(2):
+            allv = np.concatenate([ests[0][j][both], ests[1][j][both]])
+            med = np.median(allv)
+            mad = 1.4826 * np.median(np.abs(allv - med))
+            if mad > 0:
+                keep &= (np.abs(ests[0][j][both] - med) <= 8 * mad) & (np.abs(ests[1][j][both] - med) <= 8 * mad)
+        for j, name in enumerate(("on", "off")):
+            x, y = ests[0][j][both][keep], ests[1][j][both][keep]
+            out[name] = math.sqrt(max(float(np.mean((x - x.mean()) * (y - y.mean()))), 0.0))
+            xs.append(x)
+            ys.append(y)
     out["pixels_both_halves"] = int(both.sum())
     if len(xs) == 2 and xs[0].size == xs[1].size:
         rng = np.random.default_rng([int(seed), 37])
