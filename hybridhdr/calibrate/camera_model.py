@@ -72,6 +72,8 @@ DEFAULT_INTENSITY_OFFSETS = (1e-3, 2e-3, 4e-3, 8e-3, 1.6e-2, 3.2e-2, 6.4e-2, 0.1
 I0_LIMITS = (1e-5, 8.0)
 #: Largest number of frame intervals used (evenly spread): bounds the work on long recordings.
 MAX_INTERVALS = 64
+#: Largest number of event-bearing pixel-intervals scored (an even random subset beyond it).
+MAX_PIXEL_INTERVALS = 200_000
 #: Steps of the time-offset grid across its span.
 N_OFFSETS = 41
 #: Grid widenings before a value on an edge is reported as such.
@@ -281,17 +283,33 @@ def _noise_rates(D, ints, i0, static_log_bound):
     return n_on / T, n_off / T, {**rec, "identifiable": True, "rate_on_hz": n_on / T, "rate_off_hz": n_off / T}
 
 
-def _collect(D, ints, i0s, d0, d1):
-    """Per interval: fixed pixels (well exposed, an event in the widest window) and their logs per I0."""
-    rows = []
+def _collect(D, ints, i0s, d0, d1, cap=None):
+    """Per interval: fixed pixels (well exposed, an event in the widest window) and their logs per I0.
+    More than ``cap`` (:data:`MAX_PIXEL_INTERVALS`) such pixel-intervals in all: an even random
+    subset of them (seeded by the data's size: same data, same subset), which bounds the work."""
+    cap = MAX_PIXEL_INTERVALS if cap is None else cap
+    idxs, goods = [], []
     for j in ints:
-        c0, g0 = D.frame(j)
-        c1, g1 = D.frame(j + 1)
+        _, g0 = D.frame(j)
+        _, g1 = D.frame(j + 1)
         good = g0 & g1
         a, b = np.searchsorted(D.t, [min(D.s[j], D.tau[j]) + d0, max(D.e[j + 1], D.tau[j + 1]) + d1])
         hit = np.zeros(D.n, bool)
         hit[D.pix[a:b]] = True
-        idx = np.flatnonzero(good & hit)
+        idxs.append(np.flatnonzero(good & hit))
+        goods.append(good)
+    total = sum(i.size for i in idxs)
+    if total > cap:
+        # the same fraction of every well-exposed pixel-interval, with or without events, so the noise
+        # moments (counts of pixel-intervals, Σ ΔL) stay those of the subset
+        rng = np.random.default_rng([len(ints), int(total), 38])
+        keep = [rng.random(D.n) < cap / total for _ in ints]
+        goods = [g & k for g, k in zip(goods, keep)]
+        idxs = [i[k[i]] for i, k in zip(idxs, keep)]
+    rows = []
+    for j, idx, good in zip(ints, idxs, goods):
+        c0, _ = D.frame(j)
+        c1, _ = D.frame(j + 1)
         I0_ = D.lut[c0[idx].astype(np.int64)] * D.scale[j]
         I1_ = D.lut[c1[idx].astype(np.int64)] * D.scale[j + 1]
         L0 = np.stack([np.log(I0_ + v) for v in i0s])
@@ -1026,3 +1044,102 @@ def simulate_quantiser_events(D, i0, c_on, c_off, *, sigma=(0.0, 0.0), latency_u
     ev["y"] = p_ // D.w
     ev["p"] = np.concatenate(pol) if pol else np.zeros(0, np.int8)
     return ev[np.argsort(ev["t"], kind="stable")]
+
+
+def plot_camera_model(recording, model: CameraModel, path, *, profile=None, title: str | None = None):
+    """PNG of the model: per intensity band (quartiles of the pixel-intervals' mean frame intensity)
+    the frames' log change against the change the events predict (c_on·N_on − c_off·N_off at the
+    chosen δ and I0, noise removed) with the identity line and the band's own least-squares
+    thresholds; the residuals; the criterion over (δ, I0) with the choice; every value with its
+    uncertainty."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+
+    from .._util.atomic import atomic_path
+
+    rec = recording
+    if isinstance(rec, (str, bytes)) or hasattr(rec, "__fspath__"):
+        from ..formats import read
+        rec = read(rec)
+    D = _Data(rec, profile, model.excluded_frames, None)
+    ints = D.covered(model.time_offset_us, model.time_offset_us)
+    if len(ints) > MAX_INTERVALS:
+        ints = [ints[i] for i in np.linspace(0, len(ints) - 1, MAX_INTERVALS).round().astype(int)]
+    d = int(model.time_offset_us)
+    rows = _collect(D, ints, (model.intensity_offset,), d, d)
+    r_on, r_off = model.noise.get("rate_on_hz", 0.0), model.noise.get("rate_off_hz", 0.0)
+    xs, ys, inten = [], [], []
+    for r in rows:
+        no, nf = D.weighted_counts(r["j"], d, r["idx"])
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        xs.append(model.c_on * (no - lo) - model.c_off * (nf - lf))
+        ys.append(r["L1"][0] - r["L0"][0])
+        inten.append(0.5 * (np.exp(r["L0"][0]) + np.exp(r["L1"][0])) - model.intensity_offset)
+    x = np.concatenate(xs) if xs else np.zeros(0)
+    y = np.concatenate(ys) if ys else np.zeros(0)
+    it = np.concatenate(inten) if inten else np.zeros(0)
+    edges = np.quantile(it, [0.25, 0.5, 0.75]) if it.size else np.zeros(3)
+    band = np.searchsorted(edges, it)
+    fig, axes = plt.subplots(2, 3, figsize=(13, 8), dpi=100)
+    lim = float(np.percentile(np.abs(np.concatenate([x, y])), 99.5)) * 1.1 if x.size else 1.0
+    bounds = [0.0, *edges.tolist(), float(it.max()) if it.size else 1.0]
+    for b in range(4):
+        ax = axes.flat[[0, 1, 3, 4][b]]
+        m = band == b
+        if m.sum():
+            ax.hexbin(x[m], y[m], gridsize=45, extent=(-lim, lim, -lim, lim), bins="log", cmap="viridis", mincnt=1)
+        ax.plot([-lim, lim], [-lim, lim], color="tab:red", lw=1.2, label="model (identity)")
+        cb = (model.bands or {}).get("bands_c") or []
+        ib = list((model.bands or {}).get("intensity_offsets") or [])
+        k = ib.index(model.intensity_offset) if model.intensity_offset in ib else None
+        extra = ""
+        if k is not None and k < len(cb) and b < len(cb[k]):
+            extra = f"\nthis band's own LS: ON {cb[k][b][0]:.3f}, OFF {cb[k][b][1]:.3f}"
+        ax.set_title(f"intensity {bounds[b]:.3g}-{bounds[b + 1]:.3g} (frame-linear), {int(m.sum())} "
+                     f"pixel-intervals{extra}", fontsize=8.5)
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_xlabel("events' predicted change c_on N_on - c_off N_off (ln)", fontsize=8)
+        ax.set_ylabel("frames' log change (ln)", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    ax = axes[0, 2]
+    res = y - x
+    if res.size:
+        ax.hist(np.clip(res, -lim, lim), bins=80, color="tab:gray")
+    ax.axvline(0, color="tab:red", lw=1)
+    ax.set_title(f"residuals: RMS {float(np.sqrt(np.mean(res ** 2))) if res.size else float('nan'):.3f} ln "
+                 f"(one threshold of quantisation at each end)", fontsize=8.5)
+    ax.set_xlabel("frames' log change - predicted (ln)", fontsize=8)
+    ax.set_ylabel("pixel-intervals", fontsize=8)
+    ax = axes[1, 2]
+    sg = np.array(model.score_grid, float)
+    if sg.size and np.isfinite(sg).any():
+        im = ax.imshow(sg.T, aspect="auto", origin="lower", cmap="magma_r",
+                       extent=(model.offsets_us[0] / 1e3, model.offsets_us[-1] / 1e3, -0.5, len(model.intensity_offsets) - 0.5))
+        fig.colorbar(im, ax=ax, label="cross-fitted RMS code error")
+        ii = list(model.intensity_offsets).index(model.intensity_offset) if model.intensity_offset in model.intensity_offsets else 0
+        ax.plot([model.time_offset_us / 1e3], [ii], "c*", ms=12, label=f"chosen: {model.time_offset_us} us")
+        yt = list(range(0, len(model.intensity_offsets), max(1, len(model.intensity_offsets) // 6)))
+        ax.set_yticks(yt)
+        ax.set_yticklabels([f"{model.intensity_offsets[i]:.2g}" for i in yt], fontsize=7)
+        ax.legend(fontsize=7, loc="upper right")
+    ax.set_xlabel("frame time offset (ms)", fontsize=8)
+    ax.set_ylabel("I0 (frame-linear)", fontsize=8)
+    sd_on = f" +- {model.c_on_std:.3f}" if model.c_on_std is not None else ""
+    sd_off = f" +- {model.c_off_std:.3f}" if model.c_off_std is not None else ""
+    sg_ = model.mismatch_sigma or {}
+    sig = ("sigma ON %.3f OFF %.3f" % (sg_["on"], sg_["off"])) if sg_.get("on") is not None else "sigma not identified"
+    lat = f"{model.latency_us} us" if model.latency_us is not None else "not identified"
+    ax.set_title(f"ON {model.c_on:.3f}{sd_on}, OFF {model.c_off:.3f}{sd_off} (ln), I0 {model.intensity_offset:.3g}\n"
+                 f"offset {model.time_offset_us} us, latency {lat}, {sig}", fontsize=8.5)
+    fig.suptitle(title or f"camera model: {model.n_pixel_intervals} event-bearing pixel-intervals in "
+                          f"{model.n_intervals} frame intervals", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path

@@ -108,7 +108,8 @@ def isi_lower_edge(isi_us, weights=None, *, noise_rate_hz: float = 0.0, quantile
 def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float | None = None, well_exposed=None,
                             static_log_bound: float = 0.02, isi_quantile: float = 1e-3, n_boot: int = 200,
                             seed: int = 0, min_intervals: int = 2, min_decorrelation: float = 0.05,
-                            c_range=(0.01, 2.0), name: str = "", sensor_model: str = "") -> SensorProfile:
+                            c_range=(0.01, 2.0), name: str = "", sensor_model: str = "",
+                            keep_model: bool = False) -> SensorProfile:
     """Estimate the event-sensor parameters of ``recording`` (module docstring).
 
     Parameters
@@ -334,7 +335,10 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
             "isi_quantile": isi_quantile}
     sensor = {"model": sensor_model, "width": int(ss.width if ss is not None else w),
               "height": int(ss.height if ss is not None else h)}
-    return SensorProfile(simulator_params=sim, estimates=est, name=name, sensor=sensor, provenance=prov)
+    out = SensorProfile(simulator_params=sim, estimates=est, name=name, sensor=sensor, provenance=prov)
+    if m is not None and keep_model:
+        out.provenance["_model"] = m  # for the plot; the CLI takes it out before writing
+    return out
 
 
 def _f(v):
