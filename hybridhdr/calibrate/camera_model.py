@@ -247,9 +247,15 @@ class _Data:
         return non[idx], noff[idx]
 
 
+_MIDS: dict = {}
+
+
 def _codes_of(lut, x):
     """Nearest code of intensities x under the inverse-CRF table lut (monotone)."""
-    mids = 0.5 * (lut[1:] + lut[:-1])
+    key = (lut.size, float(lut[1]), float(lut[-2]))
+    mids = _MIDS.get(key)
+    if mids is None:
+        mids = _MIDS[key] = 0.5 * (lut[1:] + lut[:-1])
     return np.searchsorted(mids, x).astype(np.float64)
 
 
@@ -449,18 +455,24 @@ def _refine_exposure(D, rows, d, i0s, ii, c, lam_on, lam_off, iters=4):
         bins = np.clip((tt * M).astype(np.int64), 0, M - 1)
         sub[k] = (bins, D.pix[a:b], D.on[a:b], (D.tau[k] - s) / (e - s))
     con, coff = c
+    # only pixels with events inside an exposure have B != 0: work on those (compact index)
+    compact = {k: (bins, *np.unique(p_, return_inverse=True), o_, mid) for k, (bins, p_, o_, mid) in sub.items()}
     for _ in range(iters):
         B = {}
-        for k, (bins, p_, o_, mid) in sub.items():
-            inc = np.zeros((M, D.n))
-            np.add.at(inc, (bins, p_), np.where(o_, con, -coff))
+        for k, (bins, u, inv, o_, mid) in compact.items():
+            if not u.size:
+                continue
+            inc = np.zeros((M, u.size))
+            np.add.at(inc, (bins, inv), np.where(o_, con, -coff))
             cum = np.cumsum(inc, 0) - 0.5 * inc
             # E relative to τ_k: the cumulative at the mid-exposure (interpolated between sub-bins)
             pos = mid * M - 0.5
             i_ = int(np.clip(math.floor(pos), 0, M - 2))
             fr_ = float(np.clip(pos - i_, 0.0, 1.0))
             ref = (1 - fr_) * cum[i_] + fr_ * cum[i_ + 1]
-            B[k] = np.log(np.exp(cum - ref).mean(0))
+            full = np.zeros(D.n)
+            full[u] = np.log(np.exp(cum - ref).mean(0))
+            B[k] = full
         rows_b = []
         for r in rows:
             bb = B.get(r["j"] + 1, 0.0)
