@@ -147,8 +147,27 @@ def _f(v):
 
 
 def _nnls2(soo, sff, sof, bo, bf):
-    from .thresholds import _nnls2 as f
-    return f(soo, sff, sof, bo, bf)
+    """Exact 2-variable NNLS of Σ(ΔL − a·N_on + b·N_off)² from its sums (vectorised).
+
+    Sums: soo = ΣN_on², sff = ΣN_off², sof = ΣN_on·N_off, bo = ΣN_on·ΔL, bf = ΣN_off·ΔL.
+    Returns (a, b) >= 0 (0 where a sum is empty).
+    """
+    soo, sff, sof, bo, bf = (np.asarray(v, np.float64) for v in (soo, sff, sof, bo, bf))
+    det = soo * sff - sof * sof
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(det > 0, (sff * bo - sof * bf) / det, -1.0)
+        b = np.where(det > 0, (sof * bo - soo * bf) / det, -1.0)
+        # boundary candidates: b = 0 -> a = bo/soo; a = 0 -> b = -bf/sff
+        a1 = np.where(soo > 0, np.maximum(bo / soo, 0.0), 0.0)
+        b2 = np.where(sff > 0, np.maximum(-bf / sff, 0.0), 0.0)
+    # objective minus the constant ΣΔL²: f(a, b) = soo a² + sff b² − 2 sof a b − 2 bo a + 2 bf b
+    f1 = soo * a1 ** 2 - 2 * bo * a1
+    f2 = sff * b2 ** 2 + 2 * bf * b2
+    inner = (a >= 0) & (b >= 0) & (det > 0)
+    use1 = f1 <= f2
+    a_out = np.where(inner, a, np.where(use1, a1, 0.0))
+    b_out = np.where(inner, b, np.where(use1, 0.0, b2))
+    return a_out, b_out
 
 
 def _geom_grid(values):
