@@ -1,6 +1,7 @@
 # Two commands set everything up on a fresh machine:
 #   make demo   - create .venv, install hybridhdr[demo] (no PyTorch), run the main job on a built-in default
 #   make test   - create .venv, install with test extras (CPU PyTorch), run the test suite
+#   make test-fast - the same without the tests marked slow (the local loop; make test runs everything)
 # Both install the exact versions of constraints/ci.txt (`make constraints` regenerates it).
 PYTHON ?= python3
 VENV ?= .venv
@@ -12,7 +13,7 @@ CONSTRAINTS ?= constraints/ci.txt
 TORCH_INDEX ?= https://download.pytorch.org/whl/cpu
 PIPC := $(PIP) install --quiet -c $(CONSTRAINTS)
 
-.PHONY: demo test venv install install-test bench clean constraints
+.PHONY: demo test test-fast venv install install-test bench clean constraints
 
 $(VENV)/.created:
 	$(PYTHON) -m venv $(VENV)
@@ -43,6 +44,9 @@ demo: $(VENV)/.installed
 
 test: $(VENV)/.installed-test
 	$(PY) -m pytest -q
+
+test-fast: $(VENV)/.installed-test
+	$(PY) -m pytest -q -m "not slow"
 
 bench: $(VENV)/.installed-test
 	for b in benchmarks/*.py; do $(PY) $$b --quick || exit 1; done

@@ -69,13 +69,14 @@ def _recording(t, x, y, p, frames, shape):
 def _make_engine_factory(shape, method="akf", params=None):
     """Engines as ``reconstruct`` builds them (measurements from the frames, built-in profile)."""
     from hybridhdr.camera.profile import load_profile
-    from hybridhdr.reconstruct.api import _build_engine, make_params
+    from hybridhdr.reconstruct.api import ReconstructRequest, engine_for, make_params
     p = make_params(method, params)
     prof = load_profile(None)
 
     def make(fr, ev, backward, n_workers=1):
         pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
-        return _build_engine(method, pp, shape, fr, "forward", prof, 1, None, events=ev, device="cuda")[0]
+        req = ReconstructRequest.build(method, pp, mode="forward", profile=prof, device="cuda")
+        return engine_for(req, shape, fr, ev)
     return make, p
 
 

@@ -22,21 +22,6 @@ from .reconstruct import cli as reconstruct_cli
 from .simulate import cli as simulate_cli
 
 
-def _pooled_thresholds(recording, **kw):
-    """``reconstruct --contrast-threshold auto``: calibrate's pooled estimate (imported when used)."""
-    from .calibrate.thresholds import pooled_thresholds
-    return pooled_thresholds(recording, **kw)
-
-
-def _self_calibration(recording, **kw):
-    """``reconstruct --thresholds selfcal``: calibrate's event/frame self-calibration (imported when used)."""
-    from .calibrate.selfcal import self_calibration
-    return self_calibration(recording, **kw)
-
-
-reconstruct_cli.set_threshold_estimator(_pooled_thresholds)
-reconstruct_cli.set_self_calibrator(_self_calibration)
-
 #: The five parts' subcommands, in the order ``--help`` lists them.
 PART_CLIS = (capture_cli, calibrate_cli, simulate_cli, reconstruct_cli, evaluate_cli)
 

@@ -131,6 +131,17 @@ class Frames:
         return Frames(self.images[idx], self.t_start_us[idx], self.t_end_us[idx],
                       sel(self.gain), sel(self.iso), self.encoding)
 
+    def shifted(self, dt_us: int) -> "Frames":
+        """These frames with every exposure interval moved by ``dt_us`` µs (images untouched): the
+        time a frame stands for when its stamps mean something else (a calibrated frame time
+        offset). ``dt_us == 0`` returns the frames themselves."""
+        if isinstance(dt_us, bool) or not isinstance(dt_us, (int, np.integer)):
+            raise TypeError(f"dt_us must be an int (µs), got {type(dt_us).__name__}")
+        dt = int(dt_us)
+        if dt == 0:
+            return self
+        return dataclasses.replace(self, t_start_us=self.t_start_us + dt, t_end_us=self.t_end_us + dt)
+
     def slice_time(self, t_start_us=None, t_end_us=None) -> "Frames":
         """Frames whose mid-exposure time lies in ``[t_start_us, t_end_us)``."""
         i0, i1 = time_window_indices(self.t_mid_us, t_start_us, t_end_us)

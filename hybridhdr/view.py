@@ -159,7 +159,7 @@ def _events_only_run(folder: Path) -> bool:
         method = json.loads((folder / "run.json").read_text(encoding="utf-8")).get("method")
     except (OSError, ValueError, AttributeError):
         return False
-    return method in METHODS and not METHODS[method][1]
+    return method in METHODS and METHODS[method].events_only
 
 
 # -- the clip -------------------------------------------------------------------------------------

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from hybridhdr._util.cliargs import DEFAULT_THRESHOLDS, THRESHOLD_WORDS, thresholds_arg
+from hybridhdr.calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_WORDS, thresholds_arg
 from hybridhdr.cli import build_parser, main
 
 #: verbs x shared flags: which verb takes which flag (every verb that reads a recording file takes

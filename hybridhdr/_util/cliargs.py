@@ -186,41 +186,6 @@ def add_format_arg(parser, *, dest: str = "format", what: str = "input format") 
                         help=f"{what} (default: detected from the file; --from is a deprecated alias)")
 
 
-#: ``--thresholds`` when it is not given (and no threshold is given on the command line), in
-#: ``reconstruct``, ``evaluate holdout`` and ``evaluate overexpose`` alike: the one real-data
-#: default. "selfcal": a recording that declares no thresholds (nor stores a map) is self-calibrated
-#: from its frames and events (issue 28: it never made a suite worse); one that declares them keeps
-#: them ("input").
-DEFAULT_THRESHOLDS = "selfcal"
-
-#: The words ``--thresholds`` takes besides a FILE (:func:`thresholds_arg`).
-THRESHOLD_WORDS = ("auto", "input", "params", "selfcal")
-
-THRESHOLDS_HELP = ("contrast thresholds: FILE = a per-pixel ON/OFF map (.npz from 'hybridhdr calibrate "
-                   "thresholds'); auto = one ON and one OFF threshold estimated from the recording's frames and "
-                   "events (least squares of the frames' log changes on the event counts); input = what the "
-                   "recording declares (a map stored in it, else its event camera's nominal ON/OFF; the "
-                   "method's own parameters when it declares none, and the output says so); params = the "
-                   "method's own parameters (--contrast-threshold, --set, --config/--params, else its default); "
-                   "selfcal = the event/frame self-calibration of a recording that declares none (the time each "
-                   "frame stands for, ON/OFF thresholds and the AKF's log offset, estimated from the recording's "
-                   "frames and events; docs/calibrate.md), input for a recording that declares them "
-                   f"[default: {DEFAULT_THRESHOLDS}, or params when a threshold is given on the command line]")
-
-
-def thresholds_arg(text):
-    """``--thresholds``: one of :data:`THRESHOLD_WORDS`, else the path of a threshold map file."""
-    from pathlib import Path
-    t = str(text).strip()
-    if t.lower() in THRESHOLD_WORDS:
-        return t.lower()
-    if not t:
-        raise argparse.ArgumentTypeError(f"expected FILE, {', '.join(THRESHOLD_WORDS)}, got {text!r}")
-    return Path(t)
-
-
-
-
 # -- CLI wording of library messages -------------------------------------------------------------
 
 _PY_TO_CLI = {"method": "--method", "mode": "--mode", "fps": "--fps", "times_us": "--times-us",

@@ -58,7 +58,7 @@ import numpy as np
 
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
-from ..reconstruct.measurement import frames_to_codes
+from ..camera.encoding import frames_to_codes
 
 __all__ = ["CameraModel", "estimate_camera_model", "DEFAULT_INTENSITY_OFFSETS", "SCHEMA", "GridEdgeWarning",
            "shrink_per_pixel"]
@@ -656,7 +656,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             raise ValueError(f"the camera model's corrected thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside "
                              f"c_range {tuple(c_range)}: the recording has too little usable information")
     a0 = int(np.argmin(np.abs(np.asarray(offs))))
-    from ..reconstruct.params import DEFAULT_INTENSITY_OFFSET
+    from ..camera.encoding import DEFAULT_INTENSITY_OFFSET
     i_def = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(DEFAULT_INTENSITY_OFFSET))))
     r2 = _r2(D, rows, d, ii, r_on, r_off)
     r2_nominal = _r2(D, rows, int(offs[a0]), i_def, r_on, r_off)

@@ -39,7 +39,7 @@ import numpy as np
 from .._util.checks import check_range
 from ..model import Frames
 
-__all__ = ["WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
+__all__ = ["DEFAULT_INTENSITY_OFFSET", "frames_to_codes", "WELL_EXPOSED_8BIT", "well_exposed_range", "ENCODING_CHOICES", "LUMINANCE_WEIGHTS", "DISPLAY_GAMMA", "parse_frame_encoding", "decode",
            "encode", "inverse_crf_table", "to_luminance", "luminance_frames", "with_encoding"]
 
 #: Command-line names of the declarable encodings (``--frame-encoding``).
@@ -284,3 +284,28 @@ def well_exposed_range(max_code: int, codes_8bit=WELL_EXPOSED_8BIT) -> tuple[int
     range scaled by ``max_code / 255`` (lo rounded up, hi rounded down)."""
     s = int(max_code) / 255.0
     return int(math.ceil(codes_8bit[0] * s - 1e-9)), int(math.floor(codes_8bit[1] * s + 1e-9))
+
+
+#: I0 of eq. 8, in frame-linear units (1 = the frame camera's clip level): the offset of the log
+#: model ln(I + I0) that the filters and the calibrations share.
+#: Events measure changes of log I (up to the photoreceptor's dark current, which is small in
+#: these units), so the filter's state log(I + I0) must have a small I0: with the reference
+#: code's I0 = 1 a dark pixel's change is compressed by I/(I + 1), thresholds calibrated through
+#: it come out too small and exp(L̂) - 1 goes negative. 1e-3 (60 dB below the clip level) keeps
+#: the state within a few per cent of log I down to I = 0.03 and stays above the frames'
+#: quantisation noise there; the paper gives no value, the reference code's I0 = 1 is in
+#: :meth:`hybridhdr.reconstruct.AKFParams.reference_code` and ``AKFParams.paper``.
+DEFAULT_INTENSITY_OFFSET = 1e-3
+
+
+def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
+    """Frame images as codes (K, H, W); colour frames become luminance codes of the same
+    encoding with the Rec. 709 weights (:func:`to_luminance`, applied to linear RGB), rounded to
+    the nearest code for integer frames."""
+    im = frames.images
+    if im.ndim == 4:
+        im = to_luminance(im, frames.encoding, dtype=im.dtype)
+    if tuple(im.shape[1:3]) != tuple(sensor_shape):
+        raise ValueError(f"frame size {im.shape[1:3]} (H, W) differs from the event sensor size "
+                         f"{tuple(sensor_shape)}; frames and events must be registered")
+    return im

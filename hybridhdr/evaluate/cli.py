@@ -7,8 +7,9 @@ import os
 import sys
 from pathlib import Path
 
-from .._util.cliargs import (DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, add_format_arg, json_command,
-                             json_output, nonneg_int, positive_float, thresholds_arg, worker_count)
+from .._util.cliargs import (HelpFormatter, add_format_arg, json_command, json_output, nonneg_int, positive_float,
+                             worker_count)
+from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_WORDS, THRESHOLDS_HELP, thresholds_arg
 
 
 def add_parser(sub) -> None:
@@ -148,7 +149,7 @@ def add_parser(sub) -> None:
                    help="parameters (TOML) of one method, by method name or label (akf_causal); repeatable")
     o.add_argument("--contrast-threshold", type=positive_float, default=None,
                    help="contrast threshold c (log units) for every event method")
-    o.add_argument("--thresholds", choices=["auto", "input", "params", "selfcal"], default=None,
+    o.add_argument("--thresholds", choices=list(THRESHOLD_WORDS), default=None,
                    help="contrast thresholds, as reconstruct's --thresholds words: selfcal = the event/frame "
                         "self-calibration of the over-exposed input without the scored frame; auto = pooled ON/OFF "
                         "thresholds estimated in the method's log model on that input; input = what the recording "

@@ -107,7 +107,7 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
     specs, skipped = [], {}
     for m in methods:
         m = resolve_method(m)
-        if not RECON_METHODS[m][1]:
+        if not RECON_METHODS[m].needs_frames:
             raise ValueError(f"method {m!r} takes no frames; overexpose scores methods that complete clipped "
                              f"frames: {', '.join(FRAME_METHODS)}")
         if m in ("frames_zoh", "frames_linear"):
@@ -126,8 +126,8 @@ def default_specs(methods=FRAME_METHODS, modes=("offline", "causal"), params: di
 
 def _frames_profile(rec, profile):
     if profile is None:
-        from ..reconstruct.api import _source_profile
-        profile = _source_profile(rec)
+        from ..reconstruct.api import source_profile
+        profile = source_profile(rec)
     return profile_for_frames(load_profile(profile), rec.frames)
 
 

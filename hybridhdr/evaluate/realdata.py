@@ -52,14 +52,15 @@ import time
 
 import numpy as np
 
-from ..calibrate.thresholds import estimate_thresholds
+from ..calibrate.resolve import (THRESHOLD_KEYS, THRESHOLD_WORDS, recording_declares_thresholds,
+                                 resolve_thresholds)
 from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
 from ..events import slice_time
 from ..model import Recording
 from ..reconstruct import reconstruct
-from ..reconstruct.api import make_params, resolve_method
-from ..reconstruct.measurement import frames_to_codes
+from ..reconstruct.methods import make_params, methods_with, resolve_method
+from ..camera.encoding import frames_to_codes
 from .metrics import DEFAULT_CLIP, ssim_map
 
 __all__ = ["TASKS", "HoldoutSpec", "BASELINES", "default_held_frames", "holdout_input", "holdout_reconstructions",
@@ -135,35 +136,28 @@ def _luminance(frame):
 
 
 #: Methods whose events are scaled by contrast thresholds (``thresholds="auto"`` calibrates them).
-THRESHOLD_METHODS = ("akf", "cf", "direct", "highpass")
+THRESHOLD_METHODS = methods_with(takes_thresholds=True)
 
-#: Values of ``thresholds`` besides a per-pixel map (a ThresholdMap or a path to one): the methods'
-#: own (``"params"``), estimated on each input (``"auto"``), what the recording declares
-#: (``"input"``: its stored map or its event camera's nominal ON/OFF, else the method's own), or the
-#: event/frame self-calibration of each input (``"selfcal"``: frame time offset, thresholds and the
-#: AKF's log offset, :mod:`hybridhdr.calibrate.selfcal`).
-THRESHOLD_SOURCES = ("params", "auto", "input", "selfcal")
-
-#: Parameter names that state contrast thresholds.
-_THRESHOLD_KEYS = ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off")
+#: Values of ``thresholds`` besides a per-pixel map (a ThresholdMap or a path to one): the words of
+#: :func:`hybridhdr.calibrate.resolve.resolve_thresholds` (``"params"``: the methods' own;
+#: ``"auto"``: estimated on each input; ``"input"``: what the recording declares, else the
+#: method's own; ``"selfcal"``: the event/frame self-calibration of each input).
+THRESHOLD_SOURCES = THRESHOLD_WORDS
 
 
 def default_threshold_source(rec) -> str:
     """What the command line's default (``--thresholds``' :data:`DEFAULT_THRESHOLDS`, "selfcal")
     means on ``rec``: ``"selfcal"`` for a recording that declares no contrast thresholds and stores
     no map, else ``"input"`` (the declared ones)."""
-    from ..reconstruct.api import _declared_thresholds
-    declared = _declared_thresholds(rec) is not None or getattr(rec, "thresholds", None) is not None
-    return "input" if declared else "selfcal"
+    return "input" if recording_declares_thresholds(rec) else "selfcal"
 
 
 def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
     """``(params, time_offset_us, used)``: ``params`` of ``method`` with the self-calibration of
-    ``rec_input`` (:func:`hybridhdr.calibrate.selfcal.self_calibration`): the AKF takes the
-    calibrated log offset I0 and thresholds, CF and direct integration thresholds re-fitted in their
-    own log model; every frame-using method takes the frame time offset. Inputs without the
-    information keep ``params`` and no offset (recorded in ``used``)."""
-    from ..calibrate.selfcal import self_calibration
+    ``rec_input`` (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"selfcal"``): the AKF
+    takes the calibrated log offset I0 and thresholds, CF and direct integration thresholds
+    re-fitted in their own log model; every frame-using method takes the frame time offset. Inputs
+    without the information keep ``params`` and no offset (recorded in ``used``)."""
     m = resolve_method(method)
     p = make_params(m, params)
     cache = {} if cache is None else cache
@@ -172,27 +166,25 @@ def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict 
     own_i0 = None if m == "akf" or not hasattr(p, "intensity_offset") else float(p.intensity_offset)
     if own_i0 not in cache:
         try:
-            cache[own_i0] = self_calibration(rec_input, profile=profile, intensity_offset=own_i0)
+            cache[own_i0] = resolve_thresholds(rec_input, "selfcal", intensity_offset=own_i0, profile=profile)
         except ValueError as e:
             cache[own_i0] = str(e)[:200]
-    cal = cache[own_i0]
-    if isinstance(cal, str):
-        return params, 0, {"source": "params", "why": cal}
-    used = {"source": "selfcal", **{k: v for k, v in cal.items() if k != "calibration"}}
+    got = cache[own_i0]
+    if isinstance(got, str):
+        return params, 0, {"source": "params", "why": got}
+    used = {"source": "selfcal", **{k: v for k, v in got.record.items() if k != "calibration"}}
     if m in THRESHOLD_METHODS:
-        over = {"contrast_threshold_on": cal["c_on"], "contrast_threshold_off": cal["c_off"]}
-        if m == "akf":
-            over["intensity_offset"] = cal["intensity_offset"]
-        p = p.replace(**over)
-    return p, int(cal["time_offset_us"]), used
+        p = p.replace(**got.overrides())
+    return p, got.frame_time_offset_us, used
 
 
 def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
     """``(params, used)``: ``params`` of ``method`` with pooled ON/OFF thresholds estimated on
-    ``rec_input`` in the method's own log model (module docstring), and a record of what was used.
-    Methods without thresholds, and inputs without the information, keep ``params``. ``cache``
-    (a dict kept for one ``rec_input``) holds the estimate per log model, so methods sharing an
-    intensity offset estimate it once."""
+    ``rec_input`` in the method's own log model (module docstring; :func:`hybridhdr.calibrate.
+    resolve.resolve_thresholds`, ``"auto"``), and a record of what was used. Methods without
+    thresholds, and inputs without the information, keep ``params``. ``cache`` (a dict kept for
+    one ``rec_input``) holds the estimate per log model, so methods sharing an intensity offset
+    estimate it once."""
     m = resolve_method(method)
     if m not in THRESHOLD_METHODS:
         return params, None
@@ -203,16 +195,15 @@ def input_thresholds(rec_input, method: str, params, profile=None, *, cache: dic
     cache = {} if cache is None else cache
     if i0 not in cache:
         try:
-            tm = estimate_thresholds(rec_input, profile=profile, intensity_offset=i0)
-            cache[i0] = (float(tm.fallback_on), float(tm.fallback_off), int(tm.provenance["intervals_used"]))
+            cache[i0] = resolve_thresholds(rec_input, "auto", intensity_offset=i0, profile=profile)
         except ValueError as e:  # too little information in this input: the method's own thresholds
             cache[i0] = str(e)[:200]
-    est = cache[i0]
-    if isinstance(est, str):
-        return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": est}
-    c_on, c_off, intervals = est
-    return (p.replace(contrast_threshold_on=c_on, contrast_threshold_off=c_off),
-            {"source": "auto", "c_on": c_on, "c_off": c_off, "intensity_offset": i0, "intervals": intervals})
+    got = cache[i0]
+    if isinstance(got, str):
+        return p, {"source": "params", "c_on": float(p.c_on), "c_off": float(p.c_off), "why": got}
+    return (p.replace(**got.overrides()),
+            {"source": "auto", "c_on": got.c_on, "c_off": got.c_off, "intensity_offset": i0,
+             "intervals": got.record["intervals"]})
 
 
 def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=None, thresholds: str = "params") -> dict:
@@ -254,7 +245,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     # the recording's declared thresholds: the API applies them when the params state none
                     if params is not None:
                         params = {k: v for k, v in make_params(resolve_method(s.method), params).to_dict().items()
-                                  if k not in _THRESHOLD_KEYS}
+                                  if k not in THRESHOLD_KEYS}
                     kw["_record_input"] = True
                 dt = 0
                 if thresholds == "selfcal" and s.method not in ("frames_zoh", "frames_linear"):
@@ -295,8 +286,8 @@ def reference_frames(rec, held, profile=None, well_exposed=None):
     held-out frames: the profile's ``CRF⁻¹(code)`` and the well-exposed codes."""
     fr = _trimmed_frames(rec)
     if profile is None:
-        from ..reconstruct.api import _source_profile
-        profile = _source_profile(rec)
+        from ..reconstruct.api import source_profile
+        profile = source_profile(rec)
     prof = profile_for_frames(load_profile(profile), fr)
     lo, hi = well_exposed_range(prof.max_code) if well_exposed is None else tuple(int(v) for v in well_exposed)
     sel = fr.select(np.asarray(held, np.int64))

@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
-import dataclasses
-import math
+import contextlib
+import itertools
 import os
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
@@ -12,42 +12,26 @@ import numpy as np
 
 from .._util import phases as PH
 from .._util.checks import check_shape
-from .._util.limits import check_fps_outputs, check_output_count, check_sensor_size
+from .._util.limits import check_fps_outputs, check_sensor_size
+from ..calibrate.resolve import resolve_thresholds
 from ..camera import CameraProfile
 from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
 from ..model import Frames, Recording
 from . import _engine as E
-from .augment import AugmentedMeasurements, AugmentParams
+from .augment import AugmentedMeasurements
 from .colour import _metadata, colour_source, rgb_to_luminance
-from .edi import EDIEngine, EDIParams
+from .edi import EDIEngine
 from .event_arrays import EventArrays, StreamingEventArrays
-from .learned.params import E2VIDParams, FireNetParams
 from .measurement import FrameMeasurements
-from .params import AKFParams, CFParams, DirectParams, FramesParams, HighPassParams
-from .cuda import resolve_device
+from .methods import (METHOD_ALIASES, METHODS, MODES, MethodSpec, make_augment_params, make_params, method_spec,
+                      resolve_method)
+from .request import ReconstructRequest, host_workers
 from .smoother import output_times, two_sided_iter
 
-__all__ = ["Video", "METHODS", "METHOD_ALIASES", "reconstruct", "reconstruct_iter", "resolve_method",
-           "make_params", "make_augment_params"]
-
-#: method name -> (Params class, needs frames, uses events, one-line description)
-METHODS: dict[str, tuple[type, bool, bool, str]] = {
-    "akf": (AKFParams, True, True, "Asynchronous Kalman Filter (Wang et al., ICCV 2021)"),
-    "cf": (CFParams, True, True, "complementary filter, fixed or HDR-adaptive gain (Scheerlinck et al., ACCV 2018)"),
-    "highpass": (HighPassParams, False, True, "high-pass filter on events only (CF with zero frame input)"),
-    "direct": (DirectParams, True, True, "direct integration of events onto the last frame"),
-    "frames_zoh": (FramesParams, True, False, "frames only, zero-order hold"),
-    "frames_linear": (FramesParams, True, False, "frames only, linear interpolation in intensity"),
-    "edi": (EDIParams, True, True, "EDI deblurring: high-rate video from each blurred frame and its events "
-                                   "(Pan et al., CVPR 2019)"),
-    "e2vid": (E2VIDParams, False, True, "E2VID recurrent UNet on event voxel grids, events only, released "
-                                        "weights (Rebecq et al., TPAMI 2019)"),
-    "firenet": (FireNetParams, False, True, "FireNet light recurrent network, events only, released weights "
-                                            "(Scheerlinck et al., WACV 2020)"),
-}
-METHOD_ALIASES = {"hpf": "highpass", "frames": "frames_zoh"}
-MODES = ("offline", "causal", "forward")
+__all__ = ["Video", "METHODS", "METHOD_ALIASES", "MODES", "MethodSpec", "reconstruct", "reconstruct_iter",
+           "resolve_method", "method_spec", "make_params", "make_augment_params", "source_profile",
+           "engine_for", "ReconstructRequest"]
 
 
 @dataclass(frozen=True, eq=False)
@@ -103,46 +87,7 @@ class Video:
         return rgb_to_luminance(self.frames)
 
 
-def resolve_method(method: str) -> str:
-    if not isinstance(method, str):
-        raise TypeError(f"method must be a str, got {type(method).__name__}")
-    m = METHOD_ALIASES.get(method, method)
-    if m not in METHODS:
-        raise ValueError(f"unknown method {method!r}; expected one of {sorted(METHODS) + sorted(METHOD_ALIASES)}")
-    return m
-
-
-def make_params(method: str, params=None):
-    """Params for ``method`` from None (defaults), a dict, a TOML path or a Params instance."""
-    method = resolve_method(method)
-    cls = METHODS[method][0]
-    if params is None:
-        p = cls()
-    elif isinstance(params, cls):
-        p = params
-    elif isinstance(params, dict):
-        p = cls.from_dict(params)
-    elif isinstance(params, (str, os.PathLike)):
-        p = cls.from_toml(params)
-    else:
-        raise TypeError(f"params for method {method!r} must be {cls.__name__}, a dict, a TOML path or None, "
-                        f"got {type(params).__name__}")
-    if method == "frames_linear" and p.interpolation != "linear":
-        p = p.replace(interpolation="linear")
-    if method == "frames_zoh" and p.interpolation != "zoh":
-        p = p.replace(interpolation="zoh")
-    return p
-
-
 # -- sources ------------------------------------------------------------------------------------
-
-def _host_workers(device: str, n_workers) -> int:
-    """Threads for the host-side work around the filter (column split, output collection): the
-    ``n_workers`` asked for on the CPU; on the GPU, where the filter needs no host thread, at
-    least the machine's cores (up to 16). Thread counts never change a result's bits."""
-    n = int(n_workers)
-    return n if device != "cuda" else max(n, min(os.cpu_count() or 1, 16))
-
 
 def _open_source(source, n_workers: int = 1):
     """(sensor_size, frames, chunk iterator factory, closer, declared event count or None, the
@@ -211,15 +156,12 @@ def _record_columns(ev, n_workers: int = 1):
     n = ev.shape[0]
     if ev.dtype != EVENT_DTYPE or not ev.flags.c_contiguous:
         return events_fields(ev)
-    tm = PH.ACTIVE
-    c0 = PH.now() if tm is not None else 0
     t = np.empty(n, np.int64)
     x = np.empty(n, np.uint16)
     y = np.empty(n, np.uint16)
     p = np.empty(n, np.int8)
-    map_ranges(n, n_workers, lambda i0, i1: split_range(ev, i0, i1, t, x, y, p))
-    if tm is not None:
-        tm.add("read_split", c0, "parallel")  # split over the workers, in the driving thread
+    with _phase("read_split", "parallel"):  # split over the workers, in the driving thread
+        map_ranges(n, n_workers, lambda i0, i1: split_range(ev, i0, i1, t, x, y, p))
     return t, x, y, p
 
 
@@ -231,7 +173,7 @@ def _declared_event_count(source) -> int | None:
     return int(n) if isinstance(n, (int, np.integer)) and not isinstance(n, bool) and n >= 0 else None
 
 
-def _source_profile(source):
+def source_profile(source):
     """The camera profile a source declares (``metadata.provenance["camera_profile"]``, e.g. an
     AKF ``.mat`` file's ``f_Q`` table), or None."""
     prov = getattr(_metadata(source), "provenance", None)
@@ -265,59 +207,6 @@ def _time_span_us(source, frames) -> tuple[int, int] | None:
     return None if lo is None else (lo, hi)
 
 
-def _stored_thresholds(source):
-    """The threshold map an opened container source stores (``/thresholds``), or None."""
-    fn = getattr(source, "read_thresholds", None)
-    return fn() if callable(fn) else None
-
-
-def _thresholds_unset(params) -> bool:
-    """True when ``params`` (None or a dict) gives no contrast threshold: the recording's declared
-    ones may then be used. A Params instance or a TOML file counts as set."""
-    if params is None:
-        return True
-    if isinstance(params, dict):
-        return not any(k in params for k in ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off"))
-    return False
-
-
-def _declared_thresholds(source) -> tuple[float, float] | None:
-    """The event sensor's nominal (ON, OFF) thresholds a source's metadata states, or None."""
-    md = _metadata(source)
-    got = getattr(getattr(md, "event_camera", None), "contrast_thresholds", None)
-    if got is None:  # recordings simulated before CameraInfo stated them keep the sensor in provenance
-        prov = getattr(md, "provenance", None) or {}
-        sensor = prov.get("sensor") if prov.get("generator") == "hybridhdr.simulate" else None
-        if isinstance(sensor, dict):
-            on, off = sensor.get("contrast_threshold_on"), sensor.get("contrast_threshold_off")
-            if all(isinstance(v, (int, float)) and not isinstance(v, bool) and math.isfinite(v) and v > 0
-                   for v in (on, off)):
-                got = (float(on), float(off))
-    return got
-
-
-def _threshold_arrays(thresholds):
-    """(c_on, c_off) arrays of a threshold map (an object with ``c_on``/``c_off`` arrays, a dict,
-    a ``(c_on, c_off)`` pair or a path that :func:`hybridhdr.formats.thresholds.load_thresholds`
-    reads), or None."""
-    if thresholds is None:
-        return None
-    if isinstance(thresholds, (str, os.PathLike)):
-        from ..formats.thresholds import load_thresholds
-        thresholds = load_thresholds(thresholds)
-    if hasattr(thresholds, "filled"):  # a ThresholdMap: pixels it could not estimate take its fallbacks
-        c_on, c_off = thresholds.filled()
-        return np.asarray(c_on), np.asarray(c_off)
-    if isinstance(thresholds, dict):
-        return np.asarray(thresholds["c_on"]), np.asarray(thresholds["c_off"])
-    if hasattr(thresholds, "c_on") and hasattr(thresholds, "c_off"):
-        return np.asarray(thresholds.c_on), np.asarray(thresholds.c_off)
-    if isinstance(thresholds, (tuple, list)) and len(thresholds) == 2:
-        return np.asarray(thresholds[0]), np.asarray(thresholds[1])
-    raise TypeError(f"thresholds must be a threshold map (c_on, c_off arrays), a dict, a pair or a path, "
-                    f"got {type(thresholds).__name__}")
-
-
 def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
     if ss is not None:
         return ss.shape
@@ -326,31 +215,132 @@ def _sensor_shape(ss, frames: Frames | None) -> tuple[int, int]:
     raise ValueError("cannot tell the sensor size: the source has no sensor_size and no frames")
 
 
-def make_augment_params(augment) -> AugmentParams:
-    """AugmentParams from None/True (defaults), False (off), a dict, a TOML path or an instance."""
-    if augment is None:
-        return AugmentParams()  # off: the default measurement carries frames forward with events
-    if augment is True:
-        return AugmentParams(enabled=True)
-    if augment is False:
-        return AugmentParams.off()
-    if isinstance(augment, AugmentParams):
-        return augment
-    if isinstance(augment, dict):
-        return AugmentParams.from_dict({"enabled": True, **augment})
-    if isinstance(augment, (str, os.PathLike)):
-        from .._util.toml import load_toml
-        d = load_toml(augment)
-        d = d["augment"] if isinstance(d.get("augment"), dict) else d
-        return AugmentParams.from_dict({"enabled": True, **{k: v for k, v in d.items() if not isinstance(v, dict)}})
-    raise TypeError(f"augment must be AugmentParams, a dict, a TOML path, a bool or None, "
-                    f"got {type(augment).__name__}")
+@dataclass(eq=False)
+class _Opened:
+    """An opened recording as the drivers use it: its source, the sensor shape, the frames (shifted
+    by the frame time offset), the event chunk factory and closer, the parameters with the
+    recording's thresholds, a per-pixel threshold map, the camera profile, and the events when
+    they are held in memory."""
+
+    source: object
+    shape: tuple
+    frames: Frames | None
+    chunks: Callable
+    close: Callable
+    n_declared: int | None
+    params: object = None
+    thr: tuple | None = None
+    profile: object = None
+    use_aug: bool = False
+    events: object = None
+
+    def has_frames(self) -> bool:
+        return self.frames is not None and len(self.frames) > 0
 
 
-def _build_engine(method, params, shape, frames, mode, profile, n_workers, measurements, events=None,
-                  augment: AugmentParams | None = None, device: str = "cpu"):
-    needs_frames = METHODS[method][1]
-    prof = load_profile(profile)
+@contextlib.contextmanager
+def _phase(name: str, kind: str = "serial"):
+    """Time the block as phase ``name`` in the active phase timer, if one is (nothing otherwise)."""
+    tm = PH.ACTIVE
+    c0 = PH.now() if tm is not None else 0
+    yield
+    if tm is not None:
+        tm.add(name, c0, kind)
+
+
+def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
+    """(params, per-pixel (c_on, c_off) or None): the caller's map, else what the recording
+    declares (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"input"``) for a method
+    that takes thresholds; reported in ``info["thresholds"]``."""
+    p = req.run.params
+    if req.reading.thresholds is not None:
+        return p, req.reading.thresholds.maps
+    if not METHODS[req.run.method].takes_thresholds:
+        return p, None
+    got = resolve_thresholds(opened, "input", stated=req.reading.thresholds_stated)
+    if info is not None and got.note is not None:
+        info["thresholds"] = got.note
+    return (p.replace(**got.overrides()) if got.overrides() else p), got.maps
+
+
+def _check_fps(req: ReconstructRequest, opened, frames) -> None:
+    """Bound the number of ``fps`` outputs over the span the source declares, before any work."""
+    out = req.output
+    if out.fps is not None and out.times_us is None:
+        span = _time_span_us(opened, frames)
+        if span is not None:
+            lo = span[0] if out.t_start_us is None else max(span[0], int(out.t_start_us))
+            hi = span[1] + 1 if out.t_end_us is None else int(out.t_end_us)
+            check_fps_outputs(lo, max(hi, lo), out.fps)
+
+
+def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
+    """Open the source: frames shifted by the frame time offset, the thresholds resolved once,
+    the shape checked, the camera profile chosen, the events held in memory when frame
+    augmentation or EDI looks ahead in time."""
+    ss, frames, chunks, close, n_declared, opened = _open_source(source, req.run.host_workers)
+    try:
+        dt = req.reading.frame_time_offset_us
+        if dt and frames is not None and len(frames):
+            # the time each frame stands for, as calibrated (hybridhdr.calibrate.selfcal): every
+            # exposure interval shifted, events untouched
+            frames = frames.shifted(dt)
+            if info is not None:
+                info["frame_time_offset_us"] = dt
+        op = _Opened(opened, (), frames, chunks, close, n_declared)
+        op.params, op.thr = _recording_thresholds(req, opened, info)
+        op.shape = _sensor_shape(ss, frames)
+        check_sensor_size(*op.shape, what="sensor (per-pixel filter state)")
+        if info is not None and frames is not None:
+            info["frame_encoding"] = str(frames.encoding)  # the previews' display map (display_gamma)
+        _check_fps(req, opened, frames)
+        op.use_aug = req.run.augmented and op.has_frames()
+        op.profile = req.reading.profile if req.reading.profile is not None else source_profile(opened)
+        if op.use_aug or req.run.method == "edi":
+            # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
+            if n_declared is None:
+                op.events = EventArrays.from_chunks(chunks(req.run.chunk_events), op.shape)
+            else:  # read in the background: the filter starts on the first chunks
+                op.events = StreamingEventArrays(chunks(req.run.chunk_events), op.shape, n_declared)
+            op.chunks = op.events.chunks
+        return op
+    except BaseException:
+        close()
+        raise
+
+
+def _measurements(req: ReconstructRequest, op: _Opened, params, frames, events, prof):
+    """The frame measurements of a filter: the caller's, the augmented frame (paper §4.1), or the
+    zero-order hold of eqs. 6-9 (None for a method without frames)."""
+    run = req.run
+    method, measurements = run.method, run.measurements
+    if method == "akf" and measurements is None and op.use_aug:
+        if frames is None or len(frames) == 0:
+            raise ValueError("method 'akf' needs frames, but the recording has none "
+                             "(use method='highpass' for events only)")
+        return AugmentedMeasurements(frames, events, op.shape, prof, akf_params=params, params=run.augment)
+    if not METHODS[method].needs_frames or measurements is not None:
+        return measurements
+    if frames is None or len(frames) == 0:
+        raise ValueError(f"method {method!r} needs frames, but the recording has none "
+                         f"(use method='highpass' for events only)")
+    if method == "akf":
+        return FrameMeasurements(
+            frames, op.shape, prof, intensity_offset=params.intensity_offset,
+            bias_correction=params.bias_correction,
+            interpolate_covariance=(run.mode != "causal" and params.covariance_interpolation == "linear"),
+            precision_scale=params.frame_precision_scale, saturation=params.saturation,
+            min_weighting=params.min_weighting,
+            event_step=-1.0 if params.event_interpolation else 0.0)  # -1: L^A follows each jump
+    off = getattr(params, "intensity_offset", 1.0)
+    return FrameMeasurements(frames, op.shape, prof, intensity_offset=off, bias_correction=False,
+                             interpolate_covariance=False)
+
+
+def _build_engine(req: ReconstructRequest, op: _Opened, params, frames, events, n_workers: int):
+    """(engine, profile) of the request's method on ``frames`` and ``events`` with ``params``."""
+    method, mode, shape = req.run.method, req.run.mode, op.shape
+    prof = load_profile(op.profile)
     if method in ("e2vid", "firenet"):  # learned, events only (reconstruct.learned; needs PyTorch)
         from .learned.engine import LearnedEngine
         return LearnedEngine(shape, params, method), prof
@@ -360,28 +350,8 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
         if mode == "causal":
             raise ValueError("method 'edi' needs the events of the whole exposure, so it cannot run in causal mode")
         return EDIEngine(shape, frames, events, prof, params), prof
-    if method == "akf" and measurements is None and augment is not None and augment.enabled and mode != "causal":
-        if frames is None or len(frames) == 0:
-            raise ValueError("method 'akf' needs frames, but the recording has none "
-                             "(use method='highpass' for events only)")
-        measurements = AugmentedMeasurements(frames, events, shape, prof, akf_params=params, params=augment)
-    if needs_frames and measurements is None:
-        if frames is None or len(frames) == 0:
-            raise ValueError(f"method {method!r} needs frames, but the recording has none "
-                             f"(use method='highpass' for events only)")
-        if method == "akf":
-            measurements = FrameMeasurements(
-                frames, shape, prof, intensity_offset=params.intensity_offset,
-                bias_correction=params.bias_correction,
-                interpolate_covariance=(mode != "causal" and params.covariance_interpolation == "linear"),
-                precision_scale=params.frame_precision_scale, saturation=params.saturation,
-                min_weighting=params.min_weighting,
-                event_step=-1.0 if params.event_interpolation else 0.0)  # -1: L^A follows each jump
-        else:
-            off = getattr(params, "intensity_offset", 1.0)
-            measurements = FrameMeasurements(frames, shape, prof, intensity_offset=off, bias_correction=False,
-                                             interpolate_covariance=False)
-    if device == "cuda" and method in ("akf", "cf", "direct", "highpass"):  # reconstruct.cuda (numba.cuda)
+    measurements = _measurements(req, op, params, frames, events, prof)
+    if req.run.device.is_cuda and METHODS[method].cuda_engine:  # reconstruct.cuda (numba.cuda)
         from .cuda import CudaAKFEngine, CudaCFEngine
         if method == "akf":
             return CudaAKFEngine(shape, measurements, params), prof
@@ -393,6 +363,157 @@ def _build_engine(method, params, shape, frames, mode, profile, n_workers, measu
     if mode == "causal" and method == "frames_linear":
         raise ValueError("method 'frames_linear' needs the next frame, so it cannot run in causal mode")
     return E.FramesEngine(shape, measurements, params), prof
+
+
+def engine_for(req: ReconstructRequest, shape, frames, events=None):
+    """The engine of ``req``'s method, parameters, mode, profile, workers and device on ``frames``
+    and ``events`` (an :class:`~.event_arrays.EventArrays`, for the methods that look ahead),
+    without frame augmentation: one pass of a filter, as the two-sided smoother and the GPU
+    benchmarks build them."""
+    op = _Opened(None, tuple(shape), frames, None, None, None, profile=req.reading.profile)
+    return _build_engine(req, op, req.run.params, frames, events, req.run.n_workers)[0]
+
+
+def _hold_all_events(req: ReconstructRequest, op: _Opened):
+    """Every event in memory (the two-sided filter reads them in both directions)."""
+    if isinstance(op.source, Recording):  # in memory: columns split in n_workers threads
+        with _phase("read_all", "parallel"):
+            return EventArrays.from_structured(op.source.events, op.shape, n_workers=req.run.host_workers)
+    with _phase("read_all", "serial"):
+        return EventArrays.from_chunks(op.chunks(req.run.chunk_events), op.shape)
+
+
+def _uses_two_sided(req: ReconstructRequest, op: _Opened) -> bool:
+    """The AKF offline with frames and its own measurements: the two-sided filter."""
+    run = req.run
+    return run.method == "akf" and run.mode == "offline" and run.measurements is None and op.has_frames()
+
+
+def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
+    """The two-sided AKF (:mod:`.smoother`, or :func:`.cuda.cuda_two_sided_iter` on the GPU)."""
+    run, out, p, frames = req.run, req.output, op.params, op.frames
+    if op.events is None:
+        op.events = _hold_all_events(req, op)
+    events = op.events
+    op.profile = prof = load_profile(op.profile)
+    if info is not None:
+        info.update(method=run.method, mode=run.mode, profile=prof.name, params=p.to_dict(),
+                    augment=run.augment.to_dict() if op.use_aug else {"enabled": False})
+    t_last = max(int(events.t[-1]) if len(events) else int(frames.t_mid_us[-1]), int(frames.t_mid_us[-1]))
+    times = output_times(frames.t_mid_us, t_last, times_us=out.times_us, fps=out.fps, t_start_us=out.t_start_us,
+                         t_end_us=out.t_end_us)
+    engines = []
+
+    def make_engine(fr, ev, backward, n_workers=run.n_workers):  # a pass's share of the workers
+        with _phase("build"):
+            pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
+            e = _build_engine(req, op, pp, fr, ev, n_workers)[0]
+            if op.thr is not None:
+                e.set_thresholds(*((op.thr[1], op.thr[0]) if backward else op.thr))
+            engines.append(e)
+        return e
+    if run.device.is_cuda:  # the same two-filter smoother on the GPU (reconstruct.cuda)
+        from .cuda import cuda_two_sided_iter
+        make_engine.needs_events = op.use_aug
+        yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
+                                       progress=run.progress, info=info, carried_variance=p.carried_variance())
+    else:
+        yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
+                                  chunk_events=run.chunk_events, progress=run.progress, info=info,
+                                  carried_variance=p.carried_variance(), n_workers=run.n_workers)
+    if info is not None:
+        info["n_events_used"] = len(events)  # each event by each pass
+        stats = [getattr(e.m, "stats", None) for e in engines]
+        if op.use_aug and len(stats) == 2 and all(s is not None for s in stats):
+            info["augmentation"] = dict(stats[1].to_dict(), backward=stats[0].to_dict())
+
+
+def _clock_and_chunks(req: ReconstructRequest, op: _Opened, engine):
+    """(output clock, start µs, event chunks) of a one-pass run: the requested times, else the
+    frame times (an events-only method without frames: 30 fps from its first event)."""
+    out, spec, frames = req.output, METHODS[req.run.method], op.frames
+    times_us, fps = out.times_us, out.fps
+    if times_us is None and fps is None:
+        if spec.needs_frames or op.has_frames():
+            m = getattr(engine, "m", None)
+            ft = (frames.t_mid_us if m is None else getattr(m, "frame_times_us", m.times_us))
+            times_us = np.unique(ft)
+            if out.t_start_us is not None:
+                times_us = times_us[times_us >= out.t_start_us]
+        else:
+            fps = 30.0
+    clock = E.OutputClock(times_us=times_us, fps=fps)
+    start = out.t_start_us
+    chunks = op.chunks(req.run.chunk_events) if engine.uses_events else iter(())
+    if not spec.needs_frames and start is None:  # events only: start at the first event
+        chunks = iter(chunks)
+        first = next(chunks, None)
+        if first is None:
+            raise ValueError(f"method {req.run.method!r} needs events, but the source has none")
+        start = int(first[0][0])
+        if clock.times is not None and clock.times.size:  # e.g. frame times before the first event
+            start = min(start, int(clock.times[0]))
+        chunks = itertools.chain([first], chunks)
+    return clock, start, chunks
+
+
+def _one_pass_stats(engine, req: ReconstructRequest, op: _Opened, info: dict) -> None:
+    """What a one-pass run reports in ``info`` after its last output."""
+    info["n_events_used"] = engine.n_events
+    info["n_clamped"] = int(getattr(engine, "n_clamped", 0))
+    info["n_output_pixels"] = int(getattr(engine, "n_output_pixels", 0))
+    stats = getattr(getattr(engine, "m", None), "stats", None)
+    if stats is not None:
+        info["augmentation"] = stats.to_dict()
+    if req.run.method == "edi":
+        info["edi_thresholds"] = {int(k): v for k, v in sorted(engine.thresholds.items())}
+
+
+def _one_pass(req: ReconstructRequest, op: _Opened, info: dict | None):
+    """One filter forward over the recording (:func:`._engine.drive`)."""
+    run = req.run
+    with _phase("build"):
+        engine, prof = _build_engine(req, op, op.params, op.frames, op.events, run.n_workers)
+    if op.thr is not None:
+        if not hasattr(engine, "set_thresholds"):
+            raise ValueError(f"method {run.method!r} does not take a per-pixel threshold map")
+        engine.set_thresholds(*op.thr)
+    try:
+        clock, start, chunks = _clock_and_chunks(req, op, engine)
+        if info is not None:
+            info.update(method=run.method, mode=run.mode, profile=prof.name, params=op.params.to_dict())
+            if run.method == "akf":
+                info["augment"] = run.augment.to_dict() if op.use_aug else {"enabled": False}
+        yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=req.output.t_end_us,
+                           progress=run.progress)
+        engine.close()  # no measurement is still being computed ahead when the stats are read
+        if info is not None:
+            _one_pass_stats(engine, req, op, info)
+    finally:
+        engine.close()
+
+
+def _drive(req: ReconstructRequest, source, info: dict | None):
+    """The monochrome driver: open, then the two-sided or the one-pass filter."""
+    if info is not None:
+        info["device"] = req.run.device.line
+    op = _open(req, source, info)
+    try:
+        yield from (_two_sided if _uses_two_sided(req, op) else _one_pass)(req, op, info)
+    finally:
+        if op.events is not None:
+            op.events.close()
+        op.close()
+
+
+def _iter_request(req: ReconstructRequest, source, info: dict | None):
+    """The outputs of a request: every method on the Bayer mosaic of a colour source, its
+    outputs demosaicked (:mod:`.colour`), else the monochrome driver."""
+    cs = colour_source(source, req.reading.cfa, req.reading.demosaic)
+    if cs is None:
+        yield from _drive(req, source, info)
+    else:
+        yield from cs.demosaic_outputs(_drive(req, cs.source, info), info)
 
 
 def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
@@ -409,199 +530,12 @@ def reconstruct_iter(source, method: str = "akf", params=None, *, times_us=None,
     events are read chunk by chunk. ``info``, if given, is filled with run statistics. Images
     are (H, W), or (H, W, 3) linear RGB for a colour event camera (``cfa``).
     """
-    kw = dict(times_us=times_us, fps=fps, mode=mode, profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
-              n_workers=n_workers, chunk_events=chunk_events, measurements=measurements, progress=progress,
-              info=info, augment=augment, thresholds=thresholds, frame_time_offset_us=frame_time_offset_us,
-              device=device)
-    cs = colour_source(source, cfa, demosaic)
-    if cs is None:  # monochrome: the driver below, unchanged
-        yield from _reconstruct_iter_mono(source, method, params, **kw)
-    else:  # every method on the Bayer mosaic, outputs demosaicked (reconstruct.colour)
-        yield from cs.demosaic_outputs(_reconstruct_iter_mono(cs.source, method, params, **kw), info)
-
-
-def _reconstruct_iter_mono(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
-                           mode: str = "offline", profile=None, t_start_us: int | None = None,
-                           t_end_us: int | None = None, n_workers: int = 1, chunk_events: int = 1 << 20,
-                           measurements=None, progress: Callable[[int], None] | None = None,
-                           info: dict | None = None, augment=None,
-                           thresholds=None, frame_time_offset_us: int = 0,
-                           device: str = "cpu") -> Iterator[tuple[int, np.ndarray]]:
-    method = resolve_method(method)
-    device, device_line = resolve_device(device, method)  # "cuda" or "cpu", and the line saying which
-    if info is not None:
-        info["device"] = device_line
-    if mode not in MODES:
-        raise ValueError(f"mode must be one of {MODES}, got {mode!r}")
-    if isinstance(n_workers, bool) or not isinstance(n_workers, (int, np.integer)) or n_workers < 1:
-        raise ValueError(f"n_workers must be an int >= 1, got {n_workers!r}")
-    if isinstance(chunk_events, bool) or not isinstance(chunk_events, (int, np.integer)) or chunk_events < 1:
-        raise ValueError(f"chunk_events must be an int >= 1, got {chunk_events!r}")
-    for name, v in (("t_start_us", t_start_us), ("t_end_us", t_end_us)):
-        if v is not None and (isinstance(v, bool) or not isinstance(v, (int, np.integer))):
-            raise TypeError(f"{name} must be an int (µs) or None, got {type(v).__name__}")
-    p = make_params(method, params)
-    aug = make_augment_params(augment)
-    thr = _threshold_arrays(thresholds)
-    if times_us is not None:
-        check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
-    if isinstance(frame_time_offset_us, bool) or not isinstance(frame_time_offset_us, (int, np.integer)):
-        raise TypeError(f"frame_time_offset_us must be an int (µs), got {type(frame_time_offset_us).__name__}")
-    # on the GPU the filter leaves the host's cores idle: its host side (splitting in-memory records
-    # into columns) uses them all, with the same bits as one thread
-    # learned methods: their own (PyTorch) device parameter
-    on_gpu = device == "cuda" or str(getattr(p, "device", "cpu")).startswith(("cuda", "auto"))
-    host_workers = _host_workers("cuda" if on_gpu else "cpu", n_workers)
-    ss, frames, chunk_factory, close, n_declared, opened = _open_source(source, host_workers)
-    events = None
-    try:
-        if frame_time_offset_us and frames is not None and len(frames):
-            # the time each frame stands for, as calibrated (hybridhdr.calibrate.selfcal): every
-            # exposure interval shifted, events untouched
-            dt = int(frame_time_offset_us)
-            frames = dataclasses.replace(frames, t_start_us=frames.t_start_us + dt, t_end_us=frames.t_end_us + dt)
-            if info is not None:
-                info["frame_time_offset_us"] = dt
-        if thr is None and thresholds is None and method in ("akf", "cf", "direct", "highpass"):
-            stored = _stored_thresholds(opened)  # a map calibrated into the container is used
-            if stored is not None:
-                thr = _threshold_arrays(stored)
-                if info is not None:
-                    info["thresholds"] = "per-pixel map stored in the recording"
-        if thr is None and thresholds is None and _thresholds_unset(params) and hasattr(p, "contrast_threshold_on"):
-            declared = _declared_thresholds(opened)  # the sensor's nominal ON/OFF the recording states
-            if declared is not None:
-                p = p.replace(contrast_threshold_on=declared[0], contrast_threshold_off=declared[1])
-                if info is not None:
-                    info["thresholds"] = (f"declared by the recording: ON {declared[0]:g}, OFF {declared[1]:g} "
-                                          f"(log units)")
-        shape = _sensor_shape(ss, frames)
-        check_sensor_size(*shape, what="sensor (per-pixel filter state)")
-        if info is not None and frames is not None:
-            info["frame_encoding"] = str(frames.encoding)  # the previews' display map (display_gamma)
-        if fps is not None and times_us is None:
-            span = _time_span_us(opened, frames)
-            if span is not None:
-                lo = span[0] if t_start_us is None else max(span[0], int(t_start_us))
-                hi = span[1] + 1 if t_end_us is None else int(t_end_us)
-                check_fps_outputs(lo, max(hi, lo), fps)
-        use_aug = (method == "akf" and mode != "causal" and measurements is None and aug.enabled
-                   and frames is not None and len(frames) > 0)
-        if use_aug or method == "edi":
-            # EDI and frame augmentation look ahead in time: hold the events in memory (13 B/event)
-            if n_declared is None:
-                events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
-            else:  # read in the background: the filter starts on the first chunks
-                events = StreamingEventArrays(chunk_factory(int(chunk_events)), shape, n_declared)
-            chunk_factory = events.chunks
-        if profile is None:
-            profile = _source_profile(opened)
-        two_sided = (method == "akf" and mode == "offline" and measurements is None
-                     and frames is not None and len(frames) > 0)
-        if two_sided:
-            if events is None:
-                tm = PH.ACTIVE
-                c0 = PH.now() if tm is not None else 0
-                if isinstance(opened, Recording):  # in memory: columns split in n_workers threads
-                    events = EventArrays.from_structured(opened.events, shape,
-                                                         n_workers=host_workers)
-                    if tm is not None:
-                        tm.add("read_all", c0, "parallel")
-                else:
-                    events = EventArrays.from_chunks(chunk_factory(int(chunk_events)), shape)
-                    if tm is not None:
-                        tm.add("read_all", c0, "serial")
-            prof = load_profile(profile)
-            if info is not None:
-                info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict(),
-                            augment=aug.to_dict() if use_aug else {"enabled": False})
-            t_last = max(int(events.t[-1]) if len(events) else int(frames.t_mid_us[-1]), int(frames.t_mid_us[-1]))
-            times = output_times(frames.t_mid_us, t_last, times_us=times_us, fps=fps, t_start_us=t_start_us,
-                                 t_end_us=t_end_us)
-
-            engines = []
-
-            def make_engine(fr, ev, backward, n_workers=n_workers):  # a pass's share of the workers
-                tm = PH.ACTIVE
-                c0 = PH.now() if tm is not None else 0
-                pp = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on) if backward else p
-                e = _build_engine(method, pp, shape, fr, "forward", prof, n_workers, None, events=ev,
-                                  augment=aug if use_aug else None, device=device)[0]
-                if thr is not None:
-                    e.set_thresholds(*((thr[1], thr[0]) if backward else thr))
-                engines.append(e)
-                if tm is not None:
-                    tm.add("build", c0, "serial")
-                return e
-            if device == "cuda":  # the same two-filter smoother on the GPU (reconstruct.cuda)
-                from .cuda import cuda_two_sided_iter
-                make_engine.needs_events = use_aug
-                yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
-                                               progress=progress, info=info, carried_variance=p.carried_variance())
-            else:
-                yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
-                                          chunk_events=int(chunk_events), progress=progress, info=info,
-                                          carried_variance=p.carried_variance(), n_workers=int(n_workers))
-            if info is not None:
-                info["n_events_used"] = len(events)  # each event by each pass
-                stats = [getattr(e.m, "stats", None) for e in engines]
-                if use_aug and len(stats) == 2 and all(s is not None for s in stats):
-                    info["augmentation"] = dict(stats[1].to_dict(), backward=stats[0].to_dict())
-            return
-        tm = PH.ACTIVE
-        c0 = PH.now() if tm is not None else 0
-        engine, prof = _build_engine(method, p, shape, frames, mode, profile, n_workers, measurements,
-                                     events=events, augment=aug if use_aug else None, device=device)
-        if tm is not None:
-            tm.add("build", c0, "serial")
-        if thr is not None:
-            if not hasattr(engine, "set_thresholds"):
-                raise ValueError(f"method {method!r} does not take a per-pixel threshold map")
-            engine.set_thresholds(*thr)
-        try:
-            if times_us is None and fps is None:
-                if METHODS[method][1] or (frames is not None and len(frames)):
-                    m = getattr(engine, "m", None)
-                    ft = (frames.t_mid_us if m is None else getattr(m, "frame_times_us", m.times_us))
-                    times_us = np.unique(ft)
-                    if t_start_us is not None:
-                        times_us = times_us[times_us >= t_start_us]
-                else:
-                    fps = 30.0
-            clock = E.OutputClock(times_us=times_us, fps=fps)
-            start = t_start_us
-            chunks = chunk_factory(int(chunk_events)) if engine.uses_events else iter(())
-            if not METHODS[method][1] and start is None:  # events only: start at the first event
-                chunks = iter(chunks)
-                first = next(chunks, None)
-                if first is None:
-                    raise ValueError(f"method {method!r} needs events, but the source has none")
-                start = int(first[0][0])
-                if clock.times is not None and clock.times.size:  # e.g. frame times before the first event
-                    start = min(start, int(clock.times[0]))
-                import itertools
-                chunks = itertools.chain([first], chunks)
-            if info is not None:
-                info.update(method=method, mode=mode, profile=prof.name, params=p.to_dict())
-                if method == "akf":
-                    info["augment"] = aug.to_dict() if use_aug else {"enabled": False}
-            yield from E.drive(engine, chunks, clock, t_start_us=start, t_end_us=t_end_us, progress=progress)
-            engine.close()  # no measurement is still being computed ahead when the stats are read
-            if info is not None:
-                info["n_events_used"] = engine.n_events
-                info["n_clamped"] = int(getattr(engine, "n_clamped", 0))
-                info["n_output_pixels"] = int(getattr(engine, "n_output_pixels", 0))
-                stats = getattr(getattr(engine, "m", None), "stats", None)
-                if stats is not None:
-                    info["augmentation"] = stats.to_dict()
-                if method == "edi":
-                    info["edi_thresholds"] = {int(k): v for k, v in sorted(engine.thresholds.items())}
-        finally:
-            engine.close()
-    finally:
-        if events is not None:
-            events.close()
-        close()
+    req = ReconstructRequest.build(method, params, times_us=times_us, fps=fps, mode=mode, profile=profile,
+                                   t_start_us=t_start_us, t_end_us=t_end_us, n_workers=n_workers,
+                                   chunk_events=chunk_events, measurements=measurements, progress=progress,
+                                   augment=augment, thresholds=thresholds, cfa=cfa, demosaic=demosaic,
+                                   frame_time_offset_us=frame_time_offset_us, device=device)
+    yield from _iter_request(req, source, info)
 
 
 def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps: float | None = None,
@@ -699,32 +633,27 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
     not depend on the output rate, and the timestamp origin does not matter. The filter starts
     at the first frame (events before it are skipped) and uses the last one.
     """
+    req = ReconstructRequest.build(method, params, times_us=times_us, fps=fps, mode=mode, profile=profile,
+                                   t_start_us=t_start_us, t_end_us=t_end_us, n_workers=n_workers,
+                                   chunk_events=chunk_events, measurements=measurements, progress=progress,
+                                   augment=augment, thresholds=thresholds, cfa=cfa, demosaic=demosaic,
+                                   frame_time_offset_us=frame_time_offset_us, device=device)
     info: dict = {}
     ts, imgs = [], []
-    for t, img in reconstruct_iter(source, method, params, times_us=times_us, fps=fps, mode=mode,
-                                   profile=profile, t_start_us=t_start_us, t_end_us=t_end_us,
-                                   n_workers=n_workers, chunk_events=chunk_events, measurements=measurements,
-                                   progress=progress, info=info, augment=augment, thresholds=thresholds,
-                                   cfa=cfa, demosaic=demosaic, frame_time_offset_us=frame_time_offset_us,
-                                   device=device):
+    for t, img in _iter_request(req, source, info):
         ts.append(t)
         imgs.append(img)
-    method = resolve_method(method)
     shape = imgs[0].shape if imgs else (0, 0)
-    tm = PH.ACTIVE
-    c0 = PH.now() if tm is not None else 0
-    if imgs and all(im.shape == imgs[0].shape and im.dtype == np.float32 for im in imgs):
-        # one array of all outputs, each worker copying its rows of every image
-        from .event_arrays import map_ranges
-        frames = np.empty((len(imgs),) + imgs[0].shape, np.float32)
+    with _phase("collect", "parallel"):
+        if imgs and all(im.shape == imgs[0].shape and im.dtype == np.float32 for im in imgs):
+            # one array of all outputs, each worker copying its rows of every image
+            from .event_arrays import map_ranges
+            frames = np.empty((len(imgs),) + imgs[0].shape, np.float32)
 
-        def rows(r0, r1):
-            for k, im in enumerate(imgs):
-                frames[k, r0:r1] = im[r0:r1]
-        map_ranges(shape[0], _host_workers("cuda" if str(info.get("device", "")).startswith("device: cuda") else "cpu",
-                                           n_workers), rows, min_part=8)
-    else:
-        frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
-    if tm is not None:
-        tm.add("collect", c0, "parallel")
-    return Video(frames, np.asarray(ts, np.int64), method, info.pop("params", {}), info)
+            def rows(r0, r1):
+                for k, im in enumerate(imgs):
+                    frames[k, r0:r1] = im[r0:r1]
+            map_ranges(shape[0], host_workers(req.run.device.is_cuda, n_workers), rows, min_part=8)
+        else:
+            frames = np.stack(imgs) if imgs else np.zeros((0,) + tuple(shape), np.float32)
+    return Video(frames, np.asarray(ts, np.int64), req.run.method, info.pop("params", {}), info)

@@ -8,15 +8,14 @@ import json
 import sys
 from pathlib import Path
 
-from .._util.cliargs import (COMMON, DEFAULT_THRESHOLDS, THRESHOLDS_HELP, HelpFormatter, UsageError, add_format_arg,
-                             chunk_events_count, cli_wording, json_output, nonneg_int, positive_float, positive_int,
-                             positive_worker_count, thresholds_arg, worker_count)
+from .._util.cliargs import (COMMON, HelpFormatter, UsageError, add_format_arg, chunk_events_count, cli_wording,
+                             json_output, nonneg_int, positive_float, positive_int, positive_worker_count, worker_count)
 from .._util.timearg import add_time_window
+from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, thresholds_arg
+from .methods import METHOD_ALIASES, METHODS, methods_with
 
-_FRAME_ONLY = ("frames", "frames_zoh", "frames_linear")
-
-_METHOD_CHOICES = ["akf", "cf", "highpass", "hpf", "direct", "frames", "frames_zoh", "frames_linear", "edi",
-                   "e2vid", "firenet"]
+#: ``--method``: every registered method, each followed by its aliases.
+METHOD_CHOICES = [c for name in METHODS for c in (name, *(a for a, n in METHOD_ALIASES.items() if n == name))]
 
 
 def add_parser(subparsers) -> None:
@@ -29,7 +28,7 @@ def add_parser(subparsers) -> None:
                     "optional PNG/MP4 previews. With --fps the outputs stop at the last event (frame-only "
                     "methods: the last frame) unless --until says otherwise.")
     p.add_argument("recording", type=Path, help="recording (any format the readers accept)")
-    p.add_argument("--method", default="akf", choices=_METHOD_CHOICES, help="reconstruction method")
+    p.add_argument("--method", default="akf", choices=METHOD_CHOICES, help="reconstruction method")
     p.add_argument("--out", type=Path, required=True, help="output folder")
     p.add_argument("--mode", default="offline", choices=["offline", "causal", "forward"],
                    help="offline may use future frames; causal uses only the past")
@@ -116,30 +115,8 @@ def _threshold_arg(text):
         raise argparse.ArgumentTypeError(f"expected a number > 0 (log units) or 'auto', got {text!r}") from None
 
 
-#: ``fn(recording, *, profile, intensity_offset) -> (c_on, c_off, record)`` for
-#: ``--contrast-threshold auto``: the estimator lives in ``hybridhdr.calibrate`` (which this part
-#: may not import, docs/architecture.md); the ``hybridhdr`` command installs it.
-_THRESHOLD_ESTIMATOR = None
-
-
-def set_threshold_estimator(fn) -> None:
-    """Install the estimator behind ``--contrast-threshold auto`` (the app layer does)."""
-    global _THRESHOLD_ESTIMATOR
-    _THRESHOLD_ESTIMATOR = fn
-
-
-#: ``fn(recording, *, profile, intensity_offset) -> dict`` behind ``--thresholds selfcal``
-#: (:func:`hybridhdr.calibrate.selfcal.self_calibration`), installed by the ``hybridhdr`` command.
-_SELF_CALIBRATOR = None
-
 #: Methods ``--thresholds selfcal`` applies to (a frame model and contrast thresholds).
-SELF_CALIBRATED_METHODS = ("akf", "cf", "direct")
-
-
-def set_self_calibrator(fn) -> None:
-    """Install the estimator behind ``--thresholds selfcal`` (the app layer does)."""
-    global _SELF_CALIBRATOR
-    _SELF_CALIBRATOR = fn
+SELF_CALIBRATED_METHODS = methods_with(takes_thresholds=True, needs_frames=True)
 
 
 def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"):
@@ -147,8 +124,9 @@ def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"
 
     ``mode``: ``"auto"`` (the default ``--thresholds``) calibrates only a recording that declares no
     thresholds (nor stores a map) when the command line gives none; ``"on"`` (``--thresholds
-    selfcal``) always (an error when the recording cannot tell); ``"off"`` never. The AKF takes the calibrated log offset and thresholds, CF and direct integration
-    thresholds in their own log model; all take the frame time offset."""
+    selfcal``) always (an error when the recording cannot tell); ``"off"`` never. The AKF takes the
+    calibrated log offset and thresholds, CF and direct integration thresholds in their own log
+    model; all take the frame time offset (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`)."""
     if mode == "off" or method not in SELF_CALIBRATED_METHODS:
         if mode == "on" and method not in SELF_CALIBRATED_METHODS:
             raise ValueError(f"--thresholds selfcal applies to --method {'/'.join(SELF_CALIBRATED_METHODS)}, "
@@ -156,58 +134,44 @@ def self_calibrate_run(args, params, method: str, given: bool, mode: str = "off"
         return params, 0, None, None
     if mode == "auto" and (given or args.contrast_threshold is not None):
         return params, 0, None, None
+    from ..calibrate.resolve import recording_declares_thresholds, resolve_thresholds
     from ..formats import read
-    from .api import _declared_thresholds, _open_source, _stored_thresholds
     if mode == "auto":
+        from .api import _open_source
         _, frames, _, close, _, opened = _open_source(str(args.recording))
         try:
-            declared = _declared_thresholds(opened) is not None or _stored_thresholds(opened) is not None
+            declared = recording_declares_thresholds(opened)
         finally:
             close()
         if declared or frames is None or len(frames) < 3:
             return params, 0, None, None
-    if _SELF_CALIBRATOR is None:
-        msg = "--thresholds selfcal needs hybridhdr.calibrate's estimator; run it through the 'hybridhdr' command"
-        if mode == "on":
-            raise ValueError(msg)
-        return params, 0, None, f"self-calibration skipped: {msg}"
     enc = getattr(args, "frame_encoding", None)
     rec = read(args.recording) if enc is None else read(args.recording, frame_encoding=enc)
     own_i0 = None if method == "akf" else float(params.intensity_offset)
     try:
-        cal = _SELF_CALIBRATOR(rec, profile=args.profile, intensity_offset=own_i0)
+        got = resolve_thresholds(rec, "selfcal", intensity_offset=own_i0, profile=args.profile)
     except ValueError as e:
         if mode == "on":
             raise ValueError(f"--thresholds selfcal: the recording cannot tell ({e})") from None
         return params, 0, None, f"self-calibration skipped: {e}"
-    over = {"contrast_threshold_on": cal["c_on"], "contrast_threshold_off": cal["c_off"]}
-    if method == "akf":
-        over["intensity_offset"] = cal["intensity_offset"]
-    note = (f"self-calibrated from the recording: frames stand for their stamp {cal['time_offset_us']:+d} µs, ON "
-            f"{cal['c_on']:.4g}, OFF {cal['c_off']:.4g} (log units) in ln(I + {over.get('intensity_offset', own_i0):.3g}); "
-            f"events explain {100 * cal['r2']:.0f} % of the frames' log changes (uncalibrated "
-            f"{100 * cal['r2_nominal']:.0f} %)")
-    return params.replace(**over), int(cal["time_offset_us"]), cal, note
+    return params.replace(**got.overrides()), got.frame_time_offset_us, got.record, got.note
 
 
 def estimate_run_thresholds(args, params):
-    """``(params, note)`` with ``--contrast-threshold auto``'s estimate in ``params``."""
-    if _THRESHOLD_ESTIMATOR is None:
-        raise ValueError("--contrast-threshold auto needs hybridhdr.calibrate's estimator; run it through the "
-                         "'hybridhdr' command")
+    """``(params, note)`` with ``--contrast-threshold auto``'s estimate in ``params``
+    (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"auto"``)."""
     if not hasattr(params, "contrast_threshold_on"):
         raise ValueError(f"--contrast-threshold does not apply to --method {args.method}")
+    from ..calibrate.resolve import resolve_thresholds
     from ..formats import read
     enc = getattr(args, "frame_encoding", None)
     rec = read(args.recording, getattr(args, "format", None), **({} if enc is None else {"frame_encoding": enc}))
     try:
-        on, off, record = _THRESHOLD_ESTIMATOR(rec, profile=args.profile, intensity_offset=params.intensity_offset)
+        got = resolve_thresholds(rec, "auto", intensity_offset=params.intensity_offset, profile=args.profile)
     except ValueError as e:
         raise ValueError(f"--contrast-threshold auto: the recording cannot tell its thresholds ({e}); give "
                          f"--contrast-threshold C") from None
-    p = params.replace(contrast_threshold_on=on, contrast_threshold_off=off)
-    return p, (f"estimated from the recording: ON {on:.4g}, OFF {off:.4g} (log units; pooled over "
-               f"{record['pixel_intervals']} pixel-intervals of {record['intervals']} frame intervals)")
+    return params.replace(**got.overrides()), got.note
 
 
 def _exr_choices() -> list[str]:
@@ -231,10 +195,10 @@ def _parse_value(s: str):
 
 def build_params(args):
     """The method's Params from --preset, --config, named flags and --set (in that order)."""
-    from .api import METHODS, make_params, resolve_method
+    from .methods import make_params, resolve_method
     from .params import AKFParams
     method = resolve_method(args.method)
-    cls = METHODS[method][0]
+    cls = METHODS[method].params_class
     base = make_params(method, None)
     if args.preset is not None:
         if method != "akf":
@@ -268,10 +232,6 @@ def build_params(args):
     return make_params(method, cls.from_dict(d))
 
 
-#: Parameter names that state contrast thresholds.
-THRESHOLD_KEYS = ("contrast_threshold", "contrast_threshold_on", "contrast_threshold_off")
-
-
 def thresholds_given(args) -> bool:
     """True when the command line states contrast thresholds: --contrast-threshold, a --set of
     one, or a --config file naming one. Otherwise the recording's declared thresholds (or the
@@ -282,8 +242,8 @@ def thresholds_given(args) -> bool:
         if item.split("=", 1)[0].strip().replace("-", "_") in THRESHOLD_KEYS:
             return True
     if args.config is not None:
-        from .api import METHODS, resolve_method
-        if any(k in THRESHOLD_KEYS for k in _toml_fields(METHODS[resolve_method(args.method)][0], args.config)):
+        from .methods import resolve_method
+        if any(k in THRESHOLD_KEYS for k in _toml_fields(METHODS[resolve_method(args.method)].params_class, args.config)):
             return True
     return False
 
@@ -355,7 +315,7 @@ def output_window(args, method: str):
     t0, t1 = resolve_window(args, span.origin_us)
     note = None
     if args.fps is not None and t1 is None:
-        until = args.until or ("frames" if method in _FRAME_ONLY or span.events is None else "events")
+        until = args.until or ("frames" if METHODS[method].frames_only or span.events is None else "events")
         ends = {"events": None if span.events is None else span.events[1],
                 "frames": None if span.frames is None else span.frames[1]}
         last = max(v for v in ends.values() if v is not None) if any(v is not None for v in ends.values()) else None
@@ -382,7 +342,8 @@ def run(args) -> int:
     import numpy as np
 
     from .._version import __version__
-    from .api import METHODS, reconstruct_iter, resolve_method
+    from .api import reconstruct_iter
+    from .methods import resolve_method
     from .._util.atomic import AtomicFolder
     from ..formats.images import DEFAULT_EXR_COMPRESSION, exr_compressions
     from .output import OUTPUTS, VideoWriter
@@ -454,8 +415,8 @@ def run(args) -> int:
                 progress = bars[0].update
                 writer.on_written = bars[1].update
             info: dict = {}
-            from .cuda import resolve_device
-            _device, device_line = resolve_device(getattr(args, "device", "cpu"), method)
+            from .request import Device
+            device_line = Device.resolve(getattr(args, "device", "cpu"), method).line
             print(device_line, file=sys.stderr)
             source = str(args.recording)
             if getattr(args, "frame_encoding", None) is not None or getattr(args, "format", None) is not None:
@@ -474,7 +435,7 @@ def run(args) -> int:
                 if writer.n == 0:
                     raise ValueError("no output frames in the requested time range")
                 # the previews' display map as 'view' makes it (frames' encoding; events-only: centred)
-                writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=not METHODS[method][1])
+                writer.set_display(frame_encoding=info.get("frame_encoding"), events_only=METHODS[method].events_only)
                 written = writer.close()
             finally:
                 for b in bars:
@@ -482,7 +443,7 @@ def run(args) -> int:
                 if not isinstance(source, str):
                     source.close()
             run_info = {"hybridhdr_version": __version__, "command": sys.argv, "method": method,
-                        "method_description": METHODS[method][3], "mode": args.mode,
+                        "method_description": METHODS[method].description, "mode": args.mode,
                         "params": info.get("params", params.to_dict()),
                         "profile": str(args.profile) if args.profile else info.get("profile", "built-in 8-bit"),
                         "n_frames": writer.n, "n_events_used": info.get("n_events_used"), "written": written,

@@ -2,7 +2,7 @@
 
 ``reconstruct(..., device="cuda"|"cpu"|"auto")`` and ``hybridhdr reconstruct --device``.
 "auto" runs here when :func:`cuda_unavailable_reason` returns None (Numba's CUDA target imports
-and sees a device), else on the CPU; :func:`resolve_device` gives the one line that says which.
+and sees a device), else on the CPU; :meth:`.request.Device.resolve` gives the one line that says which.
 Nothing in this module imports ``numba.cuda`` until a GPU engine is built, so CPU-only
 installations never need a CUDA package.
 
@@ -29,10 +29,8 @@ import numpy as np
 
 from . import _kernels as K
 
-__all__ = ["cuda_unavailable_reason", "resolve_device", "CudaAKFEngine", "CudaCFEngine", "DeviceEvents",
-           "cuda_two_sided_iter", "DEVICES"]
+__all__ = ["cuda_unavailable_reason", "CudaAKFEngine", "CudaCFEngine", "DeviceEvents", "cuda_two_sided_iter"]
 
-DEVICES = ("cpu", "cuda", "auto")
 #: the two-sided filter keeps the backward pass's estimates on the device up to this many bytes;
 #: beyond, they go to host memory (smoother's store, which spills to a temporary file)
 DEVICE_STORE_BYTES = 2 << 30
@@ -169,27 +167,6 @@ def device_name() -> str:
 def _simulated() -> bool:
     from numba import config
     return bool(getattr(config, "ENABLE_CUDASIM", 0))
-
-
-def resolve_device(device: str, method: str = "akf") -> tuple[str, str]:
-    """``(device, line)``: "cuda" or "cpu" for a requested ``device`` ("cpu", "cuda", "auto") and
-    the line saying which ran and why. "cuda" when it cannot run raises ValueError; "auto" falls
-    back to the CPU (learned methods choose their device through PyTorch, see their params)."""
-    if device not in DEVICES:
-        raise ValueError(f"device must be one of {DEVICES}, got {device!r}")
-    if device == "cpu":
-        return "cpu", "device: cpu (requested)"
-    if method not in ("akf", "cf", "direct", "highpass"):
-        if device == "cuda":
-            raise ValueError(f"device 'cuda' runs the AKF and the CF family (akf, cf, direct, highpass), not "
-                             f"{method!r} (e2vid/firenet choose their device with their own 'device' parameter)")
-        return "cpu", f"device: cpu (method {method!r} has no CUDA path here)"
-    why = cuda_unavailable_reason()
-    if why is None:
-        return "cuda", f"device: cuda ({device_name()})"
-    if device == "cuda":
-        raise ValueError(f"device 'cuda' requested but {why}")
-    return "cpu", f"device: cpu (auto: {why})"
 
 
 def _grid(n: int):

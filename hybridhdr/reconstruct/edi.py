@@ -34,7 +34,7 @@ import numpy as np
 
 from . import _augment_kernels as AK
 from .event_arrays import EventArrays
-from .measurement import frames_to_codes
+from ..camera.encoding import frames_to_codes
 from .params import DEFAULT_INTENSITY_OFFSET, _ParamsMixin
 
 __all__ = ["EDIParams", "edi_integral", "edi_log_latent", "edi_latent", "sharpness_energy",

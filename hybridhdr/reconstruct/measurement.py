@@ -26,6 +26,7 @@ import numpy as np
 
 from ..model import Frames
 from ._kernels import lut_segment
+from ..camera.encoding import frames_to_codes  # noqa: F401 - the frames' codes (re-exported here)
 from ..camera.profile import CameraProfile, profile_for_frames
 
 __all__ = ["Segment", "SegmentCodes", "FrameMeasurements", "frames_to_codes"]
@@ -91,20 +92,6 @@ class SegmentCodes:
     censor: np.ndarray
     la_step: float = 0.0
     intensity: np.ndarray | None = None  # per-code linear intensity (eq. 3), when known
-
-
-def frames_to_codes(frames: Frames, sensor_shape) -> np.ndarray:
-    """Frame images as codes (K, H, W); colour frames become luminance codes of the same
-    encoding with the Rec. 709 weights (:func:`hybridhdr.camera.encoding.to_luminance`, applied
-    to linear RGB), rounded to the nearest code for integer frames."""
-    im = frames.images
-    if im.ndim == 4:
-        from ..camera.encoding import to_luminance
-        im = to_luminance(im, frames.encoding, dtype=im.dtype)
-    if tuple(im.shape[1:3]) != tuple(sensor_shape):
-        raise ValueError(f"frame size {im.shape[1:3]} (H, W) differs from the event sensor size "
-                         f"{tuple(sensor_shape)}; frames and events must be registered")
-    return im
 
 
 class FrameMeasurements:

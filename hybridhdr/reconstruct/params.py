@@ -19,19 +19,11 @@ import math
 from dataclasses import dataclass
 
 from .._util.toml import load_toml
+from ..camera.encoding import DEFAULT_INTENSITY_OFFSET
 
 __all__ = ["AKFParams", "CFParams", "HighPassParams", "DirectParams", "FramesParams",
            "DEFAULT_INTENSITY_OFFSET"]
 
-#: I0 of eq. 8, in frame-linear units (1 = the frame camera's clip level).
-#: Events measure changes of log I (up to the photoreceptor's dark current, which is small in
-#: these units), so the filter's state log(I + I0) must have a small I0: with the reference
-#: code's I0 = 1 a dark pixel's change is compressed by I/(I + 1), thresholds calibrated through
-#: it come out too small and exp(L̂) - 1 goes negative. 1e-3 (60 dB below the clip level) keeps
-#: the state within a few per cent of log I down to I = 0.03 and stays above the frames'
-#: quantisation noise there; the paper gives no value, the reference code's I0 = 1 is in
-#: :meth:`AKFParams.reference_code` and :meth:`AKFParams.paper`.
-DEFAULT_INTENSITY_OFFSET = 1e-3
 #: I0 of the published code (``ziweiWWANG/AKF``: log(I^F/255 + 1)) and of CF's ROS code.
 PUBLISHED_INTENSITY_OFFSET = 1.0
 

@@ -147,7 +147,7 @@ def test_cli_thresholds_default_follows_the_arguments(rec, tmp_path, capsys):
     from hybridhdr.container import write_recording
     p = tmp_path / "rec.h5"
     write_recording(rec, p)
-    from hybridhdr._util.cliargs import DEFAULT_THRESHOLDS
+    from hybridhdr.calibrate.resolve import DEFAULT_THRESHOLDS
     assert main(["evaluate", "holdout", str(p), "--method", "akf", "--frames", "2", "--json"]) == 0
     res = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
     # a recording that declares no thresholds: the one default (DEFAULT_THRESHOLDS, selfcal, as

@@ -53,16 +53,17 @@ def test_cuda_agrees_with_cpu(results, name):
 
 def test_device_resolution():
     """"cpu" never touches numba.cuda; "cuda" without a GPU is a clear error; unknown names are refused."""
-    from hybridhdr.reconstruct.cuda import cuda_unavailable_reason, resolve_device
-    assert resolve_device("cpu") == ("cpu", "device: cpu (requested)")
+    from hybridhdr.reconstruct.cuda import cuda_unavailable_reason
+    from hybridhdr.reconstruct.request import Device
+    assert Device.resolve("cpu") == Device("cpu", "device: cpu (requested)")
     with pytest.raises(ValueError, match="device must be one of"):
-        resolve_device("gpu")
-    dev, line = resolve_device("auto", "edi")
-    assert dev == "cpu" and "no CUDA path" in line
+        Device.resolve("gpu")
+    d = Device.resolve("auto", "edi")
+    assert d.kind == "cpu" and "no CUDA path" in d.line
     why = cuda_unavailable_reason()
-    dev, line = resolve_device("auto")
-    assert line.startswith(f"device: {dev}")
+    d = Device.resolve("auto")
+    assert d.line.startswith(f"device: {d.kind}")
     if why is not None:
-        assert dev == "cpu" and why in line
+        assert d.kind == "cpu" and why in d.line
         with pytest.raises(ValueError, match="device 'cuda' requested but"):
-            resolve_device("cuda")
+            Device.resolve("cuda")

@@ -196,7 +196,7 @@ def _reconstruct_cli(argv: list[str]) -> int:
     cli.add_parser(ap.add_subparsers())
     i = argv.index("--method") + 1
     method = argv[i]
-    listed = method in cli._METHOD_CHOICES
+    listed = method in cli.METHOD_CHOICES
     args = ap.parse_args(["reconstruct"] + (argv if listed else argv[:i] + ["highpass"] + argv[i + 1:]))
     args.method = method
     return cli.run(args)

@@ -123,10 +123,10 @@ def test_fused_estimate_equals_the_closed_form_two_filter_solution():
     t = np.array([1_000, 20_000, 40_000, 51_000 - 1], np.int64)
     p = AKFParams()
     from hybridhdr.reconstruct import _engine as E
-    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.api import ReconstructRequest, engine_for
     from hybridhdr.reconstruct.smoother import _run_pass
     ev = EventArrays.from_structured(r.events, (h, w))
-    mk = lambda f: _build_engine("akf", p, (h, w), f, "forward", None, 1, None, events=ev)[0]  # noqa: E731
+    mk = lambda f: engine_for(ReconstructRequest.build("akf", p, mode="forward"), (h, w), f, ev)  # noqa: E731
     q, s = p.carried_variance()  # each pass: P plus what its carried frame accumulated
     fwd = {tt: (lg.item(), var.item()) for tt, lg, var in
            _run_pass(lambda: mk(fr), ev, t, 1 << 20, None, (fr.t_mid_us, q, s))}
@@ -188,7 +188,7 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
     """Closed form of the carried variance: at t, a pass reports P + q·n + s·Δt, n the pixel's
     events since the pass's last frame and Δt the time since it; the fused output weighs the
     nearer frame more than P alone does (a frame 45 ms old against one 5 ms away)."""
-    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.api import ReconstructRequest, engine_for
     from hybridhdr.reconstruct.smoother import _run_pass
     h, w = 1, 2
     ts = np.array([0, 50_000], np.int64)
@@ -203,7 +203,7 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
     assert (q, s) == (p.refractory_noise, p.process_noise_per_s)
     ea = EventArrays.from_structured(r.events, (h, w))
     t = np.array([1_000, 20_000, 46_000], np.int64)
-    mk = lambda: _build_engine("akf", p, (h, w), fr, "forward", None, 1, None, events=ea)[0]  # noqa: E731
+    mk = lambda: engine_for(ReconstructRequest.build("akf", p, mode="forward"), (h, w), fr, ea)  # noqa: E731
     raw = {tt: var.copy() for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None)}
     got = {tt: var for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None, (fr.t_mid_us, q, s))}
     for tt in t:
@@ -289,7 +289,7 @@ def _serial_reference(rec, p, times):
     """The two-sided filter in the serial order with the first kernels: the backward pass kept in
     full, then the forward pass fused output by output with the numpy fusion (one worker)."""
     from hybridhdr.reconstruct import _kernels as K
-    from hybridhdr.reconstruct.api import _build_engine
+    from hybridhdr.reconstruct.api import ReconstructRequest, engine_for
     from hybridhdr.reconstruct.smoother import _run_pass
     shape = rec.sensor_size.shape
     ev, fr = EventArrays.from_structured(rec.events, shape), rec.frames
@@ -297,7 +297,7 @@ def _serial_reference(rec, p, times):
     q_s = p.carried_variance()
     rev_p = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on)
     rf, re = reverse_frames(fr, m), reverse_events(ev, m)
-    mk = lambda pp, f, e: _build_engine("akf", pp, shape, f, "forward", None, 1, None, events=e)[0]  # noqa: E731
+    mk = lambda pp, f, e: engine_for(ReconstructRequest.build("akf", pp, mode="forward"), shape, f, e)  # noqa: E731
     bwd = {int(m - t): (lg.copy(), var.copy()) for t, lg, var in
            _run_pass(lambda: mk(rev_p, rf, re), re, (m - times)[::-1], 1 << 20, None, (rf.t_mid_us,) + q_s)}
     fwd = {int(t): (lg.copy(), var.copy()) for t, lg, var in
