@@ -63,13 +63,16 @@ def test_roundtrip_recovers_the_simulated_profile(model):
 def test_one_answer_through_one_code_path(roundtrip, tmp_path, capsys):
     """reconstruct's self-calibration, 'calibrate sensor' and 'calibrate thresholds' (pooled) print
     the same ON/OFF for one recording."""
-    from hybridhdr.cli import _self_calibration, main
+    from hybridhdr.calibrate.resolve import resolve_thresholds
+    from hybridhdr.cli import main
     from hybridhdr.formats import read
     from hybridhdr.formats.container import write_recording
 
     path = tmp_path / "rec.h5"
     write_recording(roundtrip, path)
-    sc = _self_calibration(read(path), profile=None, intensity_offset=None)
+    # what reconstruct's default (--thresholds selfcal) and evaluate's self-calibration call
+    got = resolve_thresholds(read(path), "selfcal", intensity_offset=None, profile=None)
+    sc = {"c_on": got.c_on, "c_off": got.c_off}
     assert main(["calibrate", "sensor", str(path), "--out", str(tmp_path / "p.json"), "--bootstrap", "20",
                  "--json"]) == 0
     prof = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
@@ -142,3 +145,24 @@ def test_static_pixels_with_more_off_than_on_events(roundtrip):
     assert leak["unconstrained_hz"] < 0
     assert leak["value"] == 0.0 and leak["ci95"] == [0.0, 0.0]
     SensorProfile.from_dict(json.loads(json.dumps(prof.to_dict())))  # its own schema accepts it
+
+
+def test_resolver_reads_the_sensor_profile_file(roundtrip, tmp_path, capsys):
+    """One profile file, one answer: the resolver gives the profile's ON/OFF, I0 and frame offset."""
+    from hybridhdr.calibrate.resolve import resolve_thresholds
+    from hybridhdr.cli import main
+    from hybridhdr.formats.container import write_recording
+
+    path = tmp_path / "rec.h5"
+    write_recording(roundtrip, path)
+    out = tmp_path / "profile.json"
+    assert main(["calibrate", "sensor", str(path), "--out", str(out), "--bootstrap", "20", "--no-plot"]) == 0
+    prof = json.loads(out.read_text())
+    got = resolve_thresholds(None, str(out))
+    assert got.source == "profile"
+    assert got.c_on == prof["simulator_params"]["contrast_threshold_on"]
+    assert got.intensity_offset == prof["estimates"]["intensity_offset"]["value"]
+    assert got.frame_time_offset_us == prof["estimates"]["time_offset_us"]["value"]
+    # a method with its own log model keeps it (and is told the thresholds are approximate there)
+    got1 = resolve_thresholds(None, out, intensity_offset=1.0)
+    assert got1.intensity_offset is None and "differs" in got1.note
