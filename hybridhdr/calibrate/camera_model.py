@@ -855,6 +855,18 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
         return tot
 
     d, ii = float(d_obs), int(ii_obs)
+    # a cheap first look (one iteration, two replicates at the least-squares thresholds): a quantiser
+    # that fires far from the observed events on the frames' path will not be trusted at the end either
+    ls0 = _ls_at(D, rows, int(round(d)), ii, r_on, r_off)
+    _, pre = _indirect(D, ints, float(i0s[ii]), ls0, sig, r_on, r_off, reps=2, iters=1, seed=seed)
+    obs0 = observed_signal(int(round(d)), ii)
+    ratio0 = pre["simulated_signal_events"] / obs0 if obs0 > 0 and pre["simulated_signal_events"] else float("nan")
+    if not (abs(ratio0 - 1.0) <= 2 * SIM_EVENT_TOLERANCE):
+        return None, {"method": pre["method"], "applied": False, "simulated_to_observed_events": _f(ratio0),
+                      "reason": f"the quantiser simulated on the frames' own log path fires {ratio0:.2f}x the observed "
+                                f"signal events at the least-squares thresholds (first look, tolerance "
+                                f"{2 * SIM_EVENT_TOLERANCE:.0%}): the frames undersample the scene's changes; the "
+                                f"least-squares thresholds and the grid's offset and I0 are reported"}, None, int(ii_obs)
     hist = []
     c, rec = None, None
     for it in range(iters + 1):
