@@ -10,7 +10,7 @@ profile"), with its uncertainty and an ``identifiable`` flag saying whether the 
 tell it:
 
 * **threshold means**: the pooled least squares of the threshold estimator
-  (:func:`hybridhdr.calibrate.thresholds.threshold_sums`); 95 % interval by a bootstrap over
+  (:func:`hybridhdr.calibrate.camera_model.estimate_camera_model`); 95 % interval by a bootstrap over
   pixels (each pixel's sums re-weighted by Poisson(1) weights).
 * **per-pixel spread**: the raw spread of per-pixel estimates is σ² plus each estimate's own
   noise (quantisation of the log change into whole events). The usable intervals are cut into
