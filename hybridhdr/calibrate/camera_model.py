@@ -183,8 +183,10 @@ class _Data:
     def __init__(self, rec, profile, exclude_frames, well_exposed):
         fr = rec.frames
         if fr is None or len(fr) < 3:
-            raise ValueError("the camera model needs at least three frames (two intervals); the recording has "
-                             f"{0 if fr is None else len(fr)}")
+            raise ValueError("the camera model needs at least three frames (two frame intervals: one to fit, one to "
+                             f"check); the recording has {0 if fr is None else len(fr)}"
+                             + (" (fewer than two frames give nothing to calibrate against)"
+                                if fr is None or len(fr) < 2 else ""))
         ev = rec.events
         if len(ev) == 0:
             raise ValueError("the camera model needs events; the recording has none")

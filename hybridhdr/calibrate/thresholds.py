@@ -104,14 +104,18 @@ def estimate_thresholds(recording, *, profile=None, intensity_offset: float | No
 def pooled_thresholds(recording, *, profile=None, intensity_offset: float | None = None) -> tuple[float, float, dict]:
     """``(c_on, c_off, record)``: one ON and one OFF threshold for the whole sensor, the camera
     model's (:func:`hybridhdr.calibrate.camera_model.estimate_camera_model`), in the log model
-    ``ln(I + intensity_offset)`` of the method that will use them (None: the model's own I0).
+    ``ln(I + intensity_offset)`` of the method that will use them (None: the model's own I0 and
+    frame time offset; a number: that I0 with the frames at their stamps, as the run uses them).
     ``record`` says how many frame intervals and pixel-intervals the estimate rests on. Raises
     ValueError when the recording cannot tell them."""
     from .camera_model import estimate_camera_model
-    m = estimate_camera_model(recording, profile=profile)
-    if intensity_offset is not None and float(intensity_offset) != m.intensity_offset:
+    if intensity_offset is None:
+        m = estimate_camera_model(recording, profile=profile)
+    else:
+        # the method's own log model, with the frames at their stamps: a run given these thresholds
+        # ("auto") does not shift its frames, so they are estimated as it will use them
         m = estimate_camera_model(recording, profile=profile, intensity_offset=float(intensity_offset),
-                                  time_offset_us=m.latency_us if m.latency_us is not None else m.time_offset_us)
+                                  time_offset_us=0)
     record = {"intervals": int(m.n_intervals), "pixel_intervals": int(m.n_pixel_intervals),
               "intensity_offset": float(m.intensity_offset), "time_offset_us": int(m.time_offset_us)}
     return float(m.c_on), float(m.c_off), record
