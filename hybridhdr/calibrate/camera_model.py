@@ -83,6 +83,13 @@ MAX_WIDEN = 2
 #: enough for the simulation to see what the pixels saw: 2-6 % on the round trips at 2.4 px per
 #: frame, ``benchmarks/sensor_profile.py``).
 SIM_EVENT_TOLERANCE = 0.15
+#: Largest number of pixels the quantiser correction simulates (a fixed, seeded random subset beyond
+#: it, the same at every iteration: the pooled statistic is a ratio of sums over pixels, so an even
+#: subset estimates the same bias with a sampling error far below the bootstrap's).
+MAX_CORRECTION_PIXELS = 20_000
+#: The indirect-inference iteration stops once the simulated statistic is within this of the observed
+#: one (log units; a tenth of the smallest threshold the estimator reports to three figures).
+CORRECTION_TOLERANCE = 1e-3
 #: Half-widths (δ steps, I0 steps) of the grid window the quantiser simulation is searched on.
 BINDING_WINDOW = (12, 3)
 #: Sub-intervals of an exposure in the exact log-of-mean refinement.
@@ -382,6 +389,7 @@ def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
     """Σ squared code error of predicting frame k+1 from frame k and the events (cross-fitted), and n."""
     se = 0.0
     m = 0
+    per = np.zeros((len(rows), 2))  # per interval: Σ squared error, n (the criterion's paired spread)
     for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
         if not r["idx"].size:
             continue
@@ -392,7 +400,8 @@ def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
         err = _codes_of(D.lut, ihat) - r["code1"]
         se += float(err @ err)
         m += err.size
-    return se, m
+        per[q] = (float(err @ err), err.size)
+    return se, m, per
 
 
 def _search(D, ints, i0s, offs, lam_on, lam_off, c_range, progress):
@@ -400,17 +409,18 @@ def _search(D, ints, i0s, offs, lam_on, lam_off, c_range, progress):
     npi = int(sum(r["idx"].size for r in rows))
     score = np.full((len(offs), len(i0s)), np.nan)
     coefs = np.full((len(offs), len(i0s), 2), np.nan)
+    per_rows = np.zeros((len(offs), len(i0s), len(rows), 2))
     for a_i, d in enumerate(offs):
         counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
         mom = _moments(rows, counts)
         for ii, i0 in enumerate(i0s):
             cf = [_c(_sums(rows, mom, ii, lam_on, lam_off, [(q % 2) == f for q in range(len(rows))])) for f in (0, 1)]
-            se, m = _score(D, rows, counts, ii, i0, cf, lam_on, lam_off)
+            se, m, per_rows[a_i, ii] = _score(D, rows, counts, ii, i0, cf, lam_on, lam_off)
             score[a_i, ii] = math.sqrt(se / m) if m else np.nan
             coefs[a_i, ii] = _c(_sums(rows, mom, ii, lam_on, lam_off))
         if progress is not None:
             progress(a_i + 1, len(offs))
-    return rows, npi, score, coefs
+    return rows, npi, score, coefs, per_rows
 
 
 def _band_homogeneity(D, rows, counts, i0s, n_bands=4):
@@ -569,7 +579,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             r_on, r_off, noise = _noise_rates(D, ints, ref_i0, static_log_bound)
         else:
             r_on, r_off, noise = 0.0, 0.0, {"identifiable": False, "reason": "noise correction off"}
-        rows, npi, score, coefs = _search(D, ints, i0s, offs, r_on, r_off, c_range, progress)
+        rows, npi, score, coefs, per_rows = _search(D, ints, i0s, offs, r_on, r_off, c_range, progress)
         if npi == 0:
             raise ValueError("the camera model found no pixel-interval both frames show well exposed with events")
         if not np.isfinite(score).any():
@@ -602,8 +612,32 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     h_score, h_bands, h_edges = _band_homogeneity(D, rows, counts_d, i0s)
     homog = {"relative_spread": [_f(v) for v in h_score], "bands_c": h_bands, "band_edges": h_edges,
              "intensity_offsets": list(i0s)}
-    i0 = float(i0s[ii])
+    i0_flat = None
     if intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
+        # one-standard-error rule (Breiman et al., Classification and Regression Trees, 1984, sec. 3.4):
+        # an I0 on the grid's edge is kept only if it predicts the next frames better than the nominal
+        # I0 by more than one standard error of the paired per-interval difference; a criterion that
+        # flat (few usable intervals, little intensity range) does not identify I0: the nominal I0
+        from ..camera.encoding import DEFAULT_INTENSITY_OFFSET as _I0_NOM
+        i_nom = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(_I0_NOM))))
+        pr = per_rows[a_i]
+        use = (pr[ii, :, 1] > 0) & (pr[i_nom, :, 1] > 0)
+        diff = pr[ii, use, 0] / pr[ii, use, 1] - pr[i_nom, use, 0] / pr[i_nom, use, 1]
+        se_d = float(diff.std(ddof=1) / math.sqrt(diff.size)) if diff.size >= 2 else float("inf")
+        if i_nom != ii and not (diff.size >= 2 and float(diff.mean()) + se_d < 0):
+            i0_flat = {"edge_value": float(i0s[ii]), "nominal": float(i0s[i_nom]),
+                       "mean_sq_code_error_difference": _f(float(diff.mean()) if diff.size else float("nan")),
+                       "standard_error": _f(se_d), "intervals": int(diff.size),
+                       "rule": "one standard error: the edge does not predict the next frames better than "
+                               "the nominal I0 by more than one standard error"}
+            notes.append(f"I0 not identified: the criterion's best ({i0s[ii]:.4g}, grid edge) is within one "
+                         f"standard error of the nominal I0 {i0s[i_nom]:.4g} over {diff.size} intervals; "
+                         f"the nominal I0 is used")
+            ii = i_nom
+            a_i = int(np.nanargmin(score[:, ii]))
+            d = int(offs[a_i])
+    i0 = float(i0s[ii])
+    if i0_flat is None and intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
         edge["intensity_offset"] = True
         lim = "lower" if ii == 0 else "upper"
         warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
@@ -639,7 +673,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     latency = None
     if quantiser_correction:
         c2, ii_rec, latency, ii = _binding(D, rows, ints, i0s, offs, d, ii, sig, r_on, r_off, seed,
-                                           intensity_offset is None, time_offset_us is None)
+                                           intensity_offset is None and i0_flat is None, time_offset_us is None)
         i0 = float(i0s[ii])
         c = c2 if c2 is not None else c
         if c2 is not None:
@@ -663,7 +697,8 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     r2 = _r2(D, rows, d, ii, r_on, r_off)
     r2_nominal = _r2(D, rows, int(offs[a0]), i_def, r_on, r_off)
     fixed = {"intensity_offset": intensity_offset is not None, "time_offset_us": time_offset_us is not None,
-             "user_grid": bool(user_offs), "notes": notes}
+             "user_grid": bool(user_offs), "notes": notes,
+             "intensity_offset_not_identified": i0_flat}
     return CameraModel(
         c_on=float(c[0]), c_off=float(c[1]), c_on_std=sd[0], c_off_std=sd[1], intensity_offset=i0, time_offset_us=d,
         score=float(score[a_i, ii]), score_nominal=float(score[a0, i_def]), n_pixel_intervals=npi,
@@ -715,18 +750,19 @@ def _mismatch(pp, min_intervals=2, min_pixels=30, n_boot=100, seed=0):
     return out
 
 
-def _ls_stat(Ls, goods, N_on, N_off, ints, dts, lam_on, lam_off):
-    """The pooled noise-corrected forward least squares of the frames' log change on the counts
-    over the intervals ``ints`` (indices into the path), as the observed statistic is computed."""
-    S = np.zeros(5)
-    for q, j in enumerate(ints):
-        g = goods[q]
-        dl = (Ls[j + 1] - Ls[j])[g]
-        no, nf = N_on[q][g], N_off[q][g]
-        lo, lf, K = lam_on * dts[q], lam_off * dts[q], int(g.sum())
-        S += (no @ no - 2 * lo * no.sum() + K * (lo * lo - lo), nf @ nf - 2 * lf * nf.sum() + K * (lf * lf - lf),
-              no @ nf - lf * no.sum() - lo * nf.sum() + K * lo * lf, no @ dl - lo * dl.sum(), nf @ dl - lf * dl.sum())
-    return np.array(_c(S))
+def _ls_stat(G, DL, N_on, N_off, dts, lam_on, lam_off):
+    """The pooled noise-corrected forward least squares of the frames' log change ``DL`` on the
+    counts (all (intervals, pixels) arrays; ``G`` the well-exposed mask, ``DL`` zero outside it)
+    over the intervals of durations ``dts`` (s), as the observed statistic is computed."""
+    no, nf = np.where(G, N_on, 0.0), np.where(G, N_off, 0.0)
+    lo, lf, K = lam_on * dts, lam_off * dts, G.sum(1).astype(np.float64)
+    so, sf = no.sum(1), nf.sum(1)
+    sd = DL.sum(1)
+    S = np.array([np.sum((no * no).sum(1) - 2 * lo * so + K * (lo * lo - lo)),
+                  np.sum((nf * nf).sum(1) - 2 * lf * sf + K * (lf * lf - lf)),
+                  np.sum((no * nf).sum(1) - lf * so - lo * sf + K * lo * lf),
+                  np.sum((no * DL).sum(1) - lo * sd), np.sum((nf * DL).sum(1) - lf * sd)])
+    return np.array(_c(S)), float(np.sum(so - lo * K) + np.sum(sf - lf * K))
 
 
 def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0):
@@ -742,21 +778,28 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
     interval, hysteresis after reversals, the lower thresholds of busier pixels) cancel; the
     thresholds are updated by the statistic's difference until it vanishes."""
     k0, k1 = ints[0], ints[-1] + 1
+    rng = np.random.default_rng([int(seed), 35])
+    sub = (np.sort(rng.choice(D.n, MAX_CORRECTION_PIXELS, replace=False)) if D.n > MAX_CORRECTION_PIXELS
+           else np.arange(D.n))
+    n = sub.size
     Ls, goods_all = [], []
     for k in range(k0, k1 + 1):
         c_, g_ = D.frame(k)
-        Ls.append(np.log(D.lut[c_.astype(np.int64)] * D.scale[k] + i0))
-        goods_all.append(g_)
+        Ls.append(np.log(D.lut[c_[sub].astype(np.int64)] * D.scale[k] + i0))
+        goods_all.append(g_[sub])
     Ls = np.stack(Ls)
     rel = [j - k0 for j in ints]
     goods = [goods_all[j] & goods_all[j + 1] for j in rel]
     dts = [(D.tau[j + 1] - D.tau[j]) * 1e-6 for j in ints]
     want = set(rel)
-    rng = np.random.default_rng([int(seed), 35])
     s_on = sigma.get("on") or 0.0
     s_off = sigma.get("off") or 0.0
-    draws = [(rng.random(D.n), rng.standard_normal(D.n), rng.standard_normal(D.n), int(rng.integers(1 << 31)))
+    draws = [(rng.random(n), rng.standard_normal(n), rng.standard_normal(n), int(rng.integers(1 << 31)))
              for _ in range(reps)]
+    tot_scale = D.n / n  # the subset's event totals, scaled to all pixels
+    Gm = np.stack(goods)
+    DLm = np.where(Gm, Ls[[j + 1 for j in rel]] - Ls[rel], 0.0)
+    dts_a = np.asarray(dts, np.float64)
     c = np.array(c_obs, float)
     history = []
     totals = []
@@ -776,19 +819,22 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
                 ref = ref + up * con - dn * coff
                 if k in want:
                     dt = (D.tau[k0 + k + 1] - D.tau[k0 + k]) * 1e-6
-                    no = up + (nr.poisson(r_on * dt, D.n) if r_on > 0 else 0)
-                    nf = dn + (nr.poisson(r_off * dt, D.n) if r_off > 0 else 0)
+                    no = up + (nr.poisson(r_on * dt, n) if r_on > 0 else 0)
+                    nf = dn + (nr.poisson(r_off * dt, n) if r_off > 0 else 0)
                     N_on.append(no)
                     N_off.append(nf)
-            stats.append(_ls_stat(Ls, goods, N_on, N_off, rel, dts, r_on, r_off))
-            totals.append(sum(float((a - (r_on * dt_ if r_on > 0 else 0))[g].sum()) + float((b - (r_off * dt_ if r_off > 0 else 0))[g].sum())
-                              for a, b, g, dt_ in zip(N_on, N_off, goods, dts)))
+            st, tot = _ls_stat(Gm, DLm, np.stack(N_on), np.stack(N_off), dts_a, r_on, r_off)
+            stats.append(st)
+            totals.append(tot_scale * tot)
         sim = np.mean(stats, 0)
         history.append([float(c[0]), float(c[1]), float(sim[0]), float(sim[1])])
-        c = np.maximum(c + (np.asarray(c_obs) - sim), 0.01)
+        gap = np.asarray(c_obs) - sim
+        if np.all(np.abs(gap) <= CORRECTION_TOLERANCE):
+            break  # the simulated statistic matches the observed one: c is the answer
+        c = np.maximum(c + gap, 0.01)
     return (float(c[0]), float(c[1])), {"method": "indirect inference on a simulated DVS quantiser (hysteresis) "
                                                   "over the frames' own log path", "replicates": reps,
-                                        "iterations": history, "sigma_used": [s_on, s_off],
+                                        "pixels_simulated": int(n), "iterations": history, "sigma_used": [s_on, s_off],
                                         "simulated_signal_events": float(np.mean(totals)) if totals else None}
 
 
@@ -888,7 +934,7 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
         a_obs = int(np.argmin(np.abs(np.asarray(offs) - d_obs)))
         oi = list(range(max(a_obs - BINDING_WINDOW[0], 0), min(a_obs + BINDING_WINDOW[0] + 1, len(offs))))
         ij = list(range(max(ii_obs - BINDING_WINDOW[1], 0), min(ii_obs + BINDING_WINDOW[1] + 1, len(i0s))))
-        _, _, sc, _ = _search(S, ints, tuple(i0s[k] for k in ij), tuple(offs[k] for k in oi), r_on, r_off, None, None)
+        _, _, sc, _, _ = _search(S, ints, tuple(i0s[k] for k in ij), tuple(offs[k] for k in oi), r_on, r_off, None, None)
         if not np.isfinite(sc).any():
             break
         a_s, i_s = np.unravel_index(np.nanargmin(sc), sc.shape)
