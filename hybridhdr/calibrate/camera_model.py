@@ -40,8 +40,13 @@ Estimation (pooled over every pixel-interval both frames show well exposed):
   and the events between them, on pixel-intervals fixed before the search (both frames well
   exposed, at least one event in the widest window any δ opens), cross-fitted (thresholds fitted
   on the even intervals predict the odd ones and the reverse). A best value on a grid edge
-  widens the grid (I0 by factors of 4, δ by half a grid width, twice) and is then reported with
-  ``at_grid_edge`` and a warning naming the value; never silently.
+  widens the grid (I0 by factors of 4, δ by half a grid width, twice). An I0 still on the edge
+  gives way to the I0 nearest the nominal whose next-frame error is within one standard error
+  (paired over intervals) of the edge's (the one-standard-error rule); if none is, the edge value
+  is reported with ``at_grid_edge`` and a warning naming it; never silently.
+* **quantiser correction**: indirect inference (``_indirect``, ``_binding``) on a fixed, seeded
+  subset of at most ``MAX_CORRECTION_PIXELS`` pixels, iterated until the simulated statistic is
+  within ``CORRECTION_TOLERANCE`` of the observed one (same seed, same bits).
 * **noise**: events at static pixels (well exposed, |Δ ln I| below ``static_log_bound`` at the
   pixel and its 3×3 neighbours) per pixel-second: OFF at shot/2, ON at shot/2 + leak.
 
