@@ -620,32 +620,27 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     i0_flat = None
     if intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
         # one-standard-error rule (Breiman et al., Classification and Regression Trees, 1984, sec. 3.4):
-        # an I0 on the grid's edge means the criterion does not bound I0 there; among the I0 whose
-        # next-frame error is within one standard error (of the paired per-interval difference) of the
-        # best, the one nearest the nominal I0 is taken; the edge only if none other is
+        # an I0 on the grid's edge is kept only if it predicts the next frames better than the nominal
+        # I0 by more than one standard error of the paired per-interval difference; a criterion that
+        # flat (few usable intervals, little intensity range) does not identify I0: the nominal I0
         from ..camera.encoding import DEFAULT_INTENSITY_OFFSET as _I0_NOM
+        i_nom = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(_I0_NOM))))
         pr = per_rows[a_i]
-        within = []
-        for k in range(len(i0s)):
-            use = (pr[ii, :, 1] > 0) & (pr[k, :, 1] > 0)
-            diff = pr[k, use, 0] / pr[k, use, 1] - pr[ii, use, 0] / pr[ii, use, 1]
-            se_d = float(diff.std(ddof=1) / math.sqrt(diff.size)) if diff.size >= 2 else float("inf")
-            if k == ii or (diff.size and float(diff.mean()) <= se_d):
-                within.append(k)
-        k_sel = min(within, key=lambda k: abs(math.log(i0s[k] / _I0_NOM)))
-        edge_test = {"edge_value": float(i0s[ii]), "within_one_standard_error": [float(i0s[k]) for k in within],
-                     "intervals": int(pr.shape[0])}
-        if k_sel != ii:
-            i0_flat = {**edge_test, "chosen": float(i0s[k_sel]),
-                       "rule": "one standard error: the I0 nearest the nominal among those within one standard "
-                               "error of the grid edge's next-frame error"}
-            notes.append(f"I0 not bounded by the criterion: best on the grid's edge ({i0s[ii]:.4g}); "
-                         f"{i0s[k_sel]:.4g}, nearest the nominal {_I0_NOM:.4g} within one standard error, is used")
-            ii = k_sel
+        use = (pr[ii, :, 1] > 0) & (pr[i_nom, :, 1] > 0)
+        diff = pr[ii, use, 0] / pr[ii, use, 1] - pr[i_nom, use, 0] / pr[i_nom, use, 1]
+        se_d = float(diff.std(ddof=1) / math.sqrt(diff.size)) if diff.size >= 2 else float("inf")
+        if i_nom != ii and not (diff.size >= 2 and float(diff.mean()) + se_d < 0):
+            i0_flat = {"edge_value": float(i0s[ii]), "nominal": float(i0s[i_nom]),
+                       "mean_sq_code_error_difference": _f(float(diff.mean()) if diff.size else float("nan")),
+                       "standard_error": _f(se_d), "intervals": int(diff.size),
+                       "rule": "one standard error: the edge does not predict the next frames better than "
+                               "the nominal I0 by more than one standard error"}
+            notes.append(f"I0 not identified: the criterion's best ({i0s[ii]:.4g}, grid edge) is within one "
+                         f"standard error of the nominal I0 {i0s[i_nom]:.4g} over {diff.size} intervals; "
+                         f"the nominal I0 is used")
+            ii = i_nom
             a_i = int(np.nanargmin(score[:, ii]))
             d = int(offs[a_i])
-        else:
-            notes.append(f"I0 on the grid's edge beats every other I0 by more than one standard error: {edge_test}")
     i0 = float(i0s[ii])
     if i0_flat is None and intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
         edge["intensity_offset"] = True
