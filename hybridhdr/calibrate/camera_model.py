@@ -40,10 +40,8 @@ Estimation (pooled over every pixel-interval both frames show well exposed):
   and the events between them, on pixel-intervals fixed before the search (both frames well
   exposed, at least one event in the widest window any δ opens), cross-fitted (thresholds fitted
   on the even intervals predict the odd ones and the reverse). A best value on a grid edge
-  widens the grid (I0 by factors of 4, δ by half a grid width, twice). An I0 still on the edge
-  gives way to the I0 nearest the nominal whose next-frame error is within one standard error
-  (paired over intervals) of the edge's (the one-standard-error rule); if none is, the edge value
-  is reported with ``at_grid_edge`` and a warning naming it; never silently.
+  widens the grid (I0 by factors of 4, δ by half a grid width, twice) and is then reported with
+  ``at_grid_edge`` and a warning naming the value; never silently.
 * **quantiser correction**: indirect inference (``_indirect``, ``_binding``) on a fixed, seeded
   subset of at most ``MAX_CORRECTION_PIXELS`` pixels, iterated until the simulated statistic is
   within ``CORRECTION_TOLERANCE`` of the observed one (same seed, same bits).
@@ -394,7 +392,6 @@ def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
     """Σ squared code error of predicting frame k+1 from frame k and the events (cross-fitted), and n."""
     se = 0.0
     m = 0
-    per = np.zeros((len(rows), 2))  # per interval: Σ squared error, n (the criterion's paired spread)
     for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
         if not r["idx"].size:
             continue
@@ -405,8 +402,7 @@ def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
         err = _codes_of(D.lut, ihat) - r["code1"]
         se += float(err @ err)
         m += err.size
-        per[q] = (float(err @ err), err.size)
-    return se, m, per
+    return se, m
 
 
 def _search(D, ints, i0s, offs, lam_on, lam_off, c_range, progress):
@@ -414,18 +410,17 @@ def _search(D, ints, i0s, offs, lam_on, lam_off, c_range, progress):
     npi = int(sum(r["idx"].size for r in rows))
     score = np.full((len(offs), len(i0s)), np.nan)
     coefs = np.full((len(offs), len(i0s), 2), np.nan)
-    per_rows = np.zeros((len(offs), len(i0s), len(rows), 2))
     for a_i, d in enumerate(offs):
         counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
         mom = _moments(rows, counts)
         for ii, i0 in enumerate(i0s):
             cf = [_c(_sums(rows, mom, ii, lam_on, lam_off, [(q % 2) == f for q in range(len(rows))])) for f in (0, 1)]
-            se, m, per_rows[a_i, ii] = _score(D, rows, counts, ii, i0, cf, lam_on, lam_off)
+            se, m = _score(D, rows, counts, ii, i0, cf, lam_on, lam_off)
             score[a_i, ii] = math.sqrt(se / m) if m else np.nan
             coefs[a_i, ii] = _c(_sums(rows, mom, ii, lam_on, lam_off))
         if progress is not None:
             progress(a_i + 1, len(offs))
-    return rows, npi, score, coefs, per_rows
+    return rows, npi, score, coefs
 
 
 def _band_homogeneity(D, rows, counts, i0s, n_bands=4):
@@ -584,7 +579,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             r_on, r_off, noise = _noise_rates(D, ints, ref_i0, static_log_bound)
         else:
             r_on, r_off, noise = 0.0, 0.0, {"identifiable": False, "reason": "noise correction off"}
-        rows, npi, score, coefs, per_rows = _search(D, ints, i0s, offs, r_on, r_off, c_range, progress)
+        rows, npi, score, coefs = _search(D, ints, i0s, offs, r_on, r_off, c_range, progress)
         if npi == 0:
             raise ValueError("the camera model found no pixel-interval both frames show well exposed with events")
         if not np.isfinite(score).any():
@@ -617,32 +612,8 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     h_score, h_bands, h_edges = _band_homogeneity(D, rows, counts_d, i0s)
     homog = {"relative_spread": [_f(v) for v in h_score], "bands_c": h_bands, "band_edges": h_edges,
              "intensity_offsets": list(i0s)}
-    i0_flat = None
-    if intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
-        # one-standard-error rule (Breiman et al., Classification and Regression Trees, 1984, sec. 3.4):
-        # an I0 on the grid's edge is kept only if it predicts the next frames better than the nominal
-        # I0 by more than one standard error of the paired per-interval difference; a criterion that
-        # flat (few usable intervals, little intensity range) does not identify I0: the nominal I0
-        from ..camera.encoding import DEFAULT_INTENSITY_OFFSET as _I0_NOM
-        i_nom = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(_I0_NOM))))
-        pr = per_rows[a_i]
-        use = (pr[ii, :, 1] > 0) & (pr[i_nom, :, 1] > 0)
-        diff = pr[ii, use, 0] / pr[ii, use, 1] - pr[i_nom, use, 0] / pr[i_nom, use, 1]
-        se_d = float(diff.std(ddof=1) / math.sqrt(diff.size)) if diff.size >= 2 else float("inf")
-        if i_nom != ii and not (diff.size >= 2 and float(diff.mean()) + se_d < 0):
-            i0_flat = {"edge_value": float(i0s[ii]), "nominal": float(i0s[i_nom]),
-                       "mean_sq_code_error_difference": _f(float(diff.mean()) if diff.size else float("nan")),
-                       "standard_error": _f(se_d), "intervals": int(diff.size),
-                       "rule": "one standard error: the edge does not predict the next frames better than "
-                               "the nominal I0 by more than one standard error"}
-            notes.append(f"I0 not identified: the criterion's best ({i0s[ii]:.4g}, grid edge) is within one "
-                         f"standard error of the nominal I0 {i0s[i_nom]:.4g} over {diff.size} intervals; "
-                         f"the nominal I0 is used")
-            ii = i_nom
-            a_i = int(np.nanargmin(score[:, ii]))
-            d = int(offs[a_i])
     i0 = float(i0s[ii])
-    if i0_flat is None and intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
+    if intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
         edge["intensity_offset"] = True
         lim = "lower" if ii == 0 else "upper"
         warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
@@ -678,7 +649,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     latency = None
     if quantiser_correction:
         c2, ii_rec, latency, ii = _binding(D, rows, ints, i0s, offs, d, ii, sig, r_on, r_off, seed,
-                                           intensity_offset is None and i0_flat is None, time_offset_us is None)
+                                           intensity_offset is None, time_offset_us is None)
         i0 = float(i0s[ii])
         c = c2 if c2 is not None else c
         if c2 is not None:
@@ -702,8 +673,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     r2 = _r2(D, rows, d, ii, r_on, r_off)
     r2_nominal = _r2(D, rows, int(offs[a0]), i_def, r_on, r_off)
     fixed = {"intensity_offset": intensity_offset is not None, "time_offset_us": time_offset_us is not None,
-             "user_grid": bool(user_offs), "notes": notes,
-             "intensity_offset_not_identified": i0_flat}
+             "user_grid": bool(user_offs), "notes": notes}
     return CameraModel(
         c_on=float(c[0]), c_off=float(c[1]), c_on_std=sd[0], c_off_std=sd[1], intensity_offset=i0, time_offset_us=d,
         score=float(score[a_i, ii]), score_nominal=float(score[a0, i_def]), n_pixel_intervals=npi,
@@ -939,7 +909,7 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
         a_obs = int(np.argmin(np.abs(np.asarray(offs) - d_obs)))
         oi = list(range(max(a_obs - BINDING_WINDOW[0], 0), min(a_obs + BINDING_WINDOW[0] + 1, len(offs))))
         ij = list(range(max(ii_obs - BINDING_WINDOW[1], 0), min(ii_obs + BINDING_WINDOW[1] + 1, len(i0s))))
-        _, _, sc, _, _ = _search(S, ints, tuple(i0s[k] for k in ij), tuple(offs[k] for k in oi), r_on, r_off, None, None)
+        _, _, sc, _ = _search(S, ints, tuple(i0s[k] for k in ij), tuple(offs[k] for k in oi), r_on, r_off, None, None)
         if not np.isfinite(sc).any():
             break
         a_s, i_s = np.unravel_index(np.nanargmin(sc), sc.shape)
