@@ -166,3 +166,14 @@ def test_resolver_reads_the_sensor_profile_file(roundtrip, tmp_path, capsys):
     # a method with its own log model keeps it (and is told the thresholds are approximate there)
     got1 = resolve_thresholds(None, out, intensity_offset=1.0)
     assert got1.intensity_offset is None and "differs" in got1.note
+
+
+def test_correction_pixel_subset_is_bounded_and_seeded(roundtrip, monkeypatch):
+    # the quantiser correction simulates at most MAX_CORRECTION_PIXELS pixels, a subset fixed by the
+    # seed: the same seed gives the same bits, the subset's size is the bound
+    monkeypatch.setattr(CM, "MAX_CORRECTION_PIXELS", 500)
+    runs = [CM.estimate_camera_model(roundtrip, n_boot=2, seed=s).to_dict() for s in (0, 0, 1)]
+    qc = [r["quantiser_correction"] for r in runs]
+    assert qc[0]["pixels_simulated"] == 500
+    assert runs[0] == runs[1]
+    assert qc[2]["iterations"] != qc[0]["iterations"]  # another seed, another subset and draws
