@@ -661,8 +661,11 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             if sig.get("std") is not None and ls[0] + ls[1] > 0:
                 sig["std"] = sig["std"] * (c[0] + c[1]) / (ls[0] + ls[1])
             sig["scaled_by_quantiser_correction"] = True
-        if c2 is not None and sd[0] is not None:  # the correction's own simulation noise adds to the sampling error
-            sd = tuple(v * math.sqrt(1 + 1 / ii_rec["replicates"]) for v in sd)
+        if c2 is not None and sd[0] is not None:
+            # the correction's own simulation noise adds to the sampling error: its statistic pools
+            # replicates x simulated pixels where the observed one pools all the pixels
+            frac = D.n / (ii_rec["replicates"] * ii_rec.get("pixels_simulated", D.n))
+            sd = tuple(v * math.sqrt(1 + frac) for v in sd)
         lo_c, hi_c = (float(v) for v in c_range)
         if not (lo_c <= c[0] <= hi_c and lo_c <= c[1] <= hi_c):
             raise ValueError(f"the camera model's corrected thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside "
