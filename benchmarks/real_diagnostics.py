@@ -58,13 +58,16 @@ def _counts(ev, n, w, t0, t1):
 
 def alignment_and_photometric(rec, cal) -> dict:
     """Causes 1 and 2: R² against δ and I0 (the self-calibration's grid) and the exposure sweep."""
-    g = np.asarray(cal.r2_grid)
+    # the camera model's grid holds its criterion (cross-fitted RMS code error of the next frame; lower
+    # is better), not R²: the keys below keep their names, "grid_is" says what they hold
+    g = np.asarray(cal.score_grid, dtype=np.float64)
     ia = list(cal.offsets_us).index(cal.time_offset_us)
     ii = list(cal.intensity_offsets).index(cal.intensity_offset)
     out = {"r2_vs_offset_us": {int(o): round(float(v), 4) for o, v in zip(cal.offsets_us, g[:, ii])},
            "r2_vs_intensity_offset": {float(i): round(float(v), 4) for i, v in zip(cal.intensity_offsets, g[ia])},
            "best_offset_us": cal.time_offset_us, "best_intensity_offset": cal.intensity_offset,
-           "r2_calibrated": cal.r2, "r2_as_stamped": cal.r2_nominal}
+           "r2_calibrated": cal.r2, "r2_as_stamped": cal.r2_nominal,
+           "grid_is": "cross-fitted RMS code error of predicting the next frame (hybridhdr.calibrate.camera_model)"}
     # exposure sweep: frame k = mean over [tau_k + s, tau_k + s + T] of (I_ref + I0) exp(c E(t)) - I0
     fr, ev = rec.frames, rec.events
     h, w = fr.shape
@@ -430,7 +433,7 @@ def main() -> int:
     rec = hh.read(ECD)
     cal = estimate_event_frame_calibration(rec)
     res = {"recording": "ecd_slider_depth", "self_calibration": {k: v for k, v in cal.to_dict().items()
-                                                                 if k not in ("r2_grid",)}}
+                                                                 if k not in ("score_grid", "per_pixel")}}
     for name, fn in (("alignment_and_photometric", lambda: alignment_and_photometric(rec, cal)),
                      ("dark_compression", lambda: dark_compression(rec, cal)),
                      ("thresholds", lambda: thresholds(rec, cal)),

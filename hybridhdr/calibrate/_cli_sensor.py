@@ -32,6 +32,11 @@ def register(steps) -> None:
                    help="largest |d ln I| between two frames of a static pixel (and its 3x3 neighbours), log units")
     p.add_argument("--bootstrap", type=positive_int, default=200, help="bootstrap replicates over pixels (>= 20)")
     p.add_argument("--seed", type=int, default=0, help="bootstrap seed")
+    p.add_argument("--plot", type=Path, default=None, metavar="PNG",
+                   help="picture of the camera model (per intensity band the frames' log change against the events' "
+                        "predicted change with the fitted thresholds, residuals, the criterion over frame offset and "
+                        "I0, every value's uncertainty); default: OUT with the suffix .png")
+    p.add_argument("--no-plot", action="store_true", help="do not draw the picture")
     p.set_defaults(func=run_sensor)
 
 
@@ -45,9 +50,26 @@ def run_sensor(args) -> int:
                   command="calibrate sensor")
     t0 = time.perf_counter()
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
-    prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
-                                   n_boot=args.bootstrap, seed=args.seed, name=args.name,
-                                   sensor_model=args.sensor_model)
+    import warnings
+
+    from .camera_model import GridEdgeWarning
+    with warnings.catch_warnings(record=True) as wl:
+        warnings.simplefilter("always", GridEdgeWarning)
+        prof = estimate_sensor_profile(rec, profile=args.profile, static_log_bound=args.static_log_bound,
+                                       n_boot=args.bootstrap, seed=args.seed, name=args.name,
+                                       sensor_model=args.sensor_model, keep_model=not args.no_plot)
+    notes = [str(w.message) for w in wl if issubclass(w.category, GridEdgeWarning)]
+    for n_ in notes:
+        print(f"warning: {n_}", file=sys.stderr)
+    prof.provenance["warnings"] = notes
+    plot = None
+    model = prof.provenance.pop("_model", None)
+    if not args.no_plot and model is not None:
+        from .camera_model import plot_camera_model
+        plot = args.plot or args.out.with_suffix(".png")
+        plot.parent.mkdir(parents=True, exist_ok=True)
+        plot_camera_model(rec, model, plot, profile=args.profile, title=f"{args.recording.name}: camera model")
+        prof.provenance["plot"] = str(plot)
     prof.provenance.update(command=["hybridhdr", *sys.argv[1:]], input=str(args.recording))
     args.out.parent.mkdir(parents=True, exist_ok=True)
     write_json_atomic(args.out, prof.to_dict(), indent=1)
@@ -64,6 +86,8 @@ def run_sensor(args) -> int:
         else:
             ub = e.get("upper_bound_us")
             print(f"  {k:<26} not identifiable" + (f" (at most {ub:.0f} us)" if ub else "") + f": {e['reason']}")
+    if plot is not None:
+        print(f"wrote {plot} (the model: frames' log change against the events, per intensity band)")
     print(f"wrote {args.out} (simulator fields: {', '.join(sorted(prof.simulator_params)) or 'none'}) in "
           f"{time.perf_counter() - t0:.1f} s")
     return 0

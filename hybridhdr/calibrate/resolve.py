@@ -19,6 +19,10 @@ The user's choice is one of four words or a per-pixel map:
     the event/frame self-calibration (:func:`hybridhdr.calibrate.selfcal.self_calibration`):
     the time each frame stands for, ON/OFF thresholds and, when ``intensity_offset`` is None
     (the AKF), the log offset I0.
+a sensor profile
+    the ``.json`` file ``hybridhdr calibrate sensor`` writes (the camera model, also what
+    ``simulate --sensor`` reads): its ON/OFF thresholds, its log offset I0 (when
+    ``intensity_offset`` is None: the AKF) and the time its frames stand for.
 a map
     a threshold map (``c_on``/``c_off`` arrays, e.g. from ``hybridhdr calibrate thresholds``),
     a dict, a ``(c_on, c_off)`` pair or the path of a ``.npz`` map.
@@ -41,7 +45,7 @@ from pathlib import Path
 
 __all__ = ["THRESHOLD_WORDS", "DEFAULT_THRESHOLDS", "THRESHOLD_KEYS", "THRESHOLDS_HELP", "thresholds_arg",
            "ResolvedThresholds", "resolve_thresholds", "declared_thresholds", "stored_thresholds",
-           "threshold_arrays", "thresholds_stated", "recording_declares_thresholds"]
+           "threshold_arrays", "thresholds_stated", "recording_declares_thresholds", "is_sensor_profile"]
 
 #: The words a thresholds choice takes besides a map (module docstring).
 THRESHOLD_WORDS = ("auto", "input", "params", "selfcal")
@@ -87,7 +91,7 @@ class ResolvedThresholds:
     source : str
         ``"map"`` (a map the user gave), ``"stored"`` (the map stored in the recording),
         ``"declared"`` (the recording's nominal ON/OFF), ``"params"`` (the method's own: nothing
-        to change), ``"auto"`` or ``"selfcal"``.
+        to change), ``"auto"``, ``"selfcal"`` or ``"profile"`` (a sensor profile file).
     c_on, c_off : float or None
         Scalar ON/OFF thresholds (log units) to put into the method's parameters; None: keep
         the parameters'.
@@ -229,6 +233,43 @@ def _selfcal(recording, profile, intensity_offset) -> ResolvedThresholds:
                               frame_time_offset_us=int(cal["time_offset_us"]), note=note, record=cal)
 
 
+def _from_sensor_profile(path, intensity_offset) -> ResolvedThresholds:
+    """A sensor profile file (``calibrate sensor``): its thresholds, I0 and frame time offset."""
+    from ..formats.sensor_profile import load_sensor_profile
+    prof = load_sensor_profile(path)
+    est = prof.estimates
+    sp = prof.simulator_params
+    if "contrast_threshold_on" not in sp or "contrast_threshold_off" not in sp:
+        raise ValueError(f"sensor profile {path}: its recording did not identify the ON/OFF thresholds "
+                         f"({est.get('contrast_threshold_on', {}).get('reason', 'no estimate')})")
+    on, off = float(sp["contrast_threshold_on"]), float(sp["contrast_threshold_off"])
+    i0 = (est.get("intensity_offset") or {}).get("value")
+    dt = (est.get("time_offset_us") or {}).get("value")
+    note = f"sensor profile {Path(path).name}: ON {on:.4g}, OFF {off:.4g} (log units)"
+    own = None
+    if i0 is not None:
+        if intensity_offset is None:
+            own = float(i0)
+            note += f" in ln(I + {own:.3g})"
+        elif not math.isclose(float(intensity_offset), float(i0), rel_tol=1e-9):
+            note += (f", estimated in ln(I + {float(i0):.3g}); the method's own log model ln(I + "
+                     f"{float(intensity_offset):.3g}) differs, so they are approximate there")
+    if dt is not None:
+        note += f"; frames stand for their stamp {int(dt):+d} µs"
+    return ResolvedThresholds("profile", c_on=on, c_off=off, intensity_offset=own,
+                              frame_time_offset_us=int(dt) if dt is not None else 0, note=note,
+                              record={"sensor_profile": str(path), "name": prof.name,
+                                      "estimates": {k: est[k] for k in ("contrast_threshold_on", "contrast_threshold_off",
+                                                                         "intensity_offset", "time_offset_us")
+                                                    if k in est}})
+
+
+def is_sensor_profile(choice) -> bool:
+    """True for the path of a sensor profile file (``.json``) as a thresholds choice."""
+    return isinstance(choice, (str, os.PathLike)) and str(choice).lower().endswith(".json") \
+        and str(choice) not in THRESHOLD_WORDS
+
+
 def resolve_thresholds(recording, choice="input", *, stated: bool = False, maps: bool = True,
                        intensity_offset: float | None = None, profile=None) -> ResolvedThresholds:
     """The thresholds ``choice`` gives on ``recording`` (module docstring).
@@ -258,6 +299,8 @@ def resolve_thresholds(recording, choice="input", *, stated: bool = False, maps:
         A recording that cannot tell (``"auto"``, ``"selfcal"``: the
         estimator's reason).
     """
+    if is_sensor_profile(choice):
+        return _from_sensor_profile(choice, intensity_offset)
     if not isinstance(choice, str) or choice not in THRESHOLD_WORDS:  # a str that is no word is a path
         return ResolvedThresholds("map", maps=threshold_arrays(choice))
     if choice == "params":

@@ -10,7 +10,7 @@ profile"), with its uncertainty and an ``identifiable`` flag saying whether the 
 tell it:
 
 * **threshold means**: the pooled least squares of the threshold estimator
-  (:func:`hybridhdr.calibrate.thresholds.threshold_sums`); 95 % interval by a bootstrap over
+  (:func:`hybridhdr.calibrate.camera_model.estimate_camera_model`); 95 % interval by a bootstrap over
   pixels (each pixel's sums re-weighted by Poisson(1) weights).
 * **per-pixel spread**: the raw spread of per-pixel estimates is σ² plus each estimate's own
   noise (quantisation of the log change into whole events). The usable intervals are cut into
@@ -38,7 +38,7 @@ import numpy as np
 from .._version import __version__
 from ..errors import InputMismatchError
 from ..formats.sensor_profile import SensorProfile
-from .thresholds import _nnls2, threshold_sums
+from .camera_model import estimate_camera_model
 
 __all__ = ["estimate_sensor_profile", "isi_lower_edge", "poisson_ci"]
 
@@ -83,45 +83,6 @@ def _ci(samples):
     return float(np.std(s, ddof=1)), (float(np.percentile(s, 2.5)), float(np.percentile(s, 97.5)))
 
 
-def _corrected(ps, lam_on: float, lam_off: float):
-    """Least-squares sums ``(soo, sff, sof, bo, bf)`` of the counts less their noise events.
-
-    With N = S + E, E Poisson noise of mean λ per interval independent of the signal S and of ΔL:
-    E[Σ(N−λ)² − Kλ] = ΣS², E[Σ(N_on−λ_on)(N_off−λ_off)] = ΣS_on·S_off, E[Σ(N−λ)·ΔL] = ΣS·ΔL
-    (K usable intervals), so the corrected normal equations are those of the signal counts."""
-    K, so, sf, sl = ps["n_int"], ps["n_on"], ps["n_off"], ps["sl"]
-    soo = ps["soo"] - 2 * lam_on * so + K * (lam_on ** 2 - lam_on)
-    sff = ps["sff"] - 2 * lam_off * sf + K * (lam_off ** 2 - lam_off)
-    sof = ps["sof"] - lam_off * so - lam_on * sf + K * lam_on * lam_off
-    return soo, sff, sof, ps["bo"] - lam_on * sl, ps["bf"] - lam_off * sl
-
-
-def _half_estimates(ps, cs, min_intervals, min_decorrelation, c_range):
-    soo, sff, sof, bo, bf = cs
-    a, b = _nnls2(soo, sff, sof, bo, bf)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        rho2 = np.where((soo > 0) & (sff > 0), sof ** 2 / (soo * sff), 1.0)
-    ok = ((ps["k_on"] >= min_intervals) & (ps["k_off"] >= min_intervals) & (1.0 - rho2 >= min_decorrelation)
-          & (a >= c_range[0]) & (a <= c_range[1]) & (b >= c_range[0]) & (b <= c_range[1]))
-    return a, b, ok
-
-
-def _inliers(x, k: float = 8.0):
-    """Within ``k`` robust SDs (1.4826 MAD) of the median."""
-    med = np.median(x)
-    mad = 1.4826 * np.median(np.abs(x - med))
-    return np.abs(x - med) <= k * mad if mad > 0 else np.ones(x.shape, bool)
-
-
-def _cov(x, y, w=None):
-    if w is None:
-        return float(np.mean((x - x.mean()) * (y - y.mean())))
-    sw = w.sum(axis=-1, keepdims=True)
-    mx = (w * x).sum(-1, keepdims=True) / sw
-    my = (w * y).sum(-1, keepdims=True) / sw
-    return ((w * (x - mx) * (y - my)).sum(-1) / sw[..., 0])
-
-
 def isi_lower_edge(isi_us, weights=None, *, noise_rate_hz: float = 0.0, quantile: float = 1e-3, _half=None):
     """Lower edge of an inter-event-interval sample (µs), ``isi_us`` sorted ascending.
 
@@ -148,7 +109,8 @@ def isi_lower_edge(isi_us, weights=None, *, noise_rate_hz: float = 0.0, quantile
 def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float | None = None, well_exposed=None,
                             static_log_bound: float = 0.02, isi_quantile: float = 1e-3, n_boot: int = 200,
                             seed: int = 0, min_intervals: int = 2, min_decorrelation: float = 0.05,
-                            c_range=(0.01, 2.0), name: str = "", sensor_model: str = "") -> SensorProfile:
+                            c_range=(0.01, 2.0), name: str = "", sensor_model: str = "",
+                            keep_model: bool = False) -> SensorProfile:
     """Estimate the event-sensor parameters of ``recording`` (module docstring).
 
     Parameters
@@ -187,186 +149,122 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
     est: dict = {}
     sim: dict = {}
 
-    # -- static pixel-intervals (collected in the threshold estimator's own pass) -------------------
     ev = rec.events
     pix_all = ev["y"].astype(np.int64) * w + ev["x"].astype(np.int64)
-    on_all = ev["p"] > 0
-    static = {"n_on": 0, "n_off": 0, "pixel_s": 0.0, "sum_abs_dl": 0.0, "intervals": 0, "pixel_intervals": 0,
-              "dt_s": 0.0}
-
-    def hook(t0, t1, dl, good, i0, i1):
-        from scipy.ndimage import maximum_filter
-        d = np.where(good, np.abs(dl), np.inf).reshape(h, w)
-        st = (maximum_filter(d, size=3, mode="nearest") < static_log_bound).reshape(-1)
-        k = int(st.sum())
-        static["intervals"] += 1
-        static["dt_s"] += (t1 - t0) * 1e-6
-        if not k:
-            return
-        p_ = pix_all[i0:i1]
-        sel = st[p_]
-        o_ = on_all[i0:i1][sel]
-        static["n_on"] += int(o_.sum())
-        static["n_off"] += int((~o_).sum())
-        static["pixel_s"] += k * (t1 - t0) * 1e-6
-        static["sum_abs_dl"] += float(np.abs(dl[st]).sum())
-        static["pixel_intervals"] += k
-
-    # -- thresholds: pooled means, per-pixel spread (split halves) ----------------------------------
     c_range = (float(c_range[0]), float(c_range[1]))
     thr_record = {}
+    # -- the camera model: thresholds, I0, frame time, latency, spread, noise (one estimator) ------
     try:
-        tm, sums, halves = threshold_sums(rec, profile=profile, intensity_offset=intensity_offset,
-                                          well_exposed=well_exposed, min_intervals=min_intervals,
-                                          min_decorrelation=min_decorrelation, c_range=c_range, parts=2,
-                                          interval_hook=hook)
+        m = estimate_camera_model(rec, profile=profile, intensity_offset=intensity_offset, well_exposed=well_exposed,
+                                  c_range=c_range, static_log_bound=static_log_bound, n_boot=int(n_boot), seed=seed,
+                                  per_pixel=True)
     except ValueError as e:
-        tm = None
-        reason = f"threshold estimator: {e}"
-        for k in ("contrast_threshold_on", "contrast_threshold_off"):
-            est[k] = _entry(None, identifiable=False, reason=reason, method="pooled frame/event NNLS", unit="ln")
-        est["threshold_mismatch_sigma"] = _entry(None, identifiable=False, reason=reason,
-                                                 method="split-half covariance", unit="ln")
-    # -- shot noise and leak at static pixels --------------------------------------------------------
-    T = static["pixel_s"]
-    n_on, n_off = static["n_on"], static["n_off"]
-    c_mean = 0.5 * (tm.fallback_on + tm.fallback_off) if tm is not None else math.nan
-    contam = static["sum_abs_dl"] / c_mean / T if T > 0 and math.isfinite(c_mean) else None
-    base = {"static_pixel_s": T, "static_on_events": n_on, "static_off_events": n_off,
-            "static_pixel_intervals": static["pixel_intervals"], "static_log_bound": static_log_bound,
-            "signal_contamination_bound_hz": contam}
-    nmethod = (f"events at static pixels (well exposed, |d ln I| < {static_log_bound:g} at the pixel and its 3x3 "
-               f"neighbours between two frames) per pixel-second; OFF at shot/2, ON at shot/2 + leak (simulator), "
-               f"constrained ML (leak >= 0); exact Poisson 95 % interval")
-    if T <= 0:
-        reason = "no static well-exposed pixel-interval (every usable pixel's frames change, or none is well exposed)"
-        est["shot_noise_rate_hz"] = _entry(None, identifiable=False, reason=reason, method=nmethod, unit="Hz", **base)
-        est["leak_rate_hz"] = _entry(None, identifiable=False, reason=reason, method=nmethod, unit="Hz", **base)
-        ba_rate = 0.0
-    else:
-        tot = n_on + n_off
-        ba_rate = tot / T
-        lo, hi = poisson_ci(tot)
-        base["background_activity_hz"] = ba_rate
-        base["background_activity_ci95"] = [lo / T, hi / T]
-        base["on_fraction"] = n_on / tot if tot else None
-        if tot < MIN_STATIC_EVENTS:
-            est["leak_rate_hz"] = _entry(
-                None, identifiable=False, method=nmethod, unit="Hz", upper_bound_hz=hi / T, **base,
-                reason=f"{tot} events at static pixels (need {MIN_STATIC_EVENTS} to compare ON with OFF); "
-                       f"the leak is at most the total rate's upper bound")
-            leak = 0.0
-        else:
-            leak_raw = (n_on - n_off) / T
-            sd = math.sqrt(tot) / T
-            leak = max(leak_raw, 0.0)
-            est["leak_rate_hz"] = _entry(leak, identifiable=True, method=nmethod + "; leak = (N_on - N_off)/T",
-                                         unit="Hz", std=sd, ci95=(max(leak_raw - 1.96 * sd, 0.0), leak_raw + 1.96 * sd),
-                                         unconstrained_hz=leak_raw, **base)
-            sim["leak_rate_hz"] = leak
-        if leak > 0:
-            shot = 2 * n_off / T
-            lo, hi = poisson_ci(n_off)
-            ci = (2 * lo / T, 2 * hi / T)
-            sd = 2 * math.sqrt(n_off) / T
-        else:
-            shot = tot / T
-            ci = (lo / T, hi / T)
-            sd = math.sqrt(tot) / T
-        est["shot_noise_rate_hz"] = _entry(shot, identifiable=True, method=nmethod, unit="Hz", std=sd, ci95=ci, **base)
-        sim["shot_noise_rate_hz"] = shot
-
-    if tm is not None:
-        pv = tm.provenance
-        # noise events (shot/2 per polarity, leak ON) in the counts: method-of-moments correction
-        dt = static["dt_s"] / max(static["intervals"], 1)
-        lam_on = (0.5 * sim.get("shot_noise_rate_hz", 0.0) + sim.get("leak_rate_hz", 0.0)) * dt
-        lam_off = 0.5 * sim.get("shot_noise_rate_hz", 0.0) * dt
-        cs = _corrected(sums, lam_on, lam_off)
-        used = np.flatnonzero(sums["n_int"] > 0)
-        S = np.stack([c[used] for c in cs], axis=1)
-        g_on, g_off = (float(v) for v in _nnls2(*S.sum(axis=0)))
-        boot = []
-        for W in _boot_weights(rng, int(n_boot), used.size):
-            a, b = _nnls2(*(W @ S).T)
-            boot.append(np.stack([a, b], 1))
-        boot = np.concatenate(boot)
-        method = (f"pooled NNLS of frame log change on ON/OFF counts over {pv['n_pixel_intervals']} well-exposed "
-                  f"pixel-intervals ({pv['intervals_used']} frame intervals), its moments corrected for the noise "
-                  f"events expected per interval (ON {lam_on:.3g}, OFF {lam_off:.3g}: shot noise and leak from the "
-                  f"static pixels); 95 % bootstrap over {used.size} pixels")
-        # how much the noise correction moves them: the shot rate at its 95 % bounds, and with the
-        # sub-bound signal that may hide in the static events removed
-        sens = {}
-        sh = est.get("shot_noise_rate_hz", {})
-        if sh.get("value") and sh.get("ci95"):
-            cands = {"shot_ci95_low": sh["ci95"][0], "shot_ci95_high": sh["ci95"][1],
-                     "shot_less_contamination": max(sh["value"] - (sh.get("signal_contamination_bound_hz") or 0), 0)}
-            for label, rate in cands.items():
-                lo_ = (0.5 * rate + sim.get("leak_rate_hz", 0.0)) * dt
-                ct = [c[used].sum() for c in _corrected(sums, lo_, 0.5 * rate * dt)]
-                sens[label] = [float(v) for v in _nnls2(*ct)]
-        for j, (k, v, raw) in enumerate((("contrast_threshold_on", g_on, tm.fallback_on),
-                                         ("contrast_threshold_off", g_off, tm.fallback_off))):
-            sd, ci = _ci(boot[:, j])
-            ok = c_range[0] <= v <= c_range[1]
-            est[k] = _entry(v if ok else None, identifiable=ok, method=method, unit="ln", std=sd, ci95=ci,
-                            uncorrected=raw, noise_correction_sensitivity={lab: vv[j] for lab, vv in sens.items()},
-                            per_pixel_median=_f(np.nanmedian(tm.c_on if j == 0 else tm.c_off)),
-                            per_pixel_estimated=int(tm.valid.sum()),
-                            reason="" if ok else f"the noise-corrected estimate {v:.4g} is outside c_range {c_range}: "
-                                                 f"the static pixels' noise rate explains most of the events")
-            if ok:
-                sim[k] = float(v)
-        thr_record = {"intervals_used": pv["intervals_used"], "pixel_intervals": pv["n_pixel_intervals"],
-                      "residual_rms_log": pv["residual_rms_log"], "profile": pv["profile"],
-                      "intensity_offset": pv["intensity_offset"], "well_exposed_codes": pv["well_exposed_codes"]}
-        # spread: per-pixel estimates on the two halves of the usable intervals
-        a1, b1, ok1 = _half_estimates(halves[0], _corrected(halves[0], lam_on, lam_off), min_intervals,
-                                      min_decorrelation, c_range)
-        a2, b2, ok2 = _half_estimates(halves[1], _corrected(halves[1], lam_on, lam_off), min_intervals,
-                                      min_decorrelation, c_range)
-        both = np.flatnonzero(ok1 & ok2)
-        af, bf_, v = _half_estimates(sums, cs, min_intervals, min_decorrelation, c_range)
-        raw_on = _f(np.std(af[v], ddof=1)) if v.sum() > 1 else None
-        raw_off = _f(np.std(bf_[v], ddof=1)) if v.sum() > 1 else None
-        smethod = ("split-half covariance: sigma^2 = (cov(c_on first half, c_on second half) + same for OFF) / 2 "
-                   "over pixels estimated in both halves of the usable frame intervals (estimation noise of the "
-                   "two halves is independent, so it drops out), pixels beyond 8 robust SDs dropped; 95 % "
-                   "bootstrap over pixels")
-        if both.size < MIN_SPREAD_PIXELS:
+        m = None
+        reason = f"camera model: {e}"
+        for k, u in (("contrast_threshold_on", "ln"), ("contrast_threshold_off", "ln"),
+                     ("threshold_mismatch_sigma", "ln"), ("intensity_offset", "frame-linear"),
+                     ("time_offset_us", "us"), ("latency_us", "us"), ("shot_noise_rate_hz", "Hz"),
+                     ("leak_rate_hz", "Hz")):
+            est[k] = _entry(None, identifiable=False, reason=reason, method="hybridhdr.calibrate.camera_model", unit=u)
+    if m is not None:
+        thr_record = m.to_dict()
+        method = (f"camera model (hybridhdr.calibrate.camera_model): pooled least squares of the frames' log change "
+                  f"on exposure-weighted ON/OFF counts over {m.n_pixel_intervals} event-bearing pixel-intervals "
+                  f"({m.n_intervals} frame intervals), noise events removed, corrected for the DVS quantiser by "
+                  f"indirect inference; 1.96 bootstrap SD")
+        for k, v, sd, raw in (("contrast_threshold_on", m.c_on, m.c_on_std, m.least_squares["c_on"]),
+                              ("contrast_threshold_off", m.c_off, m.c_off_std, m.least_squares["c_off"])):
+            ci = None if sd is None else (max(v - 1.96 * sd, 0.0), v + 1.96 * sd)
+            est[k] = _entry(v, identifiable=True, method=method, unit="ln", std=sd, ci95=ci, least_squares=raw,
+                            reverse_regression=m.reverse_regression.get("c_" + k.rsplit("_", 1)[-1]))
+            sim[k] = float(v)
+        i0_edge = m.at_grid_edge.get("intensity_offset")
+        grid = list(m.intensity_offsets)
+        k_ = grid.index(m.intensity_offset) if m.intensity_offset in grid else 0
+        nb = (grid[max(k_ - 1, 0)], grid[min(k_ + 1, len(grid) - 1)])
+        est["intensity_offset"] = _entry(
+            m.intensity_offset, identifiable=not i0_edge and not m.fixed["intensity_offset"], unit="frame-linear",
+            method="I0 of ln(I + I0): best cross-fitted prediction of the frames' codes, corrected for the quantiser "
+                   "(indirect inference); the interval is the neighbouring grid values",
+            ci95=nb, reason="on the edge of its grid after widening" if i0_edge else
+            ("given, not estimated" if m.fixed["intensity_offset"] else ""))
+        step = (m.offsets_us[1] - m.offsets_us[0]) if len(m.offsets_us) > 1 else 0
+        for k, v, what in (("time_offset_us", m.time_offset_us, "the shift of the frames' times under which the events "
+                                                                "predict the next frame best (includes the quantiser's "
+                                                                "hysteresis lag: what a reconstruction uses)"),
+                           ("latency_us", m.latency_us, "the events' delay after the light: time_offset_us less the "
+                                                        "lag the same search finds on events the model simulates "
+                                                        "from the frames")):
+            edge_ = m.at_grid_edge.get("time_offset_us")
+            est[k] = _entry(v, identifiable=v is not None and not edge_ and not m.fixed["time_offset_us"], unit="us",
+                            method=what + "; the interval is one grid step either side",
+                            ci95=None if v is None else (v - step, v + step),
+                            reason="" if v is not None and not edge_ else "on the edge of its grid or not estimated")
+        sg = m.mismatch_sigma
+        smethod = ("split-half covariance: sigma^2 = cov(per-pixel estimate on the even intervals, on the odd "
+                   "intervals) over pixels estimated in both (their estimation errors are independent); pixels "
+                   "beyond 8 robust SDs dropped; 95 % bootstrap over pixels")
+        if sg.get("on") is None or sg.get("off") is None:
             est["threshold_mismatch_sigma"] = _entry(
-                None, identifiable=False, method=smethod, unit="ln", raw_std_on=raw_on, raw_std_off=raw_off,
-                pixels_both_halves=int(both.size), per_pixel_estimated=int(v.sum()),
-                reason=f"{both.size} pixels have a per-pixel estimate in both halves of the "
-                       f"{pv['intervals_used']} usable frame interval(s) (need {MIN_SPREAD_PIXELS}; each half needs "
-                       f"{min_intervals} intervals with ON and with OFF events per pixel): the raw spread of per-pixel "
-                       f"estimates cannot be told from their estimation noise")
+                None, identifiable=False, method=smethod, unit="ln", pixels_both_halves=sg.get("pixels_both_halves"),
+                reason=f"{sg.get('pixels_both_halves', 0)} pixels have a per-pixel estimate in both halves of the "
+                       f"usable frame intervals (need 30): the spread cannot be told from the estimation noise")
         else:
-            # gross outliers (a pixel whose few events fit badly) would dominate a covariance: drop
-            # pixels beyond 8 robust SDs in either half (never a normal pixel; 0.3-1.3 % of the round
-            # trip's pixels, whose sigma was +17 % with them on one seed of five, +2 % without; 5 robust
-            # SDs dropped 5 % and cut into the true spread: -8 %)
-            keep = _inliers(a1[both]) & _inliers(a2[both]) & _inliers(b1[both]) & _inliers(b2[both])
-            n_out = int((~keep).sum())
-            both = both[keep]
-            x_on, y_on, x_off, y_off = a1[both], a2[both], b1[both], b2[both]
-            c_on_ = _cov(x_on, y_on)
-            c_off_ = _cov(x_off, y_off)
-            s2 = 0.5 * (c_on_ + c_off_)
-            bs = []
-            for W in _boot_weights(rng, int(n_boot), both.size):
-                bs.append(np.sqrt(np.maximum(0.5 * (_cov(x_on, y_on, W) + _cov(x_off, y_off, W)), 0.0)))
-            sd, ci = _ci(np.concatenate(bs))
-            sig = math.sqrt(max(s2, 0.0))
-            var_raw = 0.5 * ((raw_on or 0.0) ** 2 + (raw_off or 0.0) ** 2)
+            sig = 0.5 * (sg["on"] + sg["off"])
+            sd = sg.get("std")
             est["threshold_mismatch_sigma"] = _entry(
-                sig, identifiable=True, method=smethod, unit="ln", std=sd, ci95=ci,
-                sigma_on=math.sqrt(max(c_on_, 0.0)), sigma_off=math.sqrt(max(c_off_, 0.0)),
-                raw_std_on=raw_on, raw_std_off=raw_off,
-                estimation_noise_std=math.sqrt(max(var_raw - s2, 0.0)),
-                pixels_both_halves=int(both.size), outlier_pixels_dropped=n_out)
-            sim["threshold_mismatch_sigma"] = sig
+                sig, identifiable=True, method=smethod, unit="ln", std=sd,
+                ci95=None if sd is None else (max(sig - 1.96 * sd, 0.0), sig + 1.96 * sd),
+                sigma_on=sg["on"], sigma_off=sg["off"], pixels_both_halves=sg["pixels_both_halves"])
+            sim["threshold_mismatch_sigma"] = float(sig)
+        # -- shot noise and leak at static pixels (the model's own count) ------------------------------
+        nz = m.noise
+        T = float(nz.get("static_pixel_s", 0.0))
+        n_on, n_off = int(nz.get("static_on_events", 0)), int(nz.get("static_off_events", 0))
+        base = {"static_pixel_s": T, "static_on_events": n_on, "static_off_events": n_off,
+                "static_log_bound": static_log_bound}
+        nmethod = (f"events at static pixels (well exposed, |d ln I| < {static_log_bound:g} at the pixel and its 3x3 "
+                   f"neighbours between two frames) per pixel-second; OFF at shot/2, ON at shot/2 + leak (simulator), "
+                   f"constrained ML (leak >= 0); exact Poisson 95 % interval")
+        if T <= 0:
+            reason = "no static well-exposed pixel-interval (every usable pixel's frames change, or none is well exposed)"
+            est["shot_noise_rate_hz"] = _entry(None, identifiable=False, reason=reason, method=nmethod, unit="Hz", **base)
+            est["leak_rate_hz"] = _entry(None, identifiable=False, reason=reason, method=nmethod, unit="Hz", **base)
+        else:
+            tot = n_on + n_off
+            lo, hi = poisson_ci(tot)
+            base["background_activity_hz"] = tot / T
+            base["background_activity_ci95"] = [lo / T, hi / T]
+            base["on_fraction"] = n_on / tot if tot else None
+            if tot < MIN_STATIC_EVENTS:
+                est["leak_rate_hz"] = _entry(
+                    None, identifiable=False, method=nmethod, unit="Hz", upper_bound_hz=hi / T, **base,
+                    reason=f"{tot} events at static pixels (need {MIN_STATIC_EVENTS} to compare ON with OFF); "
+                           f"the leak is at most the total rate's upper bound")
+                leak = 0.0
+            else:
+                leak_raw = (n_on - n_off) / T
+                sd = math.sqrt(tot) / T
+                leak = max(leak_raw, 0.0)
+                # a recording whose static pixels fire more OFF than ON has leak_raw < 0: the leak is 0
+                # (its constraint) and its interval clipped at 0 on both ends, never [0, negative]
+                est["leak_rate_hz"] = _entry(leak, identifiable=True, method=nmethod + "; leak = (N_on - N_off)/T",
+                                             unit="Hz", std=sd, ci95=(max(leak_raw - 1.96 * sd, 0.0),
+                                                                      max(leak_raw + 1.96 * sd, 0.0)),
+                                             unconstrained_hz=leak_raw, **base)
+                sim["leak_rate_hz"] = leak
+            if leak > 0:
+                shot = 2 * n_off / T
+                lo2, hi2 = poisson_ci(n_off)
+                ci = (2 * lo2 / T, 2 * hi2 / T)
+                sd = 2 * math.sqrt(n_off) / T
+            else:
+                shot = tot / T
+                ci = (lo / T, hi / T)
+                sd = math.sqrt(tot) / T
+            est["shot_noise_rate_hz"] = _entry(shot, identifiable=True, method=nmethod, unit="Hz", std=sd, ci95=ci, **base)
+            sim["shot_noise_rate_hz"] = shot
+    ba_rate = sim.get("shot_noise_rate_hz", 0.0) + sim.get("leak_rate_hz", 0.0)
 
     # -- refractory period: lower edge of the same-pixel ISI histogram ------------------------------
     order = np.lexsort((ev["t"], pix_all))
@@ -425,8 +323,9 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
         reason="needs a periodic stimulus of known phase (a blinking LED: the spread of one pixel's event times "
                "across periods); the simulator has no jitter tier (timestamps are exact crossings rounded to 1 us)")
 
-    names = ("contrast_threshold_on", "contrast_threshold_off", "threshold_mismatch_sigma", "shot_noise_rate_hz",
-             "leak_rate_hz", "refractory_period_us", "photoreceptor_cutoff_hz", "timestamp_jitter_us")
+    names = ("contrast_threshold_on", "contrast_threshold_off", "threshold_mismatch_sigma", "intensity_offset",
+             "time_offset_us", "latency_us", "shot_noise_rate_hz", "leak_rate_hz", "refractory_period_us",
+             "photoreceptor_cutoff_hz", "timestamp_jitter_us")
     est = {k: est[k] for k in names}
     sim = {k: sim[k] for k in names if k in sim}
     prov = {"hybridhdr_version": __version__, "estimator": "hybridhdr.calibrate.sensor_profile",
@@ -437,7 +336,10 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
             "isi_quantile": isi_quantile}
     sensor = {"model": sensor_model, "width": int(ss.width if ss is not None else w),
               "height": int(ss.height if ss is not None else h)}
-    return SensorProfile(simulator_params=sim, estimates=est, name=name, sensor=sensor, provenance=prov)
+    out = SensorProfile(simulator_params=sim, estimates=est, name=name, sensor=sensor, provenance=prov)
+    if m is not None and keep_model:
+        out.provenance["_model"] = m  # for the plot; the CLI takes it out before writing
+    return out
 
 
 def _f(v):

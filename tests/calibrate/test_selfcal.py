@@ -1,10 +1,16 @@
 """Event/frame self-calibration (hybridhdr.calibrate.selfcal): planted values recovered, leave-one-out."""
 
+import warnings
+
 import numpy as np
 import pytest
 
-from hybridhdr.calibrate.selfcal import (apply_time_offset, estimate_event_frame_calibration,
-                                          self_calibration)
+from hybridhdr.calibrate.camera_model import GridEdgeWarning
+from hybridhdr.calibrate.selfcal import (
+    apply_time_offset,
+    estimate_event_frame_calibration,
+    self_calibration,
+)
 from hybridhdr.events import EVENT_DTYPE
 from hybridhdr.model import Frames, Recording, SensorSize
 
@@ -86,7 +92,9 @@ def test_leave_one_out_never_uses_the_excluded_frame(planted):
                                   t_end_us=planted.frames.t_end_us, encoding="linear"))
     same = estimate_event_frame_calibration(bad, exclude_frames=(5,))
     assert same.to_dict() == base.to_dict()
-    changed = estimate_event_frame_calibration(bad)  # the garbage frame used: the estimate moves
+    with warnings.catch_warnings():  # the garbage frame may leave I0 unbounded (warned; not the point here)
+        warnings.simplefilter("ignore", GridEdgeWarning)
+        changed = estimate_event_frame_calibration(bad)  # the garbage frame used: the estimate moves
     assert changed.r2 < base.r2 - 0.01
 
 

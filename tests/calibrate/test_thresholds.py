@@ -45,6 +45,10 @@ def _moving_texture_recording(seed=0, h=24, w=32, dur_us=2_000_000, fps=25.0, st
     return rec, sen.c_on.reshape(h, w), sen.c_off.reshape(h, w)
 
 
+#: the synthetic recordings' I0 lies below what their frames resolve (the lower grid edge, warned)
+pytestmark = pytest.mark.filterwarnings("ignore::hybridhdr.calibrate.camera_model.GridEdgeWarning")
+
+
 @pytest.fixture(scope="module")
 def synth():
     return _moving_texture_recording()
@@ -64,8 +68,10 @@ def test_recovers_asymmetric_thresholds(synth):
         rel = (est[v] - true[v]) / true[v]
         assert np.sqrt(np.mean(rel ** 2)) < 0.06
         assert np.corrcoef(est[v], true[v])[0, 1] > rmin
-    assert tm.provenance["not_estimable"]["too_few_intervals"] == int((~v).sum()) - sum(
-        tm.provenance["not_estimable"][k] for k in ("on_off_proportional", "outside_c_range_or_zero"))
+    assert tm.provenance["not_estimable"]["too_few_intervals"] == int((~v).sum()) - \
+        tm.provenance["not_estimable"]["not_identified_otherwise"]
+    # the simulator's I0 (1e-3 of the clip level) is below what these frames resolve: said, not silent
+    assert tm.provenance["camera_model"]["at_grid_edge"]["intensity_offset"]
 
 
 def test_save_load_roundtrip_and_plot(synth, tmp_path):

@@ -1,0 +1,1215 @@
+"""The one event/frame camera model: thresholds, log offset, frame timing and noise of a hybrid camera.
+
+Every answer this toolkit gives to "what are this camera's contrast thresholds?" comes from
+:func:`estimate_camera_model`: the self-calibration of ``reconstruct`` (:mod:`.selfcal`), the
+pooled figure of ``calibrate thresholds`` (:mod:`.thresholds`) and ``calibrate sensor``
+(:mod:`.sensor_profile`) all call it, so one recording gives one ON/OFF pair.
+
+Model (paper eq. 1; EDI's frame model). A DVS pixel fires an ON (OFF) event each time
+``L = ln(I + I0)`` rises (falls) by ``c_on`` (``c_off``) from its reference level; a frame ``k``
+exposed over ``[s_k, e_k]`` records the mean intensity over its exposure (Pan et al., "Bringing a
+Blurry Frame Alive at High Frame-Rate with an Event Camera", CVPR 2019), and the events reach the
+recording ``δ`` after the light (the DVS response latency plus any offset of the frames' stamps).
+To first order in the log changes during an exposure (the mean of ``L`` over the exposure), the
+frames' log change between frames ``k`` and ``k+1`` is
+
+    ln(F_{k+1} + I0) − ln(F_k + I0) = c_on·W_on,k − c_off·W_off,k − (noise terms) + ε_k,
+
+where ``W`` counts the events of ``[s_k + δ, e_{k+1} + δ)`` each weighted by ``G_{k+1}(t) −
+G_k(t)``, ``G_k(t)`` the fraction of exposure ``k`` after ``t − δ`` (a step at the frame's time
+for a zero exposure: plain counts between the two frame times). ``ε`` is the pixel's distance
+from its reference level at the two frames (bounded by one threshold) plus the frames' own
+noise. Frames integrate over their exposure while events do not: on a simulated scene with a
+10 ms exposure at 20 fps, treating frames as instantaneous biases both thresholds 15-25 % low
+(``benchmarks/sensor_profile.py``); the exposure weights remove most of it, and the exact
+log-of-mean model (``refine_exposure``) is applied at the chosen (δ, I0).
+
+Estimation (pooled over every pixel-interval both frames show well exposed):
+
+* **thresholds**: least squares of the frames' log change on the weighted counts less the noise
+  events expected per interval (method-of-moments correction, shot noise and leak from the
+  static pixels below), exact two-variable NNLS. Standard errors by a Poisson(1) bootstrap over
+  pixels. Errors-in-variables: the reverse regression (counts on frame change, the consistent
+  one if the count errors were independent of the change) is *biased* here because a DVS pixel is
+  a quantiser with hysteresis (after a reversal a change of up to c_on + c_off goes unreported),
+  so its count error depends on the change; it overestimated c by 21 % on a simulated texture
+  where the forward fit erred by 2 % (``benchmarks/sensor_profile.py`` prints both on every
+  round trip, so the choice rests on a measurement, not an assumption).
+* **I0 and δ**: chosen on a grid by a criterion whose target does not change with the
+  candidate: the error, in frame code units, of predicting each frame from the previous frame
+  and the events between them, on pixel-intervals fixed before the search (both frames well
+  exposed, at least one event in the widest window any δ opens), cross-fitted (thresholds fitted
+  on the even intervals predict the odd ones and the reverse). A best value on a grid edge
+  widens the grid (I0 by factors of 4, δ by half a grid width, twice) and is then reported with
+  ``at_grid_edge`` and a warning naming the value; never silently.
+* **quantiser correction**: indirect inference (``_indirect``, ``_binding``) on a fixed, seeded
+  subset of at most ``MAX_CORRECTION_PIXELS`` pixels, iterated until the simulated statistic is
+  within ``CORRECTION_TOLERANCE`` of the observed one (same seed, same bits).
+* **noise**: events at static pixels (well exposed, |Δ ln I| below ``static_log_bound`` at the
+  pixel and its 3×3 neighbours) per pixel-second: OFF at shot/2, ON at shot/2 + leak.
+
+What a recording cannot tell is reported as such (``identifiable`` false with a reason).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+import warnings
+
+import numpy as np
+
+from ..camera import load_profile, profile_for_frames
+from ..camera.encoding import well_exposed_range
+from ..camera.encoding import frames_to_codes
+from ..errors import InputMismatchError
+
+__all__ = ["CameraModel", "estimate_camera_model", "DEFAULT_INTENSITY_OFFSETS", "SCHEMA", "GridEdgeWarning",
+           "shrink_per_pixel"]
+
+SCHEMA = "hybridhdr.camera_model/1"
+
+#: I0 tried first, as fractions of the frames' clip level (frame-linear units); widened on an edge.
+DEFAULT_INTENSITY_OFFSETS = (1e-3, 2e-3, 4e-3, 8e-3, 1.6e-2, 3.2e-2, 6.4e-2, 0.128, 0.256, 0.512)
+#: Lowest and highest I0 the widening goes to (below 1e-5 of the clip level the log model is ln I
+#: for every code of a 16-bit frame; above 8 it is linear over the frames' range).
+I0_LIMITS = (1e-5, 8.0)
+#: Largest number of frame intervals used (evenly spread): bounds the work on long recordings.
+MAX_INTERVALS = 64
+#: Largest number of event-bearing pixel-intervals scored (an even random subset beyond it).
+MAX_PIXEL_INTERVALS = 200_000
+#: Steps of the time-offset grid across its span.
+N_OFFSETS = 41
+#: Grid widenings before a value on an edge is reported as such.
+MAX_WIDEN = 2
+#: Largest relative difference between the simulated quantiser's signal events and the observed ones
+#: for the quantiser correction to be applied (below it the frames sample the scene's changes well
+#: enough for the simulation to see what the pixels saw: 2-6 % on the round trips at 2.4 px per
+#: frame, ``benchmarks/sensor_profile.py``).
+SIM_EVENT_TOLERANCE = 0.15
+#: Largest number of pixels the quantiser correction simulates (a fixed, seeded random subset beyond
+#: it, the same at every iteration: the pooled statistic is a ratio of sums over pixels, so an even
+#: subset estimates the same bias with a sampling error far below the bootstrap's).
+MAX_CORRECTION_PIXELS = 20_000
+#: The indirect-inference iteration stops once the simulated statistic is within this of the observed
+#: one (log units; a tenth of the smallest threshold the estimator reports to three figures).
+CORRECTION_TOLERANCE = 1e-3
+#: Half-widths (δ steps, I0 steps) of the grid window the quantiser simulation is searched on.
+BINDING_WINDOW = (12, 3)
+#: Sub-intervals of an exposure in the exact log-of-mean refinement.
+EXPOSURE_BINS = 16
+
+
+class GridEdgeWarning(UserWarning):
+    """A calibration grid's best value lies on its edge after widening (the value is named)."""
+
+
+@dataclasses.dataclass
+class CameraModel:
+    """The result of :func:`estimate_camera_model` (module docstring)."""
+
+    c_on: float
+    c_off: float
+    c_on_std: float | None
+    c_off_std: float | None
+    intensity_offset: float
+    time_offset_us: int
+    score: float
+    score_nominal: float
+    n_pixel_intervals: int
+    n_intervals: int
+    excluded_frames: tuple
+    offsets_us: tuple
+    intensity_offsets: tuple
+    score_grid: tuple
+    at_grid_edge: dict
+    exposure_model: str
+    noise: dict
+    uncorrected: dict
+    least_squares: dict
+    quantiser_correction: dict | None
+    mismatch_sigma: dict
+    bands: dict
+    latency_us: int | None
+    r2: float
+    r2_nominal: float
+    reverse_regression: dict
+    fixed: dict
+    per_pixel: dict | None = None  # arrays (not serialised): per-pixel sums at the chosen model
+
+    def to_dict(self) -> dict:
+        """JSON-ready record (``run.json``'s ``self_calibration``, the profile's provenance)."""
+        d = {f.name: getattr(self, f.name) for f in dataclasses.fields(self) if f.name != "per_pixel"}
+        d["schema"] = SCHEMA
+        d["excluded_frames"] = [int(k) for k in self.excluded_frames]
+        d["offsets_us"] = [int(v) for v in self.offsets_us]
+        d["intensity_offsets"] = [float(v) for v in self.intensity_offsets]
+        d["score_grid"] = [[_f(v) for v in row] for row in self.score_grid]
+        return d
+
+    def akf_overrides(self) -> dict:
+        return {"intensity_offset": float(self.intensity_offset), "contrast_threshold_on": float(self.c_on),
+                "contrast_threshold_off": float(self.c_off)}
+
+
+def _f(v):
+    v = float(v)
+    return v if math.isfinite(v) else None
+
+
+def _nnls2(soo, sff, sof, bo, bf):
+    """Exact 2-variable NNLS of Σ(ΔL − a·N_on + b·N_off)² from its sums (vectorised).
+
+    Sums: soo = ΣN_on², sff = ΣN_off², sof = ΣN_on·N_off, bo = ΣN_on·ΔL, bf = ΣN_off·ΔL.
+    Returns (a, b) >= 0 (0 where a sum is empty).
+    """
+    soo, sff, sof, bo, bf = (np.asarray(v, np.float64) for v in (soo, sff, sof, bo, bf))
+    det = soo * sff - sof * sof
+    with np.errstate(invalid="ignore", divide="ignore"):
+        a = np.where(det > 0, (sff * bo - sof * bf) / det, -1.0)
+        b = np.where(det > 0, (sof * bo - soo * bf) / det, -1.0)
+        # boundary candidates: b = 0 -> a = bo/soo; a = 0 -> b = -bf/sff
+        a1 = np.where(soo > 0, np.maximum(bo / soo, 0.0), 0.0)
+        b2 = np.where(sff > 0, np.maximum(-bf / sff, 0.0), 0.0)
+    # objective minus the constant ΣΔL²: f(a, b) = soo a² + sff b² − 2 sof a b − 2 bo a + 2 bf b
+    f1 = soo * a1 ** 2 - 2 * bo * a1
+    f2 = sff * b2 ** 2 + 2 * bf * b2
+    inner = (a >= 0) & (b >= 0) & (det > 0)
+    use1 = f1 <= f2
+    a_out = np.where(inner, a, np.where(use1, a1, 0.0))
+    b_out = np.where(inner, b, np.where(use1, 0.0, b2))
+    return a_out, b_out
+
+
+def _geom_grid(values):
+    v = tuple(sorted({float(x) for x in values}))
+    if not v or any(not (math.isfinite(x) and x > 0) for x in v):
+        raise ValueError(f"intensity_offsets must be finite and > 0, got {values}")
+    return v
+
+
+class _Data:
+    """Frames, events and the fixed pixel-intervals of one estimate (module docstring)."""
+
+    def __init__(self, rec, profile, exclude_frames, well_exposed):
+        fr = rec.frames
+        if fr is None or len(fr) < 3:
+            raise InputMismatchError("the camera model needs at least three frames (two frame intervals: one to fit, one to "
+                             f"check); the recording has {0 if fr is None else len(fr)}"
+                             + (" (fewer than two frames give nothing to calibrate against)"
+                                if fr is None or len(fr) < 2 else ""))
+        ev = rec.events
+        if len(ev) == 0:
+            raise InputMismatchError("the camera model needs events; the recording has none")
+        excl = sorted({int(k) for k in exclude_frames})
+        for k in excl:
+            if not 0 <= k < len(fr):
+                raise ValueError(f"exclude_frames: frame {k} is not among the recording's {len(fr)} frames")
+        self.excl = tuple(excl)
+        keep = np.setdiff1d(np.arange(len(fr)), np.asarray(excl, np.int64))
+        sub = fr.select(keep)
+        tau = sub.t_mid_us.astype(np.int64)
+        order = np.argsort(tau, kind="stable")
+        self.tau = tau[order]
+        if np.any(np.diff(self.tau) <= 0):
+            raise ValueError("the camera model needs frames with distinct times")
+        self.s = sub.t_start_us.astype(np.float64)[order]
+        self.e = sub.t_end_us.astype(np.float64)[order]
+        self.has_exposure = bool(np.any(self.e > self.s))
+        h, w = sub.shape
+        ss = rec.sensor_size
+        if ss is not None and tuple(ss.shape) != (h, w):
+            raise ValueError(f"frames are {w}x{h} but the event sensor is {ss.width}x{ss.height}; register them first")
+        self.h, self.w, self.n = h, w, h * w
+        if profile is None:
+            prov = rec.metadata.provenance if rec.metadata is not None else {}
+            profile = prov.get("camera_profile") if isinstance(prov, dict) else None
+            if isinstance(profile, dict):
+                from ..camera import CameraProfile
+                profile = CameraProfile.from_dict(profile)
+            elif not (profile is None or isinstance(profile, str) or hasattr(profile, "intensity")):
+                profile = None
+        self.prof = profile_for_frames(load_profile(profile), sub)
+        self.lo, self.hi = (well_exposed_range(self.prof.max_code) if well_exposed is None
+                            else (int(well_exposed[0]), int(well_exposed[1])))
+        self.lut = self.prof.intensity(np.arange(self.prof.max_code + 1)).astype(np.float64)
+        self.codes = frames_to_codes(sub, (h, w))
+        self.order = order
+        expo = sub.exposure_us.astype(np.float64)[order]
+        gain = np.ones(len(order)) if sub.gain is None else np.asarray(sub.gain, np.float64)[order]
+        ex = expo * gain
+        self.scale = (float(np.median(ex)) / ex) if (np.all(ex > 0) and np.ptp(ex) > 0) else np.ones(len(order))
+        self.t = ev["t"]
+        self.pix = ev["y"].astype(np.int64) * w + ev["x"].astype(np.int64)
+        self.on = ev["p"] > 0
+        self.t0_ev, self.t1_ev = int(self.t[0]), int(self.t[-1])
+        self._fc = {}
+
+    def frame(self, k):
+        """(codes (n,), well-exposed mask (n,)) of frame k (sorted order)."""
+        if k not in self._fc:
+            c = np.asarray(self.codes[self.order[k]]).reshape(-1)
+            self._fc[k] = (c, (c >= self.lo) & (c <= self.hi))
+        return self._fc[k]
+
+    def G(self, k, t):
+        """Fraction of exposure k after time t (a step at τ_k for a zero exposure)."""
+        s, e = self.s[k], self.e[k]
+        if e > s:
+            return np.clip((e - t) / (e - s), 0.0, 1.0)
+        return (t < self.tau[k]).astype(np.float64)
+
+    def covered(self, d0, d1):
+        return [j for j in range(len(self.tau) - 1)
+                if min(self.s[j], self.tau[j]) + d0 >= self.t0_ev and max(self.e[j + 1], self.tau[j + 1]) + d1 <= self.t1_ev]
+
+    def window(self, j, d):
+        """Event slice [a, b) that can weigh in interval j at offset d."""
+        a, b = np.searchsorted(self.t, [min(self.s[j], self.tau[j]) + d, max(self.e[j + 1], self.tau[j + 1]) + d])
+        return int(a), int(b)
+
+    def weighted_counts(self, j, d, idx):
+        """Exposure-weighted ON and OFF counts of interval j at offset d, at pixels idx."""
+        a, b = self.window(j, d)
+        tt = self.t[a:b].astype(np.float64) - d
+        wt = self.G(j + 1, tt) - self.G(j, tt)
+        p_, o_ = self.pix[a:b], self.on[a:b]
+        non = np.bincount(p_[o_], wt[o_], minlength=self.n)
+        noff = np.bincount(p_[~o_], wt[~o_], minlength=self.n)
+        return non[idx], noff[idx]
+
+
+_MIDS: dict = {}
+
+
+def _codes_of(lut, x):
+    """Nearest code of intensities x under the inverse-CRF table lut (monotone)."""
+    key = (lut.size, float(lut[1]), float(lut[-2]))
+    mids = _MIDS.get(key)
+    if mids is None:
+        mids = _MIDS[key] = 0.5 * (lut[1:] + lut[:-1])
+    return np.searchsorted(mids, x).astype(np.float64)
+
+
+def _noise_rates(D, ints, i0, static_log_bound):
+    """Static-pixel event rates (ON, OFF per pixel-second) and their record (module docstring)."""
+    from scipy.ndimage import maximum_filter
+    n_on = n_off = 0
+    T = 0.0
+    k_int = 0
+    for j in ints:
+        c0, g0 = D.frame(j)
+        c1, g1 = D.frame(j + 1)
+        dl = np.log(D.lut[c1.astype(np.int64)] * D.scale[j + 1] + i0) - np.log(D.lut[c0.astype(np.int64)] * D.scale[j] + i0)
+        dd = np.where(g0 & g1, np.abs(dl), np.inf).reshape(D.h, D.w)
+        st = (maximum_filter(dd, size=3, mode="nearest") < static_log_bound).reshape(-1)
+        k = int(st.sum())
+        if not k:
+            continue
+        a, b = np.searchsorted(D.t, [D.tau[j], D.tau[j + 1]])
+        sel = st[D.pix[a:b]]
+        o_ = D.on[a:b][sel]
+        n_on += int(o_.sum())
+        n_off += int((~o_).sum())
+        T += k * (D.tau[j + 1] - D.tau[j]) * 1e-6
+        k_int += 1
+    rec = {"static_pixel_s": T, "static_on_events": n_on, "static_off_events": n_off, "intervals": k_int,
+           "static_log_bound": static_log_bound}
+    if T <= 0:
+        return 0.0, 0.0, {**rec, "identifiable": False,
+                          "reason": "no static well-exposed pixel-interval: noise rates not measured, no correction"}
+    return n_on / T, n_off / T, {**rec, "identifiable": True, "rate_on_hz": n_on / T, "rate_off_hz": n_off / T}
+
+
+def _collect(D, ints, i0s, d0, d1, cap=None):
+    """Per interval: fixed pixels (well exposed, an event in the widest window) and their logs per I0.
+    More than ``cap`` (:data:`MAX_PIXEL_INTERVALS`) such pixel-intervals in all: an even random
+    subset of them (seeded by the data's size: same data, same subset), which bounds the work."""
+    cap = MAX_PIXEL_INTERVALS if cap is None else cap
+    idxs, goods = [], []
+    for j in ints:
+        _, g0 = D.frame(j)
+        _, g1 = D.frame(j + 1)
+        good = g0 & g1
+        a, b = np.searchsorted(D.t, [min(D.s[j], D.tau[j]) + d0, max(D.e[j + 1], D.tau[j + 1]) + d1])
+        hit = np.zeros(D.n, bool)
+        hit[D.pix[a:b]] = True
+        idxs.append(np.flatnonzero(good & hit))
+        goods.append(good)
+    total = sum(i.size for i in idxs)
+    if total > cap:
+        # the same fraction of every well-exposed pixel-interval, with or without events, so the noise
+        # moments (counts of pixel-intervals, Σ ΔL) stay those of the subset
+        rng = np.random.default_rng([len(ints), int(total), 38])
+        keep = [rng.random(D.n) < cap / total for _ in ints]
+        goods = [g & k for g, k in zip(goods, keep)]
+        idxs = [i[k[i]] for i, k in zip(idxs, keep)]
+    rows = []
+    for j, idx, good in zip(ints, idxs, goods):
+        c0, _ = D.frame(j)
+        c1, _ = D.frame(j + 1)
+        I0_ = D.lut[c0[idx].astype(np.int64)] * D.scale[j]
+        I1_ = D.lut[c1[idx].astype(np.int64)] * D.scale[j + 1]
+        L0 = np.stack([np.log(I0_ + v) for v in i0s])
+        L1 = np.stack([np.log(I1_ + v) for v in i0s])
+        # all well-exposed pixels: count and Σ ΔL per I0 (noise-correction moments)
+        I0a = D.lut[c0[good].astype(np.int64)] * D.scale[j]
+        I1a = D.lut[c1[good].astype(np.int64)] * D.scale[j + 1]
+        sl_all = np.array([float(np.sum(np.log(I1a + v) - np.log(I0a + v))) for v in i0s])
+        rows.append({"j": j, "idx": idx, "L0": L0, "L1": L1, "code1": c1[idx].astype(np.float64),
+                     "K": int(good.sum()), "sl_all": sl_all, "dt_s": (D.tau[j + 1] - D.tau[j]) * 1e-6})
+    return rows
+
+
+def _moments(rows, counts):
+    """Per row: count moments (independent of I0) and count-by-log-change products per I0."""
+    out = []
+    for r, (no, nf) in zip(rows, counts):
+        dl = r["L1"] - r["L0"]
+        out.append((float(no @ no), float(nf @ nf), float(no @ nf), float(no.sum()), float(nf.sum()),
+                    dl @ no, dl @ nf))
+    return out
+
+
+def _sums(rows, mom, ii, lam_on_hz, lam_off_hz, sel=None):
+    """Noise-corrected least-squares sums (soo, sff, sof, bo, bf) over the rows q with sel[q], at I0 index ii
+    (the counts less Poisson noise of the expected per-interval means: E[Σ(N−λ)² − Kλ] = ΣS² etc.)."""
+    S = np.zeros(5)
+    for q, (r, (oo, ff, of, so, sf, bo, bf)) in enumerate(zip(rows, mom)):
+        if sel is not None and not sel[q]:
+            continue
+        lo, lf, K = lam_on_hz * r["dt_s"], lam_off_hz * r["dt_s"], r["K"]
+        sl = r["sl_all"][ii]
+        S += (oo - 2 * lo * so + K * (lo * lo - lo), ff - 2 * lf * sf + K * (lf * lf - lf),
+              of - lf * so - lo * sf + K * lo * lf, bo[ii] - lo * sl, bf[ii] - lf * sl)
+    return S
+
+
+def _c(S):
+    return tuple(float(np.asarray(v).reshape(-1)[0]) for v in _nnls2(*S))
+
+
+def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
+    """Σ squared code error of predicting frame k+1 from frame k and the events (cross-fitted), and n."""
+    se = 0.0
+    m = 0
+    for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
+        if not r["idx"].size:
+            continue
+        con, coff = c_by_fold[1 - (q % 2)]
+        lo, lf = lam_on_hz * r["dt_s"], lam_off_hz * r["dt_s"]
+        lhat = r["L0"][ii] + con * (no - lo) - coff * (nf - lf)
+        ihat = np.maximum(np.exp(lhat) - i0, 0.0) / D.scale[r["j"] + 1]
+        err = _codes_of(D.lut, ihat) - r["code1"]
+        se += float(err @ err)
+        m += err.size
+    return se, m
+
+
+def _search(D, ints, i0s, offs, lam_on, lam_off, c_range, progress):
+    rows = _collect(D, ints, i0s, offs[0], offs[-1])
+    npi = int(sum(r["idx"].size for r in rows))
+    score = np.full((len(offs), len(i0s)), np.nan)
+    coefs = np.full((len(offs), len(i0s), 2), np.nan)
+    for a_i, d in enumerate(offs):
+        counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+        mom = _moments(rows, counts)
+        for ii, i0 in enumerate(i0s):
+            cf = [_c(_sums(rows, mom, ii, lam_on, lam_off, [(q % 2) == f for q in range(len(rows))])) for f in (0, 1)]
+            se, m = _score(D, rows, counts, ii, i0, cf, lam_on, lam_off)
+            score[a_i, ii] = math.sqrt(se / m) if m else np.nan
+            coefs[a_i, ii] = _c(_sums(rows, mom, ii, lam_on, lam_off))
+        if progress is not None:
+            progress(a_i + 1, len(offs))
+    return rows, npi, score, coefs
+
+
+def _band_homogeneity(D, rows, counts, i0s, n_bands=4):
+    """Per I0: how much the least-squares thresholds differ between intensity bands (relative
+    weighted variance), and the band estimates. Bands are quartiles of the pixel-intervals' mean
+    frame intensity (frame-linear: the same for every I0). With I0 right, the model's one
+    threshold pair holds at every brightness; too small an I0 stretches the dark log changes
+    (dark thresholds too large), too large compresses them."""
+    inten = np.concatenate([0.5 * (np.exp(r["L0"][0]) + np.exp(r["L1"][0])) - i0s[0] for r in rows])
+    edges = np.quantile(inten, np.linspace(0, 1, n_bands + 1)[1:-1]) if inten.size else np.zeros(n_bands - 1)
+    band = np.searchsorted(edges, inten)
+    No = np.concatenate([c[0] for c in counts])
+    Nf = np.concatenate([c[1] for c in counts])
+    out, per = [], []
+    for ii in range(len(i0s)):
+        dl = np.concatenate([r["L1"][ii] - r["L0"][ii] for r in rows])
+        cs, ws = [], []
+        for b in range(n_bands):
+            m = band == b
+            no, nf, y = No[m], Nf[m], dl[m]
+            if m.sum() < 10:
+                continue
+            cs.append(_c((no @ no, nf @ nf, no @ nf, no @ y, nf @ y)))
+            ws.append(float(no @ no + nf @ nf))
+        cs = np.asarray(cs)
+        ws = np.asarray(ws)
+        if len(cs) < 2 or ws.sum() <= 0:
+            out.append(np.nan)
+            per.append([])
+            continue
+        mean = (ws[:, None] * cs).sum(0) / ws.sum()
+        out.append(float((ws[:, None] * ((cs - mean) / np.maximum(mean, 1e-6)) ** 2).sum() / ws.sum()))
+        per.append(cs.tolist())
+    return np.asarray(out), per, edges.tolist()
+
+
+def _default_offsets(period_us, fraction=0.5, n=N_OFFSETS):
+    half = max(int(round(period_us * fraction)), 1)
+    return tuple(sorted(set(int(round(v)) for v in np.linspace(-half, half, n))))
+
+
+def _refine_exposure(D, rows, d, i0s, ii, c, lam_on, lam_off, iters=4):
+    """Thresholds under the exact log-of-mean exposure model (EDI) at offset d, from c (fixed point).
+
+    ln(F_k + I0) = L(τ_k + d) + B_k, B_k = ln mean_{t in exposure} exp(E_k(t)), E_k(t) the signed
+    event integral from τ_k to t (sub-bins of the exposure); the frames' log change less
+    B_{k+1} − B_k is regressed on the plain counts between the shifted frame times."""
+    M = EXPOSURE_BINS
+    need = sorted({r["j"] for r in rows} | {r["j"] + 1 for r in rows})
+    plain = []
+    for r in rows:
+        a, b = np.searchsorted(D.t, [D.tau[r["j"]] + d, D.tau[r["j"] + 1] + d])
+        p_, o_ = D.pix[a:b], D.on[a:b]
+        plain.append((np.bincount(p_[o_], minlength=D.n)[r["idx"]].astype(np.float64),
+                      np.bincount(p_[~o_], minlength=D.n)[r["idx"]].astype(np.float64)))
+    sub = {}
+    for k in need:
+        s, e = D.s[k], D.e[k]
+        if e <= s:
+            continue
+        a, b = np.searchsorted(D.t, [s + d, e + d])
+        tt = (D.t[a:b] - d - s) / (e - s)
+        bins = np.clip((tt * M).astype(np.int64), 0, M - 1)
+        sub[k] = (bins, D.pix[a:b], D.on[a:b], (D.tau[k] - s) / (e - s))
+    con, coff = c
+    # only pixels with events inside an exposure have B != 0: work on those (compact index)
+    compact = {k: (bins, *np.unique(p_, return_inverse=True), o_, mid) for k, (bins, p_, o_, mid) in sub.items()}
+    for _ in range(iters):
+        B = {}
+        for k, (bins, u, inv, o_, mid) in compact.items():
+            if not u.size:
+                continue
+            inc = np.zeros((M, u.size))
+            np.add.at(inc, (bins, inv), np.where(o_, con, -coff))
+            cum = np.cumsum(inc, 0) - 0.5 * inc
+            # E relative to τ_k: the cumulative at the mid-exposure (interpolated between sub-bins)
+            pos = mid * M - 0.5
+            i_ = int(np.clip(math.floor(pos), 0, M - 2))
+            fr_ = float(np.clip(pos - i_, 0.0, 1.0))
+            ref = (1 - fr_) * cum[i_] + fr_ * cum[i_ + 1]
+            full = np.zeros(D.n)
+            full[u] = np.log(np.exp(cum - ref).mean(0))
+            B[k] = full
+        rows_b = []
+        for r in rows:
+            bb = B.get(r["j"] + 1, 0.0)
+            ba = B.get(r["j"], 0.0)
+            bb = bb[r["idx"]] if isinstance(bb, np.ndarray) else 0.0
+            ba = ba[r["idx"]] if isinstance(ba, np.ndarray) else 0.0
+            corr = float(np.sum(bb - ba)) if isinstance(bb, np.ndarray) or isinstance(ba, np.ndarray) else 0.0
+            rows_b.append({**r, "L1": r["L1"] - bb, "L0": r["L0"] - ba, "sl_all": r["sl_all"] - corr})
+        con, coff = _c(_sums(rows_b, _moments(rows_b, plain), ii, lam_on, lam_off))
+    return (con, coff), plain, rows_b
+
+
+def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets_us=None,
+                          intensity_offsets=DEFAULT_INTENSITY_OFFSETS, intensity_offset: float | None = None,
+                          time_offset_us: int | None = None, well_exposed=None, c_range=(0.01, 3.0),
+                          static_log_bound: float = 0.02, noise_correction: bool = True, n_boot: int = 100,
+                          seed: int = 0, max_intervals: int = MAX_INTERVALS, refine_exposure: bool = True,
+                          per_pixel: bool = False, quantiser_correction: bool = True, progress=None) -> CameraModel:
+    """Estimate (c_on, c_off, I0, δ) and the noise rates of a recording (module docstring).
+
+    Parameters
+    ----------
+    recording : Recording or path
+        Events and at least three frames registered to the event sensor.
+    profile : CameraProfile, path or None
+        Camera profile for ``I = CRF⁻¹(code)``; None: the recording's declared one, else built-in.
+    exclude_frames : sequence of int
+        Frames left out before anything is estimated (leave-one-out scoring).
+    offsets_us : sequence of int, optional
+        δ grid (µs added to the frames' times); default ±half the median frame period, 41 steps.
+    intensity_offsets : sequence of float
+        I0 grid, frame-linear units.
+    intensity_offset, time_offset_us : optional
+        Fix I0 or δ instead of searching (a method with its own log model, a declared latency).
+    c_range : (float, float)
+        Thresholds outside it are an error (the recording has too little information).
+    per_pixel : bool
+        Also return per-pixel sums (``CameraModel.per_pixel``) for :func:`shrink_per_pixel`.
+    """
+    rec = recording
+    if isinstance(rec, (str, bytes)) or hasattr(rec, "__fspath__"):
+        from ..formats import read
+        rec = read(rec)
+    D = _Data(rec, profile, exclude_frames, well_exposed)
+    period = float(np.median(np.diff(D.tau)))
+    i0s = (float(intensity_offset),) if intensity_offset is not None else _geom_grid(intensity_offsets)
+    if intensity_offset is not None and not (math.isfinite(intensity_offset) and intensity_offset > 0):
+        raise ValueError(f"intensity_offset must be finite and > 0, got {intensity_offset}")
+    user_offs = offsets_us is not None or time_offset_us is not None
+    if time_offset_us is not None:
+        offs = (int(time_offset_us),)
+    elif offsets_us is not None:
+        offs = tuple(sorted({int(v) for v in offsets_us}))
+        if not offs:
+            raise ValueError("offsets_us is empty")
+    else:
+        offs = None
+        for frac in (0.5, 0.25, 0.125):
+            offs = _default_offsets(period, frac)
+            if len(D.covered(offs[0], offs[-1])) >= 2:
+                break
+    edge = {"time_offset_us": False, "intensity_offset": False}
+    notes = []
+    for attempt in range(MAX_WIDEN + 1):
+        ints = D.covered(offs[0], offs[-1])
+        if len(ints) < 2:
+            raise ValueError(f"the camera model needs two frame intervals inside the events' span ({D.t0_ev}.."
+                             f"{D.t1_ev} µs) for every offset tried ({offs[0]}..{offs[-1]} µs); found {len(ints)}")
+        if len(ints) > max_intervals:
+            ints = [ints[i] for i in np.linspace(0, len(ints) - 1, max_intervals).round().astype(int)]
+        if noise_correction:
+            ref_i0 = i0s[len(i0s) // 2]
+            r_on, r_off, noise = _noise_rates(D, ints, ref_i0, static_log_bound)
+        else:
+            r_on, r_off, noise = 0.0, 0.0, {"identifiable": False, "reason": "noise correction off"}
+        rows, npi, score, coefs = _search(D, ints, i0s, offs, r_on, r_off, c_range, progress)
+        if npi == 0:
+            raise ValueError("the camera model found no pixel-interval both frames show well exposed with events")
+        if not np.isfinite(score).any():
+            raise ValueError("the camera model: no grid point could be scored")
+        a_i, ii = np.unravel_index(np.nanargmin(score), score.shape)
+        widen = False
+        if attempt == MAX_WIDEN:
+            break
+        if intensity_offset is None and len(i0s) > 1:
+            if ii == len(i0s) - 1 and i0s[-1] < I0_LIMITS[1]:
+                i0s = i0s + tuple(v for v in (i0s[-1] * 4, i0s[-1] * 16) if v <= I0_LIMITS[1])
+                widen = True
+            elif ii == 0 and i0s[0] > I0_LIMITS[0]:
+                i0s = tuple(v for v in (i0s[0] / 16, i0s[0] / 4) if v >= I0_LIMITS[0]) + i0s
+                widen = True
+        if time_offset_us is None and len(offs) > 1 and a_i in (0, len(offs) - 1):
+            span = offs[-1] - offs[0]
+            step = max(span // (len(offs) - 1), 1)
+            new = offs + tuple(range(offs[-1] + step, offs[-1] + span // 2 + 1, step)) if a_i else \
+                tuple(range(offs[0] - span // 2, offs[0], step)) + offs
+            if len(D.covered(new[0], new[-1])) >= 2:
+                offs = tuple(sorted(set(new)))
+                widen = True
+        if not widen or attempt == MAX_WIDEN:
+            break
+        notes.append(f"grid widened (best at I0 {i0s[ii] if ii < len(i0s) else float('nan'):.4g}, δ {offs[a_i]} µs)")
+    d = int(offs[a_i])
+    # per intensity band, the thresholds at the chosen model (the plot; a check of the log model)
+    counts_d = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    h_score, h_bands, h_edges = _band_homogeneity(D, rows, counts_d, i0s)
+    homog = {"relative_spread": [_f(v) for v in h_score], "bands_c": h_bands, "band_edges": h_edges,
+             "intensity_offsets": list(i0s)}
+    i0 = float(i0s[ii])
+    if intensity_offset is None and len(i0s) > 1 and ii in (0, len(i0s) - 1):
+        edge["intensity_offset"] = True
+        lim = "lower" if ii == 0 else "upper"
+        warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
+                      f"({i0s[0]:.4g}..{i0s[-1]:.4g}) after widening: the recording does not bound it", GridEdgeWarning,
+                      stacklevel=2)
+    if time_offset_us is None and len(offs) > 1 and a_i in (0, len(offs) - 1):
+        edge["time_offset_us"] = True
+        warnings.warn(f"camera model: the best frame time offset {d} µs lies on the edge of its grid "
+                      f"({offs[0]}..{offs[-1]} µs) after widening", GridEdgeWarning, stacklevel=2)
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    mom = _moments(rows, counts)
+    c = _c(_sums(rows, mom, ii, r_on, r_off))
+    unc = _c(_sums(rows, mom, ii, 0.0, 0.0))
+    exposure_model = "instantaneous (zero or unknown exposure)"
+    fit_rows, fit_counts = rows, counts
+    if D.has_exposure:
+        exposure_model = "mean intensity over the exposure, first order (exposure-weighted counts)"
+        if refine_exposure:
+            c, fit_counts, fit_rows = _refine_exposure(D, rows, d, i0s, ii, c, r_on, r_off)
+            exposure_model = "mean intensity over the exposure (EDI, log of the mean; fixed point)"
+    # reverse regression (counts on frame change), reported as the errors-in-variables bracket
+    rev = _reverse(fit_rows, fit_counts, ii)
+    lo_c, hi_c = (float(v) for v in c_range)
+    if not (lo_c <= c[0] <= hi_c and lo_c <= c[1] <= hi_c):
+        raise ValueError(f"the camera model's thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside c_range "
+                         f"{tuple(c_range)}: the recording has too little usable information ({npi} pixel-intervals "
+                         f"with events in {len(ints)} frame intervals)")
+    pp = _per_pixel_sums(D, fit_rows, fit_counts, ii, r_on, r_off)
+    sd = _bootstrap(pp, n_boot, seed)
+    sig = _mismatch(pp)
+    ls = c
+    ii_rec = None
+    latency = None
+    if quantiser_correction:
+        c2, ii_rec, latency, ii = _binding(D, rows, ints, i0s, offs, d, ii, sig, r_on, r_off, seed,
+                                           intensity_offset is None, time_offset_us is None)
+        i0 = float(i0s[ii])
+        c = c2 if c2 is not None else c
+        if c2 is not None:
+            # the per-pixel least squares of the two halves carry the pooled fit's quantiser bias: scale
+            # their spread by the same factor as the thresholds
+            for j, k in enumerate(("on", "off")):
+                if sig.get(k) is not None and ls[j] > 0:
+                    sig[k] = sig[k] * c[j] / ls[j]
+            if sig.get("std") is not None and ls[0] + ls[1] > 0:
+                sig["std"] = sig["std"] * (c[0] + c[1]) / (ls[0] + ls[1])
+            sig["scaled_by_quantiser_correction"] = True
+        if c2 is not None and sd[0] is not None:
+            # the correction's own simulation noise adds to the sampling error: its statistic pools
+            # replicates x simulated pixels where the observed one pools all the pixels
+            frac = D.n / (ii_rec["replicates"] * ii_rec.get("pixels_simulated", D.n))
+            sd = tuple(v * math.sqrt(1 + frac) for v in sd)
+        lo_c, hi_c = (float(v) for v in c_range)
+        if not (lo_c <= c[0] <= hi_c and lo_c <= c[1] <= hi_c):
+            raise ValueError(f"the camera model's corrected thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside "
+                             f"c_range {tuple(c_range)}: the recording has too little usable information")
+    a0 = int(np.argmin(np.abs(np.asarray(offs))))
+    from ..camera.encoding import DEFAULT_INTENSITY_OFFSET
+    i_def = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(DEFAULT_INTENSITY_OFFSET))))
+    r2 = _r2(D, rows, d, ii, r_on, r_off)
+    r2_nominal = _r2(D, rows, int(offs[a0]), i_def, r_on, r_off)
+    fixed = {"intensity_offset": intensity_offset is not None, "time_offset_us": time_offset_us is not None,
+             "user_grid": bool(user_offs), "notes": notes}
+    return CameraModel(
+        c_on=float(c[0]), c_off=float(c[1]), c_on_std=sd[0], c_off_std=sd[1], intensity_offset=i0, time_offset_us=d,
+        score=float(score[a_i, ii]), score_nominal=float(score[a0, i_def]), n_pixel_intervals=npi,
+        n_intervals=len(ints), excluded_frames=D.excl, offsets_us=tuple(offs), intensity_offsets=tuple(i0s),
+        score_grid=tuple(tuple(float(v) for v in row) for row in score), at_grid_edge=edge,
+        exposure_model=exposure_model,
+        noise={**noise, "rate_on_hz": r_on, "rate_off_hz": r_off, "shot_noise_rate_hz": 2 * r_off,
+               "leak_rate_hz": max(r_on - r_off, 0.0)},
+        uncorrected={"c_on": unc[0], "c_off": unc[1]}, least_squares={"c_on": ls[0], "c_off": ls[1]},
+        quantiser_correction=ii_rec, mismatch_sigma=sig, bands=homog, latency_us=latency, r2=r2, r2_nominal=r2_nominal, reverse_regression=rev, fixed=fixed,
+        per_pixel=pp if per_pixel else None)
+
+
+def _mismatch(pp, min_intervals=2, min_pixels=30, n_boot=100, seed=0):
+    """Per-polarity spread of the pixels' thresholds: covariance of the even and odd intervals'
+    per-pixel estimates (their estimation errors are independent, so they drop out)."""
+    out = {}
+    ests = []
+    for hs in pp["halves"]:
+        a, b = _nnls2(hs["soo"], hs["sff"], hs["sof"], hs["bo"], hs["bf"])
+        ok = (hs["k_on"] >= min_intervals) & (hs["k_off"] >= min_intervals) & (a > 0) & (b > 0)
+        ests.append((a, b, ok))
+    both = ests[0][2] & ests[1][2]
+    xs, ys = [], []
+    if both.sum() < min_pixels:
+        out["on"] = out["off"] = None
+    else:
+        keep = np.ones(int(both.sum()), bool)
+        for j in range(2):
+            allv = np.concatenate([ests[0][j][both], ests[1][j][both]])
+            med = np.median(allv)
+            mad = 1.4826 * np.median(np.abs(allv - med))
+            if mad > 0:
+                keep &= (np.abs(ests[0][j][both] - med) <= 8 * mad) & (np.abs(ests[1][j][both] - med) <= 8 * mad)
+        for j, name in enumerate(("on", "off")):
+            x, y = ests[0][j][both][keep], ests[1][j][both][keep]
+            out[name] = math.sqrt(max(float(np.mean((x - x.mean()) * (y - y.mean()))), 0.0))
+            xs.append(x)
+            ys.append(y)
+    out["pixels_both_halves"] = int(both.sum())
+    if len(xs) == 2 and xs[0].size == xs[1].size:
+        rng = np.random.default_rng([int(seed), 37])
+        bs = []
+        for _ in range(int(n_boot)):
+            i = rng.integers(0, xs[0].size, xs[0].size)
+            v = [float(np.mean((x[i] - x[i].mean()) * (y[i] - y[i].mean()))) for x, y in zip(xs, ys)]
+            bs.append(0.5 * (math.sqrt(max(v[0], 0.0)) + math.sqrt(max(v[1], 0.0))))
+        out["std"] = float(np.std(bs, ddof=1))
+    return out
+
+
+def _ls_stat(G, DL, N_on, N_off, dts, lam_on, lam_off):
+    """The pooled noise-corrected forward least squares of the frames' log change ``DL`` on the
+    counts (all (intervals, pixels) arrays; ``G`` the well-exposed mask, ``DL`` zero outside it)
+    over the intervals of durations ``dts`` (s), as the observed statistic is computed."""
+    no, nf = np.where(G, N_on, 0.0), np.where(G, N_off, 0.0)
+    lo, lf, K = lam_on * dts, lam_off * dts, G.sum(1).astype(np.float64)
+    so, sf = no.sum(1), nf.sum(1)
+    sd = DL.sum(1)
+    S = np.array([np.sum((no * no).sum(1) - 2 * lo * so + K * (lo * lo - lo)),
+                  np.sum((nf * nf).sum(1) - 2 * lf * sf + K * (lf * lf - lf)),
+                  np.sum((no * nf).sum(1) - lf * so - lo * sf + K * lo * lf),
+                  np.sum((no * DL).sum(1) - lo * sd), np.sum((nf * DL).sum(1) - lf * sd)])
+    return np.array(_c(S)), float(np.sum(so - lo * K) + np.sum(sf - lf * K))
+
+
+def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0):
+    """Indirect inference (Gouriéroux, Monfort & Renault, J. Applied Econometrics 1993): the
+    thresholds whose *simulated* pooled least-squares statistic equals the observed one.
+
+    The simulation is the DVS model itself (eq. 1, a quantiser with hysteresis: an event each time
+    ln(I + I0) leaves [ref − c_off, ref + c_on], the reference moving by one threshold) run on the
+    frames' own log path (linear between frames), each pixel with a random initial phase and,
+    when the spread is identified, its own N(c, σ) thresholds, plus Poisson noise events at the
+    measured rates. The simulated counts pass through the same statistic as the observed ones,
+    so the quantiser's and the pooling's biases (attenuation where a pixel fires few events per
+    interval, hysteresis after reversals, the lower thresholds of busier pixels) cancel; the
+    thresholds are updated by the statistic's difference until it vanishes."""
+    k0, k1 = ints[0], ints[-1] + 1
+    rng = np.random.default_rng([int(seed), 35])
+    sub = (np.sort(rng.choice(D.n, MAX_CORRECTION_PIXELS, replace=False)) if D.n > MAX_CORRECTION_PIXELS
+           else np.arange(D.n))
+    n = sub.size
+    Ls, goods_all = [], []
+    for k in range(k0, k1 + 1):
+        c_, g_ = D.frame(k)
+        Ls.append(np.log(D.lut[c_[sub].astype(np.int64)] * D.scale[k] + i0))
+        goods_all.append(g_[sub])
+    Ls = np.stack(Ls)
+    rel = [j - k0 for j in ints]
+    goods = [goods_all[j] & goods_all[j + 1] for j in rel]
+    dts = [(D.tau[j + 1] - D.tau[j]) * 1e-6 for j in ints]
+    want = set(rel)
+    s_on = sigma.get("on") or 0.0
+    s_off = sigma.get("off") or 0.0
+    draws = [(rng.random(n), rng.standard_normal(n), rng.standard_normal(n), int(rng.integers(1 << 31)))
+             for _ in range(reps)]
+    tot_scale = D.n / n  # the subset's event totals, scaled to all pixels
+    Gm = np.stack(goods)
+    DLm = np.where(Gm, Ls[[j + 1 for j in rel]] - Ls[rel], 0.0)
+    dts_a = np.asarray(dts, np.float64)
+    c = np.array(c_obs, float)
+    history = []
+    totals = []
+    for _ in range(iters):
+        stats = []
+        totals = []
+        for u, z_on, z_off, sd in draws:
+            con = np.maximum(c[0] + s_on * z_on, 0.01)
+            coff = np.maximum(c[1] + s_off * z_off, 0.01)
+            ref = Ls[0] - (u * (con + coff) - coff)   # initial phase uniform over the hysteresis band
+            nr = np.random.default_rng(sd)
+            N_on, N_off = [], []
+            for k in range(Ls.shape[0] - 1):
+                x = Ls[k + 1]
+                up = np.floor(np.maximum(x - ref, 0.0) / con)
+                dn = np.floor(np.maximum(ref - x, 0.0) / coff)
+                ref = ref + up * con - dn * coff
+                if k in want:
+                    dt = (D.tau[k0 + k + 1] - D.tau[k0 + k]) * 1e-6
+                    no = up + (nr.poisson(r_on * dt, n) if r_on > 0 else 0)
+                    nf = dn + (nr.poisson(r_off * dt, n) if r_off > 0 else 0)
+                    N_on.append(no)
+                    N_off.append(nf)
+            st, tot = _ls_stat(Gm, DLm, np.stack(N_on), np.stack(N_off), dts_a, r_on, r_off)
+            stats.append(st)
+            totals.append(tot_scale * tot)
+        sim = np.mean(stats, 0)
+        history.append([float(c[0]), float(c[1]), float(sim[0]), float(sim[1])])
+        gap = np.asarray(c_obs) - sim
+        if np.all(np.abs(gap) <= CORRECTION_TOLERANCE):
+            break  # the simulated statistic matches the observed one: c is the answer
+        c = np.maximum(c + gap, 0.01)
+    return (float(c[0]), float(c[1])), {"method": "indirect inference on a simulated DVS quantiser (hysteresis) "
+                                                  "over the frames' own log path", "replicates": reps,
+                                        "pixels_simulated": int(n), "iterations": history, "sigma_used": [s_on, s_off],
+                                        "simulated_signal_events": float(np.mean(totals)) if totals else None}
+
+
+class _SimData:
+    """A :class:`_Data` view with other events (the quantiser simulation's)."""
+
+    def __init__(self, D, ev):
+        self.__dict__.update(D.__dict__)
+        self.t = ev["t"]
+        self.pix = ev["y"].astype(np.int64) * D.w + ev["x"].astype(np.int64)
+        self.on = ev["p"] > 0
+
+    frame = _Data.frame
+    G = _Data.G
+    covered = _Data.covered
+    window = _Data.window
+    weighted_counts = _Data.weighted_counts
+
+
+def _r2(D, rows, d, ii, r_on, r_off):
+    """Fraction of the frames' log-change variance (event-bearing pixel-intervals) the least-squares
+    fit at (d, I0 index ii) explains."""
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    c = _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))
+    res = tot = 0.0
+    dls = [r["L1"][ii] - r["L0"][ii] for r in rows]
+    allv = np.concatenate(dls) if dls else np.zeros(0)
+    if allv.size < 2:
+        return float("nan")
+    mu = allv.mean()
+    for r, (no, nf), dl in zip(rows, counts, dls):
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        e = dl - c[0] * (no - lo) + c[1] * (nf - lf)
+        res += float(e @ e)
+        tot += float((dl - mu) @ (dl - mu))
+    return 1.0 - res / tot if tot > 0 else float("nan")
+
+
+def _ls_at(D, rows, d, ii, r_on, r_off):
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    return _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))
+
+
+def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, free_i0, free_d, iters=3):
+    """Indirect inference on the whole estimate (δ, I0, c_on, c_off).
+
+    The grid criterion's best (δ̂, Î0) and the least-squares thresholds are biased by the DVS
+    quantiser itself (hysteresis: a reversal's first events come late, so later windows predict
+    better; thresholds attenuated where few events fall per interval). The binding function
+    θ -> (δ̂, Î0) is measured by simulation: events of the DVS model driven by the frames' own log
+    path with the candidate θ (:func:`simulate_quantiser_events`) go through the same grid
+    search; θ moves by the difference between the observed and the simulated estimates until they
+    agree. At each θ the thresholds are :func:`_indirect`'s on the observed counts between the
+    frame times shifted by θ's latency."""
+    c_span = (float(D.tau[ints[0]]), float(D.tau[ints[-1] + 1]))
+
+    def observed_signal(dd, i_):
+        # events the well-exposed pixel-intervals hold between the shifted frame times, less the noise
+        tot = 0.0
+        for j in ints:
+            _, g0 = D.frame(j)
+            _, g1 = D.frame(j + 1)
+            a, b = np.searchsorted(D.t, [D.tau[j] + dd, D.tau[j + 1] + dd])
+            tot += float(np.count_nonzero((g0 & g1)[D.pix[a:b]]))
+            tot -= (r_on + r_off) * (D.tau[j + 1] - D.tau[j]) * 1e-6 * float(np.count_nonzero(g0 & g1))
+        return tot
+
+    d, ii = float(d_obs), int(ii_obs)
+    # a cheap first look (one iteration, two replicates at the least-squares thresholds): a quantiser
+    # that fires far from the observed events on the frames' path will not be trusted at the end either
+    ls0 = _ls_at(D, rows, int(round(d)), ii, r_on, r_off)
+    _, pre = _indirect(D, ints, float(i0s[ii]), ls0, sig, r_on, r_off, reps=2, iters=1, seed=seed)
+    obs0 = observed_signal(int(round(d)), ii)
+    ratio0 = pre["simulated_signal_events"] / obs0 if obs0 > 0 and pre["simulated_signal_events"] else float("nan")
+    if not (abs(ratio0 - 1.0) <= 2 * SIM_EVENT_TOLERANCE):
+        return None, {"method": pre["method"], "applied": False, "simulated_to_observed_events": _f(ratio0),
+                      "reason": f"the quantiser simulated on the frames' own log path fires {ratio0:.2f}x the observed "
+                                f"signal events at the least-squares thresholds (first look, tolerance "
+                                f"{2 * SIM_EVENT_TOLERANCE:.0%}): the frames undersample the scene's changes; the "
+                                f"least-squares thresholds and the grid's offset and I0 are reported"}, None, int(ii_obs)
+    hist = []
+    c, rec = None, None
+    for it in range(iters + 1):
+        ls = _ls_at(D, rows, int(round(d)), ii, r_on, r_off)
+        c, rec = _indirect(D, ints, float(i0s[ii]), ls, sig, r_on, r_off, seed=seed)
+        if it == iters or not (free_i0 or free_d):
+            break
+        ev = simulate_quantiser_events(D, float(i0s[ii]), c[0], c[1], sigma=(sig.get("on") or 0.0, sig.get("off") or 0.0),
+                                       latency_us=int(round(d)), rate_on_hz=r_on, rate_off_hz=r_off, seed=seed + it,
+                                       k_range=(ints[0], ints[-1] + 1))
+        ev = ev[(ev["t"] >= D.t0_ev) & (ev["t"] <= D.t1_ev)]
+        if len(ev) == 0:
+            break
+        S = _SimData(D, ev)
+        # the simulated search on a window of the grid around the observed estimate (its lag and I0
+        # shift are a few steps; the window bounds the work)
+        a_obs = int(np.argmin(np.abs(np.asarray(offs) - d_obs)))
+        oi = list(range(max(a_obs - BINDING_WINDOW[0], 0), min(a_obs + BINDING_WINDOW[0] + 1, len(offs))))
+        ij = list(range(max(ii_obs - BINDING_WINDOW[1], 0), min(ii_obs + BINDING_WINDOW[1] + 1, len(i0s))))
+        _, _, sc, _ = _search(S, ints, tuple(i0s[k] for k in ij), tuple(offs[k] for k in oi), r_on, r_off, None, None)
+        if not np.isfinite(sc).any():
+            break
+        a_s, i_s = np.unravel_index(np.nanargmin(sc), sc.shape)
+        a_s, i_s = oi[a_s], ij[i_s]
+        hist.append({"theta": [d, float(i0s[ii])], "c": list(c), "simulated_estimate": [int(offs[a_s]), float(i0s[i_s])]})
+        nd = d + (d_obs - offs[a_s]) if free_d else d
+        ni = int(np.clip(ii + (ii_obs - i_s), 0, len(i0s) - 1)) if free_i0 else ii
+        if abs(nd - d) < 0.5 and ni == ii:
+            break
+        d, ii = float(np.clip(nd, offs[0], offs[-1])), ni
+    obs = observed_signal(int(round(d)), ii)
+    simd = rec.get("simulated_signal_events")
+    ratio = simd / obs if simd is not None and obs > 0 else float("nan")
+    rec = {**rec, "binding_iterations": hist, "span_us": list(c_span), "observed_signal_events": obs,
+           "simulated_to_observed_events": _f(ratio)}
+    if not (abs(ratio - 1.0) <= SIM_EVENT_TOLERANCE):
+        # the frames do not sample the motion finely enough for the simulated quantiser to see what the
+        # pixels saw (it misses the changes between frames): no correction, said so
+        rec["applied"] = False
+        rec["reason"] = (f"the quantiser simulated on the frames' own log path fires {ratio:.2f}x the observed signal "
+                         f"events (tolerance {SIM_EVENT_TOLERANCE:.0%}): the frames undersample the scene's changes, "
+                         f"so the correction cannot be trusted; the least-squares thresholds and the grid's offset "
+                         f"and I0 are reported")
+        return None, rec, None, int(ii_obs)
+    rec["applied"] = True
+    return c, rec, int(round(d)), ii
+
+
+def _reverse(rows, counts, ii):
+    """Reverse regression: counts on the frame change (both polarities), the other EIV bound."""
+    a = np.zeros((2, 2))
+    y = np.zeros(2)
+    for r, (no, nf) in zip(rows, counts):
+        dl = r["L1"][ii] - r["L0"][ii]
+        zp, zn = np.maximum(dl, 0), np.maximum(-dl, 0)
+        a += [[no @ zp, -(nf @ zp)], [no @ zn, -(nf @ zn)]]
+        y += [dl @ zp, dl @ zn]
+    try:
+        v = np.linalg.solve(a, y)
+        return {"c_on": _f(v[0]), "c_off": _f(v[1]),
+                "method": "instruments (ΔL+, ΔL−) for (N_on, N_off): the reverse regression's bound"}
+    except np.linalg.LinAlgError:
+        return {"c_on": None, "c_off": None, "method": "singular"}
+
+
+def _per_pixel_sums(D, rows, counts, ii, r_on, r_off):
+    """Per-pixel noise-corrected sums over the event-bearing pixel-intervals (a pixel's intervals
+    without events add only the noise moments λ² − λ, left out here), two halves (even/odd intervals) too."""
+    keys = ("soo", "sff", "sof", "bo", "bf", "sll", "n", "k_on", "k_off")
+    tot = {k: np.zeros(D.n) for k in keys}
+    halves = [{k: np.zeros(D.n) for k in keys} for _ in range(2)]
+    for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
+        idx = r["idx"]
+        if not idx.size:
+            continue
+        dl = r["L1"][ii] - r["L0"][ii]
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        vals = {"soo": (no - lo) ** 2 - lo, "sff": (nf - lf) ** 2 - lf, "sof": (no - lo) * (nf - lf),
+                "bo": (no - lo) * dl, "bf": (nf - lf) * dl, "sll": dl * dl, "n": np.ones(idx.size),
+                "k_on": (no > 0.5).astype(float), "k_off": (nf > 0.5).astype(float)}
+        for k, v in vals.items():
+            np.add.at(tot[k], idx, v)
+            np.add.at(halves[q % 2][k], idx, v)
+    return {"tot": tot, "halves": halves, "shape": (D.h, D.w), "profile": D.prof.name}
+
+
+def _bootstrap(pp, n_boot, seed):
+    if pp is None or n_boot < 2:
+        return None, None
+    tot = pp["tot"]
+    used = np.flatnonzero(tot["n"] > 0)
+    if used.size < 2:
+        return None, None
+    S = np.stack([tot[k][used] for k in ("soo", "sff", "sof", "bo", "bf")], 1)
+    rng = np.random.default_rng(seed)
+    out = []
+    chunk = max(1, min(50, (4 << 20) // used.size))
+    for k in range(0, n_boot, chunk):
+        W = rng.poisson(1.0, size=(min(chunk, n_boot - k), used.size)).astype(np.float64)
+        a, b = _nnls2(*(W @ S).T)
+        out.append(np.stack([a, b], 1))
+    bs = np.concatenate(out)
+    return _f(np.std(bs[:, 0], ddof=1)), _f(np.std(bs[:, 1], ddof=1))
+
+
+def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrelation: float = 0.05,
+                     c_range=(0.01, 3.0), tau2=None):
+    """Per-pixel thresholds shrunk toward the pooled ones by their own uncertainty (empirical Bayes).
+
+    Each identified pixel's least-squares pair ``ĉ_i`` (its own noise-corrected sums) has a
+    sampling variance ``s_i² = σ_res²·[(XᵀX)⁻¹]`` (σ_res² the pooled residual variance per
+    pixel-interval); the pixels' true spread ``τ²`` is the covariance of two independent halves'
+    estimates (even and odd intervals: their errors are independent, so it drops out). The
+    posterior mean under a normal prior N(pooled, τ²) is ``pooled + τ²/(τ² + s_i²)·(ĉ_i − pooled)``
+    (James & Stein 1961; Efron & Morris, JASA 1973). A pixel the data do not identify keeps the
+    pooled value, and so does every pixel when the halves show no spread (τ² <= 0). ``tau2``
+    (ON, OFF) replaces the measured spread (a prior known from another recording).
+
+    Returns ``(c_on (H, W), c_off (H, W), identified (H, W) bool, record)``."""
+    tau2_given = tau2
+    pp = model.per_pixel
+    if pp is None:
+        raise ValueError("shrink_per_pixel needs a model estimated with per_pixel=True")
+    h, w = pp["shape"]
+    pooled = (model.c_on, model.c_off)
+
+    def est(s):
+        a, b = _nnls2(s["soo"], s["sff"], s["sof"], s["bo"], s["bf"])
+        det = s["soo"] * s["sff"] - s["sof"] ** 2
+        with np.errstate(invalid="ignore", divide="ignore"):
+            rho2 = np.where((s["soo"] > 0) & (s["sff"] > 0), s["sof"] ** 2 / (s["soo"] * s["sff"]), 1.0)
+        ok = ((s["k_on"] >= min_intervals) & (s["k_off"] >= min_intervals) & (1 - rho2 >= min_decorrelation)
+              & (det > 0) & (a >= c_range[0]) & (a <= c_range[1]) & (b >= c_range[0]) & (b <= c_range[1]))
+        return a, b, ok, det
+
+    t = pp["tot"]
+    a, b, ok, det = est(t)
+    res = t["sll"] - 2 * a * t["bo"] + 2 * b * t["bf"] + a * a * t["soo"] + b * b * t["sff"] - 2 * a * b * t["sof"]
+    dof = t["n"][ok].sum() - 2 * ok.sum()
+    s2 = float(res[ok].sum() / dof) if ok.any() and dof > 0 else math.nan
+    with np.errstate(invalid="ignore", divide="ignore"):
+        v_on = np.where(ok, s2 * t["sff"] / det, np.inf)
+        v_off = np.where(ok, s2 * t["soo"] / det, np.inf)
+    a1, b1, ok1, _ = est(pp["halves"][0])
+    a2, b2, ok2, _ = est(pp["halves"][1])
+    both = ok1 & ok2
+    tau2 = {}
+    for name, x, y in (("on", a1, a2), ("off", b1, b2)):
+        if both.sum() >= 30:
+            xx, yy = x[both], y[both]
+            tau2[name] = float(np.mean((xx - xx.mean()) * (yy - yy.mean())))
+        else:
+            tau2[name] = 0.0
+    if tau2_given is not None:
+        tau2 = {"on": float(tau2_given[0]), "off": float(tau2_given[1])}
+    out = []
+    for j, (name, c, v) in enumerate((("on", a, v_on), ("off", b, v_off))):
+        t2 = max(tau2[name], 0.0)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            k = np.where(ok & np.isfinite(v), t2 / (t2 + v), 0.0) if t2 > 0 else np.zeros(c.shape)
+        out.append((pooled[j] + k * (np.where(ok, c, pooled[j]) - pooled[j])).reshape(h, w))
+    record = {"method": "empirical Bayes: pooled + tau^2/(tau^2 + s_i^2) (c_i - pooled); tau^2 = covariance of two "
+                        "halves' per-pixel estimates; s_i^2 from the pooled residual variance",
+              "identified_pixels": int(ok.sum()), "pixels_both_halves": int(both.sum()),
+              "tau2_on": tau2["on"], "tau2_off": tau2["off"], "residual_var": _f(s2) if np.isfinite(s2) else None,
+              "profile": pp.get("profile", "")}
+    return out[0], out[1], ok.reshape(h, w), record
+
+
+def simulate_quantiser_events(D, i0, c_on, c_off, *, sigma=(0.0, 0.0), latency_us=0, rate_on_hz=0.0,
+                              rate_off_hz=0.0, seed=0, k_range=None):
+    """Events of the DVS model (eq. 1) driven by the frames' own log path ``ln(I_k + I0)``, linear
+    in time between frame times, each pixel with a random initial phase and N(c, σ) thresholds,
+    stamped ``latency_us`` late, plus Poisson noise events: the recording the camera model says
+    this camera would have made of what its frames show (EVENT_DTYPE, sorted)."""
+    from ..events import EVENT_DTYPE
+    rng = np.random.default_rng([int(seed), 36])
+    k0, k1 = (0, len(D.tau) - 1) if k_range is None else k_range
+    con = np.maximum(c_on + sigma[0] * rng.standard_normal(D.n), 0.01)
+    coff = np.maximum(c_off + sigma[1] * rng.standard_normal(D.n), 0.01)
+
+    def L(k):
+        c_, _ = D.frame(k)
+        return np.log(D.lut[c_.astype(np.int64)] * D.scale[k] + i0)
+
+    x0 = L(k0)
+    ref = x0 - (rng.random(D.n) * (con + coff) - coff)
+    ts, ps, pol = [], [], []
+    for k in range(k0, k1):
+        x1 = L(k + 1)
+        t0, t1 = float(D.tau[k]), float(D.tau[k + 1])
+        up = np.floor(np.maximum(x1 - ref, 0.0) / con).astype(np.int64)
+        dn = np.floor(np.maximum(ref - x1, 0.0) / coff).astype(np.int64)
+        slope = np.where(x1 != x0, (t1 - t0) / np.where(x1 != x0, x1 - x0, 1.0), 0.0)
+        for cnt, sign, cc in ((up, 1, con), (dn, -1, coff)):
+            pix = np.repeat(np.arange(D.n), cnt)
+            if pix.size:
+                m = np.arange(pix.size) - np.repeat(np.cumsum(cnt) - cnt, cnt) + 1
+                lev = ref[pix] + sign * m * cc[pix]
+                tt = t0 + (lev - x0[pix]) * slope[pix]
+                ts.append(np.clip(tt, t0, t1))
+                ps.append(pix)
+                pol.append(np.full(pix.size, sign, np.int8))
+        ref = ref + up * con - dn * coff
+        x0 = x1
+    span = (float(D.tau[k0]), float(D.tau[k1]))
+    for rate, sign in ((rate_on_hz, 1), (rate_off_hz, -1)):
+        if rate > 0:
+            m = int(rng.poisson(rate * D.n * (span[1] - span[0]) * 1e-6))
+            ts.append(rng.uniform(span[0], span[1], m))
+            ps.append(rng.integers(0, D.n, m))
+            pol.append(np.full(m, sign, np.int8))
+    t = np.concatenate(ts) if ts else np.zeros(0)
+    ev = np.zeros(t.size, EVENT_DTYPE)
+    ev["t"] = np.rint(t + latency_us).astype(np.int64)
+    p_ = np.concatenate(ps) if ps else np.zeros(0, np.int64)
+    ev["x"] = p_ % D.w
+    ev["y"] = p_ // D.w
+    ev["p"] = np.concatenate(pol) if pol else np.zeros(0, np.int8)
+    return ev[np.argsort(ev["t"], kind="stable")]
+
+
+def plot_camera_model(recording, model: CameraModel, path, *, profile=None, title: str | None = None):
+    """PNG of the model: per intensity band (quartiles of the pixel-intervals' mean frame intensity)
+    the frames' log change against the change the events predict (c_on·N_on − c_off·N_off at the
+    chosen δ and I0, noise removed) with the identity line and the band's own least-squares
+    thresholds; the residuals; the criterion over (δ, I0) with the choice; every value with its
+    uncertainty."""
+    import matplotlib
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from pathlib import Path
+
+    from .._util.atomic import atomic_path
+
+    rec = recording
+    if isinstance(rec, (str, bytes)) or hasattr(rec, "__fspath__"):
+        from ..formats import read
+        rec = read(rec)
+    D = _Data(rec, profile, model.excluded_frames, None)
+    ints = D.covered(model.time_offset_us, model.time_offset_us)
+    if len(ints) > MAX_INTERVALS:
+        ints = [ints[i] for i in np.linspace(0, len(ints) - 1, MAX_INTERVALS).round().astype(int)]
+    d = int(model.time_offset_us)
+    rows = _collect(D, ints, (model.intensity_offset,), d, d)
+    r_on, r_off = model.noise.get("rate_on_hz", 0.0), model.noise.get("rate_off_hz", 0.0)
+    xs, ys, inten = [], [], []
+    for r in rows:
+        no, nf = D.weighted_counts(r["j"], d, r["idx"])
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        xs.append(model.c_on * (no - lo) - model.c_off * (nf - lf))
+        ys.append(r["L1"][0] - r["L0"][0])
+        inten.append(0.5 * (np.exp(r["L0"][0]) + np.exp(r["L1"][0])) - model.intensity_offset)
+    x = np.concatenate(xs) if xs else np.zeros(0)
+    y = np.concatenate(ys) if ys else np.zeros(0)
+    it = np.concatenate(inten) if inten else np.zeros(0)
+    edges = np.quantile(it, [0.25, 0.5, 0.75]) if it.size else np.zeros(3)
+    band = np.searchsorted(edges, it)
+    fig, axes = plt.subplots(2, 3, figsize=(13, 8), dpi=100)
+    lim = float(np.percentile(np.abs(np.concatenate([x, y])), 99.5)) * 1.1 if x.size else 1.0
+    bounds = [0.0, *edges.tolist(), float(it.max()) if it.size else 1.0]
+    for b in range(4):
+        ax = axes.flat[[0, 1, 3, 4][b]]
+        m = band == b
+        if m.sum():
+            ax.hexbin(x[m], y[m], gridsize=45, extent=(-lim, lim, -lim, lim), bins="log", cmap="viridis", mincnt=1)
+        ax.plot([-lim, lim], [-lim, lim], color="tab:red", lw=1.2, label="model (identity)")
+        cb = (model.bands or {}).get("bands_c") or []
+        ib = list((model.bands or {}).get("intensity_offsets") or [])
+        k = ib.index(model.intensity_offset) if model.intensity_offset in ib else None
+        extra = ""
+        if k is not None and k < len(cb) and b < len(cb[k]):
+            extra = f"\nthis band's own LS: ON {cb[k][b][0]:.3f}, OFF {cb[k][b][1]:.3f}"
+        ax.set_title(f"intensity {bounds[b]:.3g}-{bounds[b + 1]:.3g} (frame-linear), {int(m.sum())} "
+                     f"pixel-intervals{extra}", fontsize=8.5)
+        ax.set_xlim(-lim, lim)
+        ax.set_ylim(-lim, lim)
+        ax.set_xlabel("events' predicted change c_on N_on - c_off N_off (ln)", fontsize=8)
+        ax.set_ylabel("frames' log change (ln)", fontsize=8)
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7, loc="upper left")
+    ax = axes[0, 2]
+    res = y - x
+    if res.size:
+        ax.hist(np.clip(res, -lim, lim), bins=80, color="tab:gray")
+    ax.axvline(0, color="tab:red", lw=1)
+    ax.set_title(f"residuals: RMS {float(np.sqrt(np.mean(res ** 2))) if res.size else float('nan'):.3f} ln "
+                 f"(one threshold of quantisation at each end)", fontsize=8.5)
+    ax.set_xlabel("frames' log change - predicted (ln)", fontsize=8)
+    ax.set_ylabel("pixel-intervals", fontsize=8)
+    ax = axes[1, 2]
+    sg = np.array(model.score_grid, float)
+    if sg.size and np.isfinite(sg).any():
+        im = ax.imshow(sg.T, aspect="auto", origin="lower", cmap="magma_r",
+                       extent=(model.offsets_us[0] / 1e3, model.offsets_us[-1] / 1e3, -0.5, len(model.intensity_offsets) - 0.5))
+        fig.colorbar(im, ax=ax, label="cross-fitted RMS code error")
+        ii = list(model.intensity_offsets).index(model.intensity_offset) if model.intensity_offset in model.intensity_offsets else 0
+        ax.plot([model.time_offset_us / 1e3], [ii], "c*", ms=12, label=f"chosen: {model.time_offset_us} us")
+        yt = list(range(0, len(model.intensity_offsets), max(1, len(model.intensity_offsets) // 6)))
+        ax.set_yticks(yt)
+        ax.set_yticklabels([f"{model.intensity_offsets[i]:.2g}" for i in yt], fontsize=7)
+        ax.legend(fontsize=7, loc="upper right")
+    ax.set_xlabel("frame time offset (ms)", fontsize=8)
+    ax.set_ylabel("I0 (frame-linear)", fontsize=8)
+    sd_on = f" +- {model.c_on_std:.3f}" if model.c_on_std is not None else ""
+    sd_off = f" +- {model.c_off_std:.3f}" if model.c_off_std is not None else ""
+    sg_ = model.mismatch_sigma or {}
+    sig = ("sigma ON %.3f OFF %.3f" % (sg_["on"], sg_["off"])) if sg_.get("on") is not None else "sigma not identified"
+    lat = f"{model.latency_us} us" if model.latency_us is not None else "not identified"
+    ax.set_title(f"ON {model.c_on:.3f}{sd_on}, OFF {model.c_off:.3f}{sd_off} (ln), I0 {model.intensity_offset:.3g}\n"
+                 f"offset {model.time_offset_us} us, latency {lat}, {sig}", fontsize=8.5)
+    fig.suptitle(title or f"camera model: {model.n_pixel_intervals} event-bearing pixel-intervals in "
+                          f"{model.n_intervals} frame intervals", fontsize=10)
+    fig.tight_layout()
+    path = Path(path)
+    with atomic_path(path, suffix=".png") as tmp:
+        fig.savefig(tmp, format="png")
+    plt.close(fig)
+    return path

@@ -1,0 +1,179 @@
+"""The one camera model (hybridhdr.calibrate.camera_model): round trip, one answer, grid edges, shrinkage."""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+import math
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from hybridhdr.calibrate import camera_model as CM
+from hybridhdr.simulate.procedural import (
+    SensorCalibrationScene,
+    sensor_calibration_recording,
+)
+from hybridhdr.simulate.sensor import EventSensorParams
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_selfcal import planted_recording  # noqa: E402
+from test_thresholds import _moving_texture_recording  # noqa: E402
+
+C, SIGMA, I0, LATENCY_US = 0.3, 0.03, 0.02, 3000
+
+
+@pytest.fixture(scope="module")
+def roundtrip():
+    """The simulator with a known profile (thresholds, mismatch, an I0, a latency, shot noise)."""
+    p = EventSensorParams(contrast_threshold_on=C, contrast_threshold_off=C, threshold_mismatch_sigma=SIGMA,
+                          log_eps=I0, shot_noise_rate_hz=2.0)
+    rec, _, _ = sensor_calibration_recording(p, seed=1, duration_us=600_000, render_rate_hz=2000.0,
+                                             exposure_us=2000, scene=SensorCalibrationScene(seed=1))
+    ev = rec.events.copy()
+    ev["t"] += LATENCY_US
+    return dataclasses.replace(rec, events=ev)
+
+
+@pytest.fixture(scope="module")
+def model(roundtrip):
+    return CM.estimate_camera_model(roundtrip, n_boot=50, per_pixel=True)
+
+
+def test_roundtrip_recovers_the_simulated_profile(model):
+    m = model
+    # thresholds within 5 % or two standard errors (the benchmark's rule); the simulated quantiser
+    # reproduced the observed events (else no correction would be applied)
+    assert m.quantiser_correction["applied"], m.quantiser_correction.get("reason")
+    for v, sd in ((m.c_on, m.c_on_std), (m.c_off, m.c_off_std)):
+        assert abs(v / C - 1) <= 0.05 or abs(v - C) <= 2 * sd, (v, sd)
+    # I0 within a grid step (grid points a factor 2 apart: 0.016 and 0.032 bracket 0.02)
+    assert abs(math.log(m.intensity_offset / I0)) <= math.log(2) + 1e-9, m.intensity_offset
+    # the latency within a grid step; the predictive frame offset includes the quantiser's lag (later)
+    step = m.offsets_us[1] - m.offsets_us[0]
+    assert abs(m.latency_us - LATENCY_US) <= step, (m.latency_us, step)
+    assert m.time_offset_us >= m.latency_us
+    assert not any(m.at_grid_edge.values())
+    # the plain least squares is what the correction moves: it is further from the truth here
+    assert abs(m.least_squares["c_on"] - C) > abs(m.c_on - C) - 1e-3
+
+
+def test_one_answer_through_one_code_path(roundtrip, tmp_path, capsys):
+    """reconstruct's self-calibration, 'calibrate sensor' and 'calibrate thresholds' (pooled) print
+    the same ON/OFF for one recording."""
+    from hybridhdr.calibrate.resolve import resolve_thresholds
+    from hybridhdr.cli import main
+    from hybridhdr.formats import read
+    from hybridhdr.formats.container import write_recording
+
+    path = tmp_path / "rec.h5"
+    write_recording(roundtrip, path)
+    # what reconstruct's default (--thresholds selfcal) and evaluate's self-calibration call
+    got = resolve_thresholds(read(path), "selfcal", intensity_offset=None, profile=None)
+    sc = {"c_on": got.c_on, "c_off": got.c_off}
+    assert main(["calibrate", "sensor", str(path), "--out", str(tmp_path / "p.json"), "--bootstrap", "20",
+                 "--json"]) == 0
+    prof = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    assert main(["calibrate", "thresholds", str(path), "--out", str(tmp_path / "t"), "--json"]) == 0
+    thr = json.loads(capsys.readouterr().out.strip().splitlines()[-1])
+    on = {sc["c_on"], prof["estimates"]["contrast_threshold_on"]["value"], thr["fallback_on"]}
+    off = {sc["c_off"], prof["estimates"]["contrast_threshold_off"]["value"], thr["fallback_off"]}
+    assert len(on) == 1 and len(off) == 1, (on, off)
+    assert prof["simulator_params"]["contrast_threshold_on"] == sc["c_on"]
+
+
+def test_grid_edge_is_widened_or_named():
+    rec = planted_recording()  # frames stand for their stamp + 6000 µs
+    # a grid ending below the planted offset is widened until the best value lies inside
+    m = CM.estimate_camera_model(rec, offsets_us=range(0, 4001, 500), quantiser_correction=False, n_boot=2)
+    assert not m.at_grid_edge["time_offset_us"] and m.offsets_us[-1] > 4000
+    assert 4500 <= m.time_offset_us <= 8000
+    # a grid too far away to reach by widening: the value is reported on the edge, with a warning naming it
+    with pytest.warns(CM.GridEdgeWarning, match=r"time offset \d+ µs lies on the edge"):
+        m = CM.estimate_camera_model(rec, offsets_us=range(-2000, 1, 500), quantiser_correction=False,
+                                     n_boot=2)
+    assert m.at_grid_edge["time_offset_us"] and m.time_offset_us == m.offsets_us[-1] > 0
+
+
+def test_shrinkage_rule():
+    rec, c_on, c_off = _moving_texture_recording()
+    with pytest.warns(CM.GridEdgeWarning):  # I0 = 1e-3 of the clip level is below what these frames resolve
+        m = CM.estimate_camera_model(rec, per_pixel=True, n_boot=20)
+    con, coff, ident, rec_ = CM.shrink_per_pixel(m)
+    assert ident.mean() > 0.9
+    raw_on, raw_off = CM._nnls2(*(m.per_pixel["tot"][k] for k in ("soo", "sff", "sof", "bo", "bf")))
+    raw_on = raw_on.reshape(con.shape)
+    # every shrunk value lies between the pooled value and the pixel's own estimate
+    lo = np.minimum(raw_on, m.c_on) - 1e-12
+    hi = np.maximum(raw_on, m.c_on) + 1e-12
+    assert np.all((con[ident] >= lo[ident]) & (con[ident] <= hi[ident]))
+    # the spread is identified (true sigma 0.02) and shrinkage moves the map toward the truth: the
+    # per-pixel map is closer to the simulated per-pixel thresholds than the pooled value is
+    assert rec_["tau2_on"] > 0
+    err_pix = np.mean(np.abs(con[ident] / m.c_on * np.mean(c_on) - c_on[ident]))
+    err_pool = np.mean(np.abs(np.mean(c_on) - c_on[ident]))
+    assert err_pix < err_pool
+    # the rule itself: weight tau^2 / (tau^2 + s_i^2); no spread, every pixel keeps the pooled value
+    con0, coff0, _, r0 = CM.shrink_per_pixel(m, tau2=(0.0, 0.0))
+    assert np.all(con0 == m.c_on) and np.all(coff0 == m.c_off)
+    con_big, _, _, _ = CM.shrink_per_pixel(m, tau2=(1e6, 1e6))
+    assert np.allclose(con_big[ident], raw_on[ident], rtol=1e-6)
+
+
+def test_static_pixels_with_more_off_than_on_events(roundtrip):
+    """A valid recording whose static pixels fire more OFF than ON: the leak is 0 with an interval
+    [0, 0], never [0, negative], and the profile passes its own schema."""
+    from hybridhdr.calibrate.sensor_profile import estimate_sensor_profile
+    from hybridhdr.events import EVENT_DTYPE
+    from hybridhdr.formats.sensor_profile import SensorProfile
+
+    sc = SensorCalibrationScene(seed=1)
+    ys, xs = np.nonzero(sc.region("static"))
+    rng = np.random.default_rng(0)
+    t0, t1 = int(roundtrip.events["t"][0]), int(roundtrip.events["t"][-1])
+    k = 600  # about 2 Hz of OFF events per static pixel: OFF clearly outnumbers ON there
+    extra = np.zeros(k, EVENT_DTYPE)
+    i = rng.integers(0, ys.size, k)
+    extra["x"], extra["y"], extra["p"] = xs[i], ys[i], -1
+    extra["t"] = np.sort(rng.integers(t0, t1, k))
+    ev = np.concatenate([roundtrip.events, extra])
+    rec = dataclasses.replace(roundtrip, events=ev[np.argsort(ev["t"], kind="stable")])
+    prof = estimate_sensor_profile(rec, n_boot=20)
+    leak = prof.estimates["leak_rate_hz"]
+    assert leak["unconstrained_hz"] < 0
+    assert leak["value"] == 0.0 and leak["ci95"] == [0.0, 0.0]
+    SensorProfile.from_dict(json.loads(json.dumps(prof.to_dict())))  # its own schema accepts it
+
+
+def test_resolver_reads_the_sensor_profile_file(roundtrip, tmp_path, capsys):
+    """One profile file, one answer: the resolver gives the profile's ON/OFF, I0 and frame offset."""
+    from hybridhdr.calibrate.resolve import resolve_thresholds
+    from hybridhdr.cli import main
+    from hybridhdr.formats.container import write_recording
+
+    path = tmp_path / "rec.h5"
+    write_recording(roundtrip, path)
+    out = tmp_path / "profile.json"
+    assert main(["calibrate", "sensor", str(path), "--out", str(out), "--bootstrap", "20", "--no-plot"]) == 0
+    prof = json.loads(out.read_text())
+    got = resolve_thresholds(None, str(out))
+    assert got.source == "profile"
+    assert got.c_on == prof["simulator_params"]["contrast_threshold_on"]
+    assert got.intensity_offset == prof["estimates"]["intensity_offset"]["value"]
+    assert got.frame_time_offset_us == prof["estimates"]["time_offset_us"]["value"]
+    # a method with its own log model keeps it (and is told the thresholds are approximate there)
+    got1 = resolve_thresholds(None, out, intensity_offset=1.0)
+    assert got1.intensity_offset is None and "differs" in got1.note
+
+
+def test_correction_pixel_subset_is_bounded_and_seeded(roundtrip, monkeypatch):
+    # the quantiser correction simulates at most MAX_CORRECTION_PIXELS pixels, a subset fixed by the
+    # seed: the same seed gives the same bits, the subset's size is the bound
+    monkeypatch.setattr(CM, "MAX_CORRECTION_PIXELS", 500)
+    runs = [CM.estimate_camera_model(roundtrip, n_boot=2, seed=s).to_dict() for s in (0, 0, 1)]
+    qc = [r["quantiser_correction"] for r in runs]
+    assert qc[0]["pixels_simulated"] == 500
+    assert runs[0] == runs[1]
+    assert qc[2]["iterations"] != qc[0]["iterations"]  # another seed, another subset and draws
