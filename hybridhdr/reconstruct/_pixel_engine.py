@@ -47,6 +47,7 @@ import numpy as np
 from numba import njit
 
 from .._util import phases as PH
+from .._util.nbprefetch import prefetch
 from . import _kernels as K
 from ._engine import AKFEngine
 
@@ -56,6 +57,7 @@ BLOCKS_PER_WORKER = 8
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
+ONE = K.ONE
 
 
 @njit(cache=True, nogil=True)
@@ -141,27 +143,66 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
             glo[q] = pos
             ghi[q] = pos
             pos += gcnt[q]
+    # unsigned index arithmetic (no negative-index wraparound code), no slices, and the serial
+    # kernel's prefetch of the 3x3 te window a few events ahead (and of the pixel's write position)
+    w = np.uint64(width)
+    wpu = np.uint64(wp)
+    lo = np.uint64(row_lo)
+    hi = np.uint64(row_hi)
+    au = np.int64(a)
     for j in range(e0, e1):
-        i = j if identity else np.int64(ev[j])
-        r = np.int64(y[a + i])
-        c = np.int64(x[a + i])
-        ti = t[a + i]
-        if r < row_lo:
-            top[c + 1] = ti
+        if j + 2 * K.PREFETCH_AHEAD < e1:
+            jn = au + (np.int64(j + 2 * K.PREFETCH_AHEAD) if identity else np.int64(ev[j + 2 * K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            xn = np.uint64(x[jn])
+            tn = (yn + ONE) * wpu + xn + ONE
+            prefetch(te, tn - wpu)
+            prefetch(te, tn)
+            prefetch(te, tn + wpu)
+            prefetch(ghi, yn * w + xn)
+        if j + K.PREFETCH_AHEAD < e1:
+            # the record the event K.PREFETCH_AHEAD on will write (its pixel's write position now:
+            # the same or the next record then); these scattered writes were the grouping's cost
+            jn = au + (np.int64(j + K.PREFETCH_AHEAD) if identity else np.int64(ev[j + K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            if yn >= lo and yn < hi:
+                gn = np.uint64(ghi[yn * w + np.uint64(x[jn])]) * np.uint64(3)
+                prefetch(rec, gn)
+                prefetch(rec, gn + np.uint64(2))
+        i = au + (np.int64(j) if identity else np.int64(ev[j]))
+        r = np.uint64(y[i])
+        c = np.uint64(x[i])
+        ti = t[i]
+        if r < lo:
+            top[c + ONE] = ti
             continue
-        if r >= row_hi:
-            bot[c + 1] = ti
+        if r >= hi:
+            bot[c + ONE] = ti
             continue
-        tp = (r + 1) * wp + c + 1
-        up = top[c:c + 3] if r == row_lo else te[tp - wp - 1:tp - wp + 2]
-        dn = bot[c:c + 3] if r == row_hi - 1 else te[tp + wp - 1:tp + wp + 2]
+        tp = (r + ONE) * wpu + c + ONE
+        if r == lo:
+            u0 = top[c]
+            u1 = top[c + ONE]
+            u2 = top[c + ONE + ONE]
+        else:
+            u0 = te[tp - wpu - ONE]
+            u1 = te[tp - wpu]
+            u2 = te[tp - wpu + ONE]
+        if r + ONE == hi:
+            d0 = bot[c]
+            d1 = bot[c + ONE]
+            d2 = bot[c + ONE + ONE]
+        else:
+            d0 = te[tp + wpu - ONE]
+            d1 = te[tp + wpu]
+            d2 = te[tp + wpu + ONE]
         te0 = te[tp]
-        tstar = max(max(max(up[0], up[1]), max(up[2], te[tp - 1])),
-                    max(max(te0, te[tp + 1]), max(max(dn[0], dn[1]), dn[2])))
-        q = r * width + c
+        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
+                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        q = r * w + c
         g = ghi[q]
         rec[g, 0] = ti
-        rec[g, 1] = 2 * (ti - te0) + np.int64(p[a + i] > 0)
+        rec[g, 1] = 2 * (ti - te0) + np.int64(p[i] > 0)
         rec[g, 2] = ti - tstar
         ghi[q] = g + 1
         te[tp] = ti
