@@ -33,6 +33,11 @@ workers, so the blocks are dealt out by their event counts):
    over the block's pixels, in pixel order, with t* and the Δt computed on the way, the ghost
    rows' events only moving the copies), then walks each block's pixels (:func:`walk_block`).
 
+The grouping's cost is its scattered accesses, not its arithmetic: each event's count, 3x3
+``te`` window, write position and record, and in the walk each pixel's state record, are random
+over the sensor (on a 1280x720 one, beyond the caches). Every pass prefetches them a few events
+(pixels) ahead, as the serial kernel does its state: a hint only, the bits do not change.
+
 Steps are separated by a barrier. With one worker there is one block and steps 1 and 2 are
 skipped. ``te`` is padded by one pixel (the serial filter's :func:`._kernels.padded_te`, int64
 absolute µs). Frame switches and outputs are the row-band engine's (one pass over the pixels,
@@ -118,7 +123,12 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
     # a 1280x720 window of 300 k events has 3x as many pixels as events); the bits are the same
     scan = (row_hi - row_lo) * width <= SCAN_PIXELS_PER_EVENT * (e1 - e0)
     k = 0
+    wu = np.uint64(width)
     for j in range(e0, e1):
+        if j + 2 * K.PREFETCH_AHEAD < e1:  # the counts of a large sensor do not stay in cache
+            jn = np.int64(a) + (np.int64(j + 2 * K.PREFETCH_AHEAD) if identity else
+                                np.int64(ev[j + 2 * K.PREFETCH_AHEAD]))
+            prefetch(gcnt, np.uint64(y[jn]) * wu + np.uint64(x[jn]))
         i = j if identity else np.int64(ev[j])
         r = np.int64(y[a + i])
         if r >= row_lo and r < row_hi:
@@ -139,6 +149,10 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
                 pos += c
     else:
         for m in range(e0, e0 + k):
+            if m + K.PREFETCH_AHEAD < e0 + k:
+                qn = np.uint64(act[m + K.PREFETCH_AHEAD])
+                prefetch(glo, qn)
+                prefetch(ghi, qn)
             q = act[m]
             glo[q] = pos
             ghi[q] = pos
@@ -218,6 +232,13 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
     has_px = con_px.shape[0] > 0
     n = 0
     for m in range(m0, m1):
+        if m + K.PREFETCH_AHEAD < m1:
+            # the pixels come in first-event order on a large sensor (no scan): a cache miss each
+            qn = np.uint64(act[m + K.PREFETCH_AHEAD])
+            prefetch(S, qn * np.uint64(K.AKF_FIELDS))
+            prefetch(glo, qn)
+            prefetch(ghi, qn)
+            prefetch(gcnt, qn)
         q = act[m]
         lo = glo[q]
         hi = ghi[q]
