@@ -33,6 +33,11 @@ workers, so the blocks are dealt out by their event counts):
    over the block's pixels, in pixel order, with t* and the Δt computed on the way, the ghost
    rows' events only moving the copies), then walks each block's pixels (:func:`walk_block`).
 
+The grouping's cost is its scattered accesses, not its arithmetic: each event's count, 3x3
+``te`` window, write position and record, and in the walk each pixel's state record, are random
+over the sensor (on a 1280x720 one, beyond the caches). Every pass prefetches them a few events
+(pixels) ahead, as the serial kernel does its state: a hint only, the bits do not change.
+
 Steps are separated by a barrier. With one worker there is one block and steps 1 and 2 are
 skipped. ``te`` is padded by one pixel (the serial filter's :func:`._kernels.padded_te`, int64
 absolute µs). Frame switches and outputs are the row-band engine's (one pass over the pixels,
@@ -47,6 +52,7 @@ import numpy as np
 from numba import njit
 
 from .._util import phases as PH
+from .._util.nbprefetch import prefetch
 from . import _kernels as K
 from ._engine import AKFEngine
 
@@ -56,6 +62,7 @@ BLOCKS_PER_WORKER = 8
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
+ONE = K.ONE
 
 
 @njit(cache=True, nogil=True)
@@ -116,7 +123,12 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
     # a 1280x720 window of 300 k events has 3x as many pixels as events); the bits are the same
     scan = (row_hi - row_lo) * width <= SCAN_PIXELS_PER_EVENT * (e1 - e0)
     k = 0
+    wu = np.uint64(width)
     for j in range(e0, e1):
+        if j + 2 * K.PREFETCH_AHEAD < e1:  # the counts of a large sensor do not stay in cache
+            jn = np.int64(a) + (np.int64(j + 2 * K.PREFETCH_AHEAD) if identity else
+                                np.int64(ev[j + 2 * K.PREFETCH_AHEAD]))
+            prefetch(gcnt, np.uint64(y[jn]) * wu + np.uint64(x[jn]))
         i = j if identity else np.int64(ev[j])
         r = np.int64(y[a + i])
         if r >= row_lo and r < row_hi:
@@ -137,31 +149,74 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
                 pos += c
     else:
         for m in range(e0, e0 + k):
+            if m + K.PREFETCH_AHEAD < e0 + k:
+                qn = np.uint64(act[m + K.PREFETCH_AHEAD])
+                prefetch(glo, qn)
+                prefetch(ghi, qn)
             q = act[m]
             glo[q] = pos
             ghi[q] = pos
             pos += gcnt[q]
+    # unsigned index arithmetic (no negative-index wraparound code), no slices, and the serial
+    # kernel's prefetch of the 3x3 te window a few events ahead (and of the pixel's write position)
+    w = np.uint64(width)
+    wpu = np.uint64(wp)
+    lo = np.uint64(row_lo)
+    hi = np.uint64(row_hi)
+    au = np.int64(a)
     for j in range(e0, e1):
-        i = j if identity else np.int64(ev[j])
-        r = np.int64(y[a + i])
-        c = np.int64(x[a + i])
-        ti = t[a + i]
-        if r < row_lo:
-            top[c + 1] = ti
+        if j + 2 * K.PREFETCH_AHEAD < e1:
+            jn = au + (np.int64(j + 2 * K.PREFETCH_AHEAD) if identity else np.int64(ev[j + 2 * K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            xn = np.uint64(x[jn])
+            tn = (yn + ONE) * wpu + xn + ONE
+            prefetch(te, tn - wpu)
+            prefetch(te, tn)
+            prefetch(te, tn + wpu)
+            prefetch(ghi, yn * w + xn)
+        if j + K.PREFETCH_AHEAD < e1:
+            # the record the event K.PREFETCH_AHEAD on will write (its pixel's write position now:
+            # the same or the next record then); these scattered writes were the grouping's cost
+            jn = au + (np.int64(j + K.PREFETCH_AHEAD) if identity else np.int64(ev[j + K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            if yn >= lo and yn < hi:
+                gn = np.uint64(ghi[yn * w + np.uint64(x[jn])]) * np.uint64(3)
+                prefetch(rec, gn)
+                prefetch(rec, gn + np.uint64(2))
+        i = au + (np.int64(j) if identity else np.int64(ev[j]))
+        r = np.uint64(y[i])
+        c = np.uint64(x[i])
+        ti = t[i]
+        if r < lo:
+            top[c + ONE] = ti
             continue
-        if r >= row_hi:
-            bot[c + 1] = ti
+        if r >= hi:
+            bot[c + ONE] = ti
             continue
-        tp = (r + 1) * wp + c + 1
-        up = top[c:c + 3] if r == row_lo else te[tp - wp - 1:tp - wp + 2]
-        dn = bot[c:c + 3] if r == row_hi - 1 else te[tp + wp - 1:tp + wp + 2]
+        tp = (r + ONE) * wpu + c + ONE
+        if r == lo:
+            u0 = top[c]
+            u1 = top[c + ONE]
+            u2 = top[c + ONE + ONE]
+        else:
+            u0 = te[tp - wpu - ONE]
+            u1 = te[tp - wpu]
+            u2 = te[tp - wpu + ONE]
+        if r + ONE == hi:
+            d0 = bot[c]
+            d1 = bot[c + ONE]
+            d2 = bot[c + ONE + ONE]
+        else:
+            d0 = te[tp + wpu - ONE]
+            d1 = te[tp + wpu]
+            d2 = te[tp + wpu + ONE]
         te0 = te[tp]
-        tstar = max(max(max(up[0], up[1]), max(up[2], te[tp - 1])),
-                    max(max(te0, te[tp + 1]), max(max(dn[0], dn[1]), dn[2])))
-        q = r * width + c
+        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
+                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        q = r * w + c
         g = ghi[q]
         rec[g, 0] = ti
-        rec[g, 1] = 2 * (ti - te0) + np.int64(p[a + i] > 0)
+        rec[g, 1] = 2 * (ti - te0) + np.int64(p[i] > 0)
         rec[g, 2] = ti - tstar
         ghi[q] = g + 1
         te[tp] = ti
@@ -177,6 +232,13 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
     has_px = con_px.shape[0] > 0
     n = 0
     for m in range(m0, m1):
+        if m + K.PREFETCH_AHEAD < m1:
+            # the pixels come in first-event order on a large sensor (no scan): a cache miss each
+            qn = np.uint64(act[m + K.PREFETCH_AHEAD])
+            prefetch(S, qn * np.uint64(K.AKF_FIELDS))
+            prefetch(glo, qn)
+            prefetch(ghi, qn)
+            prefetch(gcnt, qn)
         q = act[m]
         lo = glo[q]
         hi = ghi[q]
