@@ -48,7 +48,7 @@ def test_readme_example_on_sparklers(tmp_path, capsys, shared_data):
     rc, out3, _ = run_cli(capsys, "convert", raw, tmp_path / "d.h5", "--start", "913766224us", "--end",
                           "913776224us", "--absolute", "--json", "--no-progress")
     assert json.loads(out3)["events"] == res["events"]
-    # the case: absolute 0..1 s is empty -> rc 1, the span named, no output left
+    # a window outside the recording's span: absolute 0..1 s is empty -> rc 1, the span named, no output left
     rc, _, err = run_cli(capsys, "convert", raw, tmp_path / "e.h5", "--start-us", 0, "--end-us", 1_000_000,
                          "--no-progress")
     assert rc == 1 and "913,716,224" in err and "0.095871 s" in err and not (tmp_path / "e.h5").exists()

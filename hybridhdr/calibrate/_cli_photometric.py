@@ -28,6 +28,8 @@ def register(steps) -> None:
     p.add_argument("brackets", type=Path, metavar="BRACKETS_DIR",
                    help="bracket set folder: brackets.json, or images + exposures.txt, or EXIF exposures")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the files a previous run wrote in a non-empty --out (refused without it)")
     p.add_argument("--method", default="debevec", choices=["debevec", "robertson"], help="CRF estimator")
     p.add_argument("--smoothness", type=nonneg_float, default=10.0,
                    help="Debevec smoothness lambda (scaled by sqrt(samples*images/codes))")
@@ -116,6 +118,10 @@ def run_crf(args) -> int:
     from .crf import DebevecParams, RobertsonParams, estimate_crf
     from .noise_profile import estimate_sigma2_im, noise_profile, plot_profile
 
+    from .._util.atomic import check_outputs
+    check_outputs({"--out": args.out},
+                  [args.brackets] + (sorted(Path(args.brackets).iterdir()) if Path(args.brackets).is_dir() else []),
+                  overwrite=args.overwrite, command="calibrate crf")
     t0 = time.perf_counter()
     bs = read_bracket_set(args.brackets)
     if bs.encoding in ("raw", "linear"):

@@ -65,6 +65,8 @@ def register(steps) -> None:
     e.add_argument("--max-period-us", type=positive_int, default=500_000, help="longest blink period searched (µs)")
     e.add_argument("--min-windows-per-pose", type=positive_int, default=2, help="blink periods a static pose needs")
     p.add_argument("--out", type=Path, required=True, help="output folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the files a previous run wrote in a non-empty --out (refused without it)")
     p.set_defaults(func=run)
 
 
@@ -166,7 +168,11 @@ def run(args) -> int:
     names2 = None  # per-view names of camera 2 where they differ from camera 1's (--left/--right)
     if (args.events is None) == (args.left is None and args.right is None):
         raise ValueError("give either --events (with optional --frames) or --left and --right")
+    from .._util.atomic import check_outputs
     out = Path(args.out)
+    images_in = [Path(x) for x in [*(args.left or ()), *(args.right or ())]]
+    check_outputs({"--out": out}, [args.events, args.frames, *images_in],
+                  overwrite=args.overwrite, command="calibrate rig")
     out.mkdir(parents=True, exist_ok=True)
     report: dict = {"command": " ".join(sys.argv), "board": board.to_dict()}
     progress = not args.no_progress
@@ -198,6 +204,10 @@ def run(args) -> int:
         for i, pose in enumerate(res.poses):
             with atomic_path(evdir / f"pose_{i:03d}.png", ".png") as tmp:
                 cv2.imwrite(str(tmp), pose.image)
+        kept = {f"pose_{i:03d}.png" for i in range(len(res.poses))}
+        for stale in evdir.glob("pose_*.png"):  # a replaced run's extra poses (--overwrite)
+            if stale.name not in kept and (stale.is_file() or stale.is_symlink()):
+                stale.unlink()
         # frame views
         if args.frames is not None and Path(args.frames).is_dir():
             paths = _expand([args.frames])

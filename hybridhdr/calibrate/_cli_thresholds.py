@@ -23,6 +23,8 @@ def register(steps) -> None:
     p.add_argument("recording", type=Path, metavar="RECORDING", help="recording with events and frames (any "
                                                                      "readable format)")
     p.add_argument("--out", type=Path, default=Path("thresholds"), help="output folder")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace the files a previous run wrote in a non-empty --out (refused without it)")
     add_format_arg(p)
     p.add_argument("--profile", type=Path, default=None,
                    help="camera profile JSON (default: the recording's declared one, else the built-in profile of "
@@ -57,7 +59,9 @@ def run_thresholds(args) -> int:
     from .camera_model import GridEdgeWarning
     from .thresholds import estimate_thresholds, plot_thresholds
 
-    from .._util.atomic import refuse_overwriting_inputs
+    from .._util.atomic import check_outputs, refuse_overwriting_inputs
+    check_outputs({"--out": args.out}, [args.recording, args.profile], overwrite=args.overwrite,
+                  command="calibrate thresholds")
     refuse_overwriting_inputs({f"--out ({n})": args.out / n for n in ("thresholds.npz", "thresholds.png", "report.json")},
                               [args.recording, args.profile])
     t0 = time.perf_counter()

@@ -93,6 +93,9 @@ def add_parser(sub) -> None:
     b.add_argument("--frames-per-step", type=positive_int, default=1, help="frames kept per exposure")
     b.add_argument("--out", type=Path, default=None, help="write a bracket-set folder (brackets.json + PNG)")
     b.add_argument("--plot", type=Path, default=None, help="PNG contact sheet of the bracket")
+    b.add_argument("--overwrite", action="store_true",
+                   help="replace an existing non-empty --out set (its brackets.json and exp_*.png) and --plot "
+                        "(refused without it)")
     b.set_defaults(func=run_brackets)
 
     s = cs.add_parser("sync", help="map frame exposures onto the event clock from trigger edges",
@@ -371,12 +374,22 @@ def _plot_brackets(images, exposures_s, path):
         axes.ravel()[i].imshow(a, cmap="gray" if a.ndim == 2 else None, vmin=0, vmax=1)
         axes.ravel()[i].set_title(f"{e * 1e3:.3g} ms", fontsize=8)
     fig.tight_layout()
-    fig.savefig(path, dpi=100)
-    plt.close(fig)
+    from .._util.atomic import atomic_path
+    try:
+        with atomic_path(path, ".png") as tmp:
+            fig.savefig(tmp, dpi=100, format="png")
+    finally:
+        plt.close(fig)
 
 
 @json_command
 def run_brackets(args) -> int:
+    from .._util.atomic import check_outputs
+    folder_in = args.folder if args.device is None else None
+    check_outputs({"--out": args.out, "--plot": args.plot},
+                  [folder_in] + (sorted(Path(folder_in).iterdir()) if folder_in is not None and Path(folder_in).is_dir()
+                                 else []),
+                  overwrite=args.overwrite, command="capture brackets")
     if args.device is not None and (args.device == "pylon" or args.device.startswith("pylon:")):
         if not args.exposures_us or args.out is None:
             raise ValueError("--device pylon needs --exposures-us (µs values to capture) and --out FOLDER")
@@ -386,7 +399,8 @@ def run_brackets(args) -> int:
         try:
             src.open()
             items, rep = src.capture_brackets(args.exposures_us, gain_db=args.gain_db,
-                                              frames_per_step=args.frames_per_step, folder=args.out)
+                                              frames_per_step=args.frames_per_step, folder=args.out,
+                                              overwrite=args.overwrite)
         finally:
             src.close()
         print(f"wrote {args.out}: {len(items)} frames; exposures read back from the camera (µs): {rep['reported_us']}")
@@ -404,7 +418,8 @@ def run_brackets(args) -> int:
         from .depthai_backend import DepthaiFrameSource
         src = DepthaiFrameSource()
         try:
-            items, rep = src.capture_brackets(args.exposures_us, args.iso, args.frames_per_step, args.out)
+            items, rep = src.capture_brackets(args.exposures_us, args.iso, args.frames_per_step, args.out,
+                                              overwrite=args.overwrite)
         finally:
             src.close()
         print(f"wrote {args.out}: {len(items)} frames; reported exposures (µs): {rep['reported_us']}; "
@@ -427,7 +442,7 @@ def run_brackets(args) -> int:
             raise ValueError(f"the images are {bs.images[0].dtype} (linear RAW); a brackets.json folder stores "
                              f"uint8/uint16 PNG codes, so keep the RAW folder as the bracket set")
         write_bracket_set(args.out, bs.images, bs.exposures_s, encoding=bs.encoding, camera=bs.camera,
-                          iso=bs.iso, gain=bs.gain, t_us=bs.t_us)
+                          iso=bs.iso, gain=bs.gain, t_us=bs.t_us, overwrite=args.overwrite)
         print(f"wrote {args.out}")
     args.emit_json({**info, "out": None if args.out is None else str(args.out),
                     "plot": None if args.plot is None else str(args.plot)})

@@ -296,7 +296,8 @@ class DepthaiFrameSource(FrameSource):
                                    f"(outside the sensor's range, or auto exposure still on?)")
 
     def capture_brackets(self, exposures_us, iso: int, frames_per_step: int = 1, folder=None, *,
-                         max_wait_frames: int = 30, tolerance: float = 0.05, camera: dict | None = None):
+                         max_wait_frames: int = 30, tolerance: float = 0.05, camera: dict | None = None,
+                         overwrite: bool = False):
         """Capture an exposure bracket; optionally write it as a bracket-set folder.
 
         Parameters
@@ -360,5 +361,6 @@ class DepthaiFrameSource(FrameSource):
             cam.setdefault("name", cam.get("name") or "Luxonis OAK")
             write_bracket_set(Path(folder), [it.image for it in items],
                               [it.exposure_us * 1e-6 for it in items], encoding=self.encoding, camera=cam,
-                              iso=[it.iso for it in items], t_us=[it.t_start_us for it in items])
+                              iso=[it.iso for it in items], t_us=[it.t_start_us for it in items],
+                              overwrite=overwrite)
         return items, report

@@ -399,7 +399,8 @@ class PylonFrameSource(FrameSource):
         return self._retrieve()
 
     def capture_brackets(self, exposures_us, *, gain_db: float | None = None, frames_per_step: int = 1,
-                         folder=None, tolerance: float = 0.05, camera: dict | None = None):
+                         folder=None, tolerance: float = 0.05, camera: dict | None = None,
+                         overwrite: bool = False):
         """Capture an exposure bracket with software triggers; optionally write a bracket-set folder.
 
         The exposure is set while no exposure is running (the trigger for the next frame is fired
@@ -445,5 +446,5 @@ class PylonFrameSource(FrameSource):
             cam.setdefault("name", f"{cam.get('maker', 'pylon')} {cam.get('model', '')}".strip())
             write_bracket_set(Path(folder), [it.image for it in items], [it.exposure_us * 1e-6 for it in items],
                               encoding=self.encoding, camera=cam, gain=[it.gain for it in items],
-                              t_us=[it.t_start_us for it in items])
+                              t_us=[it.t_start_us for it in items], overwrite=overwrite)
         return items, report

@@ -38,7 +38,7 @@ from pathlib import Path
 
 import numpy as np
 
-from .._util.atomic import atomic_folder
+from .._util.atomic import atomic_folder, atomic_outputs
 from .._util.checks import check_shape
 from ..errors import FormatError
 from ..model import FRAME_ENCODINGS
@@ -430,11 +430,14 @@ def read_bracket_set(folder) -> BracketSet:
 
 
 def write_bracket_set(folder, images, exposures_s, *, encoding, camera=None, iso=None, gain=None,
-                      t_us=None) -> Path:
+                      t_us=None, overwrite: bool = False) -> Path:
     """Write images (uint8/uint16 PNG) and ``brackets.json`` into ``folder``, atomically.
 
     Everything is written into ``folder.partial/`` and renamed to ``folder`` when complete.
-    ``folder`` must not exist yet (or be empty).
+    ``folder`` must not exist yet (or be empty), unless ``overwrite``: then the old set's
+    ``brackets.json`` and ``exp_*.png`` are replaced (``brackets.json`` removed first and moved in
+    last, so an interrupted replace never leaves a set whose list names the wrong images); other
+    files in ``folder`` are left alone.
 
     Parameters
     ----------
@@ -458,10 +461,13 @@ def write_bracket_set(folder, images, exposures_s, *, encoding, camera=None, iso
                     iso, gain, t_us)
     cam = dict(bs.camera)
     cam.setdefault("bit_depth", 8 if imgs[0].dtype == np.uint8 else 16)
-    if folder.exists() and any(folder.iterdir()):
+    replace = folder.is_dir() and not folder.is_symlink() and any(folder.iterdir())
+    if (folder.exists() or folder.is_symlink()) and not replace and not folder.is_dir():
+        raise FileExistsError(f"bracket set folder {folder} exists and is not a folder")
+    if replace and not overwrite:
         raise FileExistsError(f"bracket set folder {folder} already exists and is not empty")
     import imageio.v3 as iio
-    with atomic_folder(folder) as tmp:
+    with (atomic_outputs(folder, last=("brackets.json",)) if replace else atomic_folder(folder)) as tmp:
         entries = []
         for i, (im, name) in enumerate(zip(bs.images, bs.files)):
             iio.imwrite(tmp / name, im, extension=".png")
@@ -472,6 +478,10 @@ def write_bracket_set(folder, images, exposures_s, *, encoding, camera=None, iso
         doc = {"format": BRACKETS_FORMAT, "version": BRACKETS_VERSION, "encoding": encoding,
                "camera": cam, "images": entries}
         (tmp / "brackets.json").write_text(json.dumps(doc, indent=1) + "\n", encoding="utf-8")
+        if replace:  # the new set is complete: the old one goes, its list first
+            for old in [folder / "brackets.json", *sorted(folder.glob("exp_*.png"))]:
+                if old.is_file() or old.is_symlink():
+                    old.unlink()
     return folder
 
 

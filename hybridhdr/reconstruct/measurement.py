@@ -11,7 +11,7 @@ A *measurement provider* is any object with
   and the whole frame switch runs in parallel).
 
 :class:`FrameMeasurements` implements the zero-order hold of raw frames (L^A(t) = L^F(τ_k) on
-segment k). The frame-augmentation issue (§4.1 of the paper: EDI deblurring plus event
+segment k). Frame augmentation (§4.1 of the paper: EDI deblurring plus event
 interpolation) plugs in by returning segments whose ``la_step`` is the calibrated per-pixel
 threshold c_p^k c (eq. 12): the AKF kernel then moves L^A by ±la_step at every event (eqs. 10, 11)
 and no kernel change is needed.

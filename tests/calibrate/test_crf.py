@@ -64,7 +64,7 @@ def test_robertson_synthetic_and_monotone():
     err = log_error(merge_brackets(imgs, ex, crf), log_e, imgs)
     # Robertson has no smoothness prior: with one-stop-ratio chains of codes it is ~10x less
     # accurate than Debevec (calibration.md: 0.092 vs 0.0094 on a gamma CRF); we measured 0.10
-    # (gamma) and 0.12 (S-curve) here at 0.5 DN noise, so the bound is a sanity check, not the 0.02 target.
+    # (gamma) and 0.12 (S-curve) here at 0.5 DN noise, so the bound is a sanity check, not Debevec's 0.02 target.
     assert err < 0.3, err
     assert crf.info["channels"][0]["unseen_codes"] >= 0
 

@@ -289,7 +289,7 @@ def test_cli_rig_from_recording(sim_rig, tmp_path):
     # errors are one line and exit 1
     assert main(["calibrate", "rig", "--board", "9x6", "--square-mm", "30", "--out", str(out)]) == 1
     assert main(["calibrate", "rig", "--events", str(path), "--frames", str(tmp_path), "--board", "9x6",
-                 "--square-mm", "30", "--out", str(out), "--no-progress"]) == 1
+                 "--square-mm", "30", "--out", str(out), "--overwrite", "--no-progress"]) == 1
 
 
 def test_cli_left_right(shared_data, tmp_path):
@@ -308,7 +308,7 @@ def test_cli_left_right(shared_data, tmp_path):
     assert rep["board_found"] == {"left": 13, "right": 13}
     # unequal counts are an error
     assert main(["calibrate", "rig", "--left", str(left[0]), "--right", str(right[0]), str(right[1]),
-                 "--board", "9x6", "--square-mm", "25", "--out", str(out)]) == 1
+                 "--board", "9x6", "--square-mm", "25", "--out", str(out), "--overwrite"]) == 1
 
 
 @pytest.mark.slow

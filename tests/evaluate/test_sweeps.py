@@ -9,7 +9,7 @@ from hybridhdr.evaluate import sweeps as S
 from hybridhdr.evaluate.datasets import load_dataset
 
 
-def test_axes_cover_the_issue_list():
+def test_axes_cover_every_stress_the_stability_bench_names():
     names = set(S.STRESS_AXES)
     assert {"noise_rate", "threshold_mismatch", "refractory", "threshold_under", "threshold_over", "under_exposure",
             "over_exposure", "motion_speed", "frame_rate"} == names

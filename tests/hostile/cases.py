@@ -1100,7 +1100,7 @@ def container_hdr_t_us_wrong_length(d):
 @case("hybridhdr")
 def container_zero_frames_beyond_memory_reconstruct(d):
     # 180 Mpx of gzip'd zeros (0.2 MB stored): as float64 in the filter 1.4 GB, more than the
-    # runner's address-space cap leaves; the 1 GiB version of the issue made the AKF take 7.2 GB
+    # runner's address-space cap leaves; a 1 GiB version of this file made the AKF take 7.2 GB
     import h5py
     side, k = 2000, 45
     p = _container(d / "r.h5", n=2000, ss=(side, side))
