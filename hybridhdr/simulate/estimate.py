@@ -2,24 +2,32 @@
 
 A run's time is (number of renders) x (time per render); the time per render is measured on the
 run's own first renders, the number of renders predicted by running the adaptive sampler itself
-(:mod:`hybridhdr.simulate.sampling`, with its bisections) for a few renders at ``n_probes``
-times spread over the duration:
+(:mod:`hybridhdr.simulate.sampling`, with its bisections and the run's mandatory times: the
+exposure bounds and mid-exposures cut steps and the steps then grow again, which costs renders) on
+a few stretches of the scene (its real speeds):
 
-* the duration is cut into ``n_probes`` equal segments; from a point of each (0.382 of the way in,
-  so that no two probes meet a periodic event, a blink or the frame timing, at the same phase), the
-  sampler runs on that stretch of the scene (its real speeds, with the run's mandatory times: the
-  exposure bounds and mid-exposures cut steps and the steps then grow again, which costs renders)
-  for ``per_probe`` renders after its first accepted
+* **switches**: the times the scene declares its radiance jumps (its blinking lights' on/off edges,
+  :func:`switch_times_us`). Each owns a guard ``[e - g, e + g]``, ``g`` the longest step the sampler
+  can take (1 / min rate) and at most half the way to its neighbours: the step that meets the edge
+  is bisected down to the shortest and grows again inside it. Up to ``n_switch_probes`` guards,
+  spread over the duration, are rendered whole; each guard of the run then costs their mean excess
+  over the quiet density plus the quiet density times its length. A jump is a point in time, so
+  probes placed by chance would either all miss it or all meet it (a blink every 50 ms and probes
+  at one phase of a 100 ms segment: 3x too many renders); its cost is counted from its declaration.
+* **quiet time** (the duration less the guards): cut into as many equal parts as its share of the
+  duration asks for (``n_probes`` for a scene without switches); one probe in each, at a fraction of
+  its part that differs from probe to probe (a Weyl sequence: no two probes at the same phase of a
+  periodic event or of the frame timing), runs for ``per_probe`` renders after its first accepted
   step (the start-up, whose first step is the longest allowed and is bisected down, is left out),
-  and its render density there (renders per second of scene time, bisections included) is
-  measured; a segment the sampler finishes within the budget counts its own renders;
-* each segment contributes density x length.
+  and its render density (renders per second of scene time, bisections included) times its part's
+  length is counted; a probe that finishes its window counts its own renders less the window's two
+  forced ends.
 
-Events shorter than a probe (a light switching between probes) are missed and cost renders the
-estimate does not count. The same scene-independent rule is used on every scene;
-``benchmarks/simulate.py`` tabulates the prediction against the measured time on each built-in
-scene. The probes cost about ``n_probes * (per_probe + 4)`` renders (a few % of a long run; about
-as many renders as a scene the sampler crosses in large steps has).
+Events the scene does not declare and shorter than a probe (an object that flashes past between
+probes) are missed. The same rule is used on every scene; ``benchmarks/simulate.py`` tabulates the
+prediction against the measured time on each built-in scene. The probes cost about ``n_probes *
+(per_probe + 4)`` renders plus about 20 per probed switch (a few % of a long run; on a short run
+with few switches, up to as many renders as the run).
 """
 
 from __future__ import annotations
