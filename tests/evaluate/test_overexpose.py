@@ -281,6 +281,7 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
 
 # -- real data ------------------------------------------------------------------------------------
 
+@pytest.mark.filterwarnings("ignore::hybridhdr.calibrate.camera_model.GridEdgeWarning")  # ECD: I0 unbounded (test_ecd_profile)
 def test_ecd_slider_depth_gain_4(shared_data):
     import hybridhdr
     rec = hybridhdr.read(shared_data("ecd_slider_depth"))
