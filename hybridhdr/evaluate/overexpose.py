@@ -467,10 +467,12 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
     "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
+    from ..calibrate.resolve import is_sensor_profile
     tmap = None
     if not isinstance(thresholds, str):  # a map, as reconstruct's and evaluate holdout's thresholds take
         tmap = thresholds
-        if isinstance(thresholds, os.PathLike):
+        if isinstance(thresholds, os.PathLike) and not is_sensor_profile(thresholds):
+            # a sensor profile (.json) stays a path: reconstruct reads its camera model as it is
             from ..formats.thresholds import load_thresholds
             tmap = load_thresholds(thresholds)
     elif thresholds not in RD.THRESHOLD_SOURCES:
@@ -523,7 +525,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     res = {"frames": scored, "frame_indices": [int(kept[k]) for k in scored], "t_us": [int(t) for t in t_us],
            "n_frames_kept": int(len(kept)), "n_events": int(len(rec.events)), "well_exposed_codes": [lo, hi],
            "clip_codes": list(clip), "profile": prof.name,
-           "thresholds": thresholds if isinstance(thresholds, str) else f"per-pixel map {thresholds}",
+           "thresholds": thresholds if isinstance(thresholds, str) else (f"sensor profile {thresholds}" if is_sensor_profile(thresholds) else f"per-pixel map {thresholds}"),
            "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
            "calibration_holdout": calibration_holdout,
            "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "

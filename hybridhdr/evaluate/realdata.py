@@ -227,10 +227,12 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
     of a spec stops that spec (reported, not hidden).
     """
+    from ..calibrate.resolve import is_sensor_profile
     tmap = None
     if not isinstance(thresholds, str):
         tmap = thresholds
-        if isinstance(thresholds, os.PathLike):
+        if isinstance(thresholds, os.PathLike) and not is_sensor_profile(thresholds):
+            # a sensor profile (.json) stays a path: reconstruct reads its camera model as it is
             from ..formats.thresholds import load_thresholds
             tmap = load_thresholds(thresholds)
     elif thresholds not in THRESHOLD_SOURCES:
