@@ -342,15 +342,21 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
               tmap=None, holdout="frame"):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
     per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
+    from ..calibrate.resolve import is_sensor_profile, resolve_thresholds
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
         kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
             else {}
+        dt = 0
+        if kw_map and is_sensor_profile(tmap):
+            # a sensor profile states the time each frame stands for: frame k is reconstructed there,
+            # as with the self-calibration (and reconstruct shifts every input frame alike)
+            dt = int(resolve_thresholds(None, tmap, intensity_offset=0.0).frame_time_offset_us)
         t0 = time.perf_counter()
-        v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
+        v = reconstruct(rec_in, spec.method, spec.params, times_us=tk + dt, mode=spec.mode, profile=profile,
                         augment=spec.augment, **kw_map)
         wall = time.perf_counter() - t0
-        if not np.array_equal(v.t_us, tk):
+        if not np.array_equal(v.t_us, tk + dt):
             raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
         return np.stack([_as_reference_layout(f, ref_ndim, pattern) for f in v.frames]), wall, None
     out, used_all, wall = [], [], 0.0
