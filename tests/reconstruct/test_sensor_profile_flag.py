@@ -68,3 +68,14 @@ def test_sensor_profile_flag_errors(ecd_profile, tmp_path, capsys):
         assert "does not exist" in capsys.readouterr().err
         assert main([*verb, "--sensor-profile", str(tmp_path / "map.npz")]) == 2
         assert "expected a sensor profile .json" in capsys.readouterr().err
+
+
+def test_simulate_reads_the_same_file(ecd_profile):
+    """``simulate --sensor p.json`` takes the same file's event model (ON/OFF, noise)."""
+    from hybridhdr.cli import build_parser
+    from hybridhdr.simulate.cli import sensor_params
+    _, path = ecd_profile
+    sp = json.loads(path.read_text())["simulator_params"]
+    s = sensor_params(build_parser().parse_args(["simulate", "builtin:slow_static", "--out", "x.h5", "--sensor", str(path)]))
+    assert (s.contrast_threshold_on, s.contrast_threshold_off) == (sp["contrast_threshold_on"], sp["contrast_threshold_off"])
+    assert s.shot_noise_rate_hz == sp["shot_noise_rate_hz"]
