@@ -45,7 +45,8 @@ from pathlib import Path
 
 __all__ = ["THRESHOLD_WORDS", "DEFAULT_THRESHOLDS", "THRESHOLD_KEYS", "THRESHOLDS_HELP", "thresholds_arg",
            "ResolvedThresholds", "resolve_thresholds", "declared_thresholds", "stored_thresholds",
-           "threshold_arrays", "thresholds_stated", "recording_declares_thresholds", "is_sensor_profile"]
+           "threshold_arrays", "thresholds_stated", "recording_declares_thresholds", "is_sensor_profile",
+           "SENSOR_PROFILE_HELP", "sensor_profile_arg", "add_sensor_profile_arg", "take_sensor_profile_arg"]
 
 #: The words a thresholds choice takes besides a map (module docstring).
 THRESHOLD_WORDS = ("auto", "input", "params", "selfcal")
@@ -80,6 +81,40 @@ def thresholds_arg(text):
     if not t:
         raise argparse.ArgumentTypeError(f"expected FILE, {', '.join(THRESHOLD_WORDS)}, got {text!r}")
     return Path(t)
+
+
+SENSOR_PROFILE_HELP = ("sensor profile (.json from 'hybridhdr calibrate sensor', the file 'simulate --sensor' reads): "
+                       "the run uses its ON/OFF thresholds, its log offset I0 (methods that estimate it: the AKF) "
+                       "and the time its frames stand for, with no estimation (the same as --thresholds FILE.json)")
+
+
+def sensor_profile_arg(text):
+    """``--sensor-profile``: the path of a sensor profile file (``.json``)."""
+    t = str(text).strip()
+    if not t.lower().endswith(".json"):
+        raise argparse.ArgumentTypeError(f"expected a sensor profile .json (from 'hybridhdr calibrate sensor'), got {text!r}")
+    return Path(t)
+
+
+def add_sensor_profile_arg(parser):
+    """Add ``--sensor-profile FILE`` to a command that takes ``--thresholds``."""
+    parser.add_argument("--sensor-profile", type=sensor_profile_arg, default=None, metavar="FILE", help=SENSOR_PROFILE_HELP)
+
+
+def take_sensor_profile_arg(args):
+    """Fold ``--sensor-profile FILE`` into ``args.thresholds`` (the one resolver reads it): the
+    file is checked now (a clear error before any work), and giving it with ``--thresholds`` is an error."""
+    path = getattr(args, "sensor_profile", None)
+    if path is None:
+        return
+    if getattr(args, "thresholds", None) is not None:
+        from ..errors import UsageError
+        raise UsageError(f"--sensor-profile {path} and --thresholds {args.thresholds} both give the camera model; use one")
+    if not Path(path).is_file():
+        raise FileNotFoundError(f"--sensor-profile {path} does not exist")
+    from ..formats.sensor_profile import load_sensor_profile
+    load_sensor_profile(path)  # a malformed profile fails here, naming the field
+    args.thresholds = Path(path)
 
 
 @dataclass(frozen=True, eq=False)

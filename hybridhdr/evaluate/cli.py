@@ -9,7 +9,8 @@ from pathlib import Path
 
 from .._util.cliargs import (HelpFormatter, add_format_arg, json_command, json_output, nonneg_int, positive_float,
                              worker_count)
-from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_WORDS, THRESHOLDS_HELP, thresholds_arg
+from ..calibrate.resolve import (DEFAULT_THRESHOLDS, THRESHOLD_WORDS, THRESHOLDS_HELP, add_sensor_profile_arg,
+                                 take_sensor_profile_arg, thresholds_arg)
 
 
 def add_parser(sub) -> None:
@@ -118,6 +119,7 @@ def add_parser(sub) -> None:
     h.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
                    help=THRESHOLDS_HELP + "; here auto and selfcal are estimated without the held-out frame (the "
                         "recording without it; selfcal's frame k is predicted at the time it stands for)")
+    add_sensor_profile_arg(h)
     h.add_argument("--augmentation", action="store_true", help="AKF frame augmentation (offline)")
     h.add_argument("--profile", type=Path, default=None, help="camera profile JSON (default: the recording's, "
                                                               "else built-in)")
@@ -154,6 +156,7 @@ def add_parser(sub) -> None:
     o.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
                    help=THRESHOLDS_HELP + "; here auto and selfcal are estimated on the over-exposed input "
                         "without the scored frame")
+    add_sensor_profile_arg(o)
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     add_format_arg(o)
@@ -461,6 +464,7 @@ def run_holdout_cmd(args) -> int:
         except (ValueError, AssertionError):
             raise ValueError(f"--well-exposed must be 'LO,HI' codes, got {args.well_exposed!r}") from None
     held = None if args.frames is None else [int(v) for v in args.frames.split(",") if v.strip()]
+    take_sensor_profile_arg(args)
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     thresholds = args.thresholds
     given = args.params is not None or args.contrast_threshold is not None
@@ -537,6 +541,7 @@ def run_overexpose_cmd(args) -> int:
     folder = AtomicFolder(args.out, outputs=OVEREXPOSE_OUTPUTS, command="evaluate overexpose",
                           overwrite=args.overwrite)
     try:
+        take_sensor_profile_arg(args)
         rec = read(args.recording, format=args.format) if args.format else read(args.recording)
         thresholds = args.thresholds
         if thresholds is None:

@@ -342,15 +342,21 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
               tmap=None, holdout="frame"):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
     per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
+    from ..calibrate.resolve import is_sensor_profile, resolve_thresholds
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
         kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
             else {}
+        dt = 0
+        if kw_map and is_sensor_profile(tmap):
+            # a sensor profile states the time each frame stands for: frame k is reconstructed there,
+            # as with the self-calibration (and reconstruct shifts every input frame alike)
+            dt = int(resolve_thresholds(None, tmap, intensity_offset=0.0).frame_time_offset_us)
         t0 = time.perf_counter()
-        v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
+        v = reconstruct(rec_in, spec.method, spec.params, times_us=tk + dt, mode=spec.mode, profile=profile,
                         augment=spec.augment, **kw_map)
         wall = time.perf_counter() - t0
-        if not np.array_equal(v.t_us, tk):
+        if not np.array_equal(v.t_us, tk + dt):
             raise RuntimeError(f"output times {v.t_us.tolist()} differ from the frames' times {tk.tolist()}")
         return np.stack([_as_reference_layout(f, ref_ndim, pattern) for f in v.frames]), wall, None
     out, used_all, wall = [], [], 0.0
@@ -467,10 +473,12 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     "ratio_to_frames_only", "n_pixels", "nonpositive_frac", "n_nonfinite", "log_fit",
     "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
+    from ..calibrate.resolve import is_sensor_profile
     tmap = None
     if not isinstance(thresholds, str):  # a map, as reconstruct's and evaluate holdout's thresholds take
         tmap = thresholds
-        if isinstance(thresholds, os.PathLike):
+        if isinstance(thresholds, os.PathLike) and not is_sensor_profile(thresholds):
+            # a sensor profile (.json) stays a path: reconstruct reads its camera model as it is
             from ..formats.thresholds import load_thresholds
             tmap = load_thresholds(thresholds)
     elif thresholds not in RD.THRESHOLD_SOURCES:
@@ -523,7 +531,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     res = {"frames": scored, "frame_indices": [int(kept[k]) for k in scored], "t_us": [int(t) for t in t_us],
            "n_frames_kept": int(len(kept)), "n_events": int(len(rec.events)), "well_exposed_codes": [lo, hi],
            "clip_codes": list(clip), "profile": prof.name,
-           "thresholds": thresholds if isinstance(thresholds, str) else f"per-pixel map {thresholds}",
+           "thresholds": thresholds if isinstance(thresholds, str) else (f"sensor profile {thresholds}" if is_sensor_profile(thresholds) else f"per-pixel map {thresholds}"),
            "calibrate": None if calibrate is None else getattr(calibrate, "__name__", type(calibrate).__name__),
            "calibration_holdout": calibration_holdout,
            "fit": "log r = a log max(x, %g) + b, least squares once per (gain, method) over the scored frames' "

@@ -227,10 +227,12 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     "error": str or None, "thresholds": [what was used per held-out frame]}}``; the first failure
     of a spec stops that spec (reported, not hidden).
     """
+    from ..calibrate.resolve import is_sensor_profile, resolve_thresholds
     tmap = None
     if not isinstance(thresholds, str):
         tmap = thresholds
-        if isinstance(thresholds, os.PathLike):
+        if isinstance(thresholds, os.PathLike) and not is_sensor_profile(thresholds):
+            # a sensor profile (.json) stays a path: reconstruct reads its camera model as it is
             from ..formats.thresholds import load_thresholds
             tmap = load_thresholds(thresholds)
     elif thresholds not in THRESHOLD_SOURCES:
@@ -256,7 +258,15 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                 r_k, t = holdout_input(rec, k, tk)
                 params = s.params
                 kw = {}
-                if tmap is not None and resolve_method(s.method) in THRESHOLD_METHODS:
+                if tmap is not None and resolve_method(s.method) in THRESHOLD_METHODS and is_sensor_profile(tmap):
+                    # a sensor profile: reconstruct takes its camera model as it is and shifts the input
+                    # frames by its frame offset; frame k stands for tau_k + that offset, predicted there
+                    kw["thresholds"] = tmap
+                    got = resolve_thresholds(None, tmap, intensity_offset=0.0)
+                    st["thresholds"].append({"source": "profile", "file": str(tmap), "note": got.note})
+                    if got.frame_time_offset_us and not method_spec(s.method).frames_only:
+                        r_k, t = holdout_input(rec, k, tk, time_offset_us=got.frame_time_offset_us)
+                elif tmap is not None and resolve_method(s.method) in THRESHOLD_METHODS:
                     kw["thresholds"] = tmap
                     st["thresholds"].append({"source": "map", "file": str(thresholds) if isinstance(
                         thresholds, os.PathLike) else "given"})

@@ -302,8 +302,20 @@ def _recording_thresholds(req: ReconstructRequest, opened, info: dict | None):
     declares (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"input"``) for a method
     that takes thresholds; reported in ``info["thresholds"]``."""
     p = req.run.params
-    if req.reading.thresholds is not None:
-        return p, req.reading.thresholds.maps
+    given = req.reading.thresholds
+    if given is not None and given.source == "profile":
+        # the camera model of a sensor profile file, exactly its values (no estimation)
+        if not METHODS[req.run.method].takes_thresholds:
+            return p, None
+        ov = {k: v for k, v in given.overrides().items() if hasattr(p, k)}
+        if info is not None:
+            info["thresholds"] = given.note
+            info["camera_model"] = {"source": "profile", "c_on": given.c_on, "c_off": given.c_off,
+                                    "intensity_offset": ov.get("intensity_offset"),
+                                    "frame_time_offset_us": given.frame_time_offset_us, **(given.record or {})}
+        return p.replace(**ov), None
+    if given is not None:
+        return p, given.maps
     if not METHODS[req.run.method].takes_thresholds:
         return p, None
     got = resolve_thresholds(opened, "input", stated=req.reading.thresholds_stated)
@@ -368,6 +380,13 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
                 info["frame_time_offset_us"] = dt
         op = _Opened(opened, (), frames, chunks, close, n_declared)
         op.params, op.thr = _recording_thresholds(req, opened, info)
+        given = req.reading.thresholds
+        if (given is not None and given.source == "profile" and given.frame_time_offset_us
+                and METHODS[req.run.method].takes_thresholds and frames is not None and len(frames)):
+            # the time each frame stands for, as the sensor profile states it
+            op.frames = frames = frames.shifted(given.frame_time_offset_us)
+            if info is not None:
+                info["frame_time_offset_us"] = given.frame_time_offset_us
         op.params, cal_dt = _self_calibration(req, source, opened, frames, op.params, info)
         if cal_dt and frames is not None and len(frames):  # the time each frame stands for, calibrated
             op.frames = frames = frames.shifted(cal_dt)

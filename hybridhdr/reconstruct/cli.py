@@ -11,7 +11,8 @@ from pathlib import Path
 from .._util.cliargs import (COMMON, HelpFormatter, UsageError, add_format_arg, chunk_events_count, cli_wording,
                              json_output, nonneg_int, positive_float, positive_int, positive_worker_count, worker_count)
 from .._util.timearg import add_time_window
-from ..calibrate.resolve import DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, thresholds_arg
+from ..calibrate.resolve import (DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, add_sensor_profile_arg,
+                                 take_sensor_profile_arg, thresholds_arg)
 from .methods import METHOD_ALIASES, METHODS, methods_with
 
 #: ``--method``: every registered method, each followed by its aliases.
@@ -67,6 +68,7 @@ def add_parser(subparsers) -> None:
                    help="camera profile JSON (default: the recording's, else built-in 8-bit for its encoding)")
     p.add_argument("--thresholds", type=thresholds_arg, default=None, metavar="FILE|auto|input|params|selfcal",
                    help=THRESHOLDS_HELP + "; --contrast-threshold auto is --thresholds auto")
+    add_sensor_profile_arg(p)
     add_format_arg(p)
     p.add_argument("--cfa", choices=("RGGB", "BGGR", "GRBG", "GBRG", "none"), default=None,
                    help="colour filter array of the event and frame sensors (default: as the recording declares; "
@@ -388,6 +390,7 @@ def run(args) -> int:
         # self-calibration, which take seconds to minutes
         folder = AtomicFolder(args.out, outputs=OUTPUTS, command="reconstruct", overwrite=args.overwrite)
         auto_note = None
+        take_sensor_profile_arg(args)
         thr_source = args.thresholds  # FILE (Path), auto, input, params or None: --help, THRESHOLDS_HELP
         if args.contrast_threshold == "auto":
             if thr_source is not None:
@@ -487,7 +490,9 @@ def run(args) -> int:
                                           "floor": 1e-6, "note": "outputs below the floor (or NaN) raised to it"}
             if hasattr(params, "contrast_threshold_on"):
                 used = info.get("thresholds")
-                if map_path is not None:
+                if map_path is not None and "camera_model" in info:
+                    used = info.get("thresholds")  # the sensor profile's note
+                elif map_path is not None:
                     used = f"per-pixel map {map_path} (--thresholds)"
                 elif not (used or "").startswith("per-pixel map"):
                     used = auto_note or used or ("given on the command line" if given else
@@ -498,6 +503,8 @@ def run(args) -> int:
                 run_info["thresholds_source"] = str(thr_source)
             if selfcal_record is not None:
                 run_info["self_calibration"] = selfcal_record
+            if "camera_model" in info:
+                run_info["camera_model"] = info["camera_model"]
             for key in ("augment", "augmentation", "edi_thresholds", "two_sided", "cfa"):
                 if key in info:
                     run_info[key] = info[key]

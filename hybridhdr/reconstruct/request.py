@@ -25,7 +25,8 @@ from typing import Any, Callable
 import numpy as np
 
 from .._util.limits import check_output_count
-from ..calibrate.resolve import ResolvedThresholds, threshold_arrays, thresholds_stated
+from ..calibrate.resolve import (ResolvedThresholds, is_sensor_profile, resolve_thresholds, threshold_arrays,
+                                 thresholds_stated)
 from .methods import MODES, make_augment_params, make_params, method_spec, resolve_method
 
 __all__ = ["Device", "RunSettings", "OutputSettings", "ReadSettings", "ReconstructRequest", "DEVICES"]
@@ -127,7 +128,7 @@ class ReadSettings:
     """How to read the recording."""
 
     profile: Any = None
-    thresholds: ResolvedThresholds | None = None  # a map the caller gave (source "map")
+    thresholds: ResolvedThresholds | None = None  # a map the caller gave (source "map") or a sensor profile ("profile")
     thresholds_stated: bool = False  # the parameters state thresholds: declared ones do not replace them
     frame_time_offset_us: int = 0
     cfa: str | None = None
@@ -173,7 +174,14 @@ class ReconstructRequest:
         choice = "default"
         if isinstance(thresholds, str) and thresholds in ("input", "params", "selfcal"):
             choice, thresholds = thresholds, None
-        given = None if thresholds is None else ResolvedThresholds("map", maps=threshold_arrays(thresholds))
+        if is_sensor_profile(thresholds):
+            # a sensor profile file (calibrate sensor): its values are used as they are, no estimation;
+            # the AKF takes its log offset I0 too, a method with its own log model keeps its own
+            own_i0 = None if method == "akf" else getattr(p, "intensity_offset", 0.0)
+            given = resolve_thresholds(None, thresholds, intensity_offset=own_i0)
+            choice = "profile"
+        else:
+            given = None if thresholds is None else ResolvedThresholds("map", maps=threshold_arrays(thresholds))
         if times_us is not None:
             check_output_count(int(np.size(times_us)))  # before any work (docs/security.md)
         if isinstance(frame_time_offset_us, bool) or not isinstance(frame_time_offset_us, (int, np.integer)):
@@ -181,5 +189,5 @@ class ReconstructRequest:
         run = RunSettings(method, p, aug, mode, dev, int(n_workers), int(chunk_events), measurements, progress)
         out = OutputSettings(times_us, fps, t_start_us, t_end_us)
         read = ReadSettings(profile, given, thresholds_stated(params), int(frame_time_offset_us), cfa, demosaic,
-                            "map" if given is not None else choice)
+                            choice if choice == "profile" else ("map" if given is not None else choice))
         return cls(run, out, read)

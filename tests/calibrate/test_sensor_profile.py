@@ -9,6 +9,7 @@ import math
 import numpy as np
 import pytest
 
+from hybridhdr.calibrate.camera_model import GridEdgeWarning
 from hybridhdr.calibrate.sensor_profile import (
     estimate_sensor_profile,
     isi_lower_edge,
@@ -119,7 +120,7 @@ def test_profile_file_roundtrip_and_errors(roundtrip, tmp_path):
     with pytest.raises(SensorProfileError, match="shot_noise_rate_hz must be a finite number"):
         load_sensor_profile(q)
     q.write_text("{not json")
-    with pytest.raises(SensorProfileError, match="not JSON"):
+    with pytest.raises(SensorProfileError, match="not valid JSON"):
         load_sensor_profile(q)
     with pytest.raises(ValueError, match="unknown event-sensor preset"):
         sensor_preset("nonsense")
@@ -156,7 +157,10 @@ def test_builtin_profile_and_cli_precedence():
 
 def test_ecd_profile(shared_data):
     path = shared_data("ecd_slider_depth")
-    prof = estimate_sensor_profile(path, n_boot=30)
+    # the excerpt has two usable frame intervals: the next-frame criterion keeps falling as the log
+    # offset grows, so the estimator must say that the recording does not bound I0 (never silently)
+    with pytest.warns(GridEdgeWarning, match="log offset I0 .* upper edge"):
+        prof = estimate_sensor_profile(path, n_boot=30)
     e = prof.estimates
     # identified: the threshold means, shot noise (and a leak consistent with 0); not: sigma (3 frame
     # intervals), refractory (the ISIs rise gradually from ~2.6 ms: a bound), photoreceptor, jitter
@@ -165,13 +169,20 @@ def test_ecd_profile(shared_data):
     assert not e["refractory_period_us"]["identifiable"] and 2000 < e["refractory_period_us"]["upper_bound_us"] < 3500
     assert e["shot_noise_rate_hz"]["identifiable"] and 0.3 < e["shot_noise_rate_hz"]["value"] < 1.5
     # same seed, same profile (the bootstrap is seeded; nothing time-dependent is stored)
-    assert estimate_sensor_profile(path, n_boot=30).to_dict() == prof.to_dict()
-    # the shipped profile is this estimate (bootstrap aside)
+    with pytest.warns(GridEdgeWarning):
+        assert estimate_sensor_profile(path, n_boot=30).to_dict() == prof.to_dict()
+    # the shipped preset is the profile file shipped with the simulator (an earlier estimate on this
+    # recording, kept fixed so that the synthetic suites do not move with the estimator): the preset
+    # must be exactly that file's values, and the file must be a profile of this recording
     ship = sensor_preset("builtin:davis240c")
-    assert math.isclose(ship.contrast_threshold_on, e["contrast_threshold_on"]["value"], rel_tol=1e-9)
-    assert math.isclose(ship.shot_noise_rate_hz, e["shot_noise_rate_hz"]["value"], rel_tol=1e-9)
+    shipped = json.loads((__import__("pathlib").Path(__import__("hybridhdr").simulate.__file__)
+                          .with_name("profiles") / "davis240c_ecd.json").read_text())
+    assert ship.contrast_threshold_on == shipped["simulator_params"]["contrast_threshold_on"]
+    assert ship.shot_noise_rate_hz == shipped["simulator_params"]["shot_noise_rate_hz"]
+    assert "ecd_slider_depth" in json.dumps(shipped.get("provenance", {}))
 
 
+@pytest.mark.filterwarnings("ignore::hybridhdr.calibrate.camera_model.GridEdgeWarning")  # ECD: I0 unbounded (test_ecd_profile)
 def test_cli_json_and_errors(shared_data, tmp_path, capsys):
     from hybridhdr.cli import main
     ecd = shared_data("ecd_slider_depth")
@@ -184,5 +195,6 @@ def test_cli_json_and_errors(shared_data, tmp_path, capsys):
     assert obj["provenance"]["input"] == str(ecd) and obj["provenance"]["command"][0] == "hybridhdr"
     # a recording without frames: a clear error, nothing written
     bad_out = tmp_path / "none.json"
-    assert main(["calibrate", "sensor", str(shared_data("aedat4/sample.aedat4")), "--out", str(bad_out)]) == 1
+    # a recording that lacks what the verb needs is an input mismatch: a usage error (exit 2)
+    assert main(["calibrate", "sensor", str(shared_data("aedat4/sample.aedat4")), "--out", str(bad_out)]) == 2
     assert "at least two frames; found 0" in capsys.readouterr().err and not bad_out.exists()

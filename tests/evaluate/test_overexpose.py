@@ -281,10 +281,12 @@ def test_cli_overexpose_json_and_outputs(tmp_path, capsys):
 
 # -- real data ------------------------------------------------------------------------------------
 
+@pytest.mark.filterwarnings("ignore::hybridhdr.calibrate.camera_model.GridEdgeWarning")  # ECD: I0 unbounded (test_ecd_profile)
 def test_ecd_slider_depth_gain_4(shared_data):
     import hybridhdr
     rec = hybridhdr.read(shared_data("ecd_slider_depth"))
-    res = O.evaluate_overexpose(rec, [4], [O.OverexposeSpec("akf_causal", "akf", "causal")])
+    # the command line's default: the AKF's camera model self-calibrated on the input without frame k
+    res = O.evaluate_overexpose(rec, [4], [O.OverexposeSpec("akf_causal", "akf", "causal")], thresholds="selfcal")
     g = res["by_gain"]["4"]
     # frames 0-4 have tau up to the last event (174.2 ms); 1-4 are scored
     assert res["frames"] == [1, 2, 3, 4] and res["n_frames_kept"] == 5
@@ -302,4 +304,6 @@ def test_ecd_slider_depth_gain_4(shared_data):
     assert fo["log_fit"] == pytest.approx([1.0, 0.0], abs=1e-9)
     ak = g["methods"]["akf_causal"]
     assert ak["status"] == "ok" and ak["nonpositive_frac"] == 0.0
-    assert ak["ratio_to_frames_only"]["recoverable_causal"] < 1.0  # measured 0.91
+    # measured 0.76 (evaluate overexpose --gain 4 --method akf --mode causal); 0.85 leaves room for the
+    # bootstrap-free estimator's grid choice moving one step, and still fails an AKF no better than frames
+    assert ak["ratio_to_frames_only"]["recoverable_causal"] < 0.85

@@ -11,7 +11,9 @@ import pytest
 from hybridhdr.camera.encoding import well_exposed_range
 from hybridhdr.evaluate import realdata as RD
 
-ECD = Path(__file__).resolve().parents[3] / "shared" / "data" / "ecd_slider_depth"
+from tests.conftest import SHARED_DATA
+
+ECD = SHARED_DATA / "ecd_slider_depth"  # HYBRIDHDR_SHARED_DATA, else ../shared/data
 
 
 @pytest.fixture(scope="module")

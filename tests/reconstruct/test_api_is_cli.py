@@ -92,6 +92,7 @@ def test_a_recording_that_declares_thresholds_keeps_them(undeclared):
 
 
 @pytest.mark.slow
+@pytest.mark.filterwarnings("ignore::hybridhdr.calibrate.camera_model.GridEdgeWarning")  # ECD: I0 unbounded (test_ecd_profile)
 def test_docs_example_gives_the_command_lines_frames(tmp_path):
     """The first example of docs/reconstruct.md, run on ecd_slider_depth, equals ``hybridhdr
     reconstruct ecd_slider_depth --method akf --fps 300``."""
