@@ -344,8 +344,10 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
     per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
+        # without a map, the method's own parameters (and what the input declares), never
+        # reconstruct's default self-calibration: that would read the scored frames
         kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
-            else {}
+            else {"thresholds": "input"}
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk, mode=spec.mode, profile=profile,
                         augment=spec.augment, **kw_map)
