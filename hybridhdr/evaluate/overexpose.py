@@ -345,10 +345,12 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
     from ..calibrate.resolve import is_sensor_profile, resolve_thresholds
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
-        kw_map = {"thresholds": tmap} if tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS \
-            else {}
+        # without a map, the method's own parameters (and what the input declares), never
+        # reconstruct's default self-calibration: that would read the scored frames
+        use_map = tmap is not None and resolve_method(spec.method) in RD.THRESHOLD_METHODS
+        kw_map = {"thresholds": tmap if use_map else "input"}
         dt = 0
-        if kw_map and is_sensor_profile(tmap):
+        if use_map and is_sensor_profile(tmap):
             # a sensor profile states the time each frame stands for: frame k is reconstructed there,
             # as with the self-calibration (and reconstruct shifts every input frame alike)
             dt = int(resolve_thresholds(None, tmap, intensity_offset=0.0).frame_time_offset_us)

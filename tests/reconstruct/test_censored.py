@@ -129,7 +129,9 @@ def test_no_method_writes_a_non_positive_or_nan_intensity(seed):
             ("cf", cf, "causal"), ("direct", None, "causal"), ("frames_zoh", None, "causal"),
             ("frames_linear", None, "offline"), ("edi", None, "offline")]
     for method, params, mode in runs:
-        v = reconstruct(rec, method, params, fps=200.0, mode=mode)
+        # the fuzzed parameters (or each method's defaults) as given: random events and noise
+        # frames are nothing to self-calibrate from, and the calibration is not under test here
+        v = reconstruct(rec, method, params, fps=200.0, mode=mode, thresholds="input")
         assert np.all(np.isfinite(v.frames)), method
         assert v.frames.min() >= np.float32(K.MIN_INTENSITY), (method, float(v.frames.min()))
         assert 0 <= v.info["n_clamped"] <= v.info["n_output_pixels"] == v.frames.size

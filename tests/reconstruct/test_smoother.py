@@ -75,19 +75,20 @@ def test_two_sided_uses_the_future_frame():
 
 def test_two_sided_is_deterministic_and_bit_identical_across_workers():
     rec = _rec(3, h=40, w=9)
-    a = reconstruct(rec, "akf", fps=250.0, n_workers=1)
-    b = reconstruct(rec, "akf", fps=250.0, n_workers=2)
-    c = reconstruct(rec, "akf", fps=250.0, n_workers=1)
+    # the default parameters as given (the self-calibration is not under test here)
+    a = reconstruct(rec, "akf", fps=250.0, n_workers=1, thresholds="input")
+    b = reconstruct(rec, "akf", fps=250.0, n_workers=2, thresholds="input")
+    c = reconstruct(rec, "akf", fps=250.0, n_workers=1, thresholds="input")
     assert np.array_equal(a.frames, b.frames) and np.array_equal(a.frames, c.frames)
     assert np.array_equal(a.t_us, b.t_us)
 
 
 def test_output_times_match_the_forward_driver():
     rec = _rec()
-    fwd = reconstruct(rec, "akf", fps=300.0, mode="forward")
+    fwd = reconstruct(rec, "akf", fps=300.0, mode="forward", thresholds="input")
     t = output_times(rec.frames.t_mid_us, int(rec.events["t"][-1]), fps=300.0)
     assert np.array_equal(t, fwd.t_us)
-    two = reconstruct(rec, "akf", fps=300.0)
+    two = reconstruct(rec, "akf", fps=300.0, thresholds="input")
     assert np.array_equal(two.t_us, fwd.t_us)
 
 
@@ -372,7 +373,7 @@ def test_an_error_in_a_concurrent_pass_is_raised_and_no_thread_outlives_the_call
         raise RuntimeError("boom in a pass")
     monkeypatch.setattr(sm._CarriedVariance, "add_to", boom)
     with pytest.raises(RuntimeError, match="boom in a pass"):
-        reconstruct(rec, "akf", fps=300.0, n_workers=2)
+        reconstruct(rec, "akf", fps=300.0, n_workers=2, thresholds="input")
     assert threading.active_count() == before
 
 
