@@ -90,7 +90,10 @@ def test_no_keyword_bag_between_public_functions_and_drivers():
 
 
 def _is_overrides_call(node) -> bool:
-    """``p.replace(**got.overrides())``: the resolver's field overrides, not an argument bag."""
+    """``p.replace(**got.overrides())`` (or a comprehension over them that keeps the fields ``p``
+    has): the resolver's field overrides, not an argument bag."""
+    if isinstance(node, ast.DictComp):
+        return any(isinstance(n, ast.Call) and getattr(n.func, "attr", "") == "overrides" for n in ast.walk(node))
     return isinstance(node, ast.Call) and getattr(node.func, "attr", "") == "overrides"
 
 
