@@ -256,13 +256,29 @@ def _pooled(recording, profile, intensity_offset) -> ResolvedThresholds:
 
 
 def _selfcal(recording, profile, intensity_offset) -> ResolvedThresholds:
+    import logging
+    import warnings
+
+    from .camera_model import GridEdgeWarning
     from .selfcal import self_calibration
-    cal = self_calibration(recording, profile=profile, intensity_offset=intensity_offset)
+    # a grid edge is said (logged, in the note and in the record's "warnings"), never silent; it does
+    # not stop a run: the estimate at the edge is still the best this recording allows
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always", GridEdgeWarning)
+        cal = self_calibration(recording, profile=profile, intensity_offset=intensity_offset)
+    edge = [str(w.message) for w in caught if issubclass(w.category, GridEdgeWarning)]
+    for w in caught:
+        if not issubclass(w.category, GridEdgeWarning):
+            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
+    for msg in edge:
+        logging.getLogger(__name__).warning("%s", msg)
+    if edge and isinstance(cal, dict):
+        cal = {**cal, "warnings": edge}
     i0 = cal["intensity_offset"] if intensity_offset is None else intensity_offset
     note = (f"self-calibrated from the recording: frames stand for their stamp {cal['time_offset_us']:+d} µs, ON "
             f"{cal['c_on']:.4g}, OFF {cal['c_off']:.4g} (log units) in ln(I + {i0:.3g}); "
             f"events explain {100 * cal['r2']:.0f} % of the frames' log changes (uncalibrated "
-            f"{100 * cal['r2_nominal']:.0f} %)")
+            f"{100 * cal['r2_nominal']:.0f} %)" + "".join(f"; warning: {m}" for m in edge))
     return ResolvedThresholds("selfcal", c_on=cal["c_on"], c_off=cal["c_off"],
                               intensity_offset=cal["intensity_offset"] if intensity_offset is None else None,
                               frame_time_offset_us=int(cal["time_offset_us"]), note=note, record=cal)

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import itertools
-import logging
 import os
-import warnings
 from dataclasses import dataclass, field
 from typing import Callable, Iterator
 
@@ -29,8 +27,6 @@ from .methods import (METHOD_ALIASES, METHODS, MODES, MethodSpec, make_augment_p
                       resolve_method)
 from .request import ReconstructRequest, host_workers
 from .smoother import output_times, two_sided_iter
-
-_log = logging.getLogger(__name__)
 
 __all__ = ["Video", "METHODS", "METHOD_ALIASES", "MODES", "MethodSpec", "reconstruct", "reconstruct_iter",
            "resolve_method", "method_spec", "make_params", "make_augment_params", "source_profile",
@@ -287,30 +283,18 @@ def _self_calibration(req: ReconstructRequest, source, opened, frames, params, i
             return params, 0
         rec = read(path)
     own_i0 = None if method == "akf" else float(params.intensity_offset)
-    from ..calibrate.camera_model import GridEdgeWarning
     try:
-        # a grid edge is said (logged, and kept in info["self_calibration_warnings"]), never silent;
-        # it does not stop the run: the estimate at the edge is still the best the recording allows
-        with warnings.catch_warnings(record=True) as caught:
-            warnings.simplefilter("always", GridEdgeWarning)
-            got = resolve_thresholds(rec, "selfcal", intensity_offset=own_i0, profile=rd.profile)
+        # a grid edge is logged by the resolver and kept in the record's "warnings"
+        got = resolve_thresholds(rec, "selfcal", intensity_offset=own_i0, profile=rd.profile)
     except ValueError as e:
         if choice == "selfcal":
             raise ValueError(f"thresholds='selfcal': the recording cannot tell ({e})") from None
         if info is not None:
             info["self_calibration"] = f"skipped: {e}"
         return params, 0
-    edge = [str(w.message) for w in caught if issubclass(w.category, GridEdgeWarning)]
-    for w in caught:
-        if not issubclass(w.category, GridEdgeWarning):
-            warnings.warn_explicit(w.message, w.category, w.filename, w.lineno)
-    for msg in edge:
-        _log.warning("%s", msg)
     if info is not None:
         info["thresholds"] = got.note
         info["self_calibration"] = got.record
-        if edge:
-            info["self_calibration_warnings"] = edge
     return params.replace(**got.overrides()), int(got.frame_time_offset_us)
 
 
