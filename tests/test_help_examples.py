@@ -145,4 +145,45 @@ def test_help_example_runs(name, tmp_path, capsys, monkeypatch):
     monkeypatch.chdir(repo)
     for step in steps:
         step() if callable(step) else _run(step, capsys)
+    if name == "capture serve-dv":
+        _run_server_example(line, repo, capsys)
+        return
     _run(line, capsys)
+
+
+def _run_server_example(line, repo, capsys):
+    """``capture serve-dv`` serves until its clients have everything, then ends its process: it
+    runs as its own process, and ``capture record`` on its three URLs is the client."""
+    import selectors
+    import subprocess
+    import sys
+    import time
+
+    pytest.importorskip("dv_processing", reason="dv-processing (the [dv] extra) is not installed")
+    argv = shlex.split(line)
+    urls = [argv[i + 1] for i, a in enumerate(argv) if a in ("--events", "--frames", "--triggers")]
+    env = {**os.environ, "PYTHONPATH": str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    proc = subprocess.Popen([sys.executable, "-m", "hybridhdr", *argv[1:]], cwd=repo, env=env, text=True,
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    try:
+        sel = selectors.DefaultSelector()
+        sel.register(proc.stderr, selectors.EVENT_READ)
+        t_end = time.monotonic() + 120
+        while time.monotonic() < t_end:  # its line saying the sockets listen (a probe would count as a client)
+            if sel.select(timeout=0.5):
+                got = proc.stderr.readline()
+                if "waiting for clients" in got:
+                    break
+                assert got or proc.poll() is None, f"{line}: the server ended (exit {proc.poll()})"
+        else:
+            raise AssertionError(f"{line}: the server did not open its sockets")
+        rec = ["capture", "record", "--out", "served.h5", "--reconnect-s", "1", "--no-progress"]
+        for u in urls:
+            rec += ["--source", u]
+        assert main(rec) == 0, capsys.readouterr().err[-2000:]
+        served = proc.communicate(timeout=60)[0]
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.communicate(timeout=30)
+    assert proc.returncode == 0 and "served 78,830 events, 59 frames, 236 triggers" in served, served

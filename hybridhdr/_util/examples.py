@@ -30,6 +30,9 @@ EXAMPLES = {
                     "--report street_sync.json",
     "capture session": "hybridhdr capture session session/ --recording rec.h5 --profile crf/camera_profile.json "
                        "--brackets memorial/",
+    "capture serve-dv": f"hybridhdr capture serve-dv {_DATA}/aedat4/davis346_street.aedat4 "
+                        "--events dv-tcp://127.0.0.1:7777 --frames dv-tcp://127.0.0.1:7778 "
+                        "--triggers dv-tcp://127.0.0.1:7779 --fast",
     "calibrate rig": f"hybridhdr calibrate rig --left '{_DATA}/checkerboard/opencv_stereo/left*.jpg' "
                      f"--right '{_DATA}/checkerboard/opencv_stereo/right*.jpg' --board 9x6 --square-mm 25 "
                      "--out stereo/",

@@ -60,6 +60,7 @@ import warnings
 import numpy as np
 
 from ..camera import load_profile, profile_for_frames
+from ..camera.profile import check_codes_in_profile
 from ..camera.encoding import well_exposed_range
 from ..camera.encoding import frames_to_codes
 from ..errors import InputMismatchError
@@ -234,6 +235,7 @@ class _Data:
                             else (int(well_exposed[0]), int(well_exposed[1])))
         self.lut = self.prof.intensity(np.arange(self.prof.max_code + 1)).astype(np.float64)
         self.codes = frames_to_codes(sub, (h, w))
+        check_codes_in_profile(self.codes, self.prof)  # codes past the profile's table: refused, never an index error
         self.order = order
         expo = sub.exposure_us.astype(np.float64)[order]
         gain = np.ones(len(order)) if sub.gain is None else np.asarray(sub.gain, np.float64)[order]

@@ -1264,7 +1264,7 @@ def calibrate_sensor_out_is_the_recording(d):
     return ["calibrate", "sensor", str(p), "--out", str(p)], _unchanged(p)
 
 
-@case("outputs")
+@case("outputs", "usage")  # an existing output: a usage error (exit 2), as in every verb
 def convert_existing_output_without_overwrite(d):
     (d / "o.h5").write_bytes(b"a two-minute simulation")
     return ["convert", str(_container(d / "r.h5")), str(d / "o.h5")], _unchanged(d / "o.h5")
@@ -1295,7 +1295,7 @@ def _bench_out(d, extra=()):
     return _bench(d, _BENCH_HEAD + '[[methods]]\nmethod = "highpass"\n') + list(extra)
 
 
-@case("bench")
+@case("bench", "usage")  # a non-empty --out: a usage error (exit 2), as in every verb
 def bench_second_run_on_a_non_empty_out(d):
     (d / "o").mkdir()
     (d / "o" / "results.csv").write_text("first bench")
