@@ -70,7 +70,15 @@ def test_lines_written_while_a_bar_runs_do_not_cut_through_it(capsys):
         b = new_bar(total=10, desc="work")
         b.update(3)
         print("a line in the middle", file=sys.stderr)
-        logging.getLogger("hybridhdr.test").warning("a logged line")
+        # a handler of its own on stderr as it is now (other tests may leave the root logger
+        # without a console handler: the result must not depend on the test order)
+        log = logging.getLogger("hybridhdr.test")
+        h = logging.StreamHandler()
+        log.addHandler(h)
+        try:
+            log.warning("a logged line")
+        finally:
+            log.removeHandler(h)
         b.update(7)
     print("final line", file=sys.stderr)
     err = capsys.readouterr().err

@@ -95,6 +95,7 @@ def test_clean_sensor_agrees_within_noise():
     assert fid["count_error"] <= 0.02 and d.max() <= 2, (fid, d.max())
 
 
+@pytest.mark.filterwarnings("ignore::pytest.PytestUnraisableExceptionWarning")  # imageio-ffmpeg's reader pipe, closed by the GC
 def test_video_file(tmp_path, capsys):
     imageio_ffmpeg = pytest.importorskip("imageio_ffmpeg")
     src = BlobSource(height=48, width=64, duration_us=400_000, speed_px_s=40.0, contrast=3.0, background=0.2)
