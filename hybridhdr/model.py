@@ -13,7 +13,7 @@ from ._util.checks import check_shape
 from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
                      slice_time, time_window_indices, validate_events, validate_triggers)
 
-__all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS"]
+__all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS", "source_metadata"]
 
 #: The four Bayer layouts, named by the 2×2 tile read from the top-left pixel.
 CFA_PATTERNS = ("RGGB", "BGGR", "GRBG", "GBRG")
@@ -347,3 +347,15 @@ class Recording:
         return Recording(slice_time(self.events, t_start_us, t_end_us), self.sensor_size,
                          None if self.frames is None else self.frames.slice_time(t_start_us, t_end_us),
                          slice_time(self.triggers, t_start_us, t_end_us), hdr, self.metadata)
+
+
+def source_metadata(source):
+    """A source's ``Metadata``: a recording's attribute or a reader's ``metadata()``; None when it
+    declares none (or a reader cannot read it)."""
+    md = getattr(source, "metadata", None)
+    if callable(md):
+        try:
+            md = md()
+        except Exception:  # noqa: BLE001 - a reader without readable metadata declares nothing
+            return None
+    return md

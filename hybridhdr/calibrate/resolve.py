@@ -162,14 +162,6 @@ class ResolvedThresholds:
         return out
 
 
-def _metadata(source):
-    md = getattr(source, "metadata", None)
-    if callable(md):
-        try:
-            md = md()
-        except Exception:  # noqa: BLE001 - a reader without readable metadata declares nothing
-            return None
-    return md
 
 
 def stored_thresholds(source):
@@ -180,7 +172,8 @@ def stored_thresholds(source):
 
 def declared_thresholds(source) -> tuple[float, float] | None:
     """The event sensor's nominal (ON, OFF) thresholds a source's metadata states, or None."""
-    md = _metadata(source)
+    from ..model import source_metadata  # here: building the command line's parser imports no numpy
+    md = source_metadata(source)
     got = getattr(getattr(md, "event_camera", None), "contrast_thresholds", None)
     if got is None:  # recordings simulated before CameraInfo stated them keep the sensor in provenance
         prov = getattr(md, "provenance", None) or {}

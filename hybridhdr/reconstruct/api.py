@@ -16,10 +16,10 @@ from ..calibrate.resolve import recording_declares_thresholds, resolve_threshold
 from ..camera import CameraProfile
 from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
-from ..model import Frames, Recording
+from ..model import Frames, Recording, source_metadata
 from . import _engine as E
 from .augment import AugmentedMeasurements, deblur_min_events
-from .colour import _metadata, colour_source, rgb_to_luminance
+from .colour import colour_source, rgb_to_luminance
 from .edi import EDIEngine, exposure_log_corrections
 from .event_arrays import EventArrays, StreamingEventArrays
 from .measurement import FrameMeasurements
@@ -175,7 +175,7 @@ def _declared_event_count(source) -> int | None:
 def source_profile(source):
     """The camera profile a source declares (``metadata.provenance["camera_profile"]``, e.g. an
     AKF ``.mat`` file's ``f_Q`` table), or None."""
-    prov = getattr(_metadata(source), "provenance", None)
+    prov = getattr(source_metadata(source), "provenance", None)
     d = prov.get("camera_profile") if isinstance(prov, dict) else None
     if not isinstance(d, dict):
         return None

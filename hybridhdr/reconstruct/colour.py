@@ -38,19 +38,11 @@ import numpy as np
 
 from ..camera.cfa import DEMOSAIC_METHODS, demosaic, mosaic_frames, parse_cfa
 from ..camera.encoding import LUMINANCE_WEIGHTS
-from ..model import Recording
+from ..model import Recording, source_metadata
 
 __all__ = ["ColourSource", "colour_source", "source_cfa", "rgb_to_luminance"]
 
 
-def _metadata(source):
-    md = getattr(source, "metadata", None)
-    if callable(md):
-        try:
-            md = md()
-        except Exception:  # noqa: BLE001 - a reader without readable metadata declares nothing
-            return None
-    return md
 
 
 def source_cfa(source, cfa=None) -> tuple[str | None, str | None]:
@@ -59,7 +51,7 @@ def source_cfa(source, cfa=None) -> tuple[str | None, str | None]:
     if cfa is not None:
         p = parse_cfa(cfa)
         return p, p
-    md = _metadata(source)
+    md = source_metadata(source)
     ev = getattr(getattr(md, "event_camera", None), "cfa", None)
     fr = getattr(getattr(md, "frame_camera", None), "cfa", None)
     return parse_cfa(ev), parse_cfa(fr)

@@ -14,9 +14,10 @@ from hybridhdr.simulate import event_fidelity, simulate
 from hybridhdr.simulate.sensor import sensor_preset
 from hybridhdr.simulate.video import VideoSource, load_video
 
+from ..conftest import SHARED_DATA
 from ._sources import BlobSource
 
-ECD = Path("/work/shared/data/ecd_slider_depth")
+ECD = SHARED_DATA / "ecd_slider_depth"
 
 
 def _scene():
@@ -127,7 +128,7 @@ def test_folder_needs_times(tmp_path):
         load_video(tmp_path)
 
 
-@pytest.mark.skipif(not (ECD / "images.txt").exists(), reason="ECD slider_depth recording not in /work/shared/data")
+@pytest.mark.skipif(not (ECD / "images.txt").exists(), reason=f"ECD slider_depth recording not in {SHARED_DATA}")
 def test_real_clip_ecd(tmp_path, capsys):
     """A few frames of the ECD slider_depth recording (DAVIS240C frames with images.txt)."""
     out = tmp_path / "ecd.h5"
