@@ -26,10 +26,18 @@ $(VENV)/.created:
 
 NO_LLVM_WHEEL ?=
 NO_WHEEL_STEP = if [ -n "$(NO_LLVM_WHEEL)" ]; then $(PIP) uninstall --quiet -y karellen-llvm-core; fi
+# karellen-llvm-core is a wheel-axle wheel: the first interpreter started after its install finishes
+# the install from a startup (.pth) file, and that imports pip. In that one process setuptools then
+# hands out the standard library's deprecated distutils (its shim steps aside once pip is imported),
+# so a later `import setuptools` (torch.utils.cpp_extension, under pycvvdp) warns, and under the
+# suite's filterwarnings=error the first pytest run after an install failed. Start an interpreter once
+# right after installing, so that no run of ours is the finishing one.
+FINISH_STEP = $(PY) -c "pass"
 
 $(VENV)/.installed: $(VENV)/.created pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[demo]"
 	$(NO_WHEEL_STEP)
+	$(FINISH_STEP)
 	touch $@
 
 $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
@@ -43,6 +51,7 @@ $(VENV)/.torch: $(VENV)/.created $(CONSTRAINTS)
 $(VENV)/.installed-test: $(VENV)/.torch pyproject.toml $(CONSTRAINTS)
 	$(PIPC) -e ".[test,bench]"
 	$(NO_WHEEL_STEP)
+	$(FINISH_STEP)
 	touch $@
 
 install: $(VENV)/.installed
