@@ -468,9 +468,9 @@ def run_holdout_cmd(args) -> int:
     rec = read(args.recording, format=args.format) if args.format else read(args.recording)
     thresholds = args.thresholds
     given = args.params is not None or args.contrast_threshold is not None
-    if thresholds is None:
-        from .realdata import default_threshold_source
-        thresholds = "params" if given else default_threshold_source(rec)  # DEFAULT_THRESHOLDS, as reconstruct's
+    if thresholds is None:  # the API's rule (DEFAULT_THRESHOLDS, as reconstruct's); the specs carry the params
+        from .realdata import default_thresholds_for
+        thresholds = default_thresholds_for(rec, specs)
     elif given and thresholds in ("auto", "input", "selfcal"):
         raise ValueError(f"--thresholds {thresholds} and --params/--contrast-threshold both give the thresholds; "
                          f"use one (or --thresholds params)")
@@ -543,11 +543,7 @@ def run_overexpose_cmd(args) -> int:
     try:
         take_sensor_profile_arg(args)
         rec = read(args.recording, format=args.format) if args.format else read(args.recording)
-        thresholds = args.thresholds
-        if thresholds is None:
-            from .realdata import default_threshold_source
-            given = bool(args.params) or args.contrast_threshold is not None
-            thresholds = "params" if given else default_threshold_source(rec)
+        thresholds = args.thresholds  # None: the API's default rule (realdata.default_thresholds_for)
         from .._util.progress import progress_bars
         with progress_bars(not args.no_progress) as new_bar:  # failures logged meanwhile go above the bar
             bar = new_bar(total=len(args.gain) * len(specs), desc="overexpose", unit="method")

@@ -433,7 +433,7 @@ def _ratio(a, b) -> float:
     return float(a / b) if (math.isfinite(a) and math.isfinite(b) and b > RATIO_FLOOR) else float("nan")
 
 
-def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, thresholds: str = "params",
+def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, thresholds: str | None = None,
                         calibrate=None, baselines: bool = True, skipped=None, keep_images: bool = False,
                         log=None, progress=None, calibration_holdout: str = "frame") -> dict:
     """Score ``specs`` and the baselines on ``rec`` over-exposed by each gain (module docstring).
@@ -453,7 +453,10 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
         given, the method takes what the recording declares), ``"auto"`` (estimated without frame k) or
         ``"selfcal"`` (the event/frame self-calibration of the input without frame k,
         :func:`hybridhdr.evaluate.realdata.selfcal_params`: frame k is reconstructed at the time it
-        stands for, τ_k + the calibrated offset)
+        stands for, τ_k + the calibrated offset); None (default): what ``evaluate overexpose`` does
+        without ``--thresholds``, :func:`hybridhdr.evaluate.realdata.default_thresholds_for`
+        (``"params"`` when a spec carries parameters, else the self-calibration or the recording's
+        declared thresholds)
     calibrate : callable ``calibrate(recording_without_frame_k) -> overrides``
         (:func:`apply_calibration`), called once per scored frame and gain; None: no calibration
     calibration_holdout : ``"frame"`` (default) or ``"scored"``
@@ -476,6 +479,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     "wall_s", "per_frame", "used" (with thresholds="auto", "selfcal" or calibrate)}}}``.
     """
     from ..calibrate.resolve import is_sensor_profile
+    if thresholds is None:
+        thresholds = RD.default_thresholds_for(rec, specs if specs is not None else default_specs()[0])
     tmap = None
     if not isinstance(thresholds, str):  # a map, as reconstruct's and evaluate holdout's thresholds take
         tmap = thresholds

@@ -153,6 +153,13 @@ def default_threshold_source(rec) -> str:
     return "input" if recording_declares_thresholds(rec) else "selfcal"
 
 
+def default_thresholds_for(rec, specs) -> str:
+    """The thresholds source a run takes when none is given, the same for the API and the command
+    line: ``"params"`` when any spec carries explicit parameters (they win), else
+    :func:`default_threshold_source` (``"selfcal"`` or the recording's declared ``"input"``)."""
+    return "params" if any(getattr(s, "params", None) is not None for s in specs) else default_threshold_source(rec)
+
+
 def selfcal_params(rec_input, method: str, params, profile=None, *, cache: dict | None = None):
     """``(params, time_offset_us, used)``: ``params`` of ``method`` with the self-calibration of
     ``rec_input`` (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"selfcal"``): the AKF
@@ -354,7 +361,7 @@ def _is_causal(spec: HoldoutSpec) -> bool:
 
 
 def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well_exposed=None, baselines=True,
-                     log=None, thresholds: str = "params", calibration_holdout: str = "frame") -> dict:
+                     log=None, thresholds: str | None = None, calibration_holdout: str = "frame") -> dict:
     """Score ``methods`` (HoldoutSpec list) and the baselines on held-out frames.
 
     Parameters
@@ -365,16 +372,19 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
         as skipped) and the baselines.
     held : frame indices (into the frames up to the last event), default :func:`default_held_frames`
     thresholds : ``"params"`` (each method's own), ``"auto"`` (estimated on each input in the
-        method's own log model; module docstring), ``"input"`` (what the recording declares) or a
-        per-pixel threshold map (:func:`holdout_reconstructions`)
+        method's own log model; module docstring), ``"input"`` (what the recording declares),
+        ``"selfcal"``, or a per-pixel threshold map (:func:`holdout_reconstructions`); None (default):
+        :func:`default_thresholds_for`, what ``evaluate holdout`` does without ``--thresholds``
     calibration_holdout : ``"frame"`` or ``"scored"`` (:func:`holdout_reconstructions`)
 
     Returns
     -------
     dict: ``held`` (frame indices), ``t_us`` (their mid-exposures), ``well_exposed_codes``,
-    ``n_events``, and per task ``{"methods": {label: {"method", "mode", "role", "status",
+    ``n_events``, ``thresholds`` (the source used), and per task ``{"methods": {label: {"method", "mode", "role", "status",
     "per_frame": [{"frame", "t_us", "mse", "psnr_db", "ssim", "n_valid"}], "mean": {...}}}}``.
     """
+    if thresholds is None:
+        thresholds = default_thresholds_for(rec, methods)
     fr = _trimmed_frames(rec)
     held = default_held_frames(rec) if held is None else [int(k) for k in held]
     if not held:
@@ -387,7 +397,8 @@ def evaluate_holdout(rec, methods, *, tasks=TASKS, held=None, profile=None, well
     rmax = float(np.nanmax(ref)) if np.isfinite(ref).any() else 1.0
     rmax = rmax if rmax > 0 else 1.0
     res = {"held": held, "t_us": [int(fr.t_mid_us[k]) for k in held], "well_exposed_codes": [lo, hi],
-           "reference_max": rmax, "n_events": int(len(rec.events)), "n_frames_in_span": int(len(fr))}
+           "reference_max": rmax, "n_events": int(len(rec.events)), "n_frames_in_span": int(len(fr)),
+           "thresholds": thresholds if isinstance(thresholds, str) else f"per-pixel map or profile {thresholds}"}
     for task in tasks:
         if task not in TASKS:
             raise ValueError(f"task must be one of {TASKS}, got {task!r}")

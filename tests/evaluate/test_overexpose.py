@@ -209,10 +209,12 @@ def test_one_calibration_without_every_scored_frame():
         return {"params": {"contrast_threshold": 0.05}}
 
     specs = [O.OverexposeSpec("akf_causal", "akf", "causal"), O.OverexposeSpec("cf_causal", "cf", "causal")]
-    res = O.evaluate_overexpose(rec, [4, 2], specs, frames=[2, 4], calibrate=spy, calibration_holdout="scored")
+    res = O.evaluate_overexpose(rec, [4, 2], specs, frames=[2, 4], calibrate=spy, calibration_holdout="scored",
+                                thresholds="params")
     assert res["calibration_holdout"] == "scored"
     assert seen == [set(tau.tolist()) - {int(tau[2]), int(tau[4])}] * 2  # once per gain
-    per_frame = O.evaluate_overexpose(rec, [4], specs, frames=[2, 4], calibrate=lambda r: {"contrast_threshold": 0.05})
+    per_frame = O.evaluate_overexpose(rec, [4], specs, frames=[2, 4], calibrate=lambda r: {"contrast_threshold": 0.05},
+                                      thresholds="params")
     a = res["by_gain"]["4"]["methods"]["akf_causal"]["log_rmse"]
     b = per_frame["by_gain"]["4"]["methods"]["akf_causal"]["log_rmse"]
     assert a == b  # the same calibration either way: the same reconstructions

@@ -110,7 +110,10 @@ def test_cli_json_and_errors(rec, tmp_path, capsys):
 def test_ecd_slider_depth_akf_beats_hold_previous():
     import hybridhdr
     r = hybridhdr.read(ECD)
-    res = RD.evaluate_holdout(r, [RD.HoldoutSpec("akf", "akf")], tasks=("leave_one_out",))
+    # no parameters and no thresholds: the API's default is the command line's (self-calibration here),
+    # one calibration without any held frame
+    res = RD.evaluate_holdout(r, [RD.HoldoutSpec("akf", "akf")], tasks=("leave_one_out",), calibration_holdout="scored")
+    assert res["thresholds"] == "selfcal"
     m = res["leave_one_out"]["methods"]
     assert res["held"] == [1, 2, 3]
     assert m["akf"]["mean"]["mse"] < m["hold_previous"]["mean"]["mse"]
@@ -207,3 +210,13 @@ def test_one_calibration_without_every_held_out_frame(rec, monkeypatch):
     assert len(used) == len(held) and all(u == used[0] and u["source"] == "auto" for u in used)
     with pytest.raises(ValueError, match="calibration_holdout must be one of"):
         RD.holdout_reconstructions(rec, specs, task="leave_one_out", held=held, calibration_holdout="all")
+
+
+def test_default_thresholds_are_the_command_lines(rec):
+    """With no thresholds given, the API picks what ``evaluate holdout``/``overexpose`` pick: explicit
+    parameters win; otherwise the recording's declared thresholds, else the self-calibration."""
+    with_params = [RD.HoldoutSpec("akf", "akf", "offline", {"contrast_threshold": 0.15})]
+    bare = [RD.HoldoutSpec("akf", "akf")]
+    assert RD.default_thresholds_for(rec, with_params) == "params"
+    assert RD.default_thresholds_for(rec, bare) == RD.default_threshold_source(rec)
+    assert RD.default_thresholds_for(rec, with_params + bare) == "params"
