@@ -338,6 +338,22 @@ def _without(rec_in, k):
 CALIBRATION_HOLDOUTS = ("frame", "scored")
 
 
+def _profile_at_gain(path, spec, rec_in):
+    """The sensor profile ``path`` resolved for ``spec`` on the over-exposed input ``rec_in``: its
+    log offset I0 is in the original frames' linear units, and the input's frames read ``gain``
+    times brighter (:func:`overexpose_recording`), so I0 is scaled by the gain; ``ln(I + I0)``
+    then differs from the original's by the constant ``ln gain`` and the thresholds hold as they are."""
+    from ..calibrate.resolve import resolve_thresholds
+    method = resolve_method(spec.method)
+    own_i0 = None if method == "akf" else getattr(make_params(method, spec.params), "intensity_offset", 0.0)
+    got = resolve_thresholds(None, path, intensity_offset=own_i0)
+    gain = float((rec_in.metadata.provenance or {}).get("overexposed", {}).get("gain", 1.0))
+    if got.intensity_offset is not None and gain != 1.0:
+        got = dataclasses.replace(got, intensity_offset=got.intensity_offset * gain,
+                                  note=f"{got.note}; I0 × {gain:g}, the over-exposure gain")
+    return got
+
+
 def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_cache, ref_ndim, pattern,
               tmap=None, holdout="frame"):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
@@ -353,7 +369,8 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
         if use_map and is_sensor_profile(tmap):
             # a sensor profile states the time each frame stands for: frame k is reconstructed there,
             # as with the self-calibration (and reconstruct shifts every input frame alike)
-            dt = int(resolve_thresholds(None, tmap, intensity_offset=0.0).frame_time_offset_us)
+            kw_map["thresholds"] = got = _profile_at_gain(tmap, spec, rec_in)
+            dt = int(got.frame_time_offset_us)
         t0 = time.perf_counter()
         v = reconstruct(rec_in, spec.method, spec.params, times_us=tk + dt, mode=spec.mode, profile=profile,
                         augment=spec.augment, **kw_map)

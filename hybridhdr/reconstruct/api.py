@@ -712,7 +712,9 @@ def reconstruct(source, method: str = "akf", params=None, *, times_us=None, fps:
         Per-pixel ON and OFF contrast thresholds (log units, arrays of the sensor's shape; e.g.
         from ``hybridhdr calibrate thresholds``) used by the AKF, CF, direct and high-pass
         filters instead of the parameters' scalars; entries that are not finite and positive
-        take the scalar.
+        take the scalar. Also a sensor profile (``.json``), one of ``"input"``, ``"params"``,
+        ``"selfcal"``, or a :class:`~hybridhdr.calibrate.resolve.ResolvedThresholds` already
+        resolved by the caller (used as it is).
     augment : AugmentParams, dict, TOML path, bool or None
         Frame augmentation of the AKF in offline mode (paper §4.1, eqs. 10-13:
         :class:`~hybridhdr.reconstruct.augment.AugmentedMeasurements`): None or True for the

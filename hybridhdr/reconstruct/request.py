@@ -174,7 +174,10 @@ class ReconstructRequest:
         choice = "default"
         if isinstance(thresholds, str) and thresholds in ("input", "params", "selfcal"):
             choice, thresholds = thresholds, None
-        if is_sensor_profile(thresholds):
+        if isinstance(thresholds, ResolvedThresholds):
+            # already resolved by the caller (calibrate.resolve): used as it is
+            given, choice = thresholds, ("profile" if thresholds.source == "profile" else "map")
+        elif is_sensor_profile(thresholds):
             # a sensor profile file (calibrate sensor): its values are used as they are, no estimation;
             # the AKF takes its log offset I0 too, a method with its own log model keeps its own
             own_i0 = None if method == "akf" else getattr(p, "intensity_offset", 0.0)

@@ -79,3 +79,22 @@ def test_simulate_reads_the_same_file(ecd_profile):
     s = sensor_params(build_parser().parse_args(["simulate", "builtin:slow_static", "--out", "x.h5", "--sensor", str(path)]))
     assert (s.contrast_threshold_on, s.contrast_threshold_off) == (sp["contrast_threshold_on"], sp["contrast_threshold_off"])
     assert s.shot_noise_rate_hz == sp["shot_noise_rate_hz"]
+
+
+def test_overexposed_input_scales_the_profiles_dark_offset(ecd_profile, monkeypatch):
+    """``evaluate overexpose`` with a sensor profile: the over-exposed input's frames read ``gain`` times
+    brighter, so the AKF's I0 is the profile's × gain (ln(I + I0) shifts by the constant ln gain and the
+    thresholds hold); a method with its own log model keeps its own I0. Nothing is re-estimated."""
+    from hybridhdr.evaluate import overexpose as O
+    ecd, path = ecd_profile
+    i0 = json.loads(path.read_text())["estimates"]["intensity_offset"]["value"]
+    _no_estimation(monkeypatch)
+    over, _ = O.overexpose_recording(hybridhdr.read(ecd), 4.0)
+    got = O._profile_at_gain(path, O.OverexposeSpec("akf_causal", "akf", "causal"), over)
+    assert got.source == "profile" and got.intensity_offset == pytest.approx(4.0 * i0, rel=1e-12)
+    assert "× 4" in got.note
+    t = int(over.frames.t_mid_us[3])
+    v = reconstruct(over, "akf", thresholds=got, times_us=[t], mode="causal")
+    assert v.params["intensity_offset"] == pytest.approx(4.0 * i0, rel=1e-12)
+    assert v.info["camera_model"]["source"] == "profile"
+    assert O._profile_at_gain(path, O.OverexposeSpec("cf_causal", "cf", "causal"), over).intensity_offset is None
