@@ -150,7 +150,7 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
             from tqdm import tqdm
             bar = tqdm(total=total, unit="ev", unit_scale=True, desc=f"convert {Path(input).name}",
                        file=sys.stderr, dynamic_ncols=True)
-        n_out = n_trig = 0
+        n_out = n_trig = n_imu = 0
         dropped_trig = 0
         try:
             with open_writer(output, to_format, sensor_size=r.sensor_size, metadata=r.metadata) as w, \
@@ -186,11 +186,18 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
                         w.write_hdr(hdr)
                     else:
                         dropped.append(f"{len(hdr)} HDR references")
+                imu = slice_time(r.read_imu(), start_us, end_us)
+                if len(imu):
+                    if "imu" in w.supports:
+                        w.write_imu(imu)
+                        n_imu = len(imu)
+                    else:
+                        dropped.append(f"{len(imu)} IMU samples")
                 fmt_out = w.format_name
         finally:
             if bar is not None:
                 bar.close()
-    return {"events": n_out, "triggers": n_trig, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
+    return {"events": n_out, "triggers": n_trig, "imu": n_imu, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
 
 
 @json_output
@@ -224,7 +231,8 @@ def run_convert(args) -> int:
         print(json.dumps({"output": str(args.output), **res}))
     else:
         enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
-        print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
+        imu = f", {res['imu']:,} IMU samples" if res["imu"] else ""
+        print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{imu}{enc}")
     if args.frame_encoding is not None and res["frame_encoding"] is None:
         print(f"note: {args.input} has no frames; --frame-encoding {args.frame_encoding} had nothing to apply to",
               file=sys.stderr)
