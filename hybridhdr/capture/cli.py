@@ -118,13 +118,15 @@ def add_parser(sub) -> None:
 
     sv = cs.add_parser("serve-dv", help="serve an AEDAT4 recording as DV network streams (a stand-in for a live DAVIS)",
                        formatter_class=_FMT, parents=[COMMON_NO_JSON],
-                       description="Serve a recording's events, frames and triggers with dv-processing's NetworkWriter, "
+                       description="Serve a recording's events, frames, triggers and IMU samples with dv-processing's "
+                                   "NetworkWriter, "
                                    "one stream per kind, as iniVation's DV software streams a live camera; waits for a "
                                    "client on every stream, then sends in recorded time.")
     sv.add_argument("file", type=Path, help="AEDAT4 recording")
     sv.add_argument("--events", default=None, metavar="URL", help="dv-tcp://HOST:PORT or dv-unix:///path")
     sv.add_argument("--frames", default=None, metavar="URL")
     sv.add_argument("--triggers", default=None, metavar="URL")
+    sv.add_argument("--imu", default=None, metavar="URL", help="the IMU samples' stream")
     sv.add_argument("--speed", type=positive_float, default=1.0, help="pace (1 = recorded rate)")
     sv.add_argument("--fast", action="store_true", help="send as fast as possible")
     sv.add_argument("--wait-clients-s", type=positive_float, default=60.0, help="how long to wait for clients")
@@ -335,9 +337,9 @@ def run_serve_dv(args) -> int:
     import os
 
     from .dv_backend import serve_recording
-    urls = {k: getattr(args, k) for k in ("events", "frames", "triggers") if getattr(args, k)}
+    urls = {k: getattr(args, k) for k in ("events", "frames", "triggers", "imu") if getattr(args, k)}
     if not urls:
-        raise ValueError("give at least one of --events URL, --frames URL, --triggers URL")
+        raise ValueError("give at least one of --events URL, --frames URL, --triggers URL, --imu URL")
     def ready():  # the sockets listen now
         print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
               file=sys.stderr, flush=True)
