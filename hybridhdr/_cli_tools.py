@@ -12,7 +12,8 @@ from ._util.timearg import add_time_window
 
 def add_parsers(sub) -> None:
     fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._util.cliargs.finalise
-    p = sub.add_parser("info", help="summarise an event file (format, size, counts, span, rate)",
+    p = sub.add_parser("info", help="summarise an event file (format, size, counts (events, frames, triggers, IMU "
+                                    "samples), span, rate)",
                        formatter_class=fmt, description="Summarise an event file of any supported format.")
     p.add_argument("file", type=Path, help="event file or folder")
     add_format_arg(p)
@@ -58,7 +59,8 @@ def add_parsers(sub) -> None:
 
 # -- info -------------------------------------------------------------------------------------
 def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
-    """Stream a file once and return its summary (format, sizes, counts, span, rate, polarity)."""
+    """Stream a file once and return its summary (format, sizes, counts of events, frames, triggers
+    and IMU samples, span, rate, polarity)."""
     import numpy as np
 
     from .formats import open_reader
@@ -82,7 +84,7 @@ def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
                 "span_us": None if t_first is None else t_last - t_first,
                 "rate_mev_per_s": None if not n or t_last == t_first else n / (t_last - t_first),
                 "on_fraction": None if not n else n_on / n,
-                "frames": 0 if frames is None else len(frames), "triggers": n_trig}
+                "frames": 0 if frames is None else len(frames), "triggers": n_trig, "imu": len(r.read_imu())}
         if frames is not None and len(frames):
             info["frame_size"] = f"{frames.shape[1]}x{frames.shape[0]}"
             info["frame_dtype"] = str(frames.images.dtype)
@@ -105,7 +107,7 @@ def format_info(info: dict) -> str:
              f"{100 * info['on_fraction']:.1f}% / {100 * (1 - info['on_fraction']):.1f}%"),
             ("frames", str(info["frames"]) + (f" ({info['frame_size']}, {info['frame_dtype']})"
                                                if info.get("frames") else "")),
-            ("triggers", f"{info['triggers']:,}")]
+            ("triggers", f"{info['triggers']:,}"), ("IMU samples", f"{info.get('imu', 0):,}")]
     if "camera" in info:
         rows.insert(3, ("camera", info["camera"]))
     w = max(len(k) for k, _ in rows)

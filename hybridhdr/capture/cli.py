@@ -39,11 +39,11 @@ def add_parser(sub) -> None:
                    help="event source: a file to replay (any readable format), 'synthetic:RATE' (events/s), "
                         "or 'prophesee' / 'device' for a live Prophesee camera")
     r.add_argument("--camera", default=None, metavar="davis[:SERIAL]",
-                   help="a DAVIS or DVXplorer through dv-processing: events, triggers and (DAVIS) frames from one "
-                        "device")
+                   help="a DAVIS or DVXplorer through dv-processing: events, triggers, IMU samples and (DAVIS) "
+                        "frames from one device")
     r.add_argument("--source", action="append", default=[], metavar="URL",
                    help="a DV network stream, dv-tcp://HOST:PORT or dv-unix:///path/to/socket; repeat it, one per "
-                        "stream kind (events, frames, triggers)")
+                        "stream kind (events, frames, triggers, imu)")
     r.add_argument("--frames", default=None,
                    help="frame source: a file to replay, 'oak' / 'device' for a Luxonis OAK, 'pylon[:SERIAL]' for a "
                         "Basler/GenICam camera, or 'none' to leave out a DAVIS's or DV stream's frames")
@@ -312,10 +312,11 @@ def _run_record(args) -> int:
                 s.close()
         raise
     print(f"wrote {args.out}: {st.events_written:,} events, {st.triggers_written:,} triggers, "
-          f"{st.frames_written:,} frames in {st.duration_s:.1f} s; {st.flushes} flushes")
+          f"{st.imu_written:,} IMU samples, {st.frames_written:,} frames in {st.duration_s:.1f} s; "
+          f"{st.flushes} flushes")
     if st.dropped_anything or st.frames_missing_by_sequence:
         print(f"WARNING: dropped {st.events_dropped:,} events, {st.triggers_dropped:,} triggers, "
-              f"{st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
+              f"{st.imu_dropped:,} IMU samples, {st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
               f"by sequence number; {st.source_dropped:,} items dropped by the sources (out of order or "
               f"their buffer full)", file=sys.stderr)
     for role, c in st.source_counters.items():
@@ -504,7 +505,7 @@ def run_recover(args) -> int:
     with allow_huge(args.allow_huge):
         res = recover(args.file, args.out, compression=_comp(args.compression), progress=not args.no_progress)
     print(f"recovered {res['output']}: {res['events']:,} events, {res['triggers']:,} triggers, "
-          f"{res['frames']:,} frames; {res['flushes']} flushes in the journal, "
+          f"{res['imu']:,} IMU samples, {res['frames']:,} frames; {res['flushes']} flushes in the journal, "
           f"{res['events_after_last_flush']:,} events after the last flush were intact; stopped at: "
           f"{res['stop_reason']}")
     if not args.keep_journal:

@@ -166,6 +166,11 @@ def test_record_dv_streams_equals_source(source, tmp_path, capsys, transport):
     c = st["source_counters"]["events"]
     assert c["imu_samples"] == len(source.imu) and c["imu_out_of_order"] == 0 and c["imu_dropped_in_buffer"] == 0
     assert c["restarts"] == 0 and c["ended"] == 4  # the server exited after serving: every input ended
+    capsys.readouterr()
+    assert main(["info", str(out), "--json"]) == 0  # the summary counts the stored IMU samples
+    assert json.loads(capsys.readouterr().out)["imu"] == len(source.imu)
+    assert main(["info", str(out)]) == 0
+    assert f"IMU samples   {len(source.imu):,}" in capsys.readouterr().out
     assert not st["events_dropped"] and not st["source_dropped"]
     assert back.sensor_size.shape == (260, 346)
 
