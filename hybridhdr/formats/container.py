@@ -522,7 +522,7 @@ class RecordingFile(EventFileReader):
         ver = ver.decode() if isinstance(ver, bytes) else str(ver)
         if ver.split(".")[0] not in READABLE_MAJORS:
             raise FormatError(path, f"container format version {ver} is not supported (this reader reads "
-                                    f"1.x and {FORMAT_VERSION}; written by a newer hybridhdr?)")
+                                    f"1.x and 2.x, and writes {FORMAT_VERSION}; written by a newer hybridhdr?)")
         self.format_version = ver
         try:
             md = json.loads(f.attrs.get("metadata_json", "{}"))
