@@ -123,7 +123,9 @@ def add_parser(sub) -> None:
                                    "one stream per kind, as iniVation's DV software streams a live camera; waits for a "
                                    "client on every stream, then sends in recorded time.")
     sv.add_argument("file", type=Path, help="AEDAT4 recording")
-    sv.add_argument("--events", default=None, metavar="URL", help="dv-tcp://HOST:PORT or dv-unix:///path")
+    sv.add_argument("--events", default=None, metavar="URL",
+                    help="dv-tcp://HOST:PORT or dv-unix:///path; port 0 picks a free port (printed with the others "
+                         "on the 'serving ...' line, for capture record's --source)")
     sv.add_argument("--frames", default=None, metavar="URL")
     sv.add_argument("--triggers", default=None, metavar="URL")
     sv.add_argument("--imu", default=None, metavar="URL", help="the IMU samples' stream")
@@ -341,8 +343,8 @@ def run_serve_dv(args) -> int:
     urls = {k: getattr(args, k) for k in ("events", "frames", "triggers", "imu") if getattr(args, k)}
     if not urls:
         raise ValueError("give at least one of --events URL, --frames URL, --triggers URL, --imu URL")
-    def ready():  # the sockets listen now
-        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
+    def ready(served):  # the sockets listen now (port 0 resolved to the free port chosen)
+        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in served.items())}; waiting for clients",
               file=sys.stderr, flush=True)
     counts = serve_recording(args.file, urls, speed=None if args.fast else args.speed,
                              wait_clients_s=args.wait_clients_s, on_ready=ready)

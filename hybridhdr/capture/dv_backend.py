@@ -73,7 +73,7 @@ from .devices import NoDeviceFound
 from .sources import EventSource, FrameItem, FrameSource
 
 __all__ = ["dv_available", "DvInput", "DvCapture", "DvEventSource", "DvFrameSource", "parse_dv_source",
-           "list_dv_cameras", "DV_SCHEMES", "HostClockSamples"]
+           "list_dv_cameras", "DV_SCHEMES", "HostClockSamples", "resolve_free_ports"]
 
 log = logging.getLogger(__name__)
 
@@ -790,6 +790,31 @@ def _remove_stale_socket(path: str) -> None:
     raise FileExistsError(f"{path}: another server is listening on this socket")
 
 
+def resolve_free_ports(urls: dict) -> dict:
+    """``urls`` with every ``dv-tcp://HOST:0`` given a free port of HOST (distinct ones: the probe
+    sockets are held together), so a server started with port 0 never collides with another.
+
+    dv-processing's ``NetworkWriter`` cannot say which port the system gave it, so the port is
+    chosen here and handed to it; another program could take it in between (then the writer fails
+    with an error naming the URL, never silently)."""
+    import socket
+    out, socks = dict(urls), []
+    try:
+        for k, url in urls.items():
+            kind, where = parse_dv_source(url)
+            if kind == "tcp" and int(where[1]) == 0:
+                fam = socket.AF_INET6 if ":" in where[0] else socket.AF_INET
+                sk = socket.socket(fam, socket.SOCK_STREAM)
+                socks.append(sk)
+                sk.bind((where[0], 0))
+                host = f"[{where[0]}]" if fam == socket.AF_INET6 else where[0]
+                out[k] = f"dv-tcp://{host}:{sk.getsockname()[1]}"
+    finally:
+        for sk in socks:
+            sk.close()
+    return out
+
+
 def _writer(dv, url: str, stream):
     kind, where = parse_dv_source(url)
     if kind == "unix":
@@ -811,6 +836,9 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
     camera delivers a packet once it is complete, at ``speed`` × the recorded rate (``None``: as
     fast as possible), and waits until every queued packet has been sent.
 
+    A TCP URL with port 0 is served on a free port (:func:`resolve_free_ports`); ``on_ready`` is
+    called as ``on_ready()`` or, if it takes one argument, ``on_ready(urls)`` with the URLs served.
+
     ``t_from_us`` / ``t_to_us`` serve only ``[t_from_us, t_to_us)`` (events, triggers, IMU samples
     and frame starts), e.g. to stop a stream part-way and restart it where it stopped.
 
@@ -821,6 +849,7 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
     unknown = set(urls) - {"events", "frames", "triggers", "imu"}
     if unknown:
         raise ValueError(f"serve_recording serves events, frames, triggers and imu; got {sorted(unknown)}")
+    urls = resolve_free_ports(urls)
     rec = dv.io.MonoCameraRecording(str(path))
     name = rec.getCameraName()
     writers = {}
@@ -845,7 +874,12 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
         writers[kind] = _writer(dv, url, st)
         sid += 1
     if on_ready is not None:
-        on_ready()
+        import inspect
+        try:
+            takes_urls = len(inspect.signature(on_ready).parameters) >= 1
+        except (TypeError, ValueError):
+            takes_urls = False
+        on_ready(dict(urls)) if takes_urls else on_ready()
     t_end = time.monotonic() + wait_clients_s
     while any(w.getClientCount() < 1 for w in writers.values()):
         if time.monotonic() > t_end:

@@ -198,7 +198,10 @@ def test_restarted_stream_is_counted_and_nothing_is_lost(source, tmp_path):
         finally:
             _end(b)
         t_end = time.monotonic() + 60
-        while rec.stats.events_received < len(source.events) and time.monotonic() < t_end:
+        # until everything served has reached the writer (the IMU and trigger inputs are separate
+        # streams: they may still be on their way when the last event arrives)
+        while (rec.stats.events_received < len(source.events) or rec.stats.imu_written < len(source.imu)
+               or rec.stats.triggers_written < len(source.triggers)) and time.monotonic() < t_end:
             time.sleep(0.05)
         st = rec.finish()
     finally:
