@@ -44,8 +44,9 @@ Nothing is lost silently:
   triggers, IMU samples and frames are dropped and counted (``events_out_of_order``,
   ``imu_out_of_order`` ...), never written out of order;
 * IMU samples received are counted (``imu_samples``); those a full buffer drops are counted
-  (``imu_dropped_in_buffer``) as for the other kinds, and the recorder counts what it stores
-  (``imu_written``).
+  (``imu_dropped_in_buffer``) as for the other kinds, samples with an infinite reading (which
+  the container refuses) are dropped and counted (``imu_not_finite``), and the recorder counts
+  what it stores (``imu_written``).
 
 The counts are in :meth:`DvEventSource.counters` / :meth:`DvFrameSource.counters`, which the
 recorder copies into every flush record and the recording's provenance.
@@ -392,7 +393,7 @@ class DvCapture:
         self._lock = threading.Lock()
         self.counters = {"interruptions": 0, "restarts": 0, "ended": 0, "gaps_us": [], "imu_samples": 0,
                          "timestamp_resets": 0, "events_dropped_in_buffer": 0, "triggers_dropped_in_buffer": 0,
-                         "imu_dropped_in_buffer": 0, "frames_dropped_in_buffer": 0, "frames_not_recorded": 0,
+                         "imu_dropped_in_buffer": 0, "imu_not_finite": 0, "frames_dropped_in_buffer": 0, "frames_not_recorded": 0,
                          "interruption_log": []}
         self.clock = {"events": HostClockSamples(), "frames": HostClockSamples()}
         self.errors: list[BaseException] = []
@@ -542,9 +543,14 @@ class DvCapture:
                     m = r.getNextImuBatch()
                     if m is not None and len(m):
                         a = imu_from_dv(m)
+                        bad = np.any([np.isinf(a[name]) for name, _, _ in IMU_FIELDS], axis=0)
                         with self._lock:
                             self.counters["imu_samples"] += len(a)
-                        self._put("imu", a, len(a))
+                            self.counters["imu_not_finite"] += int(bad.sum())
+                        if bad.any():  # an infinite reading cannot be stored; counted, never silent
+                            a = a[~bad]
+                        if len(a):
+                            self._put("imu", a, len(a))
                         got = True
                 if got:
                     continue

@@ -398,9 +398,9 @@ class RecorderStats:
     @property
     def source_dropped(self) -> int:
         """Items the sources dropped themselves: timestamps going back (a reset or a restart), or their
-        own buffer full."""
+        own buffer full, or a reading that cannot be stored (an infinite IMU value)."""
         return sum(int(v) for c in self.source_counters.values() for k, v in c.items()
-                   if k.endswith(("_out_of_order", "_dropped_in_buffer")))
+                   if k.endswith(("_out_of_order", "_dropped_in_buffer", "_not_finite")))
 
     @property
     def stream_interruptions(self) -> int:
@@ -493,6 +493,7 @@ class Recorder:
         self._finished = False
         self._last_drop_log = 0.0
         self._last_seq = None
+        self._imu_last = None
 
     # -- policy --------------------------------------------------------------------------------
     def _policy_for(self, source) -> str:
@@ -617,6 +618,7 @@ class Recorder:
                             s.triggers_written += len(obj.triggers)
                         imu = getattr(obj, "imu", None)
                         if imu is not None and len(imu):
+                            self._check_imu(imu)
                             jw.write_imu(imu)
                             s.imu_written += len(imu)
                     else:
@@ -639,6 +641,17 @@ class Recorder:
                         break
                 except queue.Empty:
                     break
+
+    def _check_imu(self, imu) -> None:
+        """IMU samples a source hands over must be valid and continue the time order: refused here,
+        while recording (the error stops it; the journal keeps what came before), not when the
+        container is written."""
+        from ..events import validate_imu
+        validate_imu(imu, name=f"{type(self.event_source).__name__}'s IMU samples")
+        if self._imu_last is not None and imu["t"][0] < self._imu_last:
+            raise ValueError(f"{type(self.event_source).__name__} handed over IMU samples out of time order: "
+                             f"{int(imu['t'][0])} µs after {self._imu_last} µs")
+        self._imu_last = int(imu["t"][-1])
 
     # -- public --------------------------------------------------------------------------------
     def start(self) -> "Recorder":

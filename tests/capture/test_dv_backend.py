@@ -275,3 +275,49 @@ def test_frames_of_a_stream_not_recorded_are_counted_apart_from_drops(source, tm
     back = read_recording(tmp_path / "rec.h5")
     np.testing.assert_array_equal(back.events, source.events)
     assert back.frames is None or not len(back.frames)
+
+
+def test_imu_with_an_infinite_reading_is_dropped_and_counted(tmp_path):
+    """A sample the container cannot hold (an infinite reading) is dropped and counted; the others
+    are stored exactly. The reader is a stand-in with dv-processing's reader interface."""
+    import types
+
+    import dv_processing as dv
+    from hybridhdr.capture.dv_backend import DvInput
+    from hybridhdr.events import IMU_FIELDS
+
+    def sample(t, v):
+        return types.SimpleNamespace(timestamp=t, **{dv_name: v for _, _, dv_name in IMU_FIELDS})
+
+    class Reader:
+        def __init__(self):
+            store = dv.EventStore()
+            store.push_back(10, 1, 1, True)
+            self.events = [store]
+            self.imu = [[sample(5, 0.5), sample(6, float("inf")), sample(7, -1.25)]]
+
+        def isEventStreamAvailable(self):
+            return True
+
+        def isImuStreamAvailable(self):
+            return True
+
+        def isRunning(self):
+            return bool(self.events or self.imu)
+
+        def getEventResolution(self):
+            return (4, 3)
+
+        def getNextEventBatch(self):
+            return self.events.pop(0) if self.events else None
+
+        def getNextImuBatch(self):
+            return self.imu.pop(0) if self.imu else None
+
+    cap = DvCapture([DvInput("dv-tcp://127.0.0.1:1", opener=Reader)], reconnect_timeout_s=0.0)
+    st = Recorder(tmp_path / "r.h5", cap.event_source()).record(30)
+    c = st.source_counters["events"]
+    assert c["imu_samples"] == 3 and c["imu_not_finite"] == 1 and st.source_dropped == 1 and st.dropped_anything
+    back = read_recording(tmp_path / "r.h5")
+    assert back.imu["t"].tolist() == [5, 7] and back.imu["accel_x_g"].tolist() == [0.5, -1.25]
+    assert len(back.events) == 1

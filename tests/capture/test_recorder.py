@@ -317,3 +317,16 @@ def test_sigkill_then_recover_keeps_imu_up_to_last_flush(tmp_path):
     assert res["imu"] == len(back.imu) >= last["imu_written"]
     assert back.imu.tobytes() == imu_sample(np.arange(len(back.imu))).tobytes()
     assert back.metadata.provenance["recorder"]["recovered"] is True
+
+
+def test_imu_out_of_order_across_chunks_stops_the_recording_with_a_clear_error(tmp_path):
+    class Backwards(ImuSyntheticSource):
+        def _iter(self):
+            from hybridhdr.formats import EventChunk
+            for i, c in enumerate(SyntheticEventSource._iter(self)):
+                yield EventChunk(c.events, c.triggers, imu_sample(np.arange(7) + (100 if i == 0 else 0)))
+
+    src = Backwards(1e5, sensor_size=(8, 8), chunk_us=1_000, duration_s=0.005, pace="fast", seed=1)
+    with pytest.raises(RuntimeError, match="IMU samples out of time order") as e:
+        Recorder(tmp_path / "b.h5", src).record()
+    assert "capture recover" in str(e.value) and journal_path(tmp_path / "b.h5").exists()
