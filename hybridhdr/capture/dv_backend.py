@@ -823,10 +823,16 @@ def resolve_free_ports(urls: dict) -> dict:
 
 def _writer(dv, url: str, stream):
     kind, where = parse_dv_source(url)
-    if kind == "unix":
-        _remove_stale_socket(where)
-        return dv.io.NetworkWriter(dv.Path(where), stream)
-    return dv.io.NetworkWriter(where[0], int(where[1]), stream)
+    try:
+        if kind == "unix":
+            _remove_stale_socket(where)
+            return dv.io.NetworkWriter(dv.Path(where), stream)
+        return dv.io.NetworkWriter(where[0], int(where[1]), stream)
+    except RuntimeError as e:
+        reason = str(e).split(" [", 1)[0]  # dv-processing appends the C++ source location
+        hint = "; another program listens there: pick another port, or port 0 for a free one" \
+            if "in use" in reason else ""
+        raise OSError(f"{url}: cannot serve a DV stream there ({reason}){hint}") from None
 
 
 def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients_s: float = 30.0,

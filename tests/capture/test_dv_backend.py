@@ -321,3 +321,23 @@ def test_imu_with_an_infinite_reading_is_dropped_and_counted(tmp_path):
     back = read_recording(tmp_path / "r.h5")
     assert back.imu["t"].tolist() == [5, 7] and back.imu["accel_x_g"].tolist() == [0.5, -1.25]
     assert len(back.events) == 1
+
+
+def test_port_zero_gets_distinct_free_ports_and_a_taken_port_is_a_clear_error():
+    import socket
+
+    import dv_processing as dv
+    from hybridhdr.capture.dv_backend import _writer, resolve_free_ports
+    urls = {"events": "dv-tcp://127.0.0.1:0", "frames": "dv-tcp://127.0.0.1:0", "imu": "dv-unix:///tmp/x.sock"}
+    got = resolve_free_ports(urls)
+    ports = [parse_dv_source(got[k])[1][1] for k in ("events", "frames")]
+    assert got["imu"] == urls["imu"] and len(set(ports)) == 2 and all(p > 0 for p in ports)
+    busy = socket.socket()
+    try:
+        busy.bind(("127.0.0.1", 0))
+        busy.listen()
+        url = f"dv-tcp://127.0.0.1:{busy.getsockname()[1]}"
+        with pytest.raises(OSError, match=f"{url}: cannot serve .*in use.*port 0"):
+            _writer(dv, url, dv.io.Stream.TriggerStream(0, "triggers", "x"))
+    finally:
+        busy.close()
