@@ -14,8 +14,8 @@ from .errors import EventValidationError, FormatError, UnknownFormatError
 
 _LAZY = {
     **{name: ".events" for name in (
-        "EVENT_DTYPE", "TRIGGER_DTYPE", "SensorSize", "concatenate_events", "empty_events",
-        "empty_triggers", "make_events", "make_triggers", "slice_time", "validate_events",
+        "EVENT_DTYPE", "TRIGGER_DTYPE", "IMU_DTYPE", "SensorSize", "concatenate_events", "empty_events",
+        "empty_triggers", "empty_imu", "validate_imu", "make_events", "make_triggers", "slice_time", "validate_events",
         "validate_triggers")},
     **{name: ".formats" for name in (
         "DataDropWarning", "EventChunk", "EventFileReader", "EventFileWriter", "detect_format",
@@ -26,8 +26,9 @@ _LAZY = {
 __getattr__, __dir__ = lazy_exports(__name__, _LAZY)
 
 __all__ = [
-    "__version__", "EVENT_DTYPE", "TRIGGER_DTYPE", "SensorSize", "make_events", "empty_events",
-    "make_triggers", "empty_triggers", "validate_events", "validate_triggers", "slice_time",
+    "__version__", "EVENT_DTYPE", "TRIGGER_DTYPE", "IMU_DTYPE", "SensorSize", "make_events", "empty_events",
+    "make_triggers", "empty_triggers", "empty_imu", "validate_events", "validate_triggers", "validate_imu",
+    "slice_time",
     "concatenate_events", "Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording",
     "FormatError", "UnknownFormatError", "EventValidationError", "DataDropWarning", "EventChunk",
     "EventFileReader", "EventFileWriter", "detect_format", "open_reader", "open_writer", "read", "write",

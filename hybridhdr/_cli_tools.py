@@ -12,7 +12,8 @@ from ._util.timearg import add_time_window
 
 def add_parsers(sub) -> None:
     fmt = HelpFormatter  # common options (--debug, --no-progress, --json, -q/-v): hybridhdr._util.cliargs.finalise
-    p = sub.add_parser("info", help="summarise an event file (format, size, counts, span, rate)",
+    p = sub.add_parser("info", help="summarise an event file (format, size, counts (events, frames, triggers, IMU "
+                                    "samples), span, rate)",
                        formatter_class=fmt, description="Summarise an event file of any supported format.")
     p.add_argument("file", type=Path, help="event file or folder")
     add_format_arg(p)
@@ -58,7 +59,8 @@ def add_parsers(sub) -> None:
 
 # -- info -------------------------------------------------------------------------------------
 def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
-    """Stream a file once and return its summary (format, sizes, counts, span, rate, polarity)."""
+    """Stream a file once and return its summary (format, sizes, counts of events, frames, triggers
+    and IMU samples, span, rate, polarity)."""
     import numpy as np
 
     from .formats import open_reader
@@ -82,7 +84,7 @@ def summarise(path, format=None, chunk_events: int = 1 << 20) -> dict:
                 "span_us": None if t_first is None else t_last - t_first,
                 "rate_mev_per_s": None if not n or t_last == t_first else n / (t_last - t_first),
                 "on_fraction": None if not n else n_on / n,
-                "frames": 0 if frames is None else len(frames), "triggers": n_trig}
+                "frames": 0 if frames is None else len(frames), "triggers": n_trig, "imu": len(r.read_imu())}
         if frames is not None and len(frames):
             info["frame_size"] = f"{frames.shape[1]}x{frames.shape[0]}"
             info["frame_dtype"] = str(frames.images.dtype)
@@ -105,7 +107,7 @@ def format_info(info: dict) -> str:
              f"{100 * info['on_fraction']:.1f}% / {100 * (1 - info['on_fraction']):.1f}%"),
             ("frames", str(info["frames"]) + (f" ({info['frame_size']}, {info['frame_dtype']})"
                                                if info.get("frames") else "")),
-            ("triggers", f"{info['triggers']:,}")]
+            ("triggers", f"{info['triggers']:,}"), ("IMU samples", f"{info.get('imu', 0):,}")]
     if "camera" in info:
         rows.insert(3, ("camera", info["camera"]))
     w = max(len(k) for k, _ in rows)
@@ -150,7 +152,7 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
             from tqdm import tqdm
             bar = tqdm(total=total, unit="ev", unit_scale=True, desc=f"convert {Path(input).name}",
                        file=sys.stderr, dynamic_ncols=True)
-        n_out = n_trig = 0
+        n_out = n_trig = n_imu = 0
         dropped_trig = 0
         try:
             with open_writer(output, to_format, sensor_size=r.sensor_size, metadata=r.metadata) as w, \
@@ -186,11 +188,18 @@ def convert(input, output, from_format=None, to_format=None, start_us=None, end_
                         w.write_hdr(hdr)
                     else:
                         dropped.append(f"{len(hdr)} HDR references")
+                imu = slice_time(r.read_imu(), start_us, end_us)
+                if len(imu):
+                    if "imu" in w.supports:
+                        w.write_imu(imu)
+                        n_imu = len(imu)
+                    else:
+                        dropped.append(f"{len(imu)} IMU samples")
                 fmt_out = w.format_name
         finally:
             if bar is not None:
                 bar.close()
-    return {"events": n_out, "triggers": n_trig, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
+    return {"events": n_out, "triggers": n_trig, "imu": n_imu, "dropped": dropped, "format": fmt_out, "frame_encoding": frame_enc}
 
 
 @json_output
@@ -224,7 +233,8 @@ def run_convert(args) -> int:
         print(json.dumps({"output": str(args.output), **res}))
     else:
         enc = "" if res["frame_encoding"] is None else f", frames encoded {res['frame_encoding']}"
-        print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{enc}")
+        imu = f", {res['imu']:,} IMU samples" if res["imu"] else ""
+        print(f"wrote {args.output} ({res['format']}): {res['events']:,} events, {res['triggers']:,} triggers{imu}{enc}")
     if args.frame_encoding is not None and res["frame_encoding"] is None:
         print(f"note: {args.input} has no frames; --frame-encoding {args.frame_encoding} had nothing to apply to",
               file=sys.stderr)

@@ -16,6 +16,8 @@ from .errors import EventValidationError, WindowOutsideDataError
 __all__ = [
     "EVENT_DTYPE",
     "TRIGGER_DTYPE",
+    "IMU_DTYPE",
+    "IMU_FIELDS",
     "SensorSize",
     "make_events",
     "empty_events",
@@ -23,6 +25,8 @@ __all__ = [
     "empty_triggers",
     "validate_events",
     "validate_triggers",
+    "empty_imu",
+    "validate_imu",
     "slice_time",
     "time_window_indices",
     "api_window",
@@ -35,6 +39,23 @@ EVENT_DTYPE = np.dtype([("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1")], 
 
 #: Structured dtype of one trigger edge: ``edge`` is +1 (rising) or -1 (falling).
 TRIGGER_DTYPE = np.dtype([("t", "<i8"), ("channel", "<u2"), ("edge", "i1")], align=True)
+
+#: The measured quantities of one IMU sample, ``(field, unit, dv-processing's dv.IMU name)``: the
+#: accelerometer in g (9.81 m/s²), the gyroscope in degrees per second, the die temperature in
+#: degrees Celsius and the magnetometer in microtesla (zeros when the IMU has none, as DAVIS
+#: cameras report it). The unit is the last part of each name. float32, as the cameras send them.
+IMU_FIELDS = (
+    ("accel_x_g", "g", "accelerometerX"), ("accel_y_g", "g", "accelerometerY"),
+    ("accel_z_g", "g", "accelerometerZ"),
+    ("gyro_x_deg_s", "deg/s", "gyroscopeX"), ("gyro_y_deg_s", "deg/s", "gyroscopeY"),
+    ("gyro_z_deg_s", "deg/s", "gyroscopeZ"),
+    ("temperature_c", "degC", "temperature"),
+    ("mag_x_ut", "uT", "magnetometerX"), ("mag_y_ut", "uT", "magnetometerY"), ("mag_z_ut", "uT", "magnetometerZ"),
+)
+
+#: Structured dtype of one IMU sample: ``t`` int64 µs on the event clock, then the
+#: :data:`IMU_FIELDS` as float32 (48 bytes per record).
+IMU_DTYPE = np.dtype([("t", "<i8")] + [(name, "<f4") for name, _, _ in IMU_FIELDS], align=True)
 
 
 @dataclass(frozen=True)
@@ -126,6 +147,11 @@ def empty_triggers(n: int = 0) -> np.ndarray:
     return np.zeros(n, dtype=TRIGGER_DTYPE)
 
 
+def empty_imu(n: int = 0) -> np.ndarray:
+    """A zero-filled IMU array (``IMU_DTYPE``) of length ``n``."""
+    return np.zeros(n, dtype=IMU_DTYPE)
+
+
 def make_triggers(t, channel, edge) -> np.ndarray:
     """Build a trigger array; ``edge`` > 0 (or True) is rising (+1), else falling (-1)."""
     t = np.asarray(t)
@@ -198,6 +224,30 @@ def validate_triggers(triggers, *, name: str = "triggers") -> np.ndarray:
             i = _first_bad(bad)
             raise EventValidationError(f"{name}['edge'] must be +1 or -1; index {i} has {int(e[i])}")
     return triggers
+
+
+def validate_imu(imu, *, name: str = "imu") -> np.ndarray:
+    """Check an IMU array: dtype ``IMU_DTYPE``, one dimension, non-decreasing ``t``, no infinite
+    value (NaN is allowed: a quantity not measured). Returns it unchanged."""
+    if not isinstance(imu, np.ndarray) or imu.dtype != IMU_DTYPE:
+        got = type(imu).__name__ if not isinstance(imu, np.ndarray) else f"dtype {imu.dtype}"
+        raise TypeError(f"{name} must be an ndarray of dtype IMU_DTYPE, got {got}")
+    if imu.ndim != 1:
+        raise EventValidationError(f"{name} must be 1-D, got shape {imu.shape}")
+    if imu.size:
+        t = imu["t"]
+        dec = t[1:] < t[:-1]
+        if dec.any():
+            i = _first_bad(dec) + 1
+            raise EventValidationError(
+                f"{name}['t'] must be non-decreasing; index {i} has {int(t[i])} after {int(t[i - 1])}")
+        for field, _, _ in IMU_FIELDS:
+            bad = np.isinf(imu[field])
+            if bad.any():
+                i = _first_bad(bad)
+                raise EventValidationError(f"{name}[{field!r}] must be finite (NaN: not measured); index {i} "
+                                           f"has {float(imu[field][i])}")
+    return imu
 
 
 def time_window_indices(t: np.ndarray, t_start_us=None, t_end_us=None) -> tuple[int, int]:

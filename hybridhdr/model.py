@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from ._util.checks import check_shape
-from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers,
-                     slice_time, time_window_indices, validate_events, validate_triggers)
+from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_imu, empty_triggers,
+                     slice_time, time_window_indices, validate_events, validate_imu, validate_triggers)
 
 __all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS", "source_metadata"]
 
@@ -260,7 +260,7 @@ class Metadata:
 
 @dataclass(frozen=True, eq=False)
 class Recording:
-    """A hybrid recording: events, frames, triggers, HDR references and metadata.
+    """A hybrid recording: events, frames, triggers, HDR references, metadata and IMU samples.
 
     Parameters
     ----------
@@ -272,6 +272,10 @@ class Recording:
     triggers : ndarray of shape (M,), dtype TRIGGER_DTYPE
     hdr : HDRReferences, optional
     metadata : Metadata
+    imu : ndarray of shape (L,), dtype IMU_DTYPE
+        Inertial samples (accelerometer, gyroscope, temperature, magnetometer; units in the field
+        names, :data:`hybridhdr.events.IMU_FIELDS`) on the event clock, sorted by ``t``; empty
+        when the source has no IMU. Auxiliary data: it does not widen :meth:`data_span_us`.
     """
 
     events: np.ndarray = field(default_factory=empty_events)
@@ -280,6 +284,7 @@ class Recording:
     triggers: np.ndarray = field(default_factory=empty_triggers)
     hdr: HDRReferences | None = None
     metadata: Metadata = field(default_factory=Metadata)
+    imu: np.ndarray = field(default_factory=empty_imu)
 
     def __post_init__(self):
         ss = SensorSize.from_any(self.sensor_size)
@@ -288,6 +293,7 @@ class Recording:
         object.__setattr__(self, "sensor_size", ss)
         validate_events(self.events, ss, name="recording.events")
         validate_triggers(self.triggers, name="recording.triggers")
+        validate_imu(self.imu, name="recording.imu")
         if ss is not None and self.metadata.event_camera.sensor_size != ss:
             ec = dataclasses.replace(self.metadata.event_camera, sensor_size=ss)
             object.__setattr__(self, "metadata", dataclasses.replace(self.metadata, event_camera=ec))
@@ -331,7 +337,8 @@ class Recording:
         return (min(firsts), max(lasts)) if firsts else None
 
     def slice_time(self, t_start_us=None, t_end_us=None, *, absolute: bool = True) -> "Recording":
-        """Events, triggers and HDR references in ``[t_start_us, t_end_us)``; frames by mid-exposure.
+        """Events, triggers, IMU samples and HDR references in ``[t_start_us, t_end_us)``; frames by
+        mid-exposure.
 
         ``absolute=True`` (default): µs sensor time, as the timestamps are stored.
         ``absolute=False``: µs from the recording's start (:meth:`data_span_us`), as the command
@@ -346,7 +353,8 @@ class Recording:
             hdr = HDRReferences(hdr.images[i0:i1], hdr.t_us[i0:i1])
         return Recording(slice_time(self.events, t_start_us, t_end_us), self.sensor_size,
                          None if self.frames is None else self.frames.slice_time(t_start_us, t_end_us),
-                         slice_time(self.triggers, t_start_us, t_end_us), hdr, self.metadata)
+                         slice_time(self.triggers, t_start_us, t_end_us), hdr, self.metadata,
+                         slice_time(self.imu, t_start_us, t_end_us))
 
 
 def source_metadata(source):

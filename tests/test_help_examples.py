@@ -153,15 +153,18 @@ def test_help_example_runs(name, tmp_path, capsys, monkeypatch):
 
 def _run_server_example(line, repo, capsys):
     """``capture serve-dv`` serves until its clients have everything, then ends its process: it
-    runs as its own process, and ``capture record`` on its three URLs is the client."""
+    runs as its own process, and ``capture record`` on the URLs it prints (port 0: free ports it
+    chose) is the client."""
     import selectors
     import subprocess
     import sys
     import time
 
     pytest.importorskip("dv_processing", reason="dv-processing (the [dv] extra) is not installed")
+    import re
     argv = shlex.split(line)
-    urls = [argv[i + 1] for i, a in enumerate(argv) if a in ("--events", "--frames", "--triggers")]
+    asked = [argv[i + 1] for i, a in enumerate(argv) if a in ("--events", "--frames", "--triggers", "--imu")]
+    urls = None
     env = {**os.environ, "PYTHONPATH": str(REPO_ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     proc = subprocess.Popen([sys.executable, "-m", "hybridhdr", *argv[1:]], cwd=repo, env=env, text=True,
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE)
@@ -173,10 +176,14 @@ def _run_server_example(line, repo, capsys):
             if sel.select(timeout=0.5):
                 got = proc.stderr.readline()
                 if "waiting for clients" in got:
+                    urls = re.findall(r" on (dv-\S+?)[,;]", got)
                     break
                 assert got or proc.poll() is None, f"{line}: the server ended (exit {proc.poll()})"
         else:
             raise AssertionError(f"{line}: the server did not open its sockets")
+        assert len(urls) == len(asked), got
+        for a, u in zip(asked, urls):  # port 0 became a free port, anything else is served as given
+            assert u == a if not a.endswith(":0") else re.fullmatch(r"dv-tcp://127\.0\.0\.1:[1-9]\d*", u), (a, u)
         rec = ["capture", "record", "--out", "served.h5", "--reconnect-s", "1", "--no-progress"]
         for u in urls:
             rec += ["--source", u]
@@ -186,4 +193,4 @@ def _run_server_example(line, repo, capsys):
         if proc.poll() is None:
             proc.kill()
         proc.communicate(timeout=30)
-    assert proc.returncode == 0 and "served 78,830 events, 59 frames, 236 triggers" in served, served
+    assert proc.returncode == 0 and "served 78,830 events, 59 frames, 236 triggers, 2,363 imu" in served, served

@@ -31,8 +31,8 @@ EXAMPLES = {
     "capture session": "hybridhdr capture session session/ --recording rec.h5 --profile crf/camera_profile.json "
                        "--brackets memorial/",
     "capture serve-dv": f"hybridhdr capture serve-dv {_DATA}/aedat4/davis346_street.aedat4 "
-                        "--events dv-tcp://127.0.0.1:7777 --frames dv-tcp://127.0.0.1:7778 "
-                        "--triggers dv-tcp://127.0.0.1:7779 --fast",
+                        "--events dv-tcp://127.0.0.1:0 --frames dv-tcp://127.0.0.1:0 "
+                        "--triggers dv-tcp://127.0.0.1:0 --imu dv-tcp://127.0.0.1:0 --fast",
     "calibrate rig": f"hybridhdr calibrate rig --left '{_DATA}/checkerboard/opencv_stereo/left*.jpg' "
                      f"--right '{_DATA}/checkerboard/opencv_stereo/right*.jpg' --board 9x6 --square-mm 25 "
                      "--out stereo/",

@@ -39,11 +39,11 @@ def add_parser(sub) -> None:
                    help="event source: a file to replay (any readable format), 'synthetic:RATE' (events/s), "
                         "or 'prophesee' / 'device' for a live Prophesee camera")
     r.add_argument("--camera", default=None, metavar="davis[:SERIAL]",
-                   help="a DAVIS or DVXplorer through dv-processing: events, triggers and (DAVIS) frames from one "
-                        "device")
+                   help="a DAVIS or DVXplorer through dv-processing: events, triggers, IMU samples and (DAVIS) "
+                        "frames from one device")
     r.add_argument("--source", action="append", default=[], metavar="URL",
                    help="a DV network stream, dv-tcp://HOST:PORT or dv-unix:///path/to/socket; repeat it, one per "
-                        "stream kind (events, frames, triggers)")
+                        "stream kind (events, frames, triggers, imu)")
     r.add_argument("--frames", default=None,
                    help="frame source: a file to replay, 'oak' / 'device' for a Luxonis OAK, 'pylon[:SERIAL]' for a "
                         "Basler/GenICam camera, or 'none' to leave out a DAVIS's or DV stream's frames")
@@ -118,13 +118,17 @@ def add_parser(sub) -> None:
 
     sv = cs.add_parser("serve-dv", help="serve an AEDAT4 recording as DV network streams (a stand-in for a live DAVIS)",
                        formatter_class=_FMT, parents=[COMMON_NO_JSON],
-                       description="Serve a recording's events, frames and triggers with dv-processing's NetworkWriter, "
+                       description="Serve a recording's events, frames, triggers and IMU samples with dv-processing's "
+                                   "NetworkWriter, "
                                    "one stream per kind, as iniVation's DV software streams a live camera; waits for a "
                                    "client on every stream, then sends in recorded time.")
     sv.add_argument("file", type=Path, help="AEDAT4 recording")
-    sv.add_argument("--events", default=None, metavar="URL", help="dv-tcp://HOST:PORT or dv-unix:///path")
+    sv.add_argument("--events", default=None, metavar="URL",
+                    help="dv-tcp://HOST:PORT or dv-unix:///path; port 0 picks a free port (printed with the others "
+                         "on the 'serving ...' line, for capture record's --source)")
     sv.add_argument("--frames", default=None, metavar="URL")
     sv.add_argument("--triggers", default=None, metavar="URL")
+    sv.add_argument("--imu", default=None, metavar="URL", help="the IMU samples' stream")
     sv.add_argument("--speed", type=positive_float, default=1.0, help="pace (1 = recorded rate)")
     sv.add_argument("--fast", action="store_true", help="send as fast as possible")
     sv.add_argument("--wait-clients-s", type=positive_float, default=60.0, help="how long to wait for clients")
@@ -310,10 +314,11 @@ def _run_record(args) -> int:
                 s.close()
         raise
     print(f"wrote {args.out}: {st.events_written:,} events, {st.triggers_written:,} triggers, "
-          f"{st.frames_written:,} frames in {st.duration_s:.1f} s; {st.flushes} flushes")
+          f"{st.imu_written:,} IMU samples, {st.frames_written:,} frames in {st.duration_s:.1f} s; "
+          f"{st.flushes} flushes")
     if st.dropped_anything or st.frames_missing_by_sequence:
         print(f"WARNING: dropped {st.events_dropped:,} events, {st.triggers_dropped:,} triggers, "
-              f"{st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
+              f"{st.imu_dropped:,} IMU samples, {st.frames_dropped:,} frames (queue full); {st.frames_missing_by_sequence:,} frames missing "
               f"by sequence number; {st.source_dropped:,} items dropped by the sources (out of order or "
               f"their buffer full)", file=sys.stderr)
     for role, c in st.source_counters.items():
@@ -335,11 +340,11 @@ def run_serve_dv(args) -> int:
     import os
 
     from .dv_backend import serve_recording
-    urls = {k: getattr(args, k) for k in ("events", "frames", "triggers") if getattr(args, k)}
+    urls = {k: getattr(args, k) for k in ("events", "frames", "triggers", "imu") if getattr(args, k)}
     if not urls:
-        raise ValueError("give at least one of --events URL, --frames URL, --triggers URL")
-    def ready():  # the sockets listen now
-        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in urls.items())}; waiting for clients",
+        raise ValueError("give at least one of --events URL, --frames URL, --triggers URL, --imu URL")
+    def ready(served):  # the sockets listen now (port 0 resolved to the free port chosen)
+        print(f"serving {args.file}: {', '.join(f'{k} on {v}' for k, v in served.items())}; waiting for clients",
               file=sys.stderr, flush=True)
     counts = serve_recording(args.file, urls, speed=None if args.fast else args.speed,
                              wait_clients_s=args.wait_clients_s, on_ready=ready)
@@ -502,7 +507,7 @@ def run_recover(args) -> int:
     with allow_huge(args.allow_huge):
         res = recover(args.file, args.out, compression=_comp(args.compression), progress=not args.no_progress)
     print(f"recovered {res['output']}: {res['events']:,} events, {res['triggers']:,} triggers, "
-          f"{res['frames']:,} frames; {res['flushes']} flushes in the journal, "
+          f"{res['imu']:,} IMU samples, {res['frames']:,} frames; {res['flushes']} flushes in the journal, "
           f"{res['events_after_last_flush']:,} events after the last flush were intact; stopped at: "
           f"{res['stop_reason']}")
     if not args.keep_journal:

@@ -27,7 +27,11 @@ Conversions (``docs/conventions.md``), the same as the AEDAT4 reader's
   (``TIMESTAMP_RESET`` is counted, not stored);
 * frames: ``dv::Frame.timestamp`` is the start of exposure, so the exposure interval is
   ``[timestamp, timestamp + exposure)``; colour frames arrive BGR and are stored RGB; a frame
-  smaller than the stream resolution (an ROI) is pasted at its position into a zero image.
+  smaller than the stream resolution (an ROI) is pasted at its position into a zero image;
+* IMU: ``dv.IMU`` -> ``IMU_DTYPE`` (:func:`imu_from_dv`): ``timestamp`` µs -> ``t``, the
+  accelerometer (g), gyroscope (°/s), temperature (°C) and magnetometer (µT) float32 values into the
+  fields named with those units (:data:`hybridhdr.events.IMU_FIELDS`), bit for bit. They travel
+  with the event source's chunks (``EventChunk.imu``) into the recording (``Recording.imu``).
 
 Nothing is lost silently:
 
@@ -37,10 +41,12 @@ Nothing is lost silently:
   each reconnection is a *restart*;
 * data whose timestamps go back in time (a timestamp reset, a restarted camera, a stream replayed
   from its start) cannot be appended to a recording whose time must not decrease; such events,
-  triggers and frames are dropped and counted (``events_out_of_order`` ...), never written out of
-  order;
-* IMU samples are counted (``imu_samples``); the recording container has no IMU table, so they are
-  not stored.
+  triggers, IMU samples and frames are dropped and counted (``events_out_of_order``,
+  ``imu_out_of_order`` ...), never written out of order;
+* IMU samples received are counted (``imu_samples``); those a full buffer drops are counted
+  (``imu_dropped_in_buffer``) as for the other kinds, samples with an infinite reading (which
+  the container refuses) are dropped and counted (``imu_not_finite``), and the recorder counts
+  what it stores (``imu_written``).
 
 The counts are in :meth:`DvEventSource.counters` / :meth:`DvFrameSource.counters`, which the
 recorder copies into every flush record and the recording's provenance.
@@ -61,14 +67,14 @@ from urllib.parse import urlparse
 
 import numpy as np
 
-from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_triggers
+from ..events import EVENT_DTYPE, IMU_DTYPE, IMU_FIELDS, TRIGGER_DTYPE, SensorSize, empty_imu, empty_triggers
 from ..formats import EventChunk
 from ..formats.aedat4 import TRIGGER_TYPE_MAP
 from .devices import NoDeviceFound
 from .sources import EventSource, FrameItem, FrameSource
 
 __all__ = ["dv_available", "DvInput", "DvCapture", "DvEventSource", "DvFrameSource", "parse_dv_source",
-           "list_dv_cameras", "DV_SCHEMES", "HostClockSamples"]
+           "list_dv_cameras", "DV_SCHEMES", "HostClockSamples", "resolve_free_ports"]
 
 log = logging.getLogger(__name__)
 
@@ -135,6 +141,22 @@ def triggers_from_dv(batch) -> tuple[np.ndarray, int]:
     if len(out) > 1 and np.any(out["t"][1:] < out["t"][:-1]):
         out = out[np.argsort(out["t"], kind="stable")]
     return out, int(n - keep.sum())
+
+
+def imu_from_dv(batch) -> np.ndarray:
+    """A dv IMU vector (``dv.IMU`` objects) -> ``IMU_DTYPE`` array, sorted by time (stable)."""
+    n = len(batch)
+    out = np.empty(n, IMU_DTYPE)
+    cols = [(out[name], dv_name) for name, _, dv_name in IMU_FIELDS]
+    t = out["t"]
+    for k in range(n):
+        s = batch[k]
+        t[k] = int(s.timestamp)
+        for col, dv_name in cols:
+            col[k] = getattr(s, dv_name)
+    if n > 1 and np.any(t[1:] < t[:-1]):
+        out = out[np.argsort(t, kind="stable")]
+    return out
 
 
 def frame_from_dv(frame, size: SensorSize | None, sequence: int) -> FrameItem:
@@ -371,7 +393,8 @@ class DvCapture:
         self._lock = threading.Lock()
         self.counters = {"interruptions": 0, "restarts": 0, "ended": 0, "gaps_us": [], "imu_samples": 0,
                          "timestamp_resets": 0, "events_dropped_in_buffer": 0, "triggers_dropped_in_buffer": 0,
-                         "frames_dropped_in_buffer": 0, "frames_not_recorded": 0, "interruption_log": []}
+                         "imu_dropped_in_buffer": 0, "imu_not_finite": 0, "frames_dropped_in_buffer": 0, "frames_not_recorded": 0,
+                         "interruption_log": []}
         self.clock = {"events": HostClockSamples(), "frames": HostClockSamples()}
         self.errors: list[BaseException] = []
         self._want_frames = False  # set by frame_source(): frames are buffered only when recorded
@@ -385,7 +408,7 @@ class DvCapture:
             inp.open()
         self._apply_controls()
         self._classify()
-        self._queues = {k: queue.Queue(self.buffer_items) for k in ("events", "triggers", "frames")}
+        self._queues = {k: queue.Queue(self.buffer_items) for k in ("events", "triggers", "imu", "frames")}
         self._pumps = [threading.Thread(target=self._pump, args=(inp,), name=f"dv-pump-{k}", daemon=True)
                        for k, inp in enumerate(self.inputs)]
         for t in self._pumps:
@@ -424,7 +447,7 @@ class DvCapture:
         for inp in self.inputs:
             for k in inp.kinds():
                 self.kinds.setdefault(k, []).append(inp)
-        for k in ("events", "frames"):
+        for k in ("events", "frames", "imu"):
             if len(self.kinds.get(k, [])) > 1:
                 raise ValueError(f"{len(self.kinds[k])} inputs carry {k} ({[i.spec for i in self.kinds[k]]}); "
                                  f"give one {k} stream per recording")
@@ -519,8 +542,15 @@ class DvCapture:
                 if "imu" in kinds:
                     m = r.getNextImuBatch()
                     if m is not None and len(m):
+                        a = imu_from_dv(m)
+                        bad = np.any([np.isinf(a[name]) for name, _, _ in IMU_FIELDS], axis=0)
                         with self._lock:
-                            self.counters["imu_samples"] += len(m)
+                            self.counters["imu_samples"] += len(a)
+                            self.counters["imu_not_finite"] += int(bad.sum())
+                        if bad.any():  # an infinite reading cannot be stored; counted, never silent
+                            a = a[~bad]
+                        if len(a):
+                            self._put("imu", a, len(a))
                         got = True
                 if got:
                     continue
@@ -532,7 +562,7 @@ class DvCapture:
         except BaseException as e:  # reported by the sources
             self.errors.append(e)
         finally:
-            for k in kinds & {"events", "triggers", "frames"}:
+            for k in kinds & {"events", "triggers", "imu", "frames"}:
                 while True:  # waits only while a consumer drains; after close() nobody needs it
                     try:
                         self._queues[k].put(_END, timeout=0.05)
@@ -588,10 +618,12 @@ class _DvSourceMixin:
 
 
 class DvEventSource(_DvSourceMixin, EventSource):
-    """Events (and the triggers of every trigger input, merged in) of a :class:`DvCapture`.
+    """Events, with the triggers of every trigger input and the IMU samples of the IMU input handed
+    over in the same chunks (``EventChunk.triggers``, ``EventChunk.imu``), of a :class:`DvCapture`.
 
-    Ends when the event input ends (after its reconnection window). Events and triggers whose
-    timestamps go back are dropped and counted (``events_out_of_order``, ``triggers_out_of_order``).
+    Ends when the event input ends (after its reconnection window). Events, triggers and IMU
+    samples whose timestamps go back are dropped and counted (``events_out_of_order``,
+    ``triggers_out_of_order``, ``imu_out_of_order``).
     """
 
     #: the pump threads buffer (and count what their full buffer drops), so the recorder may make
@@ -601,7 +633,7 @@ class DvEventSource(_DvSourceMixin, EventSource):
     def __init__(self, capture: DvCapture):
         super().__init__()
         self.capture = capture
-        self._own = {"events_out_of_order": 0, "triggers_out_of_order": 0, "batches": 0}
+        self._own = {"events_out_of_order": 0, "triggers_out_of_order": 0, "imu_out_of_order": 0, "batches": 0}
 
     def open(self):
         self.capture.open()
@@ -622,29 +654,36 @@ class DvEventSource(_DvSourceMixin, EventSource):
     def clock_samples(self) -> dict:
         return self.capture.clock["events"].to_dict()
 
-    def _drain_triggers(self, last_t, final=False):
+    def _drain(self, kind, last_t):
+        """What the ``kind`` ("triggers" or "imu") queue holds now, without what goes back in time."""
         out = []
-        q = self.capture._queues["triggers"] if "triggers" in self.capture.kinds else None
+        q = self.capture._queues[kind] if kind in self.capture.kinds else None
         while q is not None:
             try:
                 a = q.get_nowait()
             except queue.Empty:
                 break
             if a is _END:
-                self._tr_done = True
+                self._aux_done[kind] = True
                 continue
             if last_t is not None and len(a) and a["t"][0] < last_t:
                 bad = a["t"] < last_t
-                self._own["triggers_out_of_order"] += int(bad.sum())
+                self._own[f"{kind}_out_of_order"] += int(bad.sum())
                 a = a[~bad]
             if len(a):
                 last_t = int(a["t"][-1])
                 out.append(a)
         return out, last_t
 
+    def _drain_aux(self, last, got):
+        for kind in ("triggers", "imu"):
+            more, last[kind] = self._drain(kind, last[kind])
+            got[kind] += more
+
     def _iter(self):
-        last_ev = last_tr = None
-        self._tr_done = "triggers" not in self.capture.kinds
+        last_ev = None
+        last = {"triggers": None, "imu": None}
+        self._aux_done = {k: k not in self.capture.kinds for k in ("triggers", "imu")}
         while not self.stopped:
             self._check_errors()
             a = self._get("events")
@@ -662,21 +701,23 @@ class DvEventSource(_DvSourceMixin, EventSource):
                 if len(a):
                     last_ev = int(a["t"][-1])
                     evs.append(a)
-            if done and not self._tr_done:  # the event stream ended: wait briefly for the trigger input's end
+            got = {"triggers": [], "imu": []}
+            if done and not all(self._aux_done.values()):
+                # the event stream ended: wait briefly for the trigger and IMU inputs' ends
                 t_end = time.monotonic() + self.capture.reconnect_timeout_s + 1.0
-                trs = []
-                while not self._tr_done and time.monotonic() < t_end and not self.stopped:
-                    more, last_tr = self._drain_triggers(last_tr)
-                    trs += more
-                    if not self._tr_done:
+                while not all(self._aux_done.values()) and time.monotonic() < t_end and not self.stopped:
+                    self._drain_aux(last, got)
+                    if not all(self._aux_done.values()):
                         time.sleep(0.01)
             else:
-                trs, last_tr = self._drain_triggers(last_tr)
-            if evs or trs:
+                self._drain_aux(last, got)
+            trs, ims = got["triggers"], got["imu"]
+            if evs or trs or ims:
                 ev = evs[0] if evs else np.zeros(0, EVENT_DTYPE)
                 tr = np.concatenate(trs) if len(trs) > 1 else (trs[0] if trs else empty_triggers())
+                im = np.concatenate(ims) if len(ims) > 1 else (ims[0] if ims else empty_imu())
                 self._own["batches"] += 1
-                yield EventChunk(ev, tr)
+                yield EventChunk(ev, tr, im)
             if done:
                 return
 
@@ -755,36 +796,72 @@ def _remove_stale_socket(path: str) -> None:
     raise FileExistsError(f"{path}: another server is listening on this socket")
 
 
+def resolve_free_ports(urls: dict) -> dict:
+    """``urls`` with every ``dv-tcp://HOST:0`` given a free port of HOST (distinct ones: the probe
+    sockets are held together), so a server started with port 0 never collides with another.
+
+    dv-processing's ``NetworkWriter`` cannot say which port the system gave it, so the port is
+    chosen here and handed to it; another program could take it in between (then the writer fails
+    with an error naming the URL, never silently)."""
+    import socket
+    out, socks = dict(urls), []
+    try:
+        for k, url in urls.items():
+            kind, where = parse_dv_source(url)
+            if kind == "tcp" and int(where[1]) == 0:
+                fam = socket.AF_INET6 if ":" in where[0] else socket.AF_INET
+                sk = socket.socket(fam, socket.SOCK_STREAM)
+                socks.append(sk)
+                sk.bind((where[0], 0))
+                host = f"[{where[0]}]" if fam == socket.AF_INET6 else where[0]
+                out[k] = f"dv-tcp://{host}:{sk.getsockname()[1]}"
+    finally:
+        for sk in socks:
+            sk.close()
+    return out
+
+
 def _writer(dv, url: str, stream):
     kind, where = parse_dv_source(url)
-    if kind == "unix":
-        _remove_stale_socket(where)
-        return dv.io.NetworkWriter(dv.Path(where), stream)
-    return dv.io.NetworkWriter(where[0], int(where[1]), stream)
+    try:
+        if kind == "unix":
+            _remove_stale_socket(where)
+            return dv.io.NetworkWriter(dv.Path(where), stream)
+        return dv.io.NetworkWriter(where[0], int(where[1]), stream)
+    except RuntimeError as e:
+        reason = str(e).split(" [", 1)[0]  # dv-processing appends the C++ source location
+        hint = "; another program listens there: pick another port, or port 0 for a free one" \
+            if "in use" in reason else ""
+        raise OSError(f"{url}: cannot serve a DV stream there ({reason}){hint}") from None
 
 
 def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients_s: float = 30.0,
                     t_from_us: int | None = None, t_to_us: int | None = None, on_ready=None,
                     linger_s: float = 0.5) -> dict:
-    """Serve an AEDAT4 recording's events, frames and triggers as DV network streams.
+    """Serve an AEDAT4 recording's events, frames, triggers and IMU samples as DV network streams.
 
     The stand-in for a live DAVIS behind iniVation's DV software: one ``dv.io.NetworkWriter`` per
-    kind in ``urls`` (``{"events": URL, "frames": URL, "triggers": URL}``, URLs as for ``--source``).
+    kind in ``urls`` (``{"events": URL, "frames": URL, "triggers": URL, "imu": URL}``, any subset
+    with events, URLs as for ``--source``).
     Waits until every stream has a client (data written with no client is lost), then writes each
     packet when the (scaled) clock reaches its LAST timestamp (a frame: its exposure end), as a
     camera delivers a packet once it is complete, at ``speed`` × the recorded rate (``None``: as
     fast as possible), and waits until every queued packet has been sent.
 
-    ``t_from_us`` / ``t_to_us`` serve only ``[t_from_us, t_to_us)`` (events, triggers and frame
-    starts), e.g. to stop a stream part-way and restart it where it stopped.
+    A TCP URL with port 0 is served on a free port (:func:`resolve_free_ports`); ``on_ready`` is
+    called as ``on_ready()`` or, if it takes one argument, ``on_ready(urls)`` with the URLs served.
+
+    ``t_from_us`` / ``t_to_us`` serve only ``[t_from_us, t_to_us)`` (events, triggers, IMU samples
+    and frame starts), e.g. to stop a stream part-way and restart it where it stopped.
 
     Returns the counts served by kind. The writers are left to the caller's process exit: a
     ``NetworkWriter`` whose client is still connected blocks in its destructor.
     """
     dv = _dv()
-    unknown = set(urls) - {"events", "frames", "triggers"}
+    unknown = set(urls) - {"events", "frames", "triggers", "imu"}
     if unknown:
-        raise ValueError(f"serve_recording serves events, frames and triggers; got {sorted(unknown)}")
+        raise ValueError(f"serve_recording serves events, frames, triggers and imu; got {sorted(unknown)}")
+    urls = resolve_free_ports(urls)
     rec = dv.io.MonoCameraRecording(str(path))
     name = rec.getCameraName()
     writers = {}
@@ -798,6 +875,10 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
             if not rec.isFrameStreamAvailable():
                 raise ValueError(f"{path}: no frame stream to serve")
             st = dv.io.Stream.FrameStream(sid, "frames", name, rec.getFrameResolution())
+        elif kind == "imu":
+            if not rec.isImuStreamAvailable():
+                raise ValueError(f"{path}: no IMU stream to serve")
+            st = dv.io.Stream.IMUStream(sid, "imu", name)
         else:
             if not rec.isTriggerStreamAvailable():
                 raise ValueError(f"{path}: no trigger stream to serve")
@@ -805,7 +886,12 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
         writers[kind] = _writer(dv, url, st)
         sid += 1
     if on_ready is not None:
-        on_ready()
+        import inspect
+        try:
+            takes_urls = len(inspect.signature(on_ready).parameters) >= 1
+        except (TypeError, ValueError):
+            takes_urls = False
+        on_ready(dict(urls)) if takes_urls else on_ready()
     t_end = time.monotonic() + wait_clients_s
     while any(w.getClientCount() < 1 for w in writers.values()):
         if time.monotonic() > t_end:
@@ -847,8 +933,22 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
             if keep:
                 yield int(keep[-1].timestamp), "triggers", t
 
+    def imu():
+        while True:
+            m = rec.getNextImuBatch()
+            if m is None:
+                return
+            keep = [x for x in m if lo <= x.timestamp < hi]
+            if len(keep) < len(m):
+                iv = dv.IMUPacket.ImuVector()
+                for x in keep:
+                    iv.append(x)
+                m = iv
+            if keep:
+                yield int(keep[-1].timestamp), "imu", m
+
     import heapq
-    gens = {"events": events, "frames": frames, "triggers": triggers}
+    gens = {"events": events, "frames": frames, "triggers": triggers, "imu": imu}
     merged = heapq.merge(*(gens[k]() for k in writers), key=lambda v: v[0])
     counts = {k: 0 for k in writers}
     wall0 = t0 = None
@@ -866,6 +966,9 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
         elif kind == "frames":
             w.writeFrame(obj)
             counts[kind] += 1
+        elif kind == "imu":
+            w.writeImu(obj)
+            counts[kind] += len(obj)
         else:
             w.writeTriggers(obj)
             counts[kind] += len(obj)

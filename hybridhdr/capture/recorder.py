@@ -26,7 +26,10 @@ header ``<I B B H Q Q I I>`` (sync word 0x4A524543, type, flags (bit 0: payload 
 reserved, stored payload length, raw payload length, CRC-32 of the stored payload, CRC-32 of the
 first 28 header bytes) followed by the payload. Types: 1 HEADER (JSON), 2 EVENTS (u64 n, columns
 t i8, x u2, y u2, p i1), 3 TRIGGERS (u64 n, columns t i8, channel u2, edge i1), 4 FRAME (u32 JSON
-length, JSON, pixel bytes), 5 FLUSH (JSON cumulative counts), 6 END (JSON final stats).
+length, JSON, pixel bytes), 5 FLUSH (JSON cumulative counts), 6 END (JSON final stats), 7 IMU (u64
+n, columns t i8 then the ``IMU_FIELDS`` as f4, in that order). IMU samples come in the event
+source's chunks (:attr:`~hybridhdr.formats.EventChunk.imu`), are journaled, recovered and
+counted (``imu_written``, ``imu_dropped``) like triggers.
 """
 
 from __future__ import annotations
@@ -48,7 +51,7 @@ import numpy as np
 
 from .._version import __version__
 from ..errors import FormatError
-from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize
+from ..events import EVENT_DTYPE, IMU_DTYPE, TRIGGER_DTYPE, SensorSize
 from ..formats.container import RecordingWriter
 from ..model import Frames, Metadata
 from .sources import FrameItem
@@ -62,7 +65,9 @@ ON_FULL_POLICIES = ("auto", "block", "drop")
 _MAGIC = b"HHDRJNL1"
 _SYNC = 0x4A524543
 _HDR = struct.Struct("<IBBHQQII")
-T_HEADER, T_EVENTS, T_TRIGGERS, T_FRAME, T_FLUSH, T_END = 1, 2, 3, 4, 5, 6
+T_HEADER, T_EVENTS, T_TRIGGERS, T_FRAME, T_FLUSH, T_END, T_IMU = 1, 2, 3, 4, 5, 6, 7
+_IMU_COLUMNS = tuple((name, IMU_DTYPE[name]) for name in IMU_DTYPE.names)  # t, then the IMU_FIELDS
+_IMU_RECORD_BYTES = sum(dt.itemsize for _, dt in _IMU_COLUMNS)
 _F_LZ4 = 1
 
 
@@ -135,6 +140,10 @@ class JournalWriter:
         n = len(tr)
         parts = [struct.pack("<Q", n)] + [np.ascontiguousarray(tr[k]).tobytes() for k in ("t", "channel", "edge")]
         self._record(T_TRIGGERS, b"".join(parts))
+
+    def write_imu(self, imu: np.ndarray) -> None:
+        parts = [struct.pack("<Q", len(imu))] + [np.ascontiguousarray(imu[k]).tobytes() for k, _ in _IMU_COLUMNS]
+        self._record(T_IMU, b"".join(parts))
 
     def write_frame(self, item) -> None:
         im = np.ascontiguousarray(item.image)
@@ -219,6 +228,16 @@ def _decode(rtype: int, payload: bytes):
             tr[name] = np.frombuffer(payload, dtype=TRIGGER_DTYPE[name], count=n, offset=o)
             o += size * n
         return tr
+    if rtype == T_IMU:
+        n = struct.unpack_from("<Q", payload, 0)[0]
+        if len(payload) != 8 + _IMU_RECORD_BYTES * n:
+            raise ValueError(f"IMU record holds {len(payload)} bytes, expected {8 + _IMU_RECORD_BYTES * n}")
+        imu = np.empty(n, IMU_DTYPE)
+        o = 8
+        for name, dt in _IMU_COLUMNS:
+            imu[name] = np.frombuffer(payload, dtype=dt, count=n, offset=o)
+            o += dt.itemsize * n
+        return imu
     if rtype == T_FRAME:
         ml = struct.unpack_from("<I", payload, 0)[0]
         if 4 + ml > len(payload):
@@ -351,6 +370,8 @@ class RecorderStats:
     event_chunks_dropped: int = 0
     triggers_written: int = 0
     triggers_dropped: int = 0
+    imu_written: int = 0
+    imu_dropped: int = 0
     frames_received: int = 0
     frames_written: int = 0
     frames_dropped: int = 0
@@ -371,15 +392,15 @@ class RecorderStats:
 
     @property
     def dropped_anything(self) -> bool:
-        return bool(self.events_dropped or self.triggers_dropped or self.frames_dropped
+        return bool(self.events_dropped or self.triggers_dropped or self.imu_dropped or self.frames_dropped
                     or self.source_dropped)
 
     @property
     def source_dropped(self) -> int:
         """Items the sources dropped themselves: timestamps going back (a reset or a restart), or their
-        own buffer full."""
+        own buffer full, or a reading that cannot be stored (an infinite IMU value)."""
         return sum(int(v) for c in self.source_counters.values() for k, v in c.items()
-                   if k.endswith(("_out_of_order", "_dropped_in_buffer")))
+                   if k.endswith(("_out_of_order", "_dropped_in_buffer", "_not_finite")))
 
     @property
     def stream_interruptions(self) -> int:
@@ -472,6 +493,7 @@ class Recorder:
         self._finished = False
         self._last_drop_log = 0.0
         self._last_seq = None
+        self._imu_last = None
 
     # -- policy --------------------------------------------------------------------------------
     def _policy_for(self, source) -> str:
@@ -483,7 +505,7 @@ class Recorder:
                              f"{type(source).__name__} is live (use 'drop' or 'auto')")
         return self.on_full
 
-    def _put(self, item, policy: str, kind: str, n_events: int = 0, n_trig: int = 0) -> None:
+    def _put(self, item, policy: str, kind: str, n_events: int = 0, n_trig: int = 0, n_imu: int = 0) -> None:
         if policy == "block":
             while not self._stop.is_set():
                 try:
@@ -493,33 +515,34 @@ class Recorder:
                     continue
             else:
                 # stopping while blocked: the item was never accepted -> count it, never silent
-                self._count_drop(kind, n_events, n_trig)
+                self._count_drop(kind, n_events, n_trig, n_imu)
                 return
         else:
             try:
                 self._q.put_nowait(item)
             except queue.Full:
-                self._count_drop(kind, n_events, n_trig)
+                self._count_drop(kind, n_events, n_trig, n_imu)
                 return
         d = self._q.qsize()
         if d > self.stats.max_queue_depth:
             self.stats.max_queue_depth = d
 
-    def _count_drop(self, kind, n_events, n_trig):
+    def _count_drop(self, kind, n_events, n_trig, n_imu=0):
         with self._lock:
             s = self.stats
             if kind == "events":
                 s.events_dropped += n_events
                 s.triggers_dropped += n_trig
+                s.imu_dropped += n_imu
                 s.event_chunks_dropped += 1
             else:
                 s.frames_dropped += 1
             now = time.monotonic()
             if now - self._last_drop_log > 1.0:
                 self._last_drop_log = now
-                log.warning("recorder queue full: dropped so far %d events, %d triggers, %d frames "
-                            "(writer cannot keep up; see stats)", s.events_dropped, s.triggers_dropped,
-                            s.frames_dropped)
+                log.warning("recorder queue full: dropped so far %d events, %d triggers, %d IMU samples, %d "
+                            "frames (writer cannot keep up; see stats)", s.events_dropped, s.triggers_dropped,
+                            s.imu_dropped, s.frames_dropped)
 
     # -- threads -------------------------------------------------------------------------------
     def _run_events(self):
@@ -528,10 +551,11 @@ class Recorder:
         try:
             for chunk in src:
                 n, m = len(chunk.events), len(chunk.triggers)
+                k = len(getattr(chunk, "imu", ()))
                 with self._lock:
                     self.stats.events_received += n
-                if n or m:
-                    self._put(("ev", chunk), policy, "events", n, m)
+                if n or m or k:
+                    self._put(("ev", chunk), policy, "events", n, m, k)
                 if self._stop.is_set():
                     break
         except BaseException as e:  # reported by finish()
@@ -592,6 +616,11 @@ class Recorder:
                         if len(obj.triggers):
                             jw.write_triggers(obj.triggers)
                             s.triggers_written += len(obj.triggers)
+                        imu = getattr(obj, "imu", None)
+                        if imu is not None and len(imu):
+                            self._check_imu(imu)
+                            jw.write_imu(imu)
+                            s.imu_written += len(imu)
                     else:
                         if self._last_seq is not None and obj.sequence > self._last_seq + 1:
                             s.frames_missing_by_sequence += obj.sequence - self._last_seq - 1
@@ -612,6 +641,17 @@ class Recorder:
                         break
                 except queue.Empty:
                     break
+
+    def _check_imu(self, imu) -> None:
+        """IMU samples a source hands over must be valid and continue the time order: refused here,
+        while recording (the error stops it; the journal keeps what came before), not when the
+        container is written."""
+        from ..events import validate_imu
+        validate_imu(imu, name=f"{type(self.event_source).__name__}'s IMU samples")
+        if self._imu_last is not None and imu["t"][0] < self._imu_last:
+            raise ValueError(f"{type(self.event_source).__name__} handed over IMU samples out of time order: "
+                             f"{int(imu['t'][0])} µs after {self._imu_last} µs")
+        self._imu_last = int(imu["t"][-1])
 
     # -- public --------------------------------------------------------------------------------
     def start(self) -> "Recorder":
@@ -718,9 +758,9 @@ class Recorder:
         self.journal_path.unlink()
         self._jw.release_lock()
         if self.stats.dropped_anything:
-            log.warning("recording %s: %d events, %d triggers and %d frames were dropped (queue full)",
-                        self.path, self.stats.events_dropped, self.stats.triggers_dropped,
-                        self.stats.frames_dropped)
+            log.warning("recording %s: %d events, %d triggers, %d IMU samples and %d frames were dropped "
+                        "(queue full)", self.path, self.stats.events_dropped, self.stats.triggers_dropped,
+                        self.stats.imu_dropped, self.stats.frames_dropped)
         return self.stats
 
     def record(self, duration_s: float | None = None) -> RecorderStats:
@@ -773,7 +813,7 @@ def _convert(jpath: Path, out: Path, *, compression="gzip", progress=False, fina
         from tqdm import tqdm
         bar = tqdm(total=jpath.stat().st_size, unit="B", unit_scale=True, desc=f"finish {out.name}",
                    file=sys.stderr, dynamic_ncols=True)
-    state = {"has_iso": None, "has_gain": None, "events": 0, "frames": 0, "triggers": 0}
+    state = {"has_iso": None, "has_gain": None, "events": 0, "frames": 0, "triggers": 0, "imu": 0}
 
     with RecordingWriter(out, ss, md, compression=compression) as w:
         def on_record(rtype, obj):
@@ -785,6 +825,9 @@ def _convert(jpath: Path, out: Path, *, compression="gzip", progress=False, fina
             elif rtype == T_TRIGGERS:
                 w.write_triggers(obj)
                 state["triggers"] += len(obj)
+            elif rtype == T_IMU:
+                w.write_imu(obj)
+                state["imu"] += len(obj)
             elif rtype == T_FRAME:
                 meta, im = obj
                 if state["has_iso"] is None:
@@ -821,7 +864,7 @@ def recover(path, out=None, *, compression="gzip", progress: bool = False) -> di
     Returns
     -------
     dict
-        Counts recovered (``events``, ``triggers``, ``frames``), the number of flushes, the events
+        Counts recovered (``events``, ``triggers``, ``imu``, ``frames``), the number of flushes, the events
         after the last flush that were intact, the reason reading stopped and the output path.
     """
     jp = journal_path(path)
@@ -838,7 +881,7 @@ def recover(path, out=None, *, compression="gzip", progress: bool = False) -> di
     # a stale REC.h5.partial of an interrupted finish is removed by the writer (its lock is free);
     # one a live run holds, a symlink or a user's file there is refused (docs/security.md)
     state, contents = _convert(jp, out, compression=compression, progress=progress, recovered=True)
-    return {"output": str(out), "events": state["events"], "triggers": state["triggers"],
+    return {"output": str(out), "events": state["events"], "triggers": state["triggers"], "imu": state["imu"],
             "frames": state["frames"], "flushes": contents.flushes,
             "events_after_last_flush": contents.events_after_last_flush,
             "last_flush_events": None if contents.last_flush is None else contents.last_flush.get("events_written"),

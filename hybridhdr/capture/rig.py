@@ -103,4 +103,4 @@ def host_clock_sync_recording(rec: Recording) -> tuple[Recording, HostSyncReport
     frames, rep = host_clock_sync(rec.frames, ev["data_us"], ev["host_us"], frame_timestamp_source=fsrc)
     md = Metadata(rec.metadata.event_camera, rec.metadata.frame_camera, rec.metadata.calibration,
                   {**prov, "host_clock_sync": rep.to_dict()})
-    return Recording(rec.events, rec.sensor_size, frames=frames, triggers=rec.triggers, metadata=md), rep
+    return Recording(rec.events, rec.sensor_size, frames=frames, triggers=rec.triggers, metadata=md, imu=rec.imu), rep

@@ -1,7 +1,7 @@
 """Live and replayed data sources: iterators of timestamped event chunks and frames.
 
 An :class:`EventSource` yields :class:`~hybridhdr.formats.EventChunk` objects (sorted events plus the
-trigger edges that arrived with them); a :class:`FrameSource` yields :class:`FrameItem` objects (one
+trigger edges and, from a live DAVIS, the IMU samples that arrived with them); a :class:`FrameSource` yields :class:`FrameItem` objects (one
 image with its exposure interval, exposure, ISO/gain and the camera's sequence number). Both are
 context managers (``open``/``close``), describe their device with :meth:`device_info`, and stop
 early when :meth:`stop` is called from another thread (the recorder does this).

@@ -295,4 +295,5 @@ def sync_recording(recording, *, channel: int = 0, **kwargs):
     prov = dict(md.provenance)
     prov["sync"] = report.to_dict()
     md = Metadata(md.event_camera, md.frame_camera, md.calibration, prov)
-    return Recording(recording.events, recording.sensor_size, frames, recording.triggers, recording.hdr, md), report
+    return Recording(recording.events, recording.sensor_size, frames, recording.triggers, recording.hdr, md,
+                     recording.imu), report

@@ -1,4 +1,4 @@
-"""iniVation AEDAT 4.0 reader (events, triggers and frames) with a bounds-checked decoder.
+"""iniVation AEDAT 4.0 reader (events, triggers, frames and IMU) with a bounds-checked decoder.
 
 Layout (iniVation "AEDAT 4.0" documentation and the dv FlatBuffers schemas ``IOHeader.fbs``,
 ``events.fbs``, ``frame.fbs``, ``trigger.fbs``, ``FileDataTable.fbs``):
@@ -13,7 +13,9 @@ Layout (iniVation "AEDAT 4.0" documentation and the dv FlatBuffers schemas ``IOH
 * ``EVTS``: ``elements: [Event]``, ``Event = {int64 timestamp, int16 x, int16 y, bool polarity}``
   (16-byte structs); ``TRIG``: ``elements: [Trigger]``, ``Trigger`` a table
   ``{timestamp: int64, type: int8}``; ``FRME``: one ``Frame`` table (timestamps, OpenCV-style format, size,
-  position, ``pixels``, ``exposure``);
+  position, ``pixels``, ``exposure``); ``IMUS``: ``elements: [IMU]``, ``IMU`` a table ``{timestamp:
+  int64, temperature, accelerometerX..Z, gyroscopeX..Z, magnetometerX..Z: float}`` (°C, g, °/s, µT:
+  dv's ``imu.fbs``);
 * the file data table (``FTAB``) after ``dataTablePosition`` is not needed and not read.
 
 The packets are parsed here in Python/NumPy with every offset and length checked, because the
@@ -34,9 +36,12 @@ Conversions (see ``docs/conventions.md``):
   (H, W, 3) converted from the stored BGR to RGB (alpha dropped); 8- and 16-bit depths are kept.
   Frames smaller than the stream resolution (an ROI) are pasted at their position into a zero
   image of the stream size.
+* IMU samples -> ``IMU_DTYPE`` (:meth:`Aedat4Reader.read_imu`, ``Recording.imu``): ``timestamp``
+  -> ``t`` unchanged, the float32 quantities copied bit for bit into the fields of the same
+  quantity (:data:`hybridhdr.events.IMU_FIELDS`), sorted by time (stable) if a packet is not.
 
-Only the first event, frame and trigger stream are read (options ``event_stream``,
-``frame_stream``, ``trigger_stream`` take a stream id to choose another).
+Only the first event, frame, trigger and IMU stream are read (options ``event_stream``,
+``frame_stream``, ``trigger_stream``, ``imu_stream`` take a stream id to choose another).
 """
 
 from __future__ import annotations
@@ -52,7 +57,8 @@ import numpy as np
 from .._util.limits import (LIMITS, OVERRIDE_HINT, LimitExceeded, check_frame_bytes, check_sensor_size,
                         huge_allowed)
 from ..errors import FormatError
-from ..events import EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_triggers
+from ..events import (EVENT_DTYPE, IMU_DTYPE, IMU_FIELDS, TRIGGER_DTYPE, SensorSize, empty_events, empty_imu,
+                      empty_triggers)
 from ..model import CameraInfo, Frames, Metadata
 from .base import EventChunk, EventFileReader, register_formats
 
@@ -78,6 +84,11 @@ TRIGGER_TYPE_MAP: dict[int, tuple[int, int]] = {
 }
 
 _COMPRESSION = {0: "NONE", 1: "LZ4", 2: "LZ4_HIGH", 3: "ZSTD", 4: "ZSTD_HIGH"}
+
+#: field index of each quantity in dv's ``IMU`` FlatBuffer table (``imu.fbs``; 0 is ``timestamp``)
+_IMU_TABLE_INDEX = {"temperature": 1, "accelerometerX": 2, "accelerometerY": 3, "accelerometerZ": 4,
+                    "gyroscopeX": 5, "gyroscopeY": 6, "gyroscopeZ": 7, "magnetometerX": 8, "magnetometerY": 9,
+                    "magnetometerZ": 10}
 #: Largest header / (decompressed) packet accepted, bytes: corrupt sizes cannot exhaust memory.
 _MAX_HEADER = 16 << 20
 _MAX_PACKET = 1 << 30
@@ -240,7 +251,7 @@ class Aedat4Reader(EventFileReader):
         The ``.aedat4`` file.
     sensor_size : SensorSize or (height, width), optional
         Overrides the event stream's ``sizeX``/``sizeY``.
-    event_stream, frame_stream, trigger_stream : int, optional
+    event_stream, frame_stream, trigger_stream, imu_stream : int, optional
         Stream ids to read; default the first stream of each type.
 
     Notes
@@ -301,6 +312,7 @@ class Aedat4Reader(EventFileReader):
         self.event_stream = pick("EVTS", "event", "event_stream")
         self.frame_stream = pick("FRME", "frame", "frame_stream")
         self.trigger_stream = pick("TRIG", "trigger", "trigger_stream")
+        self.imu_stream = pick("IMUS", "IMU", "imu_stream")
         if self.event_stream is None:
             raise FormatError(self.path, "the AEDAT4 file has no event stream; streams: "
                                          f"{ {k: v['type_identifier'] for k, v in self.streams.items()} }")
@@ -337,7 +349,7 @@ class Aedat4Reader(EventFileReader):
                 "compression": _COMPRESSION[self.compression],
                 "streams": {str(k): dict(v) for k, v in self.streams.items()},
                 "event_stream": self.event_stream, "frame_stream": self.frame_stream,
-                "trigger_stream": self.trigger_stream,
+                "trigger_stream": self.trigger_stream, "imu_stream": self.imu_stream,
                 "sensor_size_source": "option" if options.get("sensor_size") is not None else "file",
                 "trigger_mapping": "channel 0 external signal, 1 generator, 2 APS frame, 3 APS "
                                    "exposure; rising/start +1, falling/end -1; TIMESTAMP_RESET skipped",
@@ -485,6 +497,49 @@ class Aedat4Reader(EventFileReader):
         if pending or triggers:
             yield EventChunk(np.concatenate(pending) if pending else empty_events(),
                              np.concatenate(triggers) if triggers else empty_triggers())
+
+    # -- IMU ----------------------------------------------------------------------------------
+    def _imu_of(self, tab: _Table, i: int, pos: int) -> np.ndarray:
+        # IMUPacket.elements is a vector of IMU *tables* (offsets of 4 bytes each)
+        try:
+            v = tab.vector(0, 4)
+            if v is None or v[1] == 0:
+                return empty_imu()
+            buf = tab.buf
+            out = np.empty(v[1], IMU_DTYPE)
+            t = out["t"]
+            cols = [(out[name], _IMU_TABLE_INDEX[dv_name]) for name, _, dv_name in IMU_FIELDS]
+            for k in range(v[1]):
+                p = v[0] + 4 * k
+                el = _Table(buf, p + struct.unpack_from("<I", buf, p)[0])
+                t[k] = el.scalar(0, "<q")
+                for col, idx in cols:
+                    col[k] = el.scalar(idx, "<f", 0.0)
+        except _Corrupt as exc:
+            raise FormatError(self.path, f"corrupt IMU packet {i}: {exc}", offset=pos, record=i) from None
+        bad = np.flatnonzero(np.any([np.isinf(out[name]) for name, _, _ in IMU_FIELDS], axis=0))
+        if bad.size:
+            raise FormatError(self.path, f"IMU sample {int(bad[0])} of packet {i} holds an infinite value",
+                              offset=pos, record=i)
+        return out
+
+    def read_imu(self) -> np.ndarray:
+        """The IMU samples of the IMU stream (``IMU_DTYPE``, sorted by ``t``); empty when the file
+        has no IMU stream."""
+        if self.imu_stream is None:
+            return empty_imu()
+        parts = []
+        for i, pos, sid, tab, ident in self._packets({self.imu_stream}):
+            self._check_ident(ident, b"IMUS", i, pos)
+            a = self._imu_of(tab, i, pos)
+            if a.size:
+                parts.append(a)
+        if not parts:
+            return empty_imu()
+        imu = np.concatenate(parts)
+        if imu.size > 1 and np.any(imu["t"][1:] < imu["t"][:-1]):
+            imu = imu[np.argsort(imu["t"], kind="stable")]
+        return imu
 
     # -- frames -------------------------------------------------------------------------------
     def _frame_of(self, tab: _Table, i: int, pos: int, size: SensorSize | None):

@@ -1,4 +1,4 @@
-"""iniVation AEDAT 4.0 writer (events, frames, triggers) through ``dv-processing``.
+"""iniVation AEDAT 4.0 writer (events, frames, triggers, IMU samples) through ``dv-processing``.
 
 The file is written by ``dv_processing.io.MonoCameraWriter`` (the library iniVation's own tools
 use), never by hand; install it with ``pip install 'hybridhdr[aedat4]'`` (``dv-processing``).
@@ -10,9 +10,9 @@ hands it only valid input:
 
 * events arrive through :meth:`write_events` (checked for order, coordinates and polarity by
   :class:`~hybridhdr.formats.base.EventFileWriter`) and are spooled to a temporary file next to the output;
-* frames and triggers are kept (they are small) and sorted by time;
-* on :meth:`close` the streams are declared (events always; frames and triggers when there are
-  any), then written interleaved in time order (events in packets of ``packet_events``), into
+* frames, triggers and IMU samples are kept (they are small) and sorted by time;
+* on :meth:`close` the streams are declared (events always; frames, triggers and IMU when there
+  are any), then written interleaved in time order (events in packets of ``packet_events``), into
   ``.NAME.partial.aedat4``, renamed to the final name at the end. Nothing is left on error;
 * dv-processing also terminates the process when the disk fills up under it, so before it starts
   the free space is checked against the file's largest possible size (uncompressed data plus
@@ -28,7 +28,9 @@ Conversions (the inverse of the reader's, ``docs/conventions.md``):
 * a trigger ``(channel, edge)`` -> ``dv::TriggerType`` by the inverse of
   :data:`~hybridhdr.formats.aedat4.TRIGGER_TYPE_MAP` (channel 0 external signal, 1
   external generator, 2 APS frame, 3 APS exposure; +1 rising/start, -1 falling/end); other
-  channels cannot be stored and are an error.
+  channels cannot be stored and are an error;
+* an IMU sample (``IMU_DTYPE``) -> ``dv::IMU`` with the same timestamp and the float32 quantities
+  in the fields of the same quantity and unit (:data:`hybridhdr.events.IMU_FIELDS`).
 
 Options: ``compression`` (``"lz4"`` default, ``"lz4_high"``, ``"zstd"``, ``"zstd_high"``,
 ``"none"``), ``camera_name`` (default: the metadata's event-camera model, else ``"hybridhdr"``),
@@ -43,7 +45,7 @@ from pathlib import Path
 
 import numpy as np
 
-from ..events import EVENT_DTYPE
+from ..events import EVENT_DTYPE, IMU_FIELDS
 from .base import EventFileWriter
 from ..model import Frames
 
@@ -75,7 +77,7 @@ class Aedat4Writer(EventFileWriter):
     """AEDAT 4.0 through dv-processing (see the module notes)."""
 
     format_name = "aedat4"
-    supports = frozenset({"frames", "triggers"})
+    supports = frozenset({"frames", "triggers", "imu"})
 
     def _partial_path(self):
         # dv-processing only writes names ending in '.aedat4' (others terminate the process)
@@ -100,6 +102,7 @@ class Aedat4Writer(EventFileWriter):
         self._spool = os.fdopen(os.dup(self._spool_fd), "wb")
         self._frames: list[Frames] = []
         self._triggers: list[np.ndarray] = []
+        self._imu: list[np.ndarray] = []
 
     def _write_events(self, events: np.ndarray) -> None:
         # file.write, not ndarray.tofile: a full disk is then OSError ENOSPC ("No space left on device")
@@ -115,6 +118,9 @@ class Aedat4Writer(EventFileWriter):
                              f"trigger type; AEDAT4 stores channels 0-3 with edge +1/-1 (0 external signal, "
                              f"1 external generator, 2 APS frame, 3 APS exposure)")
         self._triggers.append(np.array(triggers, copy=True))
+
+    def _write_imu(self, imu: np.ndarray) -> None:
+        self._imu.append(np.array(imu, copy=True))
 
     def _write_frames(self, frames: Frames) -> None:
         imgs = np.asarray(frames.images)
@@ -151,6 +157,10 @@ class Aedat4Writer(EventFileWriter):
         trig = np.concatenate(self._triggers) if self._triggers else None
         if trig is not None:
             trig = trig[np.argsort(trig["t"], kind="stable")]
+        imu = np.concatenate(self._imu) if self._imu else None
+        if imu is not None:
+            imu = imu[np.argsort(imu["t"], kind="stable")]
+        n_imu = 0 if imu is None else len(imu)
         frames = self._frame_list()
         ss = self.sensor_size
         cfg = dv.io.MonoCameraWriter.Config(self._camera_name)
@@ -160,15 +170,29 @@ class Aedat4Writer(EventFileWriter):
             cfg.addFrameStream((w, h))
         if trig is not None and len(trig):
             cfg.addTriggerStream()
+        if n_imu:
+            cfg.addImuStream()
         cfg.compression = self._compression
-        self._check_free_space(frames, 0 if trig is None else len(trig))
+        self._check_free_space(frames, 0 if trig is None else len(trig), n_imu)
         writer = dv.io.MonoCameraWriter(str(self.tmp_path), cfg)
         try:
-            fi = ti = 0
+            fi = ti = ii = 0
             n_trig = 0 if trig is None else len(trig)
+            # dv.IMU's argument order: timestamp, temperature, accelerometer x/y/z, gyroscope x/y/z,
+            # magnetometer x/y/z
+            imu_order = [name for dv_name in ("temperature", "accelerometerX", "accelerometerY", "accelerometerZ",
+                                              "gyroscopeX", "gyroscopeY", "gyroscopeZ", "magnetometerX",
+                                              "magnetometerY", "magnetometerZ")
+                         for name, _, d in IMU_FIELDS if d == dv_name]
 
             def flush_until(writer, t_max):
-                nonlocal fi, ti
+                nonlocal fi, ti, ii
+                ib = ii
+                while ii < n_imu and (t_max is None or int(imu["t"][ii]) <= t_max):
+                    ii += 1
+                if ii > ib:
+                    cols = [imu["t"][ib:ii].tolist()] + [imu[name][ib:ii].tolist() for name in imu_order]
+                    writer.writeImuPacket(dv.IMUPacket(dv.IMUPacket.ImuVector([dv.IMU(*v) for v in zip(*cols)])))
                 # frames and triggers up to t_max, in time order, before the events after them
                 tb = ti
                 while ti < n_trig and (t_max is None or int(trig["t"][ti]) <= t_max):
@@ -205,19 +229,23 @@ class Aedat4Writer(EventFileWriter):
             gc.collect()
         self._remove_spool()
 
-    def _size_bound(self, frames, n_triggers: int) -> int:
+    def _size_bound(self, frames, n_triggers: int, n_imu: int = 0) -> int:
         """Bytes the file can take at most: everything uncompressed (LZ4/ZSTD expand incompressible
-        data by < 1 %) plus the per-packet, per-frame and header overheads."""
-        n_packets = -(-self.n_events // self._packet_events) + len(frames) + max(1, n_triggers)
+        data by < 1 %) plus the per-packet, per-frame and header overheads (an IMU sample is a
+        FlatBuffer table of 11 fields, at most 96 bytes: 52 of fields and offset to its vtable, up to 8
+        of padding, a 26-byte vtable and the vector's 4-byte offset to it)."""
+        n_packets = (-(-self.n_events // self._packet_events) + len(frames) + max(1, n_triggers)
+                     + max(1, n_imu))
         frame_bytes = sum(int(img.nbytes) for _, _, img in frames)
-        return int(1.01 * (16 * self.n_events + frame_bytes + 32 * n_triggers)) + 256 * n_packets + (64 << 10)
+        return (int(1.01 * (16 * self.n_events + frame_bytes + 32 * n_triggers + 96 * n_imu)) + 256 * n_packets
+                + (64 << 10))
 
-    def _check_free_space(self, frames, n_triggers: int) -> None:
+    def _check_free_space(self, frames, n_triggers: int, n_imu: int = 0) -> None:
         """Refuse (ENOSPC) before dv-processing starts when the disk cannot hold the file: on a full
         disk dv-processing's writer thread terminates the whole process instead of raising."""
         import errno
         import shutil
-        need = self._size_bound(frames, n_triggers)
+        need = self._size_bound(frames, n_triggers, n_imu)
         free = shutil.disk_usage(self.tmp_path.parent).free
         if free < need:
             raise OSError(errno.ENOSPC, f"No space left on device: {self.path} may need up to {need:,} bytes "

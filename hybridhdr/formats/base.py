@@ -20,8 +20,8 @@ from typing import Iterator
 import numpy as np
 
 from ..camera.encoding import parse_frame_encoding
-from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
-                      empty_triggers, slice_time, validate_events)
+from ..events import (EVENT_DTYPE, IMU_DTYPE, TRIGGER_DTYPE, SensorSize, concatenate_events, empty_events,
+                      empty_imu, empty_triggers, slice_time, validate_events, validate_imu)
 from ..model import Frames, Metadata, Recording
 
 __all__ = [
@@ -59,10 +59,13 @@ def register_formats(module: str, descriptions: dict[str, str], readers: dict, w
 
 @dataclass
 class EventChunk:
-    """A stretch of a file: events (sorted) and the triggers decoded alongside them."""
+    """A stretch of a file or a live stream: events (sorted) and the triggers decoded alongside
+    them; a live source also hands over the IMU samples (``IMU_DTYPE``) that arrived meanwhile
+    (file readers give theirs by :meth:`EventFileReader.read_imu`)."""
 
     events: np.ndarray = field(default_factory=empty_events)
     triggers: np.ndarray = field(default_factory=empty_triggers)
+    imu: np.ndarray = field(default_factory=empty_imu)
 
 
 class EventFileReader:
@@ -105,6 +108,11 @@ class EventFileReader:
     def read_frames(self) -> Frames | None:
         """Frames stored in the file, or None when the format has none."""
         return None
+
+    def read_imu(self) -> np.ndarray:
+        """IMU samples stored in the file (``IMU_DTYPE``, sorted by ``t``); empty when the format
+        or the file has none."""
+        return empty_imu()
 
     # -- provided -----------------------------------------------------------------------------
     def iter_chunks(self, chunk_events: int = DEFAULT_CHUNK_EVENTS) -> Iterator[EventChunk]:
@@ -163,7 +171,8 @@ class EventFileReader:
         trig = np.concatenate(trs) if trs else empty_triggers()
         if trig.size and np.any(np.diff(trig["t"]) < 0):
             trig = trig[np.argsort(trig["t"], kind="stable")]
-        return Recording(concatenate_events(evs), self.sensor_size, frames, trig, None, self.metadata)
+        imu = slice_time(self.read_imu(), t_start_us, t_end_us)
+        return Recording(concatenate_events(evs), self.sensor_size, frames, trig, None, self.metadata, imu)
 
     def close(self) -> None:
         pass
@@ -236,6 +245,9 @@ class EventFileWriter:
     def _write_frames(self, frames: Frames) -> None:
         raise ValueError(f"the {self.format_name} format cannot hold frames")
 
+    def _write_imu(self, imu: np.ndarray) -> None:
+        raise ValueError(f"the {self.format_name} format cannot hold IMU samples")
+
     def _finish(self) -> None:
         pass
 
@@ -278,9 +290,19 @@ class EventFileWriter:
             return
         self._write_frames(frames)
 
+    def write_imu(self, imu: np.ndarray | None) -> None:
+        """Append IMU samples (``IMU_DTYPE``), continuing the time order of those written so far."""
+        if imu is None or len(imu) == 0:
+            return
+        if not isinstance(imu, np.ndarray) or imu.dtype != IMU_DTYPE:
+            raise TypeError(f"imu must be an ndarray of dtype IMU_DTYPE, got {getattr(imu, 'dtype', type(imu))}")
+        validate_imu(imu)
+        self._write_imu(imu)
+
     def write_chunk(self, chunk: EventChunk) -> None:
         self.write_events(chunk.events)
         self.write_triggers(chunk.triggers)
+        self.write_imu(chunk.imu)
 
     def close(self) -> None:
         """Finish the file and rename ``.partial`` to the final name."""
@@ -333,7 +355,8 @@ class EventFileWriter:
 
 
 class DataDropWarning(UserWarning):
-    """A writer's format cannot hold part of the recording (frames, triggers, HDR references)."""
+    """A writer's format cannot hold part of the recording (frames, triggers, HDR references, IMU
+    samples)."""
 
 
 def unsupported_parts(recording: Recording, supports) -> list[str]:
@@ -345,4 +368,6 @@ def unsupported_parts(recording: Recording, supports) -> list[str]:
         parts.append(f"{len(recording.frames)} frames")
     if recording.hdr is not None and len(recording.hdr) and "hdr" not in supports:
         parts.append(f"{len(recording.hdr)} HDR references")
+    if len(recording.imu) and "imu" not in supports:
+        parts.append(f"{len(recording.imu)} IMU samples")
     return parts

@@ -1,6 +1,6 @@
 """The hybridhdr recording container: one HDF5 file per recording.
 
-Layout (format version 2.0; see ``docs/recording-format.md``)::
+Layout (format version 2.1; see ``docs/recording-format.md``)::
 
     /                       attrs: hybridhdr_format_version, sensor_height, sensor_width, metadata_json
     /events/t  int64 µs     chunked, compressed; non-decreasing
@@ -14,6 +14,9 @@ Layout (format version 2.0; see ``docs/recording-format.md``)::
     /frames/t_start_us, /frames/t_end_us   int64 (K,)
     /frames/gain, /frames/iso              float64 (K,), optional
     /triggers/t int64, /triggers/channel uint16, /triggers/edge int8
+    /imu/t int64 µs, /imu/accel_x_g ... /imu/mag_z_ut float32   (format 2.1; IMU samples on the event
+                            clock, one dataset per ``IMU_DTYPE`` field, attr ``unit`` on each; a file
+                            without /imu (2.0 and older) reads as holding no IMU samples)
     /hdr/images float32 (K, H, W[, 3]), /hdr/t_us int64 (K,)
     /thresholds/c_on, /thresholds/c_off  float64 (H, W), optional: per-pixel ON/OFF contrast
                             thresholds (log units; NaN = not estimated); attrs fallback_on,
@@ -39,8 +42,8 @@ from .._util.checks import check_shape
 from .._util.limits import check_finite, check_frame_bytes, check_frame_shape, check_h5_stored, check_sensor_size
 from .._version import __version__
 from ..errors import FormatError, WindowOutsideDataError
-from ..events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, api_window, empty_events, empty_triggers,
-                      slice_time, validate_events, validate_triggers)
+from ..events import (EVENT_DTYPE, IMU_DTYPE, IMU_FIELDS, TRIGGER_DTYPE, SensorSize, api_window, empty_events,
+                      empty_imu, empty_triggers, slice_time, validate_events, validate_imu, validate_triggers)
 from ..model import FRAME_ENCODINGS, Frames, HDRReferences, Metadata, Recording
 from ._safe_h5 import close_and_remove, open_h5_for_writing
 from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
@@ -49,7 +52,8 @@ from .thresholds import ThresholdMap
 __all__ = ["FORMAT_VERSION", "RecordingWriter", "RecordingFile", "write_recording", "read_recording",
            "READERS", "WRITERS", "sniff"]
 
-FORMAT_VERSION = "2.0"
+#: 2.1 added the /imu group (optional to readers: a 2.0 file has none and reads with no IMU samples)
+FORMAT_VERSION = "2.1"
 #: major versions this reader understands: 1.x (dense millisecond index), 2.x (sparse index)
 READABLE_MAJORS = ("1", "2")
 #: at most one index entry per this many events (each entry at the start of a millisecond)
@@ -57,6 +61,7 @@ INDEX_STRIDE = 4096
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 _EVENT_FIELDS = (("t", "<i8"), ("x", "<u2"), ("y", "<u2"), ("p", "i1"))
 _TRIGGER_FIELDS = (("t", "<i8"), ("channel", "<u2"), ("edge", "i1"))
+_IMU_FIELDS = (("t", "<i8", "us"),) + tuple((name, "<f4", unit) for name, unit, _ in IMU_FIELDS)
 _CHUNK_ELEMS = 1 << 17
 
 
@@ -132,7 +137,7 @@ class RecordingWriter(EventFileWriter):
     """
 
     format_name = "hybridhdr"
-    supports = frozenset({"triggers", "frames", "hdr"})
+    supports = frozenset({"triggers", "frames", "hdr", "imu"})
 
     def __init__(self, path, sensor_size=None, metadata: Metadata | None = None, *,
                  compression="gzip", buffer_events: int = 1 << 20, threads: int | None = None,
@@ -172,6 +177,10 @@ class RecordingWriter(EventFileWriter):
         gt = f.create_group("triggers")
         for name, dt in _TRIGGER_FIELDS:
             gt.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(4096,))
+        gi = f.create_group("imu")
+        for name, dt, unit in _IMU_FIELDS:
+            d = gi.create_dataset(name, shape=(0,), maxshape=(None,), dtype=dt, chunks=(4096,), **self._comp)
+            d.attrs["unit"] = unit
         self._ds = [g[name] for name, _ in _EVENT_FIELDS]
         self._idx_ds = (g["index_ms"], g["index_first"])
         # events are staged into chunk images (HDF5's shuffle layout when compressed with gzip),
@@ -191,6 +200,7 @@ class RecordingWriter(EventFileWriter):
         self._idx_pending: list = []
         self._n_written = 0
         self._trig_last = None
+        self._imu_last = None
         if self._codec == "gzip" and self._threads:
             from concurrent.futures import ThreadPoolExecutor
             self._pool = ThreadPoolExecutor(self._threads, thread_name_prefix="hybridhdr-deflate")
@@ -324,6 +334,18 @@ class RecordingWriter(EventFileWriter):
             g[name].resize((n0 + len(triggers),))
             g[name][n0:] = triggers[name]
         self._trig_last = int(triggers["t"][-1])
+        self._guard.check()
+
+    def _write_imu(self, imu):
+        if self._imu_last is not None and imu["t"][0] < self._imu_last:
+            raise ValueError(f"{self.path}: IMU samples must be appended in time order; chunk starts at "
+                             f"{int(imu['t'][0])} µs after {self._imu_last} µs")
+        g = self._f["imu"]
+        n0 = g["t"].shape[0]
+        for name, _, _ in _IMU_FIELDS:
+            g[name].resize((n0 + len(imu),))
+            g[name][n0:] = imu[name]
+        self._imu_last = int(imu["t"][-1])
         self._guard.check()
 
     def _write_frames(self, frames: Frames):
@@ -500,7 +522,7 @@ class RecordingFile(EventFileReader):
         ver = ver.decode() if isinstance(ver, bytes) else str(ver)
         if ver.split(".")[0] not in READABLE_MAJORS:
             raise FormatError(path, f"container format version {ver} is not supported (this reader reads "
-                                    f"1.x and {FORMAT_VERSION}; written by a newer hybridhdr?)")
+                                    f"1.x and 2.x, and writes {FORMAT_VERSION}; written by a newer hybridhdr?)")
         self.format_version = ver
         try:
             md = json.loads(f.attrs.get("metadata_json", "{}"))
@@ -756,6 +778,35 @@ class RecordingFile(EventFileReader):
             raise FormatError(self.path, f"corrupt triggers: {e}") from None
 
     @_guarded
+    def read_imu(self) -> np.ndarray:
+        """The stored IMU samples (``IMU_DTYPE``); empty for a file without /imu (format 2.0 and
+        older, or a recording without IMU)."""
+        if "imu" not in self._f:
+            return empty_imu()
+        g = self._f["imu"]
+        t = _require(g, "t", self.path)
+        if len(t.shape) != 1:
+            raise FormatError(self.path, f"imu/t must have shape (N,), got {t.shape}")
+        n = t.shape[0]
+        # declared sizes and dtypes checked against what is stored and the limits before anything is allocated
+        for name, dt, _ in _IMU_FIELDS:
+            d = _require(g, name, self.path)
+            check_shape(d.shape, "N", f"imu/{name}", sizes={"N": n}, error=lambda m: FormatError(self.path, m))
+            if d.dtype.kind not in ("i" if name == "t" else "f"):
+                raise FormatError(self.path, f"imu/{name} must hold {'integers' if name == 't' else 'floats'}, "
+                                             f"got dtype {d.dtype}")
+            check_h5_stored(d, self.path, f"imu/{name}")
+        from .._util.limits import check_packet_size
+        check_packet_size(n * IMU_DTYPE.itemsize, self.path, f"IMU samples ({n:,} declared)")
+        out = np.empty(n, dtype=IMU_DTYPE)
+        for name, _, _ in _IMU_FIELDS:
+            out[name] = g[name][:]
+        try:
+            return validate_imu(out)
+        except ValueError as e:
+            raise FormatError(self.path, f"corrupt IMU samples: {e}") from None
+
+    @_guarded
     def _iter_chunks(self, chunk_events: int) -> Iterator[EventChunk]:
         trig = self.read_triggers()
         ti = 0
@@ -851,6 +902,7 @@ class RecordingFile(EventFileReader):
         ev = self.events(t_start_us, t_end_us)
         trig = self.read_triggers()
         trig = slice_time(trig, t_start_us, t_end_us)
+        imu = slice_time(self.read_imu(), t_start_us, t_end_us)
         frames = self.read_frames()
         hdr = self.read_hdr()
         if t_start_us is not None or t_end_us is not None:
@@ -860,7 +912,7 @@ class RecordingFile(EventFileReader):
                 from ..events import time_window_indices
                 a, b = time_window_indices(hdr.t_us, t_start_us, t_end_us)
                 hdr = HDRReferences(hdr.images[a:b], hdr.t_us[a:b])
-        return Recording(ev, self.sensor_size, frames, trig, hdr, self.metadata)
+        return Recording(ev, self.sensor_size, frames, trig, hdr, self.metadata, imu)
 
     def close(self):
         pool = getattr(self, "_inflate_pool", None)
@@ -916,6 +968,7 @@ def write_recording(recording: Recording, path, **options) -> Path:
         for i in range(0, len(ev), step):
             w.write_events(ev[i:i + step])
         w.write_triggers(recording.triggers)
+        w.write_imu(recording.imu)
         w.write_frames(recording.frames)
         if recording.hdr is not None and len(recording.hdr):
             w.write_hdr(recording.hdr)

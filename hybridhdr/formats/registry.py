@@ -187,7 +187,8 @@ def write(recording: Recording, path, format: str | None = None, *, on_unsupport
     Parameters
     ----------
     on_unsupported : {"warn", "error", "ignore"}
-        What to do when the format cannot hold the recording's frames, triggers or HDR references:
+        What to do when the format cannot hold the recording's frames, triggers, HDR references or
+        IMU samples:
         warn with :class:`DataDropWarning` (default), raise ``ValueError``, or drop them quietly.
     """
     if on_unsupported not in ("warn", "error", "ignore"):
@@ -207,4 +208,6 @@ def write(recording: Recording, path, format: str | None = None, *, on_unsupport
             w.write_frames(recording.frames)
         if recording.hdr is not None and len(recording.hdr) and "hdr" in w.supports:
             w.write_hdr(recording.hdr)
+        if "imu" in w.supports:
+            w.write_imu(recording.imu)
     return Path(path)

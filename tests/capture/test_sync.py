@@ -111,11 +111,15 @@ def test_errors():
 
 def test_rising_only_mode_and_recording():
     frames, trig, true_s, _ = simulate(n=200, seed=3)
-    rec = Recording(empty_events(), (2, 2), frames, trig)
+    from hybridhdr.events import empty_imu
+    imu = empty_imu(3)
+    imu["t"], imu["gyro_z_deg_s"] = [5, 6, 7], [0.5, -1.0, 2.0]
+    rec = Recording(empty_events(), (2, 2), frames, trig, imu=imu)
     rec2, rep = sync_recording(rec, channel=2, edge_mode="rising")
     assert rep.edge_mode == "rising" and rep.n_pairs == 200
     assert np.max(np.abs(rec2.frames.t_start_us - true_s)) < 3.0
     assert rec2.metadata.provenance["sync"]["n_pairs"] == 200
+    assert rec2.imu.tobytes() == imu.tobytes()  # synchronising the frames keeps the IMU samples
 
 
 def test_assign_slots_kernel_matches_py_func():

@@ -183,3 +183,61 @@ def test_sniff():
     assert A.sniff(None, b"#!AER-DAT4.0\r\n....") == "aedat4"
     assert A.sniff(None, b"#!AER-DAT3.1\r\n") is None
     assert A.sniff(None, b"") is None
+
+
+def _dv_imu_samples(dv, path):
+    rec = dv.io.MonoCameraRecording(str(path))
+    out = []
+    while True:
+        b = rec.getNextImuBatch()
+        if b is None:
+            return out
+        out += [b[k] for k in range(len(b))]
+
+
+def _assert_imu_equals_dv(imu, ref):
+    """Every sample and every field of ``imu`` (IMU_DTYPE) equals dv-processing's ``dv.IMU`` objects
+    exactly (dv hands float32 values over as Python floats: converting back is exact)."""
+    assert len(imu) == len(ref)
+    np.testing.assert_array_equal(imu["t"], [int(s.timestamp) for s in ref])
+    for name, _, dv_name in hh.events.IMU_FIELDS:
+        np.testing.assert_array_equal(imu[name], np.array([getattr(s, dv_name) for s in ref], np.float32),
+                                      err_msg=name)
+
+
+def test_davis346_imu_matches_dv_processing(shared_data):
+    dv = pytest.importorskip("dv_processing")
+    p = shared_data("aedat4/davis346_street.aedat4")
+    ref = _dv_imu_samples(dv, p)
+    imu = hh.read(p).imu
+    assert len(imu) == 2363  # counted with dv-processing
+    # the first sample as dv-processing decodes it: lying flat, y axis along gravity, 28.5 °C
+    assert int(imu["t"][0]) == 1589163147369190
+    assert imu["accel_y_g"][0] == np.float32(-0.9951171875) and imu["temperature_c"][0] == np.float32(28.51789665222168)
+    _assert_imu_equals_dv(imu, ref)
+    p2 = shared_data("aedat4/sample.aedat4")  # a DVXplorer's IMU, too
+    _assert_imu_equals_dv(hh.read(p2).imu, _dv_imu_samples(dv, p2))
+
+
+def test_synthetic_imu_with_magnetometer(tmp_path):
+    dv = pytest.importorskip("dv_processing")
+    cfg = dv.io.MonoCameraWriter.Config("TestCam_ABC123")
+    cfg.addEventStream((32, 24))
+    cfg.addImuStream()
+    w = dv.io.MonoCameraWriter(str(tmp_path / "i.aedat4"), cfg)
+    store = dv.EventStore()
+    store.push_back(1000, 1, 2, True)
+    w.writeEvents(store)
+    rng = np.random.default_rng(3)
+    vals = rng.normal(0, 30, (40, 10)).astype(np.float32)
+    for k in range(40):
+        w.writeImu(dv.IMU(1000 + 250 * k, *[float(v) for v in vals[k]]))
+    del w
+    ref = _dv_imu_samples(dv, tmp_path / "i.aedat4")
+    imu = hh.read(tmp_path / "i.aedat4").imu
+    _assert_imu_equals_dv(imu, ref)
+    assert len(imu) == 40 and np.all(imu["mag_z_ut"] != 0)
+    # dv.IMU's argument order: timestamp, temperature, accelerometer, gyroscope, magnetometer
+    np.testing.assert_array_equal(imu["temperature_c"], vals[:, 0])
+    np.testing.assert_array_equal(imu["gyro_x_deg_s"], vals[:, 4])
+    np.testing.assert_array_equal(imu["mag_z_ut"], vals[:, 9])

@@ -50,7 +50,7 @@ def test_time_index_matches_definition(tmp_path, monkeypatch):
     p = write_recording(rec, tmp_path / "r.h5", buffer_events=777)
     with h5py.File(p) as f:
         ms, first = f["events/index_ms"][:], f["events/index_first"][:]
-        assert f.attrs["hybridhdr_format_version"] == "2.0" and "ms_to_idx" not in f["events"]
+        assert f.attrs["hybridhdr_format_version"] == "2.1" and "ms_to_idx" not in f["events"]
     t = rec.events["t"]
     assert first[0] == 0 and np.all(np.diff(ms) > 0) and np.all(np.diff(first) >= 50)
     # each entry is the first event of its millisecond
@@ -226,3 +226,85 @@ def test_large_reads_through_the_parallel_inflater_equal_the_events(tmp_path):
         m = (t >= 123_457) & (t < 1_777_777)
         np.testing.assert_array_equal(w["t"], t[m])
         np.testing.assert_array_equal(w["x"], x[m])
+
+
+def random_imu(seed=0, n=500, t0=10**12):
+    rng = np.random.default_rng(seed)
+    imu = hh.empty_imu(n)
+    imu["t"] = np.sort(rng.integers(t0, t0 + 3_000_000, n))
+    for name, _, _ in hh.events.IMU_FIELDS:
+        imu[name] = rng.normal(0, 50, n).astype(np.float32)
+    imu["mag_x_ut"][::7] = np.nan  # NaN: a quantity not measured, kept as it is
+    return imu
+
+
+def test_imu_round_trip_exact_and_windowed(tmp_path):
+    import dataclasses
+    rec = random_recording(5, n=3000)
+    imu = random_imu(5)
+    rec = dataclasses.replace(rec, imu=imu)
+    p = tmp_path / "imu.h5"
+    with RecordingWriter(p, rec.sensor_size, rec.metadata) as w:  # streamed in three batches
+        w.write_events(rec.events)
+        for part in np.array_split(imu, 3):
+            w.write_imu(part)
+    back = read_recording(p)
+    assert back.imu.dtype == hh.IMU_DTYPE and len(back.imu) == len(imu)
+    assert back.imu.tobytes() == imu.tobytes()  # every field bit for bit, NaN included
+    with h5py.File(p) as f:
+        assert f["imu/gyro_x_deg_s"].attrs["unit"] == "deg/s" and f["imu/accel_z_g"].dtype == np.float32
+    t0, t1 = int(imu["t"][100]), int(imu["t"][400])
+    win = read_recording(p, t0, t1)
+    assert win.imu.tobytes() == imu[100:400].tobytes()
+    assert rec.slice_time(t0, t1).imu.tobytes() == imu[100:400].tobytes()
+    p2 = write_recording(rec, tmp_path / "whole.h5")
+    assert read_recording(p2).imu.tobytes() == imu.tobytes()
+    with RecordingWriter(tmp_path / "order.h5", rec.sensor_size) as w:
+        w.write_imu(imu[200:])
+        with pytest.raises(ValueError, match="IMU samples must be appended in time order"):
+            w.write_imu(imu[:10])
+
+
+def test_file_without_imu_group_reads_with_no_imu(tmp_path):
+    """Containers written before the /imu group existed (format 2.0) still read, with no IMU samples."""
+    rec = random_recording(6, n=1000)
+    p = write_recording(rec, tmp_path / "old.h5")
+    with h5py.File(p, "r+") as f:
+        del f["imu"]
+        f.attrs["hybridhdr_format_version"] = "2.0"
+    back = read_recording(p)
+    assert back.imu.dtype == hh.IMU_DTYPE and len(back.imu) == 0
+    assert np.array_equal(back.events, rec.events) and np.array_equal(back.triggers, rec.triggers)
+    assert len(hh.Recording().imu) == 0  # the model's default
+
+
+def test_corrupt_imu_tables_are_format_errors(tmp_path):
+    import dataclasses
+    rec = dataclasses.replace(random_recording(7, n=1000), imu=random_imu(7, n=50))
+    data = write_recording(rec, tmp_path / "r.h5").read_bytes()
+
+    def variant(name, edit):
+        q = tmp_path / f"{name}.h5"
+        q.write_bytes(data)
+        with h5py.File(q, "r+") as f:
+            edit(f)
+        return q
+
+    def declared_huge(f):  # a header declaring 10^12 samples with (almost) nothing stored
+        del f["imu"]
+        g = f.create_group("imu")
+        for name, dt, _ in (("t", "<i8", 0),) + tuple((n, "<f4", 0) for n, _, _ in hh.events.IMU_FIELDS):
+            g.create_dataset(name, shape=(10**12,), dtype=dt, chunks=(1 << 16,))
+
+    cases = [
+        ("short", lambda f: f["imu/gyro_y_deg_s"].resize((10,)), r"imu/gyro_y_deg_s.*\(50,\)|shape"),
+        ("missing", lambda f: f["imu"].__delitem__("temperature_c"), "missing dataset 'temperature_c'"),
+        ("unsorted", lambda f: f["imu/t"].__setitem__(20, 0), "non-decreasing"),
+        ("inf", lambda f: f["imu/accel_x_g"].__setitem__(3, np.inf), "must be finite"),
+        ("huge", declared_huge, "chunks|limit|declares"),
+    ]
+    for name, edit, msg in cases:
+        q = variant(name, edit)
+        with RecordingFile(q) as r:
+            with pytest.raises(FormatError, match=msg):
+                r.read_imu()

@@ -47,6 +47,7 @@ def _check_valid(rec: hh.Recording) -> None:
     assert ss is not None
     hh.validate_events(rec.events, ss)  # sorted, ±1, inside the sensor
     hh.validate_triggers(rec.triggers)
+    hh.validate_imu(rec.imu)  # sorted, finite or NaN
     if rec.frames is not None:
         assert isinstance(rec.frames, hh.Frames)
         assert np.all(rec.frames.t_end_us >= rec.frames.t_start_us)
@@ -89,6 +90,7 @@ def aedat4_seeds(tmp_path_factory):
         cfg.addEventStream((32, 24))
         cfg.addFrameStream((32, 24))
         cfg.addTriggerStream()
+        cfg.addImuStream()
         cfg.compression = getattr(dv.CompressionType, comp)
         w = dv.io.MonoCameraWriter(str(path), cfg)
         t = 1000
@@ -102,6 +104,7 @@ def aedat4_seeds(tmp_path_factory):
             f.exposure = datetime.timedelta(microseconds=100)
             w.writeFrame(f)
             w.writeTrigger(dv.Trigger(t, dv.TriggerType.EXTERNAL_SIGNAL_RISING_EDGE))
+            w.writeImu(dv.IMU(t, *[float(v) for v in rng.normal(0, 10, 10)]))
         del w
         out[comp] = path.read_bytes()
     return out
@@ -113,7 +116,7 @@ def test_fuzz_aedat4(tmp_path, aedat4_seeds, comp, seed):
     path = tmp_path / "seed.aedat4"
     path.write_bytes(data)
     base = hh.read(path)
-    assert base.n_events == 240 and len(base.frames) == 4 and len(base.triggers) == 4
+    assert base.n_events == 240 and len(base.frames) == 4 and len(base.triggers) == 4 and len(base.imu) == 4
     outcome = _fuzz(tmp_path, data, "aedat4", seed, protect=len(b"#!AER-DAT4.0"))
     assert outcome["ok"] + outcome["FormatError"] == N_MUTANTS
     assert outcome["FormatError"] > 0 and outcome["ok"] > 0  # both paths exercised
