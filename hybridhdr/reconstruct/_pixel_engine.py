@@ -59,6 +59,12 @@ from ._engine import AKFEngine
 #: row blocks per worker: the blocks are dealt out to the workers by their events, so a few per
 #: worker balance clustered events (a bright object, a moving edge) without making blocks tiny
 BLOCKS_PER_WORKER = 8
+#: how a worker filters its blocks' events: "stream" (:func:`block_stream`, each block's events in
+#: stream order, one pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA
+#: kernels' grouping by pixel). Both give the serial filter's bits; "stream" is the default
+#: because the grouping pass cost more than the walk saved (module docstring)
+BLOCK_ORDER = "stream"
+BLOCK_ORDERS = ("stream", "pixel")
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
@@ -270,6 +276,97 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
     return n
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step, seg_t0,
+                  seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
+    n = 0
+    w = np.uint64(width)
+    wpu = w + ONE + ONE
+    lo = np.uint64(row_lo)
+    hi = np.uint64(row_hi)
+    au = np.int64(a)
+    for j in range(e0, e1):
+        if j + K.PREFETCH_AHEAD < e1:  # the serial kernel's prefetch: the record and the 3x3 te window
+            jn = au + (np.int64(j + K.PREFETCH_AHEAD) if identity else np.int64(ev[j + K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            xn = np.uint64(x[jn])
+            prefetch(S, (yn * w + xn) * np.uint64(K.AKF_FIELDS))
+            tn = (yn + ONE) * wpu + xn + ONE
+            prefetch(te, tn - wpu)
+            prefetch(te, tn)
+            prefetch(te, tn + wpu)
+            if has_px:
+                prefetch(con_px, yn * w + xn)
+                prefetch(coff_px, yn * w + xn)
+        i = au + (np.int64(j) if identity else np.int64(ev[j]))
+        r = np.uint64(y[i])
+        c = np.uint64(x[i])
+        ti = t[i]
+        if r < lo:  # a ghost row: its owner moves te, this block only its copy
+            top[c + ONE] = ti
+            continue
+        if r >= hi:
+            bot[c + ONE] = ti
+            continue
+        tp = (r + ONE) * wpu + c + ONE
+        if r == lo:
+            u0 = top[c]
+            u1 = top[c + ONE]
+            u2 = top[c + ONE + ONE]
+        else:
+            u0 = te[tp - wpu - ONE]
+            u1 = te[tp - wpu]
+            u2 = te[tp - wpu + ONE]
+        if r + ONE == hi:
+            d0 = bot[c]
+            d1 = bot[c + ONE]
+            d2 = bot[c + ONE + ONE]
+        else:
+            d0 = te[tp + wpu - ONE]
+            d1 = te[tp + wpu]
+            d2 = te[tp + wpu + ONE]
+        te0 = te[tp]
+        # the serial kernel's maximum, in its order (K._akf_event)
+        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
+                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        q = r * w + c
+        jump_on = con_px[q] if has_px else c_on
+        jump_off = -(coff_px[q] if has_px else c_off)
+        lh, pp, la = K.akf_event_step(S[q, K.A_L], S[q, K.A_P], S[q, K.A_LA], S[q, K.A_TU], ti, ti - te0, ti - tstar,
+                                      p[i] > 0, S[q, K.A_RINV], S[q, K.A_BETA], S[q, K.A_KLOG], S[q, K.A_LASTEP],
+                                      has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref,
+                                      rho_us, noise_form)
+        S[q, K.A_L] = lh
+        S[q, K.A_P] = pp
+        if has_la_step:
+            S[q, K.A_LA] = la
+        S[q, K.A_TU] = np.float64(ti)
+        te[tp] = ti
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step, seg_t0,
+                 seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
+    """Filter a block's events in stream order: each by :func:`._kernels.akf_event_step`, as the
+    serial kernel does, with t* from the 3x3 window of ``te`` and the block's ghost-row copies.
+
+    The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
+    included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``;
+    ``te``, ``top`` and ``bot`` as in :func:`group_block` (an event of a ghost row moves only the
+    copy). Each pixel sees its events in stream order with the serial filter's t* and Δt, so the
+    state is the serial filter's bit for bit. Returns the events applied to the block's pixels.
+    """
+    if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
+        return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot,
+                             has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
+                             con_px, coff_px, True)
+    return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step,
+                         seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px,
+                         False)
+
+
 def deal_blocks(weights: np.ndarray, n_workers: int) -> list[tuple[int, int]]:
     """Contiguous ranges of blocks, one per worker, of about equal total ``weights`` (greedy on
     the running sum): ``[(b0, b1), ...]``, possibly empty ranges at the end."""
@@ -314,6 +411,8 @@ class PixelAKFEngine(AKFEngine):
         self.ghost = np.zeros((nb, 2, W + 2), np.int64)  # each block's copies of its ghost rows
         self.n_blocks = nb
         self._cap = 0
+        self._bufs_px = (None, None, None)
+        self._no_index = np.empty(0, np.int32)  # block_stream's index list where it reads the events in place
         self._barrier = threading.Barrier(nw) if nw > 1 else None
 
     def _int32_te(self) -> list:
@@ -330,12 +429,15 @@ class PixelAKFEngine(AKFEngine):
         self.te_px[:] = t_init
         return t_init
 
-    def _buffers(self, n: int):
-        if self._cap < n:
+    def _buffers(self, n: int, stream: bool = False):
+        """(event indices, active pixels, group records) of at least ``n`` entries, reused; in
+        stream order (``stream``) only the indices are used, and the other two stay unallocated."""
+        if n >= 1 << 31:
+            raise ValueError(f"a window of {n} events is too large for the pixel-parallel engine (< 2**31)")
+        if self._cap < n or (not stream and self._bufs_px[2] is None):
             cap = max(n, 2 * self._cap, 1 << 16)
-            if cap >= 1 << 31:
-                raise ValueError(f"a window of {n} events is too large for the pixel-parallel engine (< 2**31)")
-            self._bufs_px = (np.empty(cap, np.int32), np.empty(cap, np.int64), np.empty((cap, 3), np.int64))
+            self._bufs_px = (np.empty(cap, np.int32), None if stream else np.empty(cap, np.int64),
+                             None if stream else np.empty((cap, 3), np.int64))
             self._cap = cap
         return self._bufs_px
 
@@ -384,13 +486,20 @@ class PixelAKFEngine(AKFEngine):
                 pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
                 self.con_px, self.coff_px)
         te, gcnt, glo, ghi, ghost = self.te_px, self.gcnt, self.glo, self.ghi, self.ghost
+        stream = BLOCK_ORDER == "stream"
         if self._nw == 1:
-            ev, act, rec = self._buffers(n)
             with PH.phase("filter", "parallel"):
                 # one block, all rows: its ghost rows are te's padding (never written)
-                k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, te[0:wp], te[(H + 1) * wp:], gcnt, glo,
-                                ghi, rec, act)
-                self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
+                if stream:
+                    self.n_events += block_stream(t, x, y, p, i0, self._no_index, 0, n, True, W, 0, H, self._S, te, te[0:wp],
+                                                  te[(H + 1) * wp:], *args[1:])
+                    return
+                ev, act, rec = self._buffers(n)
+                with PH.phase("worker_group", "worker"):
+                    k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, te[0:wp], te[(H + 1) * wp:], gcnt,
+                                    glo, ghi, rec, act)
+                with PH.phase("worker_walk", "worker"):
+                    self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
             return
         nw, nb = self._nw, self.n_blocks
         parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
@@ -410,7 +519,7 @@ class PixelAKFEngine(AKFEngine):
                 np.cumsum(tot, out=bstart[1:])
                 pos = bstart[:-1][None, :] + np.cumsum(hist, axis=0) - hist
                 shared.update(bstart=bstart, pos=np.ascontiguousarray(pos), deal=deal_blocks(tot, nw),
-                              bufs=self._buffers(int(bstart[-1])))
+                              bufs=self._buffers(int(bstart[-1]), stream))
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
             bstart, deal = shared["bstart"], shared["deal"]
@@ -424,6 +533,12 @@ class PixelAKFEngine(AKFEngine):
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
             m = 0
+            if stream:
+                with PH.phase("worker_filter", "worker"):
+                    for b in range(b0, b1):
+                        m += block_stream(t, x, y, p, i0, ev, bstart[b], bstart[b + 1], False, W, brow[b], brow[b + 1],
+                                          self._S, te, ghost[b, 0], ghost[b, 1], *args[1:])
+                return m
             with PH.phase("worker_group_walk", "worker"):
                 for b in range(b0, b1):
                     e0, e1 = bstart[b], bstart[b + 1]
