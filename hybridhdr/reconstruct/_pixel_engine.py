@@ -56,36 +56,19 @@ from .._util.nbprefetch import prefetch
 from . import _kernels as K
 from ._engine import AKFEngine
 
-#: row blocks per worker: the blocks are dealt out to the workers by their events, so a few per
-#: worker balance clustered events (a bright object, a moving edge) without making blocks tiny
-BLOCKS_PER_WORKER = 8
 #: how a worker filters its blocks' events: "stream" (:func:`block_stream`, each block's events in
 #: stream order, one pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA
 #: kernels' grouping by pixel). Both give the serial filter's bits; "stream" is the default
 #: because the grouping pass cost more than the walk saved (module docstring)
 BLOCK_ORDER = "stream"
 BLOCK_ORDERS = ("stream", "pixel")
+#: windows of fewer events are filtered by the calling thread alone (as one band: the same bits);
+#: the row-band engine's threshold (``_engine.PARALLEL_MIN_WORK``)
+PARALLEL_MIN_EVENTS = 20_000
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
 ONE = K.ONE
-
-
-@njit(cache=True, nogil=True)
-def block_histogram(y, j0, j1, block_of_row, edge_of_row, hist):
-    """``hist[b]`` = the events ``[j0, j1)`` block ``b`` reads: its rows' and its ghost rows'
-    (``edge_of_row`` bit 1: the row is also the ghost row of the block above, bit 2: below)."""
-    hist[:] = 0
-    for i in range(j0, j1):
-        r = y[i]
-        b = block_of_row[r]
-        hist[b] += 1
-        e = edge_of_row[r]
-        if e & 1:
-            hist[b - 1] += 1
-        if e & 2:
-            hist[b + 1] += 1
-    return j1 - j0
 
 
 @njit(cache=True, nogil=True)
@@ -367,18 +350,42 @@ def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, 
                          False)
 
 
-def deal_blocks(weights: np.ndarray, n_workers: int) -> list[tuple[int, int]]:
-    """Contiguous ranges of blocks, one per worker, of about equal total ``weights`` (greedy on
-    the running sum): ``[(b0, b1), ...]``, possibly empty ranges at the end."""
-    nb = weights.shape[0]
-    cum = np.cumsum(weights, dtype=np.float64)
-    total = float(cum[-1]) if nb else 0.0
-    cuts = [0]
-    for w in range(1, n_workers):
-        c = int(np.searchsorted(cum, total * w / n_workers, side="left")) + 1 if total > 0 else (nb * w) // n_workers
-        cuts.append(min(max(c, cuts[-1]), nb))
-    cuts.append(nb)
-    return [(cuts[w], cuts[w + 1]) for w in range(n_workers)]
+def plan_bands(row_hist: np.ndarray, n_bands: int):
+    """The row bands of one window and where each worker's part of it goes, from ``row_hist``
+    (``(workers, height)``: the events per row of each worker's part of the window).
+
+    The bands are contiguous rows of about equal events (the greedy cut of the running sum; at
+    least one row each); a band's list holds the events of its rows and of its two ghost rows
+    (the rows just above and below it), each worker's part in stream order after the parts before
+    it. Returns ``(edges, band_of_row, edge_of_row, start, pos)``: band ``v`` has rows
+    ``[edges[v], edges[v + 1])`` and the list ``[start[v], start[v + 1])``; ``band_of_row`` and
+    ``edge_of_row`` (bit 1: the row is also the ghost row below the band above, bit 2: the ghost
+    row above the band below) are :func:`block_scatter`'s tables, ``pos[w, v]`` worker ``w``'s
+    first write position in band ``v``'s list.
+    """
+    nw, H = row_hist.shape
+    nb = max(1, min(int(n_bands), H))
+    cum = np.cumsum(row_hist.sum(axis=0))
+    edges = np.empty(nb + 1, np.int64)
+    edges[0], edges[nb] = 0, H
+    total = int(cum[-1]) if H else 0
+    for k in range(1, nb):
+        r = int(np.searchsorted(cum, total * k / nb, side="left")) + 1 if total > 0 else (H * k) // nb
+        edges[k] = min(max(r, edges[k - 1] + 1), H - (nb - k))
+    band_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
+    edge_of_row = np.zeros(H, np.uint8)
+    edge_of_row[edges[1:nb]] |= 1
+    edge_of_row[edges[1:nb] - 1] |= 2
+    # events of worker w in band v's list: rows [edges[v] - 1, edges[v + 1] + 1) clipped
+    csum = np.zeros((nw, H + 1), np.int64)
+    np.cumsum(row_hist, axis=1, out=csum[:, 1:])
+    lo = np.maximum(edges[:-1] - 1, 0)
+    hi = np.minimum(edges[1:] + 1, H)
+    cnt = csum[:, hi] - csum[:, lo]  # (workers, bands)
+    start = np.zeros(nb + 1, np.int64)
+    np.cumsum(cnt.sum(axis=0), out=start[1:])
+    pos = np.ascontiguousarray(start[:-1][None, :] + np.cumsum(cnt, axis=0) - cnt)
+    return edges, band_of_row, edge_of_row, start, pos
 
 
 class PixelAKFEngine(AKFEngine):
@@ -398,18 +405,8 @@ class PixelAKFEngine(AKFEngine):
         # one worker per row band of the base engine (its pool: fewer than n_workers on a sensor
         # with fewer rows than workers)
         self._nw = nw = len(self.bands)
-        nb = max(1, min(H, nw * BLOCKS_PER_WORKER)) if nw > 1 else 1
-        edges = np.round(np.linspace(0, H, nb + 1)).astype(np.int64)
-        self.block_rows = edges  # block b: rows [edges[b], edges[b + 1])
-        self.block_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
-        self.edge_of_row = np.zeros(H, np.uint8)
-        for b in range(nb):
-            if b > 0:
-                self.edge_of_row[edges[b]] |= 1  # the ghost row below block b - 1
-            if b + 1 < nb:
-                self.edge_of_row[edges[b + 1] - 1] |= 2  # the ghost row above block b + 1
-        self.ghost = np.zeros((nb, 2, W + 2), np.int64)  # each block's copies of its ghost rows
-        self.n_blocks = nb
+        self.ghost = np.zeros((nw, 2, W + 2), np.int64)  # each band's copies of its ghost rows
+        self._row_hist = np.zeros((nw, H), np.int64)
         self._cap = 0
         self._bufs_px = (None, None, None)
         self._no_index = np.empty(0, np.int32)  # block_stream's index list where it reads the events in place
@@ -487,7 +484,7 @@ class PixelAKFEngine(AKFEngine):
                 self.con_px, self.coff_px)
         te, gcnt, glo, ghi, ghost = self.te_px, self.gcnt, self.glo, self.ghi, self.ghost
         stream = BLOCK_ORDER == "stream"
-        if self._nw == 1:
+        if self._nw == 1 or n < PARALLEL_MIN_EVENTS:  # a hand-off costs more than a few events take
             with PH.phase("filter", "parallel"):
                 # one block, all rows: its ghost rows are te's padding (never written)
                 if stream:
@@ -501,51 +498,42 @@ class PixelAKFEngine(AKFEngine):
                 with PH.phase("worker_walk", "worker"):
                     self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
             return
-        nw, nb = self._nw, self.n_blocks
+        nw = self._nw
         parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
-        hist = np.zeros((nw, nb), np.int64)
-        bor, eor, brow = self.block_of_row, self.edge_of_row, self.block_rows
+        row_hist = self._row_hist
         bar = self._barrier
         shared: dict = {}
 
         def worker(w):
             with PH.phase("worker_histogram", "worker"):
-                block_histogram(y, parts[w], parts[w + 1], bor, eor, hist[w])
+                K.row_histogram(y, parts[w], parts[w + 1], 1, row_hist[w])
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            if w == nw - 1:  # the calling thread: block offsets, buffers, the blocks dealt out by events
-                tot = hist.sum(axis=0)
-                bstart = np.zeros(nb + 1, np.int64)
-                np.cumsum(tot, out=bstart[1:])
-                pos = bstart[:-1][None, :] + np.cumsum(hist, axis=0) - hist
-                shared.update(bstart=bstart, pos=np.ascontiguousarray(pos), deal=deal_blocks(tot, nw),
-                              bufs=self._buffers(int(bstart[-1]), stream))
+            if w == nw - 1:  # the calling thread: the bands of this window, the lists' offsets, buffers
+                edges, bor, eor, start, pos = plan_bands(row_hist, nw)
+                shared.update(edges=edges, bor=bor, eor=eor, start=start, pos=pos,
+                              bufs=self._buffers(int(start[-1]), stream))
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            bstart, deal = shared["bstart"], shared["deal"]
+            edges, start = shared["edges"], shared["start"]
             ev, act, rec = shared["bufs"]
-            b0, b1 = deal[w]
+            lo, hi = int(edges[w]), int(edges[w + 1])
             with PH.phase("worker_scatter", "worker"):
-                block_scatter(y, i0, parts[w], parts[w + 1], bor, eor, shared["pos"][w], ev)
-                for b in range(b0, b1):  # the ghost rows as they are before any block moves its own
-                    ghost[b, 0] = te[brow[b] * wp:(brow[b] + 1) * wp]
-                    ghost[b, 1] = te[(brow[b + 1] + 1) * wp:(brow[b + 1] + 2) * wp]
+                block_scatter(y, i0, parts[w], parts[w + 1], shared["bor"], shared["eor"], shared["pos"][w], ev)
+                # the band's ghost rows as they are before any band moves its own rows
+                ghost[w, 0] = te[lo * wp:(lo + 1) * wp]
+                ghost[w, 1] = te[(hi + 1) * wp:(hi + 2) * wp]
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            m = 0
+            e0, e1 = int(start[w]), int(start[w + 1])
             if stream:
                 with PH.phase("worker_filter", "worker"):
-                    for b in range(b0, b1):
-                        m += block_stream(t, x, y, p, i0, ev, bstart[b], bstart[b + 1], False, W, brow[b], brow[b + 1],
-                                          self._S, te, ghost[b, 0], ghost[b, 1], *args[1:])
-                return m
+                    return block_stream(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, self._S, te, ghost[w, 0],
+                                        ghost[w, 1], *args[1:])
             with PH.phase("worker_group_walk", "worker"):
-                for b in range(b0, b1):
-                    e0, e1 = bstart[b], bstart[b + 1]
-                    k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, brow[b], brow[b + 1], te, ghost[b, 0],
-                                    ghost[b, 1], gcnt, glo, ghi, rec, act)
-                    m += walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
-            return m
+                k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, te, ghost[w, 0], ghost[w, 1], gcnt,
+                                glo, ghi, rec, act)
+                return walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
 
         with PH.phase("filter", "parallel"):
             self.n_events += int(sum(self._map_workers(worker)))

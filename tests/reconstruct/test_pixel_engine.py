@@ -37,9 +37,17 @@ def _run(engine_cls, n_workers, h, w, ev, frames, params, measurements=None, cut
     return outs, S, n
 
 
+@pytest.fixture
+def threaded_windows(monkeypatch):
+    """Every window of these small streams through the workers (not the calling thread alone)."""
+    monkeypatch.setattr(PX, "PARALLEL_MIN_EVENTS", 0)
+
+
 @pytest.mark.parametrize("n_workers", [1, 2, 3, 5])
 @pytest.mark.parametrize("variant", ["paper", "reference", "la_step", "thresholds"])
-def test_pixel_engine_bit_identical(n_workers, variant):
+@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
+def test_pixel_engine_bit_identical(n_workers, variant, order, threaded_windows, monkeypatch):
+    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
     h, w = 13, 17
     ev = _stream(6_000, h, w, seed=n_workers, t0=1_000, boundary_rows=(0, 5, 6, 12))
     ev[1][::7] = 3  # a busy column: long groups, many active neighbours
@@ -65,13 +73,54 @@ def test_pixel_engine_bit_identical(n_workers, variant):
         np.testing.assert_array_equal(a, b)
 
 
-def test_more_workers_than_rows_and_empty_windows():
+@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
+def test_more_workers_than_rows_and_empty_windows(order, threaded_windows, monkeypatch):
+    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
     h, w = 3, 40
     ev = _stream(2_000, h, w, seed=9, t0=1_000)
     frames = _frames(h, w, [1_000, 90_000])
     ref = _run(E.AKFEngine, 1, h, w, ev, frames, AKFParams())
     got = _run(PX.PixelAKFEngine, 8, h, w, ev, frames, AKFParams(), cuts=(0, 10, 10, 1_999))
     np.testing.assert_array_equal(got[1], ref[1])
+
+
+def test_small_windows_in_the_calling_thread():
+    """Windows below PARALLEL_MIN_EVENTS are filtered without the workers: the same bits."""
+    h, w = 13, 17
+    ev = _stream(6_000, h, w, seed=3, t0=1_000, boundary_rows=(0, 5, 6, 12))
+    frames = _frames(h, w, [1_000, 50_000, 100_000, 150_000])
+    ref = _run(E.AKFEngine, 1, h, w, ev, frames, AKFParams())
+    got = _run(PX.PixelAKFEngine, 3, h, w, ev, frames, AKFParams(), cuts=(1_000, 2_500))
+    np.testing.assert_array_equal(got[1], ref[1])
+    for (ta, a), (tb, b) in zip(got[0], ref[0]):
+        assert ta == tb
+        np.testing.assert_array_equal(a, b)
+
+
+def test_plan_bands():
+    """Bands of about equal events, each at least one row; each list holds its rows' and its two
+    ghost rows' events, worker by worker."""
+    rng = np.random.default_rng(0)
+    hist = rng.integers(0, 5, (3, 20))
+    hist[:, 12] += 200  # one busy row
+    edges, bor, eor, start, pos = PX.plan_bands(hist, 4)
+    assert edges[0] == 0 and edges[-1] == 20 and np.all(np.diff(edges) >= 1)
+    for v in range(4):
+        lo, hi = edges[v], edges[v + 1]
+        assert np.all(bor[lo:hi] == v)
+        rows = slice(max(lo - 1, 0), min(hi + 1, 20))
+        assert start[v + 1] - start[v] == hist[:, rows].sum()
+        for wk in range(3):
+            assert pos[wk, v] == start[v] + hist[:wk, rows].sum()
+    # ghost flags: the first row of band v > 0 is read by band v - 1, the last row of band v < 3 by v + 1
+    assert [int(r) for r in np.flatnonzero(eor & 1)] == [int(e) for e in edges[1:4]]
+    assert [int(r) for r in np.flatnonzero(eor & 2)] == [int(e) - 1 for e in edges[1:4]]
+    # the busy row sits alone or nearly: no band holds more than the busy row plus a share of the rest
+    own = [hist[:, edges[v]:edges[v + 1]].sum() for v in range(4)]
+    assert max(own) <= hist[:, 12].sum() + hist.sum() // 4
+    # more bands than rows: one row each
+    edges, *_ = PX.plan_bands(np.ones((2, 3), np.int64), 8)
+    assert list(edges) == [0, 1, 2, 3]
 
 
 def test_choice_and_report():
