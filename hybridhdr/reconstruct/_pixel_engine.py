@@ -54,6 +54,7 @@ from numba import njit
 from .._util import phases as PH
 from .._util.nbprefetch import prefetch
 from . import _kernels as K
+from . import _engine
 from ._engine import AKFEngine
 
 #: how a worker filters its blocks' events: "stream" (:func:`block_stream`, each block's events in
@@ -92,7 +93,8 @@ def block_scatter(y, a, j0, j1, block_of_row, edge_of_row, pos, out):
 
 
 @njit(cache=True, nogil=True)
-def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, top, bot, gcnt, glo, ghi, rec, act):
+def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, te_base, top, bot, gcnt, glo, ghi, rec,
+                act):
     """Group a block's events by pixel with each event's Δt and t*; returns the pixels with events.
 
     The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
@@ -176,11 +178,12 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
         r = np.uint64(y[i])
         c = np.uint64(x[i])
         ti = t[i]
+        tr = ti - te_base  # relative to te's origin (int32 te: see AKFEngine._te_fit)
         if r < lo:
-            top[c + ONE] = ti
+            top[c + ONE] = tr
             continue
         if r >= hi:
-            bot[c + ONE] = ti
+            bot[c + ONE] = tr
             continue
         tp = (r + ONE) * wpu + c + ONE
         if r == lo:
@@ -205,10 +208,10 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
         q = r * w + c
         g = ghi[q]
         rec[g, 0] = ti
-        rec[g, 1] = 2 * (ti - te0) + np.int64(p[i] > 0)
-        rec[g, 2] = ti - tstar
+        rec[g, 1] = 2 * (tr - te0) + np.int64(p[i] > 0)
+        rec[g, 2] = tr - tstar
         ghi[q] = g + 1
-        te[tp] = ti
+        te[tp] = tr
     return k
 
 
@@ -260,7 +263,8 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
 
 
 @njit(cache=True, nogil=True, inline="always")
-def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step, seg_t0,
+def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
+                  seg_t0,
                   seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
     w = np.uint64(width)
@@ -285,11 +289,12 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
         r = np.uint64(y[i])
         c = np.uint64(x[i])
         ti = t[i]
+        tr = ti - te_base  # relative to te's origin (int32 te: see AKFEngine._te_fit)
         if r < lo:  # a ghost row: its owner moves te, this block only its copy
-            top[c + ONE] = ti
+            top[c + ONE] = tr
             continue
         if r >= hi:
-            bot[c + ONE] = ti
+            bot[c + ONE] = tr
             continue
         tp = (r + ONE) * wpu + c + ONE
         if r == lo:
@@ -315,7 +320,7 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
         q = r * w + c
         jump_on = con_px[q] if has_px else c_on
         jump_off = -(coff_px[q] if has_px else c_off)
-        lh, pp, la = K.akf_event_step(S[q, K.A_L], S[q, K.A_P], S[q, K.A_LA], S[q, K.A_TU], ti, ti - te0, ti - tstar,
+        lh, pp, la = K.akf_event_step(S[q, K.A_L], S[q, K.A_P], S[q, K.A_LA], S[q, K.A_TU], ti, tr - te0, tr - tstar,
                                       p[i] > 0, S[q, K.A_RINV], S[q, K.A_BETA], S[q, K.A_KLOG], S[q, K.A_LASTEP],
                                       has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref,
                                       rho_us, noise_form)
@@ -324,13 +329,14 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
         if has_la_step:
             S[q, K.A_LA] = la
         S[q, K.A_TU] = np.float64(ti)
-        te[tp] = ti
+        te[tp] = tr
         n += 1
     return n
 
 
 @njit(cache=True, nogil=True)
-def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step, seg_t0,
+def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
+                 seg_t0,
                  seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
     """Filter a block's events in stream order: each by :func:`._kernels.akf_event_step`, as the
     serial kernel does, with t* from the 3x3 window of ``te`` and the block's ghost-row copies.
@@ -342,10 +348,11 @@ def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, 
     state is the serial filter's bit for bit. Returns the events applied to the block's pixels.
     """
     if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
-        return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot,
+        return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
                              has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
                              con_px, coff_px, True)
-    return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, top, bot, has_la_step,
+    return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
+                         has_la_step,
                          seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px,
                          False)
 
@@ -398,14 +405,16 @@ class PixelAKFEngine(AKFEngine):
         super().__init__(shape, measurements, params, n_workers)
         H, W = self.shape
         n = self.n
-        self.te_px = K.padded_te(H, W, 0, np.int64)  # last event times, absolute µs
+        # last event times, int32 relative to te_base as the row-band engine's (half the bytes: the
+        # 3x3 windows miss the caches less), int64 absolute past int32's reach (_te_fit); same bits
+        self.te_px = K.padded_te(H, W, 0, np.int32)
         self.gcnt = np.zeros(n, np.int32)
         self.glo = np.zeros(n, np.int32)
         self.ghi = np.zeros(n, np.int32)
         # one worker per row band of the base engine (its pool: fewer than n_workers on a sensor
         # with fewer rows than workers)
         self._nw = nw = len(self.bands)
-        self.ghost = np.zeros((nw, 2, W + 2), np.int64)  # each band's copies of its ghost rows
+        self.ghost = np.zeros((nw, 2, W + 2), np.int32)  # each band's copies of its ghost rows (te's type)
         self._row_hist = np.zeros((nw, H), np.int64)
         self._cap = 0
         self._bufs_px = (None, None, None)
@@ -419,11 +428,19 @@ class PixelAKFEngine(AKFEngine):
         return None
 
     def _te_fit(self, t_first: int, t_last: int) -> None:
-        return None  # int64 absolute times throughout
+        """:meth:`AKFEngine._te_fit` for the one shared ``te`` (and the ghost-row copies' type)."""
+        lim = _engine.TE32_MAX
+        if self.te_px.dtype == np.int32 and not (-lim - 1 <= t_first - self.te_base and t_last - self.te_base <= lim):
+            self.te_px = self.te_px.astype(np.int64) + self.te_base
+            self.ghost = self.ghost.astype(np.int64)
+            self.te_base = 0
 
     def start(self, t_start_us=None) -> int:
-        t_init = super().start(t_start_us)
-        self.te_px[:] = t_init
+        t_init = super().start(t_start_us)  # te_base = t_init
+        if self.te_px.dtype != np.int32:  # a restart after the int64 fallback
+            self.te_px = self.te_px.astype(np.int32)
+            self.ghost = self.ghost.astype(np.int32)
+        self.te_px[:] = 0
         return t_init
 
     def _buffers(self, n: int, stream: bool = False):
@@ -479,6 +496,8 @@ class PixelAKFEngine(AKFEngine):
         H, W = self.shape
         wp = W + 2
         n = i1 - i0
+        self._te_fit(int(t[i0]), int(t[i1 - 1]))
+        tb = np.int64(self.te_base)
         args = (self.S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
                 self.con_px, self.coff_px)
@@ -488,13 +507,13 @@ class PixelAKFEngine(AKFEngine):
             with PH.phase("filter", "parallel"):
                 # one block, all rows: its ghost rows are te's padding (never written)
                 if stream:
-                    self.n_events += block_stream(t, x, y, p, i0, self._no_index, 0, n, True, W, 0, H, self._S, te, te[0:wp],
-                                                  te[(H + 1) * wp:], *args[1:])
+                    self.n_events += block_stream(t, x, y, p, i0, self._no_index, 0, n, True, W, 0, H, self._S, te, tb,
+                                                  te[0:wp], te[(H + 1) * wp:], *args[1:])
                     return
                 ev, act, rec = self._buffers(n)
                 with PH.phase("worker_group", "worker"):
-                    k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, te[0:wp], te[(H + 1) * wp:], gcnt,
-                                    glo, ghi, rec, act)
+                    k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, tb, te[0:wp], te[(H + 1) * wp:],
+                                    gcnt, glo, ghi, rec, act)
                 with PH.phase("worker_walk", "worker"):
                     self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
             return
@@ -528,10 +547,10 @@ class PixelAKFEngine(AKFEngine):
             e0, e1 = int(start[w]), int(start[w + 1])
             if stream:
                 with PH.phase("worker_filter", "worker"):
-                    return block_stream(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, self._S, te, ghost[w, 0],
+                    return block_stream(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, self._S, te, tb, ghost[w, 0],
                                         ghost[w, 1], *args[1:])
             with PH.phase("worker_group_walk", "worker"):
-                k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, te, ghost[w, 0], ghost[w, 1], gcnt,
+                k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, te, tb, ghost[w, 0], ghost[w, 1], gcnt,
                                 glo, ghi, rec, act)
                 return walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
 

@@ -17,7 +17,7 @@ from hybridhdr.reconstruct import _pixel_engine as PX
 
 from .test_parallel import _frames, _stream, _StepMeasurements
 
-def _run(engine_cls, n_workers, h, w, ev, frames, params, measurements=None, cuts=(), thresholds=None):
+def _run(engine_cls, n_workers, h, w, ev, frames, params, measurements=None, cuts=(), thresholds=None, t_origin=0):
     """Drive ``engine_cls`` through the events, cut into windows at ``cuts`` and the frame switches;
     outputs (state) at a few times."""
     m = measurements or FrameMeasurements(frames, (h, w), default_profile(), intensity_offset=params.intensity_offset)
@@ -25,7 +25,7 @@ def _run(engine_cls, n_workers, h, w, ev, frames, params, measurements=None, cut
     if thresholds is not None:
         eng.set_thresholds(*thresholds)
     t, x, y, p = ev
-    clock = E.OutputClock(times_us=np.array([60_000, 120_000, 190_000]))
+    clock = E.OutputClock(times_us=t_origin + np.array([60_000, 120_000, 190_000]))
     chunks = []
     bounds = [0, *sorted(cuts), len(t)]
     for a, b in zip(bounds[:-1], bounds[1:]):
@@ -82,6 +82,35 @@ def test_more_workers_than_rows_and_empty_windows(order, threaded_windows, monke
     ref = _run(E.AKFEngine, 1, h, w, ev, frames, AKFParams())
     got = _run(PX.PixelAKFEngine, 8, h, w, ev, frames, AKFParams(), cuts=(0, 10, 10, 1_999))
     np.testing.assert_array_equal(got[1], ref[1])
+
+
+@pytest.mark.parametrize("n_workers", [1, 3])
+@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
+def test_int32_last_event_times_widen_to_int64(n_workers, order, threaded_windows, monkeypatch):
+    """The int32 last-event times (relative to the start) become int64 absolute ones past int32's
+    reach (about 35 minutes; shortened here to 150 ms), ghost-row copies included: the serial
+    filter's bits either way."""
+    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
+    h, w = 13, 17
+    t0 = (1 << 33) + 11
+    ev = _stream(8_000, h, w, seed=12, t0=t0, span=300_000, boundary_rows=(0, 5, 6, 12))
+    frames = _frames(h, w, [t0 - 11, t0 + 100_000, t0 + 200_000, t0 + 299_000])
+    params = AKFParams(frame_precision_scale=1e3)
+    ref = _run(E.AKFEngine, 1, h, w, ev, frames, params, t_origin=t0)
+    dtypes = []
+    fit = PX.PixelAKFEngine._te_fit
+
+    def spy(self, a, b):
+        fit(self, a, b)
+        dtypes.append((self.te_px.dtype, self.ghost.dtype))
+    monkeypatch.setattr(PX.PixelAKFEngine, "_te_fit", spy)
+    monkeypatch.setattr(E, "TE32_MAX", 150_000)
+    got = _run(PX.PixelAKFEngine, n_workers, h, w, ev, frames, params, cuts=(2_000, 5_000), t_origin=t0)
+    assert dtypes[0] == (np.int32, np.int32) and dtypes[-1] == (np.int64, np.int64), dtypes
+    np.testing.assert_array_equal(got[1], ref[1])
+    for (ta, a), (tb, b) in zip(got[0], ref[0]):
+        assert ta == tb
+        np.testing.assert_array_equal(a, b)
 
 
 def test_small_windows_in_the_calling_thread():
