@@ -489,21 +489,24 @@ class PixelAKFEngine(AKFEngine):
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        if self._pending is not None:
-            with PH.phase("switch", "parallel"):
-                self._flush()  # the pending frame switch, by row bands
         pr = self.params
         H, W = self.shape
         wp = W + 2
         n = i1 - i0
+        threaded = self._nw > 1 and n >= PARALLEL_MIN_EVENTS  # else a hand-off costs more than the events
+        pend, bands = self._pending, self.bands
+        if pend is not None and not threaded:
+            with PH.phase("switch", "parallel"):
+                self._flush()  # the pending frame switch, by row bands
+        self._pending = None  # the workers apply it, each its row band, before they start the window
         self._te_fit(int(t[i0]), int(t[i1 - 1]))
         tb = np.int64(self.te_base)
-        args = (self.S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+        args = (self._S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
                 self.con_px, self.coff_px)
         te, gcnt, glo, ghi, ghost = self.te_px, self.gcnt, self.glo, self.ghi, self.ghost
         stream = BLOCK_ORDER == "stream"
-        if self._nw == 1 or n < PARALLEL_MIN_EVENTS:  # a hand-off costs more than a few events take
+        if not threaded:
             with PH.phase("filter", "parallel"):
                 # one block, all rows: its ghost rows are te's padding (never written)
                 if stream:
@@ -524,6 +527,9 @@ class PixelAKFEngine(AKFEngine):
         shared: dict = {}
 
         def worker(w):
+            if pend is not None:  # the frame switch due, on the fixed row bands (pixel-wise: any split will do)
+                with PH.phase("worker_switch", "worker"):
+                    pend(w, *bands[w])
             with PH.phase("worker_histogram", "worker"):
                 K.row_histogram(y, parts[w], parts[w + 1], 1, row_hist[w])
             with PH.phase("worker_wait", "worker"):
