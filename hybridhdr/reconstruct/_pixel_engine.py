@@ -66,6 +66,11 @@ BLOCK_ORDERS = ("stream", "pixel")
 #: windows of fewer events are filtered by the calling thread alone (as one band: the same bits);
 #: the row-band engine's threshold (``_engine.PARALLEL_MIN_WORK``)
 PARALLEL_MIN_EVENTS = 20_000
+#: up to this many workers each selects its band's events from the whole window (one pass over
+#: the window per worker, no barrier: :meth:`PixelAKFEngine._process_selected`); with more, the
+#: window is split once by rows (a histogram, then a scatter, between barriers), whose cost per
+#: worker shrinks as workers are added where a whole pass per worker does not
+SELECT_MAX_WORKERS = 4
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
@@ -521,6 +526,9 @@ class PixelAKFEngine(AKFEngine):
                     self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
             return
         nw = self._nw
+        if stream and nw <= SELECT_MAX_WORKERS:
+            self._process_selected(t, x, y, p, i0, i1, pend, tb, args)
+            return
         parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
         row_hist = self._row_hist
         bar = self._barrier
@@ -559,6 +567,42 @@ class PixelAKFEngine(AKFEngine):
                 k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, te, tb, ghost[w, 0], ghost[w, 1], gcnt,
                                 glo, ghi, rec, act)
                 return walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
+
+        with PH.phase("filter", "parallel"):
+            self.n_events += int(sum(self._map_workers(worker)))
+
+
+    def _process_selected(self, t, x, y, p, i0, i1, pend, tb, args) -> None:
+        """A window with few workers, without a barrier: the calling thread cuts the bands (from a
+        1-in-8 sample of the rows) and copies their ghost rows; each worker then switches its band's
+        pixels when a frame switch is due, selects its band's events (ghost rows included) from the
+        whole window (:func:`._kernels.band_select`, branch-free) and filters them in stream order."""
+        H, W = self.shape
+        wp = W + 2
+        nw = self._nw
+        n = i1 - i0
+        with PH.phase("plan_bands"):
+            hist = self._row_hist[0]
+            K.row_histogram(y, i0, i1, 8, hist)
+            edges = plan_bands(hist[None, :], nw)[0]
+            te, ghost = self.te_px, self.ghost
+            for w in range(nw):  # the ghost rows as they are before any band moves its own rows
+                lo, hi = int(edges[w]), int(edges[w + 1])
+                ghost[w, 0] = te[lo * wp:(lo + 1) * wp]
+                ghost[w, 1] = te[(hi + 1) * wp:(hi + 2) * wp]
+        S = self._S
+
+        def worker(w):
+            lo, hi = int(edges[w]), int(edges[w + 1])
+            if pend is not None:  # the frame switch due, on this band's pixels (pixel-wise: any split will do)
+                with PH.phase("worker_switch", "worker"):
+                    pend(w, lo, hi)
+            with PH.phase("worker_select", "worker"):
+                idx = self._index_buffer(("select", w), n)[0]
+                m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
+            with PH.phase("worker_filter", "worker"):
+                return block_stream(t, x, y, p, i0, idx, 0, m, False, W, lo, hi, S, te, tb, ghost[w, 0], ghost[w, 1],
+                                    *args[1:])
 
         with PH.phase("filter", "parallel"):
             self.n_events += int(sum(self._map_workers(worker)))

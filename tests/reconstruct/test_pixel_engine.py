@@ -43,11 +43,22 @@ def threaded_windows(monkeypatch):
     monkeypatch.setattr(PX, "PARALLEL_MIN_EVENTS", 0)
 
 
+#: the ways a worker gets and filters its events: its band selected from the whole window, in
+#: stream order; the window split once by rows (histogram and scatter), in stream order; the same
+#: split, grouped by pixel and walked
+PATHS = ("select", "split", "pixel")
+
+
+def _set_path(monkeypatch, path):
+    monkeypatch.setattr(PX, "BLOCK_ORDER", "pixel" if path == "pixel" else "stream")
+    monkeypatch.setattr(PX, "SELECT_MAX_WORKERS", 1 << 20 if path == "select" else 0)
+
+
 @pytest.mark.parametrize("n_workers", [1, 2, 3, 5])
 @pytest.mark.parametrize("variant", ["paper", "reference", "la_step", "thresholds"])
-@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
-def test_pixel_engine_bit_identical(n_workers, variant, order, threaded_windows, monkeypatch):
-    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
+@pytest.mark.parametrize("path", PATHS)
+def test_pixel_engine_bit_identical(n_workers, variant, path, threaded_windows, monkeypatch):
+    _set_path(monkeypatch, path)
     h, w = 13, 17
     ev = _stream(6_000, h, w, seed=n_workers, t0=1_000, boundary_rows=(0, 5, 6, 12))
     ev[1][::7] = 3  # a busy column: long groups, many active neighbours
@@ -73,9 +84,9 @@ def test_pixel_engine_bit_identical(n_workers, variant, order, threaded_windows,
         np.testing.assert_array_equal(a, b)
 
 
-@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
-def test_more_workers_than_rows_and_empty_windows(order, threaded_windows, monkeypatch):
-    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
+@pytest.mark.parametrize("path", PATHS)
+def test_more_workers_than_rows_and_empty_windows(path, threaded_windows, monkeypatch):
+    _set_path(monkeypatch, path)
     h, w = 3, 40
     ev = _stream(2_000, h, w, seed=9, t0=1_000)
     frames = _frames(h, w, [1_000, 90_000])
@@ -85,12 +96,12 @@ def test_more_workers_than_rows_and_empty_windows(order, threaded_windows, monke
 
 
 @pytest.mark.parametrize("n_workers", [1, 3])
-@pytest.mark.parametrize("order", PX.BLOCK_ORDERS)
-def test_int32_last_event_times_widen_to_int64(n_workers, order, threaded_windows, monkeypatch):
+@pytest.mark.parametrize("path", PATHS)
+def test_int32_last_event_times_widen_to_int64(n_workers, path, threaded_windows, monkeypatch):
     """The int32 last-event times (relative to the start) become int64 absolute ones past int32's
     reach (about 35 minutes; shortened here to 150 ms), ghost-row copies included: the serial
     filter's bits either way."""
-    monkeypatch.setattr(PX, "BLOCK_ORDER", order)
+    _set_path(monkeypatch, path)
     h, w = 13, 17
     t0 = (1 << 33) + 11
     ev = _stream(8_000, h, w, seed=12, t0=t0, span=300_000, boundary_rows=(0, 5, 6, 12))
