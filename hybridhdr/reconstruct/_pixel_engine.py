@@ -1,46 +1,46 @@
-"""The pixel-parallel CPU engine of the AKF (private): the GPU's decomposition on CPU threads.
+"""The pixel-parallel CPU engine of the AKF (private): each window's events split once by row band.
 
-The row-band engine (:class:`._engine.AKFEngine` with several workers) splits each batch of
-events by row band, and every batch hands off between the bands; at 8-16 workers those hand-offs
-and the memory traffic dominate. This engine takes the CUDA path's route instead
-(:mod:`._cuda_kernels`): the events of one window (between two breakpoints of the driver: frame
-switches, output times, chunk ends) are grouped by pixel, and each worker walks whole pixels,
-each pixel's events in stream order, with its state record in registers
-(:func:`walk_block`; the per-event step is :func:`._kernels.akf_event_step`, the function the
-serial kernel and the CUDA kernels compile). So the per-event arithmetic is the serial filter's,
-in the same order for every pixel, with the same inputs: the outputs are bit-identical to
+The row-band engine (:class:`._engine.AKFEngine` with several workers) keeps its bands from batch
+to batch, each with its own last-event-time array, and pipelines each batch's split into the
+bands' filtering. This engine cuts new bands for every window of events (between two breakpoints
+of the driver: frame switches, output times, chunk ends) from that window's events per row, so
+the workers' shares are equal whatever the events' layout, and shares one last-event-time array
+``te`` between the bands: each band copies its two *ghost rows* (the rows just above and below
+it, whose times its pixels' t* read and which their owners move meanwhile) at the start of the
+window, and the ghost rows' events move only the copies. Every pixel then sees its events in
+stream order with the serial filter's Δt and t* (eq. 2, §3.1.1: the latest event time in the 3×3
+window before the event) and the per-event step :func:`._kernels.akf_event_step`, the function
+the serial kernel and the CUDA kernels compile: the outputs are bit-identical to
 :class:`._engine.AKFEngine` for any window split and any number of workers.
 
-The isolated-pixel term's t* (eq. 2, §3.1.1: the latest event time in the 3×3 window before each
-event) is computed while grouping, not while walking: the grouping pass reads each block's events
-in stream order anyway, so it keeps the last-event times ``te`` as the serial filter does (nine
-independent loads per event) and stores each event's Δt to its pixel's previous event and to t*
-beside it in the group. The GPU reads t* from the neighbours' groups instead (a merge per pair
-of pixels); on a CPU core that merge is bound by the latency of its compare-and-advance chain
-(about 100 ns per event at 346x260, five times the whole serial filter), where the ``te`` loads
-overlap.
+How a worker gets its band's events (``w`` workers, ``n`` events in the window):
 
-One window, ``n`` events, ``w`` workers, ``B`` row blocks (contiguous rows; more blocks than
-workers, so the blocks are dealt out by their event counts):
+- up to :data:`SELECT_MAX_WORKERS` workers: the calling thread cuts the bands from a 1-in-8
+  sample of the rows and copies the ghost rows; each worker selects its band's events (ghost
+  rows included) from the whole window, branch-free (:func:`._kernels.band_select`), and filters
+  them (:meth:`PixelAKFEngine._process_selected`). No barrier; each worker reads all ``n`` rows;
+- more workers: each counts the rows of its ``1/w`` of the window (:func:`._kernels.row_histogram`),
+  the calling thread cuts the bands (:func:`plan_bands`), each worker scatters its part's event
+  indices into the bands' lists, in stream order (:func:`block_scatter`) and copies its band's
+  ghost rows, then filters its band's list. Three barriers; each worker reads ``n / w`` rows.
 
-1. each worker counts the blocks' events in its ``1/w`` of the window (:func:`block_histogram`);
-   an event in a block's first (last) row also counts for the block above (below): it is that
-   block's *ghost row*, whose times its t* reads;
-2. each worker scatters its part's event indices into per-block lists, in stream order
-   (:func:`block_scatter`), and copies its blocks' two ghost rows of ``te`` (they change under
-   their owners in step 3);
-3. each worker groups its blocks' events by pixel (:func:`group_block`: a stable counting sort
-   over the block's pixels, in pixel order, with t* and the Δt computed on the way, the ghost
-   rows' events only moving the copies), then walks each block's pixels (:func:`walk_block`).
+A worker filters its band in stream order (:func:`block_stream`, :data:`BLOCK_ORDER` "stream"),
+one pass with the serial kernel's prefetching; or, with :data:`BLOCK_ORDER` "pixel", as the
+CUDA kernels do: it groups the band's events by pixel (:func:`group_block`, a stable counting
+sort with t* and the Δt computed on the way) and walks each pixel's events with the state record
+in registers (:func:`walk_block`). The grouping pass cost more than the walk saved: at 346x260,
+1 M events, on one core, the grouping took 50 ns per event and the walk 18, where the stream
+order takes 15-20 (the serial kernel's cost; ``te`` int32 as the row-band engine's). The GPU
+reads t* from the neighbours' groups instead (a merge per pair of pixels); on a CPU core that
+merge is bound by the latency of its compare-and-advance chain (about 100 ns per event at 346x260).
 
-The grouping's cost is its scattered accesses, not its arithmetic: each event's count, 3x3
-``te`` window, write position and record, and in the walk each pixel's state record, are random
-over the sensor (on a 1280x720 one, beyond the caches). Every pass prefetches them a few events
-(pixels) ahead, as the serial kernel does its state: a hint only, the bits do not change.
-
-Steps are separated by a barrier. With one worker there is one block and steps 1 and 2 are
-skipped. ``te`` is padded by one pixel (the serial filter's :func:`._kernels.padded_te`, int64
-absolute µs). Frame switches and outputs are the row-band engine's (one pass over the pixels,
+A pending frame switch (one pass over the pixels, :meth:`._engine.AKFEngine._load`) is applied
+by the workers at the start of the window, each its band's pixels: one hand-off per window, not
+two. Windows of fewer than :data:`PARALLEL_MIN_EVENTS` events, and every window with one worker,
+are filtered by the calling thread as one band of all rows (its ghost rows are ``te``'s padding,
+never written): the serial filter itself. ``te`` is padded by one pixel
+(:func:`._kernels.padded_te`), int32 relative to the start, int64 absolute past int32's reach
+(:meth:`PixelAKFEngine._te_fit`). Outputs are the row-band engine's (one pass over the pixels,
 split by rows).
 """
 
@@ -57,10 +57,10 @@ from . import _kernels as K
 from . import _engine
 from ._engine import AKFEngine
 
-#: how a worker filters its blocks' events: "stream" (:func:`block_stream`, each block's events in
-#: stream order, one pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA
-#: kernels' grouping by pixel). Both give the serial filter's bits; "stream" is the default
-#: because the grouping pass cost more than the walk saved (module docstring)
+#: how a worker filters its band's events: "stream" (:func:`block_stream`, in stream order, one
+#: pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA kernels' grouping by
+#: pixel; with more than :data:`SELECT_MAX_WORKERS` workers). Both give the serial filter's bits;
+#: "stream" is the default because the grouping pass cost more than the walk saved (module docstring)
 BLOCK_ORDER = "stream"
 BLOCK_ORDERS = ("stream", "pixel")
 #: windows of fewer events are filtered by the calling thread alone (as one band: the same bits);
@@ -106,11 +106,13 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
     included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``.
     Pixel ``q``'s group becomes rows ``[glo[q], ghi[q])`` of ``rec``, one record of three int64 per
     event (one cache line for most, where four arrays would touch four): t_i, 2 (t_i - the
-    pixel's previous event time) + (1 if ON), and t_i - t*; in the block's range ``[e0, e1)``; the pixels with events are listed in ``act[e0:e0 + k]``, and
-    ``k`` is returned. ``te`` is the padded last-event-time
-    array (:func:`._kernels.padded_te`, absolute µs), updated in place for the block's rows; ``top``
-    and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and ``row_hi``,
-    which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for every pixel without events
+    pixel's previous event time) + (1 if ON), and t_i - t*; in the block's range ``[e0, e1)``; the
+    pixels with events are listed in ``act[e0:e0 + k]``, and ``k`` is returned. ``te`` is the
+    padded last-event-time array (:func:`._kernels.padded_te`, times relative to ``te_base`` µs:
+    int32 or int64, every use a difference taken in int64), updated in place for the block's
+    rows; ``top`` and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and
+    ``row_hi`` (``te``'s type), which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for
+    every pixel without events
     (:func:`walk_block` restores that).
     """
     wp = width + 2
@@ -341,15 +343,15 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
 
 @njit(cache=True, nogil=True)
 def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
-                 seg_t0,
-                 seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
+                 seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
     """Filter a block's events in stream order: each by :func:`._kernels.akf_event_step`, as the
     serial kernel does, with t* from the 3x3 window of ``te`` and the block's ghost-row copies.
 
     The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
     included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``;
-    ``te``, ``top`` and ``bot`` as in :func:`group_block` (an event of a ghost row moves only the
-    copy). Each pixel sees its events in stream order with the serial filter's t* and Δt, so the
+    ``te``, ``te_base``, ``top`` and ``bot`` as in :func:`group_block` (an event of a ghost row
+    moves only the copy); the other arguments those of :func:`._kernels.akf_events`. Each pixel
+    sees its events in stream order with the serial filter's t* and Δt, so the
     state is the serial filter's bit for bit. Returns the events applied to the block's pixels.
     """
     if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
@@ -609,12 +611,12 @@ class PixelAKFEngine(AKFEngine):
 
 
 #: the worker count from which :func:`cpu_akf_engine` picks the pixel-parallel engine: the
-#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores the pixel
-#: engine ran at 0.4-0.6x the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720,
-#: forward and two-sided: its grouping pass costs about as much as the walk); the row-band engine's
-#: speed-up stops growing past 8 workers (3.3x at 8, 2.8x at 16 at 1280x720 forward on a 16-core
-#: host) where the pixel engine has no hand-off to lose, so the crossing is expected between 4 and
-#: 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
+#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores, with the
+#: window split by band and each band filtered in stream order, the pixel engine ran at 0.85-1.1x
+#: the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720, forward and two-sided,
+#: interleaved on a loaded machine); the row-band engine's speed-up stops growing past 8 workers
+#: (3.6x at 8, 3.8x at 16 at 1280x720 forward on a 16-core host), so the crossing is expected at
+#: or below 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
 PIXEL_MIN_WORKERS = 8
 ENGINES = ("auto", "row-band", "pixel-parallel")
 #: the engine ``reconstruct`` uses ("auto": by the worker count; a benchmark sets one to compare)
