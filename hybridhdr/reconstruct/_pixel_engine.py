@@ -364,12 +364,28 @@ def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, 
                          False)
 
 
+def cut_bands(row_counts: np.ndarray, n_bands: int) -> np.ndarray:
+    """Edges of ``min(n_bands, rows)`` bands of contiguous rows with about equal ``row_counts``
+    (the greedy cut of the running sum; at least one row each): band ``v`` is rows
+    ``[edges[v], edges[v + 1])``."""
+    H = row_counts.shape[0]
+    nb = max(1, min(int(n_bands), H))
+    cum = np.cumsum(row_counts)
+    edges = np.empty(nb + 1, np.int64)
+    edges[0], edges[nb] = 0, H
+    total = int(cum[-1]) if H else 0
+    cuts = np.searchsorted(cum, total * np.arange(1, nb) / nb, side="left") + 1
+    for k in range(1, nb):
+        r = int(cuts[k - 1]) if total > 0 else (H * k) // nb
+        edges[k] = min(max(r, edges[k - 1] + 1), H - (nb - k))
+    return edges
+
+
 def plan_bands(row_hist: np.ndarray, n_bands: int):
     """The row bands of one window and where each worker's part of it goes, from ``row_hist``
     (``(workers, height)``: the events per row of each worker's part of the window).
 
-    The bands are contiguous rows of about equal events (the greedy cut of the running sum; at
-    least one row each); a band's list holds the events of its rows and of its two ghost rows
+    The bands are contiguous rows of about equal events (:func:`cut_bands`); a band's list holds the events of its rows and of its two ghost rows
     (the rows just above and below it), each worker's part in stream order after the parts before
     it. Returns ``(edges, band_of_row, edge_of_row, start, pos)``: band ``v`` has rows
     ``[edges[v], edges[v + 1])`` and the list ``[start[v], start[v + 1])``; ``band_of_row`` and
@@ -378,14 +394,8 @@ def plan_bands(row_hist: np.ndarray, n_bands: int):
     first write position in band ``v``'s list.
     """
     nw, H = row_hist.shape
-    nb = max(1, min(int(n_bands), H))
-    cum = np.cumsum(row_hist.sum(axis=0))
-    edges = np.empty(nb + 1, np.int64)
-    edges[0], edges[nb] = 0, H
-    total = int(cum[-1]) if H else 0
-    for k in range(1, nb):
-        r = int(np.searchsorted(cum, total * k / nb, side="left")) + 1 if total > 0 else (H * k) // nb
-        edges[k] = min(max(r, edges[k - 1] + 1), H - (nb - k))
+    edges = cut_bands(row_hist.sum(axis=0), n_bands)
+    nb = edges.shape[0] - 1
     band_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
     edge_of_row = np.zeros(H, np.uint8)
     edge_of_row[edges[1:nb]] |= 1
@@ -586,7 +596,7 @@ class PixelAKFEngine(AKFEngine):
         with PH.phase("plan_bands"):
             hist = self._row_hist[0]
             K.row_histogram(y, i0, i1, 8, hist)
-            edges = plan_bands(hist[None, :], nw)[0]
+            edges = cut_bands(hist, nw)
             te, ghost = self.te_px, self.ghost
             for w in range(nw):  # the ghost rows as they are before any band moves its own rows
                 lo, hi = int(edges[w]), int(edges[w + 1])
