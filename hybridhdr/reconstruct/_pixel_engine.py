@@ -59,8 +59,9 @@ from ._engine import AKFEngine
 
 #: how a worker filters its band's events: "stream" (:func:`block_stream`, in stream order, one
 #: pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA kernels' grouping by
-#: pixel; with more than :data:`SELECT_MAX_WORKERS` workers). Both give the serial filter's bits;
-#: "stream" is the default because the grouping pass cost more than the walk saved (module docstring)
+#: pixel; the window is then split by rows whatever the workers, never selected). Both give the
+#: serial filter's bits; "stream" is the default: the grouping pass cost more than the walk saved
+#: (module docstring)
 BLOCK_ORDER = "stream"
 BLOCK_ORDERS = ("stream", "pixel")
 #: windows of fewer events are filtered by the calling thread alone (as one band: the same bits);
@@ -112,8 +113,7 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
     int32 or int64, every use a difference taken in int64), updated in place for the block's
     rows; ``top`` and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and
     ``row_hi`` (``te``'s type), which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for
-    every pixel without events
-    (:func:`walk_block` restores that).
+    every pixel without events (:func:`walk_block` restores that).
     """
     wp = width + 2
     # the pixels with events in pixel order (a scan of the block's pixels) when the events are
@@ -271,8 +271,7 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
 
 @njit(cache=True, nogil=True, inline="always")
 def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
-                  seg_t0,
-                  seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
+                  seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
     n = 0
     w = np.uint64(width)
     wpu = w + ONE + ONE
@@ -351,17 +350,16 @@ def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, 
     included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``;
     ``te``, ``te_base``, ``top`` and ``bot`` as in :func:`group_block` (an event of a ghost row
     moves only the copy); the other arguments those of :func:`._kernels.akf_events`. Each pixel
-    sees its events in stream order with the serial filter's t* and Δt, so the
-    state is the serial filter's bit for bit. Returns the events applied to the block's pixels.
+    sees its events in stream order with the serial filter's t* and Δt, so the state is the serial
+    filter's bit for bit. Returns the events applied to the block's pixels.
     """
     if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
         return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
                              has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
                              con_px, coff_px, True)
     return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
-                         has_la_step,
-                         seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px,
-                         False)
+                         has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
+                         con_px, coff_px, False)
 
 
 def cut_bands(row_counts: np.ndarray, n_bands: int) -> np.ndarray:
@@ -385,9 +383,10 @@ def plan_bands(row_hist: np.ndarray, n_bands: int):
     """The row bands of one window and where each worker's part of it goes, from ``row_hist``
     (``(workers, height)``: the events per row of each worker's part of the window).
 
-    The bands are contiguous rows of about equal events (:func:`cut_bands`); a band's list holds the events of its rows and of its two ghost rows
-    (the rows just above and below it), each worker's part in stream order after the parts before
-    it. Returns ``(edges, band_of_row, edge_of_row, start, pos)``: band ``v`` has rows
+    The bands are contiguous rows of about equal events (:func:`cut_bands`); a band's list holds
+    the events of its rows and of its two ghost rows (the rows just above and below it), each
+    worker's part in stream order after the parts before it. Returns ``(edges, band_of_row,
+    edge_of_row, start, pos)``: band ``v`` has rows
     ``[edges[v], edges[v + 1])`` and the list ``[start[v], start[v + 1])``; ``band_of_row`` and
     ``edge_of_row`` (bit 1: the row is also the ghost row below the band above, bit 2: the ghost
     row above the band below) are :func:`block_scatter`'s tables, ``pos[w, v]`` worker ``w``'s
@@ -447,7 +446,8 @@ class PixelAKFEngine(AKFEngine):
     def _te_fit(self, t_first: int, t_last: int) -> None:
         """:meth:`AKFEngine._te_fit` for the one shared ``te`` (and the ghost-row copies' type)."""
         lim = _engine.TE32_MAX
-        if self.te_px.dtype == np.int32 and not (-lim - 1 <= t_first - self.te_base and t_last - self.te_base <= lim):
+        if self.te_px.dtype == np.int32 and not (-lim - 1 <= t_first - self.te_base
+                                                 and t_last - self.te_base <= lim):
             self.te_px = self.te_px.astype(np.int64) + self.te_base
             self.ghost = self.ghost.astype(np.int64)
             self.te_base = 0
