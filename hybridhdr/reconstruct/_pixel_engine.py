@@ -37,8 +37,8 @@ merge is bound by the latency of its compare-and-advance chain (about 100 ns per
 A pending frame switch (one pass over the pixels, :meth:`._engine.AKFEngine._load`) is applied
 by the workers at the start of the window, each its band's pixels: one hand-off per window, not
 two. Windows of fewer than :data:`PARALLEL_MIN_EVENTS` events, and every window with one worker,
-are filtered by the calling thread as one band of all rows (its ghost rows are ``te``'s padding,
-never written): the serial filter itself. ``te`` is padded by one pixel
+are filtered by the calling thread with the serial kernel itself (:func:`._kernels.akf_events`,
+on the same ``te``). ``te`` is padded by one pixel
 (:func:`._kernels.padded_te`), int32 relative to the start, int64 absolute past int32's reach
 (:meth:`PixelAKFEngine._te_fit`). Outputs are the row-band engine's (one pass over the pixels,
 split by rows).
@@ -278,6 +278,7 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
     lo = np.uint64(row_lo)
     hi = np.uint64(row_hi)
     au = np.int64(a)
+    inner_hi = np.int64(row_hi) - np.int64(row_lo) - 1  # rows lo + 1 .. hi - 2 (relative 1 .. inner_hi - 1)
     for j in range(e0, e1):
         if j + K.PREFETCH_AHEAD < e1:  # the serial kernel's prefetch: the record and the 3x3 te window
             jn = au + (np.int64(j + K.PREFETCH_AHEAD) if identity else np.int64(ev[j + K.PREFETCH_AHEAD]))
@@ -296,29 +297,38 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
         c = np.uint64(x[i])
         ti = t[i]
         tr = ti - te_base  # relative to te's origin (int32 te: see AKFEngine._te_fit)
-        if r < lo:  # a ghost row: its owner moves te, this block only its copy
-            top[c + ONE] = tr
-            continue
-        if r >= hi:
-            bot[c + ONE] = tr
-            continue
         tp = (r + ONE) * wpu + c + ONE
-        if r == lo:
-            u0 = top[c]
-            u1 = top[c + ONE]
-            u2 = top[c + ONE + ONE]
-        else:
+        rr = np.int64(r) - np.int64(row_lo)
+        if rr > 0 and rr < inner_hi:  # an inner row (most events; one test): its 3x3 window is in te
             u0 = te[tp - wpu - ONE]
             u1 = te[tp - wpu]
             u2 = te[tp - wpu + ONE]
-        if r + ONE == hi:
-            d0 = bot[c]
-            d1 = bot[c + ONE]
-            d2 = bot[c + ONE + ONE]
-        else:
             d0 = te[tp + wpu - ONE]
             d1 = te[tp + wpu]
             d2 = te[tp + wpu + ONE]
+        else:
+            if r < lo:  # a ghost row: its owner moves te, this band only its copy
+                top[c + ONE] = tr
+                continue
+            if r >= hi:
+                bot[c + ONE] = tr
+                continue
+            if r == lo:  # the band's first row: the row above is the ghost row's copy
+                u0 = top[c]
+                u1 = top[c + ONE]
+                u2 = top[c + ONE + ONE]
+            else:
+                u0 = te[tp - wpu - ONE]
+                u1 = te[tp - wpu]
+                u2 = te[tp - wpu + ONE]
+            if r + ONE == hi:  # its last row: the row below is the copy
+                d0 = bot[c]
+                d1 = bot[c + ONE]
+                d2 = bot[c + ONE + ONE]
+            else:
+                d0 = te[tp + wpu - ONE]
+                d1 = te[tp + wpu]
+                d2 = te[tp + wpu + ONE]
         te0 = te[tp]
         # the serial kernel's maximum, in its order (K._akf_event)
         tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
@@ -434,7 +444,6 @@ class PixelAKFEngine(AKFEngine):
         self._row_hist = np.zeros((nw, H), np.int64)
         self._cap = 0
         self._bufs_px = (None, None, None)
-        self._no_index = np.empty(0, np.int32)  # block_stream's index list where it reads the events in place
         self._barrier = threading.Barrier(nw) if nw > 1 else None
 
     def _int32_te(self) -> list:
@@ -525,12 +534,10 @@ class PixelAKFEngine(AKFEngine):
         stream = BLOCK_ORDER == "stream"
         if not threaded:
             with PH.phase("filter", "parallel"):
-                # one block, all rows: its ghost rows are te's padding (never written)
-                if stream:
-                    self.n_events += block_stream(t, x, y, p, i0, self._no_index, 0, n, True, W, 0, H, self._S, te, tb,
-                                                  te[0:wp], te[(H + 1) * wp:], *args[1:])
+                if stream:  # the serial kernel itself (same te layout and times)
+                    self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self._S, te, tb, *args[1:])
                     return
-                ev, act, rec = self._buffers(n)
+                ev, act, rec = self._buffers(n)  # one block, all rows: its ghost rows are te's padding
                 with PH.phase("worker_group", "worker"):
                     k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, tb, te[0:wp], te[(H + 1) * wp:],
                                     gcnt, glo, ghi, rec, act)
