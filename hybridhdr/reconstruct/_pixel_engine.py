@@ -38,10 +38,9 @@ A pending frame switch (one pass over the pixels, :meth:`._engine.AKFEngine._loa
 by the workers at the start of the window, each its band's pixels: one hand-off per window, not
 two. Windows of fewer than :data:`PARALLEL_MIN_EVENTS` events, and every window with one worker,
 are filtered by the calling thread with the serial kernel itself (:func:`._kernels.akf_events`,
-on the same ``te``). ``te`` is padded by one pixel
-(:func:`._kernels.padded_te`), int32 relative to the start, int64 absolute past int32's reach
-(:meth:`PixelAKFEngine._te_fit`). Outputs are the row-band engine's (one pass over the pixels,
-split by rows).
+on the same ``te``). ``te`` is padded by one pixel (:func:`._kernels.padded_te`), int32 relative
+to the start, int64 absolute past int32's reach (:meth:`PixelAKFEngine._te_fit`). Outputs are the
+row-band engine's (one pass over the pixels, split by rows).
 """
 
 from __future__ import annotations
