@@ -1,47 +1,46 @@
-"""The pixel-parallel CPU engine of the AKF (private): the GPU's decomposition on CPU threads.
+"""The pixel-parallel CPU engine of the AKF (private): each window's events split once by row band.
 
-The row-band engine (:class:`._engine.AKFEngine` with several workers) splits each batch of
-events by row band, and every batch hands off between the bands; at 8-16 workers those hand-offs
-and the memory traffic dominate. This engine takes the CUDA path's route instead
-(:mod:`._cuda_kernels`): the events of one window (between two breakpoints of the driver: frame
-switches, output times, chunk ends) are grouped by pixel, and each worker walks whole pixels,
-each pixel's events in stream order, with its state record in registers
-(:func:`walk_block`; the per-event step is :func:`._kernels.akf_event_step`, the function the
-serial kernel and the CUDA kernels compile). So the per-event arithmetic is the serial filter's,
-in the same order for every pixel, with the same inputs: the outputs are bit-identical to
+The row-band engine (:class:`._engine.AKFEngine` with several workers) keeps its bands from batch
+to batch, each with its own last-event-time array, and pipelines each batch's split into the
+bands' filtering. This engine cuts new bands for every window of events (between two breakpoints
+of the driver: frame switches, output times, chunk ends) from that window's events per row, so
+the workers' shares are equal whatever the events' layout, and shares one last-event-time array
+``te`` between the bands: each band copies its two *ghost rows* (the rows just above and below
+it, whose times its pixels' t* read and which their owners move meanwhile) at the start of the
+window, and the ghost rows' events move only the copies. Every pixel then sees its events in
+stream order with the serial filter's Δt and t* (eq. 2, §3.1.1: the latest event time in the 3×3
+window before the event) and the per-event step :func:`._kernels.akf_event_step`, the function
+the serial kernel and the CUDA kernels compile: the outputs are bit-identical to
 :class:`._engine.AKFEngine` for any window split and any number of workers.
 
-The isolated-pixel term's t* (eq. 2, §3.1.1: the latest event time in the 3×3 window before each
-event) is computed while grouping, not while walking: the grouping pass reads each block's events
-in stream order anyway, so it keeps the last-event times ``te`` as the serial filter does (nine
-independent loads per event) and stores each event's Δt to its pixel's previous event and to t*
-beside it in the group. The GPU reads t* from the neighbours' groups instead (a merge per pair
-of pixels); on a CPU core that merge is bound by the latency of its compare-and-advance chain
-(about 100 ns per event at 346x260, five times the whole serial filter), where the ``te`` loads
-overlap.
+How a worker gets its band's events (``w`` workers, ``n`` events in the window):
 
-One window, ``n`` events, ``w`` workers, ``B`` row blocks (contiguous rows; more blocks than
-workers, so the blocks are dealt out by their event counts):
+- up to :data:`SELECT_MAX_WORKERS` workers: the calling thread cuts the bands from a 1-in-8
+  sample of the rows and copies the ghost rows; each worker selects its band's events (ghost
+  rows included) from the whole window, branch-free (:func:`._kernels.band_select`), and filters
+  them (:meth:`PixelAKFEngine._process_selected`). No barrier; each worker reads all ``n`` rows;
+- more workers: each counts the rows of its ``1/w`` of the window (:func:`._kernels.row_histogram`),
+  the calling thread cuts the bands (:func:`plan_bands`), each worker scatters its part's event
+  indices into the bands' lists, in stream order (:func:`block_scatter`) and copies its band's
+  ghost rows, then filters its band's list. Three barriers; each worker reads ``n / w`` rows.
 
-1. each worker counts the blocks' events in its ``1/w`` of the window (:func:`block_histogram`);
-   an event in a block's first (last) row also counts for the block above (below): it is that
-   block's *ghost row*, whose times its t* reads;
-2. each worker scatters its part's event indices into per-block lists, in stream order
-   (:func:`block_scatter`), and copies its blocks' two ghost rows of ``te`` (they change under
-   their owners in step 3);
-3. each worker groups its blocks' events by pixel (:func:`group_block`: a stable counting sort
-   over the block's pixels, in pixel order, with t* and the Δt computed on the way, the ghost
-   rows' events only moving the copies), then walks each block's pixels (:func:`walk_block`).
+A worker filters its band in stream order (:func:`block_stream`, :data:`BLOCK_ORDER` "stream"),
+one pass with the serial kernel's prefetching; or, with :data:`BLOCK_ORDER` "pixel", as the
+CUDA kernels do: it groups the band's events by pixel (:func:`group_block`, a stable counting
+sort with t* and the Δt computed on the way) and walks each pixel's events with the state record
+in registers (:func:`walk_block`). The grouping pass cost more than the walk saved: at 346x260,
+1 M events, on one core, the grouping took 50 ns per event and the walk 18, where the stream
+order takes 15-20 (the serial kernel's cost; ``te`` int32 as the row-band engine's). The GPU
+reads t* from the neighbours' groups instead (a merge per pair of pixels); on a CPU core that
+merge is bound by the latency of its compare-and-advance chain (about 100 ns per event at 346x260).
 
-The grouping's cost is its scattered accesses, not its arithmetic: each event's count, 3x3
-``te`` window, write position and record, and in the walk each pixel's state record, are random
-over the sensor (on a 1280x720 one, beyond the caches). Every pass prefetches them a few events
-(pixels) ahead, as the serial kernel does its state: a hint only, the bits do not change.
-
-Steps are separated by a barrier. With one worker there is one block and steps 1 and 2 are
-skipped. ``te`` is padded by one pixel (the serial filter's :func:`._kernels.padded_te`, int64
-absolute µs). Frame switches and outputs are the row-band engine's (one pass over the pixels,
-split by rows).
+A pending frame switch (one pass over the pixels, :meth:`._engine.AKFEngine._load`) is applied
+by the workers at the start of the window, each its band's pixels: one hand-off per window, not
+two. Windows of fewer than :data:`PARALLEL_MIN_EVENTS` events, and every window with one worker,
+are filtered by the calling thread with the serial kernel itself (:func:`._kernels.akf_events`,
+on the same ``te``). ``te`` is padded by one pixel (:func:`._kernels.padded_te`), int32 relative
+to the start, int64 absolute past int32's reach (:meth:`PixelAKFEngine._te_fit`). Outputs are the
+row-band engine's (one pass over the pixels, split by rows).
 """
 
 from __future__ import annotations
@@ -54,32 +53,28 @@ from numba import njit
 from .._util import phases as PH
 from .._util.nbprefetch import prefetch
 from . import _kernels as K
+from . import _engine
 from ._engine import AKFEngine
 
-#: row blocks per worker: the blocks are dealt out to the workers by their events, so a few per
-#: worker balance clustered events (a bright object, a moving edge) without making blocks tiny
-BLOCKS_PER_WORKER = 8
+#: how a worker filters its band's events: "stream" (:func:`block_stream`, in stream order, one
+#: pass) or "pixel" (:func:`group_block` then :func:`walk_block`, the CUDA kernels' grouping by
+#: pixel; the window is then split by rows whatever the workers, never selected). Both give the
+#: serial filter's bits; "stream" is the default: the grouping pass cost more than the walk saved
+#: (module docstring)
+BLOCK_ORDER = "stream"
+BLOCK_ORDERS = ("stream", "pixel")
+#: windows of fewer events are filtered by the calling thread alone (as one band: the same bits);
+#: the row-band engine's threshold (``_engine.PARALLEL_MIN_WORK``)
+PARALLEL_MIN_EVENTS = 20_000
+#: up to this many workers each selects its band's events from the whole window (one pass over
+#: the window per worker, no barrier: :meth:`PixelAKFEngine._process_selected`); with more, the
+#: window is split once by rows (a histogram, then a scatter, between barriers), whose cost per
+#: worker shrinks as workers are added where a whole pass per worker does not
+SELECT_MAX_WORKERS = 4
 #: :func:`group_block` lists a block's pixels with events by scanning its pixels when they are at
 #: most this many per event of the window (then the walk reads the state in address order)
 SCAN_PIXELS_PER_EVENT = 1
 ONE = K.ONE
-
-
-@njit(cache=True, nogil=True)
-def block_histogram(y, j0, j1, block_of_row, edge_of_row, hist):
-    """``hist[b]`` = the events ``[j0, j1)`` block ``b`` reads: its rows' and its ghost rows'
-    (``edge_of_row`` bit 1: the row is also the ghost row of the block above, bit 2: below)."""
-    hist[:] = 0
-    for i in range(j0, j1):
-        r = y[i]
-        b = block_of_row[r]
-        hist[b] += 1
-        e = edge_of_row[r]
-        if e & 1:
-            hist[b - 1] += 1
-        if e & 2:
-            hist[b + 1] += 1
-    return j1 - j0
 
 
 @njit(cache=True, nogil=True)
@@ -103,19 +98,21 @@ def block_scatter(y, a, j0, j1, block_of_row, edge_of_row, pos, out):
 
 
 @njit(cache=True, nogil=True)
-def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, top, bot, gcnt, glo, ghi, rec, act):
+def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, te_base, top, bot, gcnt, glo, ghi, rec,
+                act):
     """Group a block's events by pixel with each event's Δt and t*; returns the pixels with events.
 
     The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
     included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``.
     Pixel ``q``'s group becomes rows ``[glo[q], ghi[q])`` of ``rec``, one record of three int64 per
     event (one cache line for most, where four arrays would touch four): t_i, 2 (t_i - the
-    pixel's previous event time) + (1 if ON), and t_i - t*; in the block's range ``[e0, e1)``; the pixels with events are listed in ``act[e0:e0 + k]``, and
-    ``k`` is returned. ``te`` is the padded last-event-time
-    array (:func:`._kernels.padded_te`, absolute µs), updated in place for the block's rows; ``top``
-    and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and ``row_hi``,
-    which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for every pixel without events
-    (:func:`walk_block` restores that).
+    pixel's previous event time) + (1 if ON), and t_i - t*; in the block's range ``[e0, e1)``; the
+    pixels with events are listed in ``act[e0:e0 + k]``, and ``k`` is returned. ``te`` is the
+    padded last-event-time array (:func:`._kernels.padded_te`, times relative to ``te_base`` µs:
+    int32 or int64, every use a difference taken in int64), updated in place for the block's
+    rows; ``top`` and ``bot`` are the block's copies of its padded ghost rows ``row_lo - 1`` and
+    ``row_hi`` (``te``'s type), which their events move. ``gcnt``, ``glo`` and ``ghi`` are 0 for
+    every pixel without events (:func:`walk_block` restores that).
     """
     wp = width + 2
     # the pixels with events in pixel order (a scan of the block's pixels) when the events are
@@ -187,11 +184,12 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
         r = np.uint64(y[i])
         c = np.uint64(x[i])
         ti = t[i]
+        tr = ti - te_base  # relative to te's origin (int32 te: see AKFEngine._te_fit)
         if r < lo:
-            top[c + ONE] = ti
+            top[c + ONE] = tr
             continue
         if r >= hi:
-            bot[c + ONE] = ti
+            bot[c + ONE] = tr
             continue
         tp = (r + ONE) * wpu + c + ONE
         if r == lo:
@@ -216,10 +214,10 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
         q = r * w + c
         g = ghi[q]
         rec[g, 0] = ti
-        rec[g, 1] = 2 * (ti - te0) + np.int64(p[i] > 0)
-        rec[g, 2] = ti - tstar
+        rec[g, 1] = 2 * (tr - te0) + np.int64(p[i] > 0)
+        rec[g, 2] = tr - tstar
         ghi[q] = g + 1
-        te[tp] = ti
+        te[tp] = tr
     return k
 
 
@@ -270,18 +268,156 @@ def walk_block(rec, act, m0, m1, gcnt, glo, ghi, S, has_la_step, seg_t0, seg_inv
     return n
 
 
-def deal_blocks(weights: np.ndarray, n_workers: int) -> list[tuple[int, int]]:
-    """Contiguous ranges of blocks, one per worker, of about equal total ``weights`` (greedy on
-    the running sum): ``[(b0, b1), ...]``, possibly empty ranges at the end."""
-    nb = weights.shape[0]
-    cum = np.cumsum(weights, dtype=np.float64)
-    total = float(cum[-1]) if nb else 0.0
-    cuts = [0]
-    for w in range(1, n_workers):
-        c = int(np.searchsorted(cum, total * w / n_workers, side="left")) + 1 if total > 0 else (nb * w) // n_workers
-        cuts.append(min(max(c, cuts[-1]), nb))
-    cuts.append(nb)
-    return [(cuts[w], cuts[w + 1]) for w in range(n_workers)]
+@njit(cache=True, nogil=True, inline="always")
+def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
+                  seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px, has_px):
+    n = 0
+    w = np.uint64(width)
+    wpu = w + ONE + ONE
+    lo = np.uint64(row_lo)
+    hi = np.uint64(row_hi)
+    au = np.int64(a)
+    inner_hi = np.int64(row_hi) - np.int64(row_lo) - 1  # rows lo + 1 .. hi - 2 (relative 1 .. inner_hi - 1)
+    for j in range(e0, e1):
+        if j + K.PREFETCH_AHEAD < e1:  # the serial kernel's prefetch: the record and the 3x3 te window
+            jn = au + (np.int64(j + K.PREFETCH_AHEAD) if identity else np.int64(ev[j + K.PREFETCH_AHEAD]))
+            yn = np.uint64(y[jn])
+            xn = np.uint64(x[jn])
+            prefetch(S, (yn * w + xn) * np.uint64(K.AKF_FIELDS))
+            tn = (yn + ONE) * wpu + xn + ONE
+            prefetch(te, tn - wpu)
+            prefetch(te, tn)
+            prefetch(te, tn + wpu)
+            if has_px:
+                prefetch(con_px, yn * w + xn)
+                prefetch(coff_px, yn * w + xn)
+        i = au + (np.int64(j) if identity else np.int64(ev[j]))
+        r = np.uint64(y[i])
+        c = np.uint64(x[i])
+        ti = t[i]
+        tr = ti - te_base  # relative to te's origin (int32 te: see AKFEngine._te_fit)
+        tp = (r + ONE) * wpu + c + ONE
+        rr = np.int64(r) - np.int64(row_lo)
+        if rr > 0 and rr < inner_hi:  # an inner row (most events; one test): its 3x3 window is in te
+            u0 = te[tp - wpu - ONE]
+            u1 = te[tp - wpu]
+            u2 = te[tp - wpu + ONE]
+            d0 = te[tp + wpu - ONE]
+            d1 = te[tp + wpu]
+            d2 = te[tp + wpu + ONE]
+        else:
+            if r < lo:  # a ghost row: its owner moves te, this band only its copy
+                top[c + ONE] = tr
+                continue
+            if r >= hi:
+                bot[c + ONE] = tr
+                continue
+            if r == lo:  # the band's first row: the row above is the ghost row's copy
+                u0 = top[c]
+                u1 = top[c + ONE]
+                u2 = top[c + ONE + ONE]
+            else:
+                u0 = te[tp - wpu - ONE]
+                u1 = te[tp - wpu]
+                u2 = te[tp - wpu + ONE]
+            if r + ONE == hi:  # its last row: the row below is the copy
+                d0 = bot[c]
+                d1 = bot[c + ONE]
+                d2 = bot[c + ONE + ONE]
+            else:
+                d0 = te[tp + wpu - ONE]
+                d1 = te[tp + wpu]
+                d2 = te[tp + wpu + ONE]
+        te0 = te[tp]
+        # the serial kernel's maximum, in its order (K._akf_event)
+        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
+                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        q = r * w + c
+        jump_on = con_px[q] if has_px else c_on
+        jump_off = -(coff_px[q] if has_px else c_off)
+        lh, pp, la = K.akf_event_step(S[q, K.A_L], S[q, K.A_P], S[q, K.A_LA], S[q, K.A_TU], ti, tr - te0, tr - tstar,
+                                      p[i] > 0, S[q, K.A_RINV], S[q, K.A_BETA], S[q, K.A_KLOG], S[q, K.A_LASTEP],
+                                      has_la_step, seg_t0, seg_inv_t, jump_on, jump_off, s_proc, s_iso, s_ref,
+                                      rho_us, noise_form)
+        S[q, K.A_L] = lh
+        S[q, K.A_P] = pp
+        if has_la_step:
+            S[q, K.A_LA] = la
+        S[q, K.A_TU] = np.float64(ti)
+        te[tp] = tr
+        n += 1
+    return n
+
+
+@njit(cache=True, nogil=True)
+def block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot, has_la_step,
+                 seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form, con_px, coff_px):
+    """Filter a block's events in stream order: each by :func:`._kernels.akf_event_step`, as the
+    serial kernel does, with t* from the 3x3 window of ``te`` and the block's ghost-row copies.
+
+    The block's events are ``ev[e0:e1]`` (indices relative to ``a``, stream order, its ghost rows'
+    included), or ``e0 .. e1 - 1`` themselves when ``identity``; its rows are ``[row_lo, row_hi)``;
+    ``te``, ``te_base``, ``top`` and ``bot`` as in :func:`group_block` (an event of a ghost row
+    moves only the copy); the other arguments those of :func:`._kernels.akf_events`. Each pixel
+    sees its events in stream order with the serial filter's t* and Δt, so the state is the serial
+    filter's bit for bit. Returns the events applied to the block's pixels.
+    """
+    if con_px.shape[0] > 0:  # two inlined copies, each with has_px a constant LLVM folds away
+        return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
+                             has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
+                             con_px, coff_px, True)
+    return _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S, te, te_base, top, bot,
+                         has_la_step, seg_t0, seg_inv_t, c_on, c_off, s_proc, s_iso, s_ref, rho_us, noise_form,
+                         con_px, coff_px, False)
+
+
+def cut_bands(row_counts: np.ndarray, n_bands: int) -> np.ndarray:
+    """Edges of ``min(n_bands, rows)`` bands of contiguous rows with about equal ``row_counts``
+    (the greedy cut of the running sum; at least one row each): band ``v`` is rows
+    ``[edges[v], edges[v + 1])``."""
+    H = row_counts.shape[0]
+    nb = max(1, min(int(n_bands), H))
+    cum = np.cumsum(row_counts)
+    edges = np.empty(nb + 1, np.int64)
+    edges[0], edges[nb] = 0, H
+    total = int(cum[-1]) if H else 0
+    cuts = np.searchsorted(cum, total * np.arange(1, nb) / nb, side="left") + 1
+    for k in range(1, nb):
+        r = int(cuts[k - 1]) if total > 0 else (H * k) // nb
+        edges[k] = min(max(r, edges[k - 1] + 1), H - (nb - k))
+    return edges
+
+
+def plan_bands(row_hist: np.ndarray, n_bands: int):
+    """The row bands of one window and where each worker's part of it goes, from ``row_hist``
+    (``(workers, height)``: the events per row of each worker's part of the window).
+
+    The bands are contiguous rows of about equal events (:func:`cut_bands`); a band's list holds
+    the events of its rows and of its two ghost rows (the rows just above and below it), each
+    worker's part in stream order after the parts before it. Returns ``(edges, band_of_row,
+    edge_of_row, start, pos)``: band ``v`` has rows
+    ``[edges[v], edges[v + 1])`` and the list ``[start[v], start[v + 1])``; ``band_of_row`` and
+    ``edge_of_row`` (bit 1: the row is also the ghost row below the band above, bit 2: the ghost
+    row above the band below) are :func:`block_scatter`'s tables, ``pos[w, v]`` worker ``w``'s
+    first write position in band ``v``'s list.
+    """
+    nw, H = row_hist.shape
+    edges = cut_bands(row_hist.sum(axis=0), n_bands)
+    nb = edges.shape[0] - 1
+    band_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
+    edge_of_row = np.zeros(H, np.uint8)
+    edge_of_row[edges[1:nb]] |= 1
+    edge_of_row[edges[1:nb] - 1] |= 2
+    # events of worker w in band v's list: rows [edges[v] - 1, edges[v + 1] + 1) clipped
+    csum = np.zeros((nw, H + 1), np.int64)
+    np.cumsum(row_hist, axis=1, out=csum[:, 1:])
+    lo = np.maximum(edges[:-1] - 1, 0)
+    hi = np.minimum(edges[1:] + 1, H)
+    cnt = csum[:, hi] - csum[:, lo]  # (workers, bands)
+    start = np.zeros(nb + 1, np.int64)
+    np.cumsum(cnt.sum(axis=0), out=start[1:])
+    pos = np.ascontiguousarray(start[:-1][None, :] + np.cumsum(cnt, axis=0) - cnt)
+    return edges, band_of_row, edge_of_row, start, pos
 
 
 class PixelAKFEngine(AKFEngine):
@@ -294,26 +430,19 @@ class PixelAKFEngine(AKFEngine):
         super().__init__(shape, measurements, params, n_workers)
         H, W = self.shape
         n = self.n
-        self.te_px = K.padded_te(H, W, 0, np.int64)  # last event times, absolute µs
+        # last event times, int32 relative to te_base as the row-band engine's (half the bytes: the
+        # 3x3 windows miss the caches less), int64 absolute past int32's reach (_te_fit); same bits
+        self.te_px = K.padded_te(H, W, 0, np.int32)
         self.gcnt = np.zeros(n, np.int32)
         self.glo = np.zeros(n, np.int32)
         self.ghi = np.zeros(n, np.int32)
         # one worker per row band of the base engine (its pool: fewer than n_workers on a sensor
         # with fewer rows than workers)
         self._nw = nw = len(self.bands)
-        nb = max(1, min(H, nw * BLOCKS_PER_WORKER)) if nw > 1 else 1
-        edges = np.round(np.linspace(0, H, nb + 1)).astype(np.int64)
-        self.block_rows = edges  # block b: rows [edges[b], edges[b + 1])
-        self.block_of_row = np.repeat(np.arange(nb, dtype=np.int32), np.diff(edges))
-        self.edge_of_row = np.zeros(H, np.uint8)
-        for b in range(nb):
-            if b > 0:
-                self.edge_of_row[edges[b]] |= 1  # the ghost row below block b - 1
-            if b + 1 < nb:
-                self.edge_of_row[edges[b + 1] - 1] |= 2  # the ghost row above block b + 1
-        self.ghost = np.zeros((nb, 2, W + 2), np.int64)  # each block's copies of its ghost rows
-        self.n_blocks = nb
+        self.ghost = np.zeros((nw, 2, W + 2), np.int32)  # each band's copies of its ghost rows (te's type)
+        self._row_hist = np.zeros((nw, H), np.int64)
         self._cap = 0
+        self._bufs_px = (None, None, None)
         self._barrier = threading.Barrier(nw) if nw > 1 else None
 
     def _int32_te(self) -> list:
@@ -323,19 +452,31 @@ class PixelAKFEngine(AKFEngine):
         return None
 
     def _te_fit(self, t_first: int, t_last: int) -> None:
-        return None  # int64 absolute times throughout
+        """:meth:`AKFEngine._te_fit` for the one shared ``te`` (and the ghost-row copies' type)."""
+        lim = _engine.TE32_MAX
+        if self.te_px.dtype == np.int32 and not (-lim - 1 <= t_first - self.te_base
+                                                 and t_last - self.te_base <= lim):
+            self.te_px = self.te_px.astype(np.int64) + self.te_base
+            self.ghost = self.ghost.astype(np.int64)
+            self.te_base = 0
 
     def start(self, t_start_us=None) -> int:
-        t_init = super().start(t_start_us)
-        self.te_px[:] = t_init
+        t_init = super().start(t_start_us)  # te_base = t_init
+        if self.te_px.dtype != np.int32:  # a restart after the int64 fallback
+            self.te_px = self.te_px.astype(np.int32)
+            self.ghost = self.ghost.astype(np.int32)
+        self.te_px[:] = 0
         return t_init
 
-    def _buffers(self, n: int):
-        if self._cap < n:
+    def _buffers(self, n: int, stream: bool = False):
+        """(event indices, active pixels, group records) of at least ``n`` entries, reused; in
+        stream order (``stream``) only the indices are used, and the other two stay unallocated."""
+        if n >= 1 << 31:
+            raise ValueError(f"a window of {n} events is too large for the pixel-parallel engine (< 2**31)")
+        if self._cap < n or (not stream and self._bufs_px[2] is None):
             cap = max(n, 2 * self._cap, 1 << 16)
-            if cap >= 1 << 31:
-                raise ValueError(f"a window of {n} events is too large for the pixel-parallel engine (< 2**31)")
-            self._bufs_px = (np.empty(cap, np.int32), np.empty(cap, np.int64), np.empty((cap, 3), np.int64))
+            self._bufs_px = (np.empty(cap, np.int32), None if stream else np.empty(cap, np.int64),
+                             None if stream else np.empty((cap, 3), np.int64))
             self._cap = cap
         return self._bufs_px
 
@@ -373,76 +514,125 @@ class PixelAKFEngine(AKFEngine):
     def process(self, t, x, y, p, i0, i1) -> None:
         if i1 <= i0:
             return
-        if self._pending is not None:
-            with PH.phase("switch", "parallel"):
-                self._flush()  # the pending frame switch, by row bands
         pr = self.params
         H, W = self.shape
         wp = W + 2
         n = i1 - i0
-        args = (self.S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
+        threaded = self._nw > 1 and n >= PARALLEL_MIN_EVENTS  # else a hand-off costs more than the events
+        pend, bands = self._pending, self.bands
+        if pend is not None and not threaded:
+            with PH.phase("switch", "parallel"):
+                self._flush()  # the pending frame switch, by row bands
+        self._pending = None  # the workers apply it, each its row band, before they start the window
+        self._te_fit(int(t[i0]), int(t[i1 - 1]))
+        tb = np.int64(self.te_base)
+        args = (self._S, self.has_la_step, self.seg_t0, self.seg_inv_t, pr.c_on, pr.c_off, pr.process_noise_per_s,
                 pr.isolated_noise_per_s, pr.refractory_noise, np.int64(pr.refractory_period_us), self.noise_form,
                 self.con_px, self.coff_px)
         te, gcnt, glo, ghi, ghost = self.te_px, self.gcnt, self.glo, self.ghi, self.ghost
-        if self._nw == 1:
-            ev, act, rec = self._buffers(n)
+        stream = BLOCK_ORDER == "stream"
+        if not threaded:
             with PH.phase("filter", "parallel"):
-                # one block, all rows: its ghost rows are te's padding (never written)
-                k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, te[0:wp], te[(H + 1) * wp:], gcnt, glo,
-                                ghi, rec, act)
-                self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
+                if stream:  # the serial kernel itself (same te layout and times)
+                    self.n_events += K.akf_events(t, x, y, p, i0, i1, 0, H, W, H, self._S, te, tb, *args[1:])
+                    return
+                ev, act, rec = self._buffers(n)  # one block, all rows: its ghost rows are te's padding
+                with PH.phase("worker_group", "worker"):
+                    k = group_block(t, x, y, p, i0, ev, 0, n, True, W, 0, H, te, tb, te[0:wp], te[(H + 1) * wp:],
+                                    gcnt, glo, ghi, rec, act)
+                with PH.phase("worker_walk", "worker"):
+                    self.n_events += walk_block(rec, act, 0, k, gcnt, glo, ghi, *args)
             return
-        nw, nb = self._nw, self.n_blocks
+        nw = self._nw
+        if stream and nw <= SELECT_MAX_WORKERS:
+            self._process_selected(t, x, y, p, i0, i1, pend, tb, args)
+            return
         parts = np.linspace(i0, i1, nw + 1).astype(np.int64)
-        hist = np.zeros((nw, nb), np.int64)
-        bor, eor, brow = self.block_of_row, self.edge_of_row, self.block_rows
+        row_hist = self._row_hist
         bar = self._barrier
         shared: dict = {}
 
         def worker(w):
+            if pend is not None:  # the frame switch due, on the fixed row bands (pixel-wise: any split will do)
+                with PH.phase("worker_switch", "worker"):
+                    pend(w, *bands[w])
             with PH.phase("worker_histogram", "worker"):
-                block_histogram(y, parts[w], parts[w + 1], bor, eor, hist[w])
+                K.row_histogram(y, parts[w], parts[w + 1], 1, row_hist[w])
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            if w == nw - 1:  # the calling thread: block offsets, buffers, the blocks dealt out by events
-                tot = hist.sum(axis=0)
-                bstart = np.zeros(nb + 1, np.int64)
-                np.cumsum(tot, out=bstart[1:])
-                pos = bstart[:-1][None, :] + np.cumsum(hist, axis=0) - hist
-                shared.update(bstart=bstart, pos=np.ascontiguousarray(pos), deal=deal_blocks(tot, nw),
-                              bufs=self._buffers(int(bstart[-1])))
+            if w == nw - 1:  # the calling thread: the bands of this window, the lists' offsets, buffers
+                edges, bor, eor, start, pos = plan_bands(row_hist, nw)
+                shared.update(edges=edges, bor=bor, eor=eor, start=start, pos=pos,
+                              bufs=self._buffers(int(start[-1]), stream))
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            bstart, deal = shared["bstart"], shared["deal"]
+            edges, start = shared["edges"], shared["start"]
             ev, act, rec = shared["bufs"]
-            b0, b1 = deal[w]
+            lo, hi = int(edges[w]), int(edges[w + 1])
             with PH.phase("worker_scatter", "worker"):
-                block_scatter(y, i0, parts[w], parts[w + 1], bor, eor, shared["pos"][w], ev)
-                for b in range(b0, b1):  # the ghost rows as they are before any block moves its own
-                    ghost[b, 0] = te[brow[b] * wp:(brow[b] + 1) * wp]
-                    ghost[b, 1] = te[(brow[b + 1] + 1) * wp:(brow[b + 1] + 2) * wp]
+                block_scatter(y, i0, parts[w], parts[w + 1], shared["bor"], shared["eor"], shared["pos"][w], ev)
+                # the band's ghost rows as they are before any band moves its own rows
+                ghost[w, 0] = te[lo * wp:(lo + 1) * wp]
+                ghost[w, 1] = te[(hi + 1) * wp:(hi + 2) * wp]
             with PH.phase("worker_wait", "worker"):
                 bar.wait()
-            m = 0
+            e0, e1 = int(start[w]), int(start[w + 1])
+            if stream:
+                with PH.phase("worker_filter", "worker"):
+                    return block_stream(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, self._S, te, tb, ghost[w, 0],
+                                        ghost[w, 1], *args[1:])
             with PH.phase("worker_group_walk", "worker"):
-                for b in range(b0, b1):
-                    e0, e1 = bstart[b], bstart[b + 1]
-                    k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, brow[b], brow[b + 1], te, ghost[b, 0],
-                                    ghost[b, 1], gcnt, glo, ghi, rec, act)
-                    m += walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
-            return m
+                k = group_block(t, x, y, p, i0, ev, e0, e1, False, W, lo, hi, te, tb, ghost[w, 0], ghost[w, 1], gcnt,
+                                glo, ghi, rec, act)
+                return walk_block(rec, act, e0, e0 + k, gcnt, glo, ghi, *args)
+
+        with PH.phase("filter", "parallel"):
+            self.n_events += int(sum(self._map_workers(worker)))
+
+
+    def _process_selected(self, t, x, y, p, i0, i1, pend, tb, args) -> None:
+        """A window with few workers, without a barrier: the calling thread cuts the bands (from a
+        1-in-8 sample of the rows) and copies their ghost rows; each worker then switches its band's
+        pixels when a frame switch is due, selects its band's events (ghost rows included) from the
+        whole window (:func:`._kernels.band_select`, branch-free) and filters them in stream order."""
+        H, W = self.shape
+        wp = W + 2
+        nw = self._nw
+        n = i1 - i0
+        with PH.phase("plan_bands"):
+            hist = self._row_hist[0]
+            K.row_histogram(y, i0, i1, 8, hist)
+            edges = cut_bands(hist, nw)
+            te, ghost = self.te_px, self.ghost
+            for w in range(nw):  # the ghost rows as they are before any band moves its own rows
+                lo, hi = int(edges[w]), int(edges[w + 1])
+                ghost[w, 0] = te[lo * wp:(lo + 1) * wp]
+                ghost[w, 1] = te[(hi + 1) * wp:(hi + 2) * wp]
+        S = self._S
+
+        def worker(w):
+            lo, hi = int(edges[w]), int(edges[w + 1])
+            if pend is not None:  # the frame switch due, on this band's pixels (pixel-wise: any split will do)
+                with PH.phase("worker_switch", "worker"):
+                    pend(w, lo, hi)
+            with PH.phase("worker_select", "worker"):
+                idx = self._index_buffer(("select", w), n)[0]
+                m = K.band_select(y, i0, i1, lo - 1, hi + 1, idx)
+            with PH.phase("worker_filter", "worker"):
+                return block_stream(t, x, y, p, i0, idx, 0, m, False, W, lo, hi, S, te, tb, ghost[w, 0], ghost[w, 1],
+                                    *args[1:])
 
         with PH.phase("filter", "parallel"):
             self.n_events += int(sum(self._map_workers(worker)))
 
 
 #: the worker count from which :func:`cpu_akf_engine` picks the pixel-parallel engine: the
-#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores the pixel
-#: engine ran at 0.4-0.6x the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720,
-#: forward and two-sided: its grouping pass costs about as much as the walk); the row-band engine's
-#: speed-up stops growing past 8 workers (3.3x at 8, 2.8x at 16 at 1280x720 forward on a 16-core
-#: host) where the pixel engine has no hand-off to lose, so the crossing is expected between 4 and
-#: 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
+#: break-even of ``benchmarks/akf.py --workers`` (both engines side by side). On 2 cores, with the
+#: window split by band and each band filtered in stream order, the pixel engine ran at 0.85-1.1x
+#: the row-band engine's speed at 1 and 2 workers (346x260 and 1280x720, forward and two-sided,
+#: interleaved on a loaded machine); the row-band engine's speed-up stops growing past 8 workers
+#: (3.6x at 8, 3.8x at 16 at 1280x720 forward on a 16-core host), so the crossing is expected at
+#: or below 8 workers. The 16-core run of both engines (``benchmarks/device_run.sh``) places it.
 PIXEL_MIN_WORKERS = 8
 ENGINES = ("auto", "row-band", "pixel-parallel")
 #: the engine ``reconstruct`` uses ("auto": by the worker count; a benchmark sets one to compare)
