@@ -96,7 +96,7 @@ MAX_CORRECTION_PIXELS = 20_000
 #: one (log units; a tenth of the smallest threshold the estimator reports to three figures).
 CORRECTION_TOLERANCE = 1e-3
 #: Half-widths (δ steps, I0 steps) of the grid window the quantiser simulation is searched on.
-BINDING_WINDOW = (12, 3)
+BINDING_WINDOW = (8, 3)
 #: Points of the cubic log path between two frames at which the quantiser simulation samples it.
 PATH_SUBSTEPS = 4
 #: Intensity bands of the I0 rule (split at the median intensity of the event-bearing pixel-intervals).
@@ -105,6 +105,12 @@ I0_BANDS = 2
 MAX_I0_RULE_PIXELS = 8000
 #: Simulated replicates per I0 candidate of the I0 rule.
 I0_RULE_REPS = 2
+#: Bootstrap replicates (over pixels) of the I0 rule's standard error.
+I0_RULE_BOOT = 100
+#: Largest fraction of the I0 rule's bootstrap replicates without a zero in the bracket for its sign
+#: change to count (f approaching 0 from one side, as it does for large I0 where the log is linear,
+#: gives about half).
+I0_RULE_MISSING = 0.1
 #: Sub-intervals of an exposure in the exact log-of-mean refinement.
 EXPOSURE_BINS = 16
 
@@ -528,6 +534,22 @@ def _refine_exposure(D, rows, d, i0s, ii, c, lam_on, lam_off, iters=4):
     return (con, coff), plain, rows_b
 
 
+def _with_i0(D, ints, offs, rows, score, coefs, i0s, v, r_on, r_off, c_range):
+    """The grid with I0 = v added (its criterion column, its rows' logs on the same pixel-intervals;
+    ``rows`` updated in place). Returns (score, coefs, i0s)."""
+    if v in i0s:
+        return score, coefs, i0s
+    rows1, _, sc1, cf1 = _search(D, ints, (v,), offs, r_on, r_off, c_range, None)
+    pos = int(np.searchsorted(i0s, v))
+    for r, r1 in zip(rows, rows1):
+        if not np.array_equal(r["idx"], r1["idx"]):
+            raise AssertionError("camera model: the added I0's pixel-intervals differ from the grid's")
+    for r, r1 in zip(rows, rows1):
+        for key in ("L0", "L1", "sl_all"):
+            r[key] = np.insert(r[key], pos, r1[key][0], 0)
+    return np.insert(score, pos, sc1[:, 0], 1), np.insert(coefs, pos, cf1[:, 0], 1), i0s[:pos] + (v,) + i0s[pos:]
+
+
 def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets_us=None,
                           intensity_offsets=DEFAULT_INTENSITY_OFFSETS, intensity_offset: float | None = None,
                           time_offset_us: int | None = None, well_exposed=None, c_range=(0.01, 3.0),
@@ -623,20 +645,12 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     if quantiser_correction and intensity_offset is None and len(i0s) > 1:
         # I0 by the band rule (one threshold pair at every brightness, quantiser-corrected), where the
         # simulated quantiser sees what the pixels saw; else the criterion's I0 (below)
-        i0_hat, i0_rule = _choose_i0(_BandRule(D, ints, d, {}, r_on, r_off, seed), i0s)
+        i0s_grid, d_rule = i0s, d
+        # (at the criterion's offset, which holds the quantiser's lag: the simulated events are compared with
+        # the first look's tolerance, as the correction's; the strict one is the correction's own, at the end)
+        i0_hat, i0_rule = _choose_i0(_BandRule(D, ints, d, {}, r_on, r_off, seed), i0s, tolerance=2 * SIM_EVENT_TOLERANCE)
         if i0_hat is not None and i0_rule["applied"]:
-            if i0_hat not in i0s:
-                # the zero joins the grid: its criterion column and its rows' logs (same pixel-intervals)
-                rows1, _, sc1, cf1 = _search(D, ints, (i0_hat,), offs, r_on, r_off, c_range, None)
-                pos = int(np.searchsorted(i0s, i0_hat))
-                for r, r1 in zip(rows, rows1):
-                    if not np.array_equal(r["idx"], r1["idx"]):
-                        raise AssertionError("camera model: the I0 rule's rows differ from the grid's")
-                    for key in ("L0", "L1", "sl_all"):
-                        r[key] = np.insert(r[key], pos, r1[key][0], 0)
-                score = np.insert(score, pos, sc1[:, 0], 1)
-                coefs = np.insert(coefs, pos, cf1[:, 0], 1)
-                i0s = i0s[:pos] + (i0_hat,) + i0s[pos:]
+            score, coefs, i0s = _with_i0(D, ints, offs, rows, score, coefs, i0s, i0_hat, r_on, r_off, c_range)
             ii = i0s.index(i0_hat)
             a_i = int(np.nanargmin(score[:, ii]))
             d = int(offs[a_i])
@@ -685,6 +699,24 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         c2, ii_rec, latency, ii = _binding(D, rows, ints, i0s, offs, d, ii, sig, r_on, r_off, seed,
                                            intensity_offset is None and not rule_used, time_offset_us is None,
                                            score_col=score[:, ii] if len(offs) > 4 else None)
+        if rule_used and c2 is not None and latency is not None:
+            # the band rule again at the latency the binding found (its counts between the frame times
+            # shifted by the latency, not by the criterion's lagged best), and the thresholds there; the
+            # simulated quantiser has just passed the correction's strict check at this latency
+            i0_hat2, rec2 = _choose_i0(_BandRule(D, ints, latency, {}, r_on, r_off, seed), i0s_grid, around=i0_hat,
+                                       tolerance=math.inf)
+            first = {"time_offset_us": d_rule, "intensity_offset": i0_hat,
+                     **{k: v for k, v in i0_rule.items() if k not in ("method", "profile")}}
+            if i0_hat2 is None or not rec2["applied"]:
+                i0_rule["second_pass"] = {"time_offset_us": latency, "intensity_offset": i0_hat2,
+                                          **{k: v for k, v in rec2.items() if k not in ("method",)}}
+            else:
+                i0_rule = {**rec2, "time_offset_us": latency, "first_pass": first}
+                score, coefs, i0s = _with_i0(D, ints, offs, rows, score, coefs, i0s, i0_hat2, r_on, r_off, c_range)
+                ii = i0s.index(i0_hat2)
+                c2, rec3 = _indirect(D, ints, i0_hat2, _ls_at(D, rows, latency, ii, r_on, r_off), sig, r_on, r_off,
+                                     seed=seed)
+                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in ("iterations", "simulated_signal_events")}}
         i0 = float(i0s[ii])
         c = c2 if c2 is not None else c
         if c2 is not None:
@@ -778,6 +810,15 @@ def _ls_stat(G, DL, N_on, N_off, dts, lam_on, lam_off):
     return np.array(_c(S)), float(np.sum(so - lo * K) + np.sum(sf - lf * K))
 
 
+def _ls_sums_per_pixel(G, DL, N_on, N_off, dts, lam_on, lam_off):
+    """Per-pixel (5, pixels) noise-corrected sums whose sum over the pixels is :func:`_ls_stat`'s."""
+    no, nf = np.where(G, N_on, 0.0), np.where(G, N_off, 0.0)
+    lo, lf = (lam_on * dts)[:, None], (lam_off * dts)[:, None]
+    g = G.astype(np.float64)
+    return np.stack([(no * no - 2 * lo * no + g * (lo * lo - lo)).sum(0), (nf * nf - 2 * lf * nf + g * (lf * lf - lf)).sum(0),
+                     (no * nf - lf * no - lo * nf + g * lo * lf).sum(0), ((no - lo) * DL).sum(0), ((nf - lf) * DL).sum(0)])
+
+
 def _path_counts(Ls, rel, dts, c, sigma, draw, r_on, r_off, substeps=None):
     """Counts of the DVS quantiser (eq. 1: an event each time the log leaves [ref − c_off, ref + c_on],
     the reference moving by one threshold) driven by the frames' log path ``Ls`` (frames, pixels),
@@ -819,7 +860,7 @@ def _path_counts(Ls, rel, dts, c, sigma, draw, r_on, r_off, substeps=None):
     return np.stack(N_on), np.stack(N_off)
 
 
-def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0):
+def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0, c_init=None):
     """Indirect inference (Gouriéroux, Monfort & Renault, J. Applied Econometrics 1993): the
     thresholds whose *simulated* pooled least-squares statistic equals the observed one.
 
@@ -853,7 +894,7 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
     Gm = np.stack(goods)
     DLm = np.where(Gm, Ls[[j + 1 for j in rel]] - Ls[rel], 0.0)
     dts_a = np.asarray(dts, np.float64)
-    c = np.array(c_obs, float)
+    c = np.array(c_obs if c_init is None else c_init, float)
     history = []
     totals = []
     for _ in range(iters):
@@ -920,6 +961,9 @@ class _BandRule:
         self.draws = [(rng.random(n), rng.standard_normal(n), rng.standard_normal(n), int(rng.integers(1 << 31)))
                       for _ in range(I0_RULE_REPS)]
         self.pixels = int(n)
+        self.W = rng.poisson(1.0, size=(I0_RULE_BOOT, n)).astype(np.float64)
+        self.last_boot = None
+        self.pooled_bias = {}
 
     def __call__(self, i0):
         """(f(I0), pooled corrected (c_on, c_off), per-band corrected thresholds (bands, 2), simulated to
@@ -930,14 +974,29 @@ class _BandRule:
         masks = [self.G & (self.band == b) for b in range(I0_BANDS)]
         stat = lambda G_, no, nf: _ls_stat(G_, np.where(G_, DL, 0.0), no, nf, self.dts, self.r_on, self.r_off)[0]
         c_obs = stat(self.G, self.No, self.Nf)
-        c = np.maximum(c_obs, 0.01)
-        for it in range(2):  # one indirect-inference step from the least squares, then the band biases there
+        # one indirect-inference step: the pooled quantiser bias of the nearest I0 already simulated (the
+        # least squares themselves at the first), then the band biases at the corrected thresholds
+        near = min(self.pooled_bias, key=lambda v: abs(math.log(v / i0)), default=None)
+        passes = 1 if near is not None else 2
+        c = np.maximum(c_obs - (self.pooled_bias[near] if near is not None else 0.0), 0.01)
+        for it in range(passes):
             sims = [_path_counts(Ls, self.rel, self.dts, c, self.sig, dr, self.r_on, self.r_off) for dr in self.draws]
-            if it == 0:
+            if it < passes - 1:
                 c = np.maximum(c + c_obs - np.mean([stat(self.G, *s) for s in sims], 0), 0.01)
-        cb = np.array([stat(G_, self.No, self.Nf) - (np.mean([stat(G_, *s) for s in sims], 0) - c) for G_ in masks])
+        self.pooled_bias[i0] = np.mean([stat(self.G, *s) for s in sims], 0) - c
+        bias = [np.mean([stat(G_, *s) for s in sims], 0) - c for G_ in masks]
+        cb = np.array([stat(G_, self.No, self.Nf) - b for G_, b in zip(masks, bias)])
         tot = cb.sum(1)
         f = math.log(tot[0] / tot[-1]) if tot[0] > 0 and tot[-1] > 0 else float("nan")
+        # the observed band statistics under a Poisson(1) bootstrap over pixels (the same weights at every
+        # I0: each replicate has its own zero), the simulated biases held
+        fb = []
+        for G_, b in zip(masks, bias):
+            P = _ls_sums_per_pixel(G_, np.where(G_, DL, 0.0), self.No, self.Nf, self.dts, self.r_on, self.r_off)
+            a_, b_ = _nnls2(*(self.W @ P.T).T)
+            fb.append((a_ - b[0]) + (b_ - b[1]))
+        with np.errstate(invalid="ignore", divide="ignore"):
+            self.last_boot = np.log(np.where((fb[0] > 0) & (fb[-1] > 0), fb[0] / fb[-1], np.nan))
         # signal events (noise removed) the simulation fires against the observed ones: its applicability
         noise = float((self.r_on + self.r_off) * (self.G.sum(1) * self.dts).sum())
         obs = float(np.where(self.G, self.No + self.Nf, 0.0).sum()) - noise
@@ -945,35 +1004,45 @@ class _BandRule:
         return f, c, cb, (sim / obs if obs > 0 else float("nan"))
 
 
-def _choose_i0(rule, i0s):
-    """The zero of the band rule's f over log I0 (:class:`_BandRule`), the grid widened toward it by
-    factors of 4 up to :data:`I0_LIMITS`. Returns (I0 or None, record); None: f has no zero where
-    the frames' log model reaches (the recording does not identify I0)."""
+def _choose_i0(rule, i0s, around=None, tolerance=SIM_EVENT_TOLERANCE):
+    """The zero of the band rule's f over log I0 (:class:`_BandRule`) on the criterion's grid (widened
+    there when its best lay on an edge), with its bootstrap standard error. Returns (I0 or None,
+    record); the record's ``applied`` says whether the zero is used (a significant sign change
+    where the simulated quantiser reproduces the observed events), ``identifiable`` whether it is
+    determined to a grid step (two standard errors within a factor 2)."""
     grid = list(i0s)
     prof = {}
+
+    boot = {}
 
     def f(v):
         if v not in prof:
             prof[v] = rule(v)
+            boot[v] = rule.last_boot
         return prof[v][0]
 
-    for v in grid:
-        f(v)
-    for _ in range(2 * MAX_WIDEN):
-        vals = [f(v) for v in grid]
-        if np.nanmax(vals) > 0 >= np.nanmin(vals):
-            break
-        if np.all(np.asarray(vals) > 0) and grid[-1] < I0_LIMITS[1]:
-            grid = grid + [v for v in (grid[-1] * 4, grid[-1] * 16) if v <= I0_LIMITS[1]]
-        elif np.all(np.asarray(vals) <= 0) and grid[0] > I0_LIMITS[0]:
-            grid = [v for v in (grid[0] / 16, grid[0] / 4) if v >= I0_LIMITS[0]] + grid
+    def falls(g):
+        v_ = [f(x) for x in g]
+        return [k for k in range(len(g) - 1) if v_[k] > 0 >= v_[k + 1]]
+
+    # where to look: around a zero already found (within two grid steps), else every other grid value,
+    # then the grid values between the coarse ones that bracket the zero (f is smooth in ln I0)
+    cross = []
+    if around is not None:
+        near = [v for v in grid if abs(math.log(v / around)) <= 2 * math.log(4.0) / 2 + 1e-9]
+        if len(near) >= 2 and falls(near):
+            grid = near
+            cross = falls(grid)
+    if not cross:
+        coarse = sorted(set(grid[::2]) | {grid[-1]})
+        cc = falls(coarse)
+        if cc:
+            lo_, hi_ = coarse[cc[0]], coarse[cc[0] + 1]
+            grid = [v for v in grid if lo_ <= v <= hi_]
         else:
-            break
-        for v in grid:
-            f(v)
+            grid = coarse
+        cross = falls(grid)
     vals = np.array([f(v) for v in grid])
-    # the zero where f falls through 0 (more I0 squeezes the dark changes: f decreases)
-    cross = [k for k in range(len(grid) - 1) if vals[k] > 0 >= vals[k + 1]]
     rec = {"method": "equal quantiser-corrected thresholds below and above the median intensity "
                      "(f = ln(c_dark / c_bright) = 0, linear in ln I0 between grid points)",
            "pixels": rule.pixels, "pixel_intervals_with_events": rule.n_active, "band_edges": rule.edges,
@@ -989,12 +1058,30 @@ def _choose_i0(rule, i0s):
     w = vals[k] / (vals[k] - vals[k + 1])
     i0 = math.exp(x0 + w * (x1 - x0))
     _, _, _, ratio = rule(i0)
-    rec.update({"identifiable": True, "crossings": len(cross), "bracket": [grid[k], grid[k + 1]],
-                "simulated_to_observed_events": _f(ratio), "applied": bool(abs(ratio - 1.0) <= SIM_EVENT_TOLERANCE)})
-    if not rec["applied"]:
+    # its standard error in ln I0: each bootstrap replicate's zero in the bracket (robust spread)
+    fa, fb_ = boot[grid[k]], boot[grid[k + 1]]
+    with np.errstate(invalid="ignore", divide="ignore"):
+        z = np.where(fa - fb_ > 0, x0 + fa / (fa - fb_) * (x1 - x0), np.nan)
+    bad = float(np.mean(~np.isfinite(z)))  # replicates without a falling crossing here
+    zf = z[np.isfinite(z)]
+    se = 1.4826 * float(np.median(np.abs(zf - np.median(zf)))) if zf.size >= 10 else float("inf")
+    step = math.log(2.0)
+    crossing = bad <= I0_RULE_MISSING
+    ident = bool(crossing and 2 * se <= step)
+    rec.update({"identifiable": ident, "crossings": len(cross), "bracket": [grid[k], grid[k + 1]],
+                "ln_i0_std": _f(se), "bootstrap_without_zero": bad,
+                "simulated_to_observed_events": _f(ratio),
+                "event_tolerance": _f(tolerance), "applied": bool(crossing and abs(ratio - 1.0) <= tolerance)})
+    if not crossing:
+        rec["reason"] = (f"f's sign change at I0 {i0:.4g} is not significant: {bad:.0%} of the bootstrap replicates "
+                         f"(over pixels) have no zero there (at most {I0_RULE_MISSING:.0%}); I0 is the criterion's")
+    elif not rec["applied"]:
         rec["reason"] = (f"at the zero (I0 {i0:.4g}) the quantiser simulated on the frames' log path fires {ratio:.2f}x "
-                         f"the observed signal events (tolerance {SIM_EVENT_TOLERANCE:.0%}): the frames undersample the "
+                         f"the observed signal events (tolerance {tolerance:.0%}): the frames undersample the "
                          f"scene's changes, the band corrections cannot be trusted; I0 is the criterion's")
+    elif not ident:
+        rec["reason"] = (f"I0 {i0:.4g} is used but not identified to a grid step: its bootstrap standard error in ln I0 "
+                         f"is {se:.3g} (identified when two standard errors are within a factor 2, ln 2 = {step:.3f})")
     return float(i0), rec
 
 
@@ -1055,7 +1142,7 @@ def _vertex(xs, ys, half=4):
     return float(xs[a]) + float(np.clip(-pc[1] / (2 * pc[0]), x[ok][0], x[ok][-1]))
 
 
-def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, free_i0, free_d, iters=4,
+def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, free_i0, free_d, iters=3,
              score_col=None):
     """Indirect inference on the whole estimate (δ, I0, c_on, c_off).
 
@@ -1103,8 +1190,11 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
     converged = False
     for it in range(iters + 1):
         ls = _ls_at(D, rows, int(round(d)), ii, r_on, r_off)
-        c, rec = _indirect(D, ints, float(i0s[ii]), ls, sig, r_on, r_off, seed=seed)
-        if it == iters or converged or not (free_i0 or free_d):
+        final = it == iters or converged or not (free_i0 or free_d)
+        # on the way, a rough correction (it only drives the simulated search); the full one at the end
+        c, rec = _indirect(D, ints, float(i0s[ii]), ls, sig, r_on, r_off, seed=seed, c_init=c,
+                           **({} if final else {"reps": 2, "iters": 2}))
+        if final:
             break
         ev = simulate_quantiser_events(D, float(i0s[ii]), c[0], c[1], sigma=(sig.get("on") or 0.0, sig.get("off") or 0.0),
                                        latency_us=int(round(d)), rate_on_hz=r_on, rate_off_hz=r_off, seed=seed + it,
