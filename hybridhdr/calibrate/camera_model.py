@@ -642,10 +642,11 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         notes.append(f"grid widened (best at I0 {i0s[ii] if ii < len(i0s) else float('nan'):.4g}, δ {offs[a_i]} µs)")
     d = int(offs[a_i])
     i0_rule = None
+    i0s_all = i0s  # the criterion's grid after widening (an I0 on its edge is warned)
     if quantiser_correction and intensity_offset is None and len(i0s) > 1:
         # I0 by the band rule (one threshold pair at every brightness, quantiser-corrected), where the
         # simulated quantiser sees what the pixels saw; else the criterion's I0 (below)
-        i0s_grid, d_rule = i0s, d
+        i0s_grid, d_rule, i0_crit = i0s, d, float(i0s[ii])
         # (at the criterion's offset, which holds the quantiser's lag: the simulated events are compared with
         # the first look's tolerance, as the correction's; the strict one is the correction's own, at the end)
         i0_hat, i0_rule = _choose_i0(_BandRule(D, ints, d, {}, r_on, r_off, seed), i0s, tolerance=2 * SIM_EVENT_TOLERANCE)
@@ -661,12 +662,6 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
     homog = {"relative_spread": [_f(v) for v in h_score], "bands_c": h_bands, "band_edges": h_edges,
              "intensity_offsets": list(i0s)}
     i0 = float(i0s[ii])
-    if intensity_offset is None and not rule_used and len(i0s) > 1 and ii in (0, len(i0s) - 1):
-        edge["intensity_offset"] = True
-        lim = "lower" if ii == 0 else "upper"
-        warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
-                      f"({i0s[0]:.4g}..{i0s[-1]:.4g}) after widening: the recording does not bound it", GridEdgeWarning,
-                      stacklevel=2)
     if time_offset_us is None and len(offs) > 1 and a_i in (0, len(offs) - 1):
         edge["time_offset_us"] = True
         warnings.warn(f"camera model: the best frame time offset {d} µs lies on the edge of its grid "
@@ -708,8 +703,15 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
             first = {"time_offset_us": d_rule, "intensity_offset": i0_hat,
                      **{k: v for k, v in i0_rule.items() if k not in ("method", "profile")}}
             if i0_hat2 is None or not rec2["applied"]:
-                i0_rule["second_pass"] = {"time_offset_us": latency, "intensity_offset": i0_hat2,
-                                          **{k: v for k, v in rec2.items() if k not in ("method",)}}
+                # no zero at the latency: the first pass's (at an offset holding the quantiser's lag) is not
+                # trusted either; I0 is the criterion's, the thresholds corrected there
+                i0_rule = {**{k: v for k, v in rec2.items() if k != "applied"}, "applied": False,
+                           "time_offset_us": latency, "first_pass": first}
+                rule_used = False
+                ii = i0s.index(i0_crit)
+                c2, rec3 = _indirect(D, ints, i0_crit, _ls_at(D, rows, latency, ii, r_on, r_off), sig, r_on, r_off,
+                                     seed=seed)
+                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in ("iterations", "simulated_signal_events")}}
             else:
                 i0_rule = {**rec2, "time_offset_us": latency, "first_pass": first}
                 score, coefs, i0s = _with_i0(D, ints, offs, rows, score, coefs, i0s, i0_hat2, r_on, r_off, c_range)
@@ -719,6 +721,14 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
                 ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in ("iterations", "simulated_signal_events")}}
         i0 = float(i0s[ii])
         c = c2 if c2 is not None else c
+        if c2 is None and rule_used:
+            # the correction was not applied: neither is the band rule that rests on the same simulation
+            i0_rule = {**i0_rule, "applied": False, "reason": "the quantiser correction was not applied: "
+                                                                + str(ii_rec.get("reason", ""))}
+            rule_used = False
+            ii = i0s.index(i0_crit)
+            i0 = float(i0s[ii])
+            c = _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))  # the least squares at the criterion's I0
         if c2 is not None:
             # the per-pixel least squares of the two halves carry the pooled fit's quantiser bias: scale
             # their spread by the same factor as the thresholds
@@ -737,6 +747,12 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         if not (lo_c <= c[0] <= hi_c and lo_c <= c[1] <= hi_c):
             raise ValueError(f"the camera model's corrected thresholds (c_on {c[0]:.4g}, c_off {c[1]:.4g}) are outside "
                              f"c_range {tuple(c_range)}: the recording has too little usable information")
+    if intensity_offset is None and not rule_used and len(i0s) > 1 and float(i0s[ii]) in (min(i0s_all), max(i0s_all)):
+        edge["intensity_offset"] = True
+        lim = "lower" if float(i0s[ii]) == min(i0s_all) else "upper"
+        warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
+                      f"({min(i0s_all):.4g}..{max(i0s_all):.4g}) after widening: the recording does not bound it",
+                      GridEdgeWarning, stacklevel=2)
     a0 = int(np.argmin(np.abs(np.asarray(offs))))
     from ..camera.encoding import DEFAULT_INTENSITY_OFFSET
     i_def = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(DEFAULT_INTENSITY_OFFSET))))
