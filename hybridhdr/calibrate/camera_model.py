@@ -1352,6 +1352,16 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
         v_off = np.where(ok, s2 * t["soo"] / det, np.inf)
     a1, b1, ok1, _ = est(pp["halves"][0])
     a2, b2, ok2, _ = est(pp["halves"][1])
+    # the per-pixel least squares carry the pooled least squares' quantiser bias: where the pooled
+    # value was corrected, each pixel's estimate (and its spread and variance) is scaled by the same
+    # factor, so that the shrinkage pulls toward the pooled value on one scale
+    qc = model.quantiser_correction or {}
+    ls_ = model.least_squares or {}
+    k_on = k_off = 1.0
+    if qc.get("applied") and (ls_.get("c_on") or 0) > 0 and (ls_.get("c_off") or 0) > 0:
+        k_on, k_off = model.c_on / ls_["c_on"], model.c_off / ls_["c_off"]
+    a, a1, a2, v_on = a * k_on, a1 * k_on, a2 * k_on, v_on * k_on ** 2
+    b, b1, b2, v_off = b * k_off, b1 * k_off, b2 * k_off, v_off * k_off ** 2
     both = ok1 & ok2
     tau2 = {}
     for name, x, y in (("on", a1, a2), ("off", b1, b2)):
@@ -1372,6 +1382,7 @@ def shrink_per_pixel(model: CameraModel, *, min_intervals: int = 2, min_decorrel
                         "halves' per-pixel estimates; s_i^2 from the pooled residual variance",
               "identified_pixels": int(ok.sum()), "pixels_both_halves": int(both.sum()),
               "tau2_on": tau2["on"], "tau2_off": tau2["off"], "residual_var": _f(s2) if np.isfinite(s2) else None,
+              "quantiser_scale": [float(k_on), float(k_off)],
               "profile": pp.get("profile", "")}
     return out[0], out[1], ok.reshape(h, w), record
 

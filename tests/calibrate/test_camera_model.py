@@ -128,7 +128,8 @@ def test_shrinkage_rule():
     con, coff, ident, rec_ = CM.shrink_per_pixel(m)
     assert ident.mean() > 0.9
     raw_on, raw_off = CM._nnls2(*(m.per_pixel["tot"][k] for k in ("soo", "sff", "sof", "bo", "bf")))
-    raw_on = raw_on.reshape(con.shape)
+    # each pixel's least squares on the pooled value's scale (the quantiser correction's factor, 1 without it)
+    raw_on = raw_on.reshape(con.shape) * rec_["quantiser_scale"][0]
     # every shrunk value lies between the pooled value and the pixel's own estimate
     lo = np.minimum(raw_on, m.c_on) - 1e-12
     hi = np.maximum(raw_on, m.c_on) + 1e-12
