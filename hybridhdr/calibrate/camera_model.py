@@ -282,7 +282,7 @@ class _Data:
 
     def window(self, j, d):
         """Event slice [a, b) that can weigh in interval j at offset d."""
-        a, b = np.searchsorted(self.t, [min(self.s[j], self.tau[j]) + d, max(self.e[j + 1], self.tau[j + 1]) + d])
+        a, b = _find(self.t, [min(self.s[j], self.tau[j]) + d, max(self.e[j + 1], self.tau[j + 1]) + d])
         return int(a), int(b)
 
     def weighted_counts(self, j, d, idx):
@@ -294,6 +294,17 @@ class _Data:
         non = np.bincount(p_[o_], wt[o_], minlength=self.n)
         noff = np.bincount(p_[~o_], wt[~o_], minlength=self.n)
         return non[idx], noff[idx]
+
+
+def _find(t, x):
+    """``np.searchsorted(t, x)`` (left) for integer event times ``t`` and real bounds ``x``: the bounds
+    are rounded up to t's integer type first (the same positions for integer times), so that numpy does
+    not cast the whole event array to float at every call (the hot path of every grid search)."""
+    x = np.ceil(np.asarray(x, np.float64))
+    if np.issubdtype(t.dtype, np.integer):
+        info = np.iinfo(t.dtype)
+        x = np.clip(x, info.min, info.max).astype(t.dtype)
+    return np.searchsorted(t, x)
 
 
 _MIDS: dict = {}
@@ -323,7 +334,7 @@ def _noise_rates(D, ints, i0, static_log_bound):
         k = int(st.sum())
         if not k:
             continue
-        a, b = np.searchsorted(D.t, [D.tau[j], D.tau[j + 1]])
+        a, b = _find(D.t, [D.tau[j], D.tau[j + 1]])
         sel = st[D.pix[a:b]]
         o_ = D.on[a:b][sel]
         n_on += int(o_.sum())
@@ -348,7 +359,7 @@ def _collect(D, ints, i0s, d0, d1, cap=None):
         _, g0 = D.frame(j)
         _, g1 = D.frame(j + 1)
         good = g0 & g1
-        a, b = np.searchsorted(D.t, [min(D.s[j], D.tau[j]) + d0, max(D.e[j + 1], D.tau[j + 1]) + d1])
+        a, b = _find(D.t, [min(D.s[j], D.tau[j]) + d0, max(D.e[j + 1], D.tau[j + 1]) + d1])
         hit = np.zeros(D.n, bool)
         hit[D.pix[a:b]] = True
         idxs.append(np.flatnonzero(good & hit))
@@ -490,7 +501,7 @@ def _refine_exposure(D, rows, d, i0s, ii, c, lam_on, lam_off, iters=4):
     need = sorted({r["j"] for r in rows} | {r["j"] + 1 for r in rows})
     plain = []
     for r in rows:
-        a, b = np.searchsorted(D.t, [D.tau[r["j"]] + d, D.tau[r["j"] + 1] + d])
+        a, b = _find(D.t, [D.tau[r["j"]] + d, D.tau[r["j"] + 1] + d])
         p_, o_ = D.pix[a:b], D.on[a:b]
         plain.append((np.bincount(p_[o_], minlength=D.n)[r["idx"]].astype(np.float64),
                       np.bincount(p_[~o_], minlength=D.n)[r["idx"]].astype(np.float64)))
@@ -499,7 +510,7 @@ def _refine_exposure(D, rows, d, i0s, ii, c, lam_on, lam_off, iters=4):
         s, e = D.s[k], D.e[k]
         if e <= s:
             continue
-        a, b = np.searchsorted(D.t, [s + d, e + d])
+        a, b = _find(D.t, [s + d, e + d])
         tt = (D.t[a:b] - d - s) / (e - s)
         bins = np.clip((tt * M).astype(np.int64), 0, M - 1)
         sub[k] = (bins, D.pix[a:b], D.on[a:b], (D.tau[k] - s) / (e - s))
@@ -960,7 +971,7 @@ class _BandRule:
         self.dts = np.asarray([(D.tau[j + 1] - D.tau[j]) * 1e-6 for j in ints], np.float64)
         no, nf = [], []
         for j in ints:
-            a, b = np.searchsorted(D.t, [D.tau[j] + d, D.tau[j + 1] + d])
+            a, b = _find(D.t, [D.tau[j] + d, D.tau[j + 1] + d])
             p_, o_ = D.pix[a:b], D.on[a:b]
             no.append(np.bincount(p_[o_], minlength=D.n)[sub].astype(np.float64))
             nf.append(np.bincount(p_[~o_], minlength=D.n)[sub].astype(np.float64))
@@ -1178,7 +1189,7 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
         for j in ints:
             _, g0 = D.frame(j)
             _, g1 = D.frame(j + 1)
-            a, b = np.searchsorted(D.t, [D.tau[j] + dd, D.tau[j + 1] + dd])
+            a, b = _find(D.t, [D.tau[j] + dd, D.tau[j + 1] + dd])
             tot += float(np.count_nonzero((g0 & g1)[D.pix[a:b]]))
             tot -= (r_on + r_off) * (D.tau[j + 1] - D.tau[j]) * 1e-6 * float(np.count_nonzero(g0 & g1))
         return tot
