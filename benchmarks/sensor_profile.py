@@ -9,7 +9,9 @@ then ONE JSON object on the last stdout line.
   with thresholds 0.15, 0.3 and 0.5, mismatch σ 0 and 0.03, a log offset I0 (the simulator's
   ``log_eps``, in this scene's frame-linear units) of 0.02, a latency of 3 ms (every event stamped
   late) and 2 Hz shot noise, then estimated. Pass: thresholds within 5 % or 2 standard errors, I0
-  and latency within one grid step. The least-squares and reverse-regression thresholds (the
+  within one step of the default I0 grid (a factor 2; the band rule's I0 need not lie on the grid,
+  its bootstrap standard error in ln I0 is printed as ``lnI0sd``) and the latency within one step
+  of the offset grid. The least-squares and reverse-regression thresholds (the
   errors-in-variables bracket) are printed beside them. Quick: 2 of the 6 settings, 0.6 s each.
 * **Real sensors** (``../shared/data``: ``ecd_slider_depth``, DAVIS240C; ``aedat4/davis346_street.aedat4``,
   DAVIS346): every third frame is held out; the model is estimated on the others and predicts each
