@@ -433,27 +433,34 @@ def _measures_frame_noise(req: ReconstructRequest, params, frames) -> bool:
 def _frame_noise(op: _Opened, rec: Recording | None, info: dict | None):
     """``op.params`` with the frame noise σ²_im and the process noise σ²_proc measured on the
     input (:func:`hybridhdr.calibrate.frame_noise.estimate_frame_noise`, on the frames as the
-    filter reads them and the camera profile it uses); unchanged where the frames do not identify
-    them. The record goes to ``info["frame_noise"]``."""
+    filter reads them and the camera profile it uses) in place of the fields left at their
+    defaults (``frame_precision_scale`` None, ``process_noise_per_s`` the class default: a value
+    the caller states wins); unchanged where the frames do not identify them. The record, with
+    the fields it replaced (``"applied"``), goes to ``info["frame_noise"]``."""
     from ..calibrate.frame_noise import estimate_frame_noise
+    from .params import AKFParams
     p = op.params
     if rec is not None:
         t, x, y = rec.events["t"], rec.events["x"], rec.events["y"]
     else:
         ev = op.events
-        len(ev)  # a background reader: wait for every event
-        t, x, y = ev.t[:len(ev)], ev.x[:len(ev)], ev.y[:len(ev)]
+        n = len(ev)  # a background reader: wait for every event
+        t, x, y = ev.t[:n], ev.x[:n], ev.y[:n]
     prof = load_profile(op.profile)
     if p.min_weighting is not None:  # the weighting floor the filter's measurements use
         prof = dataclasses.replace(prof, min_weighting=float(p.min_weighting))
     got = estimate_frame_noise(op.frames, t, x, y, prof, p.intensity_offset)
+    rep = {}
     if got["identifiable"]:
-        rate = p.process_noise_per_s if p.fusion_carried_rate_per_s is None else p.fusion_carried_rate_per_s
-        p = p.replace(frame_precision_scale=got["frame_precision_scale"],
-                      process_noise_per_s=got["process_noise_per_s"], fusion_carried_rate_per_s=rate)
+        if p.frame_precision_scale is None:
+            rep["frame_precision_scale"] = got["frame_precision_scale"]
+        if p.process_noise_per_s == AKFParams.process_noise_per_s:
+            rep["process_noise_per_s"] = got["process_noise_per_s"]
+            if p.fusion_carried_rate_per_s is None:  # the fusion keeps its rate (AKFParams)
+                rep["fusion_carried_rate_per_s"] = p.process_noise_per_s
     if info is not None:
-        info["frame_noise"] = got
-    return p
+        info["frame_noise"] = {**got, "applied": sorted(rep)}
+    return p.replace(**rep) if rep else p
 
 
 def _exposure_mean(params, frames) -> bool:

@@ -135,7 +135,8 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         sub-threshold change no event reports grows the uncertainty between frames, so that the
         discrete frame update trusts a new frame over a state last corrected a frame period ago
         (edge sweep of ``benchmarks/accuracy.py``: well-exposed log error 0.017 → 0.007,
-        ecd_slider_depth held-out frames unchanged within 0.5 %).
+        ecd_slider_depth held-out frames unchanged within 0.5 %). With :attr:`noise_from_frames`
+        (the default) the value measured on the input replaces it where the frames identify it.
     isolated_noise_per_s : float
         σ²_iso in log²/s (§3.1.1; paper §6: 0.03).
     refractory_noise : float
@@ -158,7 +159,9 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         R between frames: eq. 7's linear interpolation (exactly integrated; offline mode only)
         or held at the frame's value.
     frame_precision_scale : float or None
-        Overrides the camera profile's 1/σ²_im (eq. 6; §6: 7e5 DAVIS240C, 7e7 FLIR).
+        Overrides the camera profile's 1/σ²_im (eq. 6; §6: 7e5 DAVIS240C, 7e7 FLIR). With
+        :attr:`noise_from_frames` (the default) the value measured on the input replaces it where
+        the frames identify it.
     saturation : {"bound", "value"}
         "bound" (ours): a clipped frame code is a censored measurement, "at least the clip
         level" (or "at most the dark level"), acting only when the state violates it, so a
@@ -210,8 +213,9 @@ class AKFParams(_ParamsMixin, _ThresholdMixin):
         process noise σ²_proc (``process_noise_per_s``) on the input's own frames, at the pixels
         without events (the local level model's moments,
         :func:`hybridhdr.calibrate.frame_noise.estimate_frame_noise`), and use them in place of
-        these two fields wherever the frames identify them (else the fields stay; the run's
-        ``info["frame_noise"]`` says which). Their ratio decides how many past frames the filter
+        these two fields where they are left at their defaults (``frame_precision_scale`` None,
+        ``process_noise_per_s`` 0.05: a value you state wins) and the frames identify them (else
+        the fields stay; the run's ``info["frame_noise"]["applied"]`` says which). Their ratio decides how many past frames the filter
         averages where no event reports a change: the paper's DAVIS240C precision (7e5) is
         23-110x the one measured on the two real recordings and our σ²_proc 0.05 is 10-50x their
         drift, so the filter restarted from each new frame and passed the frames' own temporal

@@ -74,3 +74,15 @@ def test_two_sided_fusion_keeps_its_carried_rate():
     assert AKFParams(fusion_carried_rate_per_s=None).carried_variance()[1] == p.process_noise_per_s
     with pytest.raises(ValueError, match="fusion_carried_rate_per_s"):
         AKFParams(fusion_carried_rate_per_s=-1.0)
+
+
+def test_stated_values_win(noisy_static):
+    rec, _ = noisy_static
+    info = _run(rec).info["frame_noise"]
+    assert info["applied"] == ["frame_precision_scale", "fusion_carried_rate_per_s", "process_noise_per_s"]
+    info = _run(rec, AKFParams(process_noise_per_s=0.02)).info["frame_noise"]
+    assert info["applied"] == ["frame_precision_scale"]
+    info = _run(rec, AKFParams(frame_precision_scale=1e5)).info["frame_noise"]
+    assert info["applied"] == ["fusion_carried_rate_per_s", "process_noise_per_s"]
+    info = _run(rec, AKFParams(process_noise_per_s=0.02, frame_precision_scale=1e5)).info["frame_noise"]
+    assert info["applied"] == []
