@@ -56,7 +56,7 @@ __all__ = ["estimate_frame_noise", "MIN_SAMPLES", "MAX_TRIPLES"]
 #: Fewest pixel-triples for an estimate.
 MIN_SAMPLES = 1000
 #: Most frame triples read (evenly spread over the recording).
-MAX_TRIPLES = 64
+MAX_TRIPLES = 32
 
 
 def _event_free(t, x, y, width: int, n_pix: int, t0: int, t1: int) -> np.ndarray:
