@@ -89,7 +89,8 @@ def estimate_frame_noise(frames: Frames, t, x, y, profile: CameraProfile, intens
     -------
     dict with ``identifiable`` (bool), ``reason`` (when not), ``samples`` (pixel-triples),
     ``triples`` (frame triples read), ``variance_scale`` (ρ) and its ``variance_scale_se``,
-    ``frame_precision_scale`` (the profile's divided by ρ: 1/σ²_im in eq. 6's units),
+    ``frame_precision_scale`` (the profile's, ``profile_precision_scale``, divided by ρ: 1/σ²_im
+    in eq. 6's units),
     ``process_noise_per_s`` (q, log²/s, >= 0) and ``process_noise_raw_per_s`` (before the clip
     at 0), ``frame_variance_log`` (the measured mean frame variance, log²) and
     ``profile_variance_log`` (the profile's over the same samples).
@@ -174,6 +175,7 @@ def estimate_frame_noise(frames: Frames, t, x, y, profile: CameraProfile, intens
         out["reason"] = (f"the frames' lag-one covariance does not identify their noise: scale {rho:.3g} "
                          f"± {se:.2g} (needs > 2 standard errors)")
         return out
-    out.update(identifiable=True, frame_precision_scale=float(prof.frame_precision_scale) / rho,
+    out.update(identifiable=True, profile_precision_scale=float(prof.frame_precision_scale),
+               frame_precision_scale=float(prof.frame_precision_scale) / rho,
                process_noise_per_s=max(q_raw, 0.0))
     return out

@@ -1,4 +1,4 @@
-"""The AKF measures the frames' noise and drift on its input (``AKFParams.noise_from_frames``)."""
+"""The AKF measures the frames' noise and drift on its input when asked (``AKFParams.noise_from_frames``)."""
 
 from __future__ import annotations
 
@@ -29,17 +29,20 @@ def noisy_static():
     return Recording(ev, (h, w), frames), scene / 255.0
 
 
-def _run(rec, params=None, mode="causal"):
+ON = AKFParams(noise_from_frames=True)
+
+
+def _run(rec, params=ON, mode="causal"):
     t = np.array([int(rec.frames.t_mid_us[-1]) + PERIOD_US // 2], np.int64)
     return reconstruct(rec, "akf", params, times_us=t, mode=mode, thresholds="params")
 
 
-def test_default_measures_and_records(noisy_static):
+def test_measures_and_records(noisy_static):
     rec, _ = noisy_static
     v = _run(rec)
     got = v.info["frame_noise"]
     assert got["identifiable"]
-    p = AKFParams()
+    p = ON
     prof = profile_for_frames(load_profile(source_profile(rec)), rec.frames)
     want = estimate_frame_noise(rec.frames, rec.events["t"], rec.events["x"], rec.events["y"], prof,
                                 p.intensity_offset)
@@ -48,9 +51,9 @@ def test_default_measures_and_records(noisy_static):
     assert got["variance_scale"] > 10
 
 
-def test_presets_and_opt_out_keep_their_values(noisy_static):
+def test_default_and_presets_keep_their_values(noisy_static):
     rec, _ = noisy_static
-    for p in (AKFParams.paper(), AKFParams.reference_code(), AKFParams(noise_from_frames=False)):
+    for p in (None, AKFParams(), AKFParams.paper(), AKFParams.reference_code(), AKFParams.paper(noise_from_frames=False)):
         assert "frame_noise" not in _run(rec, p).info
 
 
@@ -59,11 +62,10 @@ def test_averaging_the_frames_lowers_the_error(noisy_static):
     the last one (error about 2 codes)."""
     rec, scene = noisy_static
     err = {}
-    for label, p in (("measured", AKFParams()), ("given", AKFParams(noise_from_frames=False))):
+    for label, p in (("measured", ON), ("given", AKFParams())):
         out = _run(rec, p).frames[0]
         err[label] = float(np.sqrt(np.mean((out - scene) ** 2)) * 255)
     assert err["given"] > 1.5  # one frame's noise (2 codes)
-    print(err)
     assert err["measured"] < 0.75 * err["given"], err
 
 
@@ -80,9 +82,9 @@ def test_stated_values_win(noisy_static):
     rec, _ = noisy_static
     info = _run(rec).info["frame_noise"]
     assert info["applied"] == ["frame_precision_scale", "fusion_carried_rate_per_s", "process_noise_per_s"]
-    info = _run(rec, AKFParams(process_noise_per_s=0.02)).info["frame_noise"]
+    info = _run(rec, ON.replace(process_noise_per_s=0.02)).info["frame_noise"]
     assert info["applied"] == ["frame_precision_scale"]
-    info = _run(rec, AKFParams(frame_precision_scale=1e5)).info["frame_noise"]
+    info = _run(rec, ON.replace(frame_precision_scale=1e5)).info["frame_noise"]
     assert info["applied"] == ["fusion_carried_rate_per_s", "process_noise_per_s"]
-    info = _run(rec, AKFParams(process_noise_per_s=0.02, frame_precision_scale=1e5)).info["frame_noise"]
+    info = _run(rec, ON.replace(process_noise_per_s=0.02, frame_precision_scale=1e5)).info["frame_noise"]
     assert info["applied"] == []
