@@ -450,17 +450,23 @@ def _frame_noise(op: _Opened, rec: Recording | None, info: dict | None):
     if p.min_weighting is not None:  # the weighting floor the filter's measurements use
         prof = dataclasses.replace(prof, min_weighting=float(p.min_weighting))
     got = estimate_frame_noise(op.frames, t, x, y, prof, p.intensity_offset)
-    rep = {}
+    applied = []
+    prec, q, rate = p.frame_precision_scale, p.process_noise_per_s, p.fusion_carried_rate_per_s
     if got["identifiable"]:
         if p.frame_precision_scale is None:
-            rep["frame_precision_scale"] = got["frame_precision_scale"]
+            prec = got["frame_precision_scale"]
+            applied.append("frame_precision_scale")
         if p.process_noise_per_s == AKFParams.process_noise_per_s:
-            rep["process_noise_per_s"] = got["process_noise_per_s"]
+            q = got["process_noise_per_s"]
+            applied.append("process_noise_per_s")
             if p.fusion_carried_rate_per_s is None:  # the fusion keeps its rate (AKFParams)
-                rep["fusion_carried_rate_per_s"] = p.process_noise_per_s
+                rate = p.process_noise_per_s
+                applied.append("fusion_carried_rate_per_s")
     if info is not None:
-        info["frame_noise"] = {**got, "applied": sorted(rep)}
-    return p.replace(**rep) if rep else p
+        info["frame_noise"] = {**got, "applied": sorted(applied)}
+    if not applied:
+        return p
+    return p.replace(frame_precision_scale=prec, process_noise_per_s=q, fusion_carried_rate_per_s=rate)
 
 
 def _exposure_mean(params, frames) -> bool:
