@@ -17,6 +17,11 @@ recordings, which declare none), and the baselines hold-previous and linear inte
   57 held-out frames, evenly spread, with one calibration that leaves every held-out frame out
   (``calibration_holdout="scored"``: one per frame would cost 12 calibrations of 59 frames).
 
+Beside them, the same AKF with the frames' noise and drift measured on its input
+(``AKFParams(noise_from_frames=True)``, labels ``akf_noise`` and ``akf_causal_noise``; off by
+default, ``docs/reconstruct.md``, "Frame noise measured on the recording"), with the ratio to
+the default AKF in the same mode.
+
 Checks (measured, not tuned for): on each recording and task the AKF's mean MSE is below
 hold-previous's and below CF's in the same mode. Each recording is skipped, with the reason,
 when its sample data is absent.
@@ -55,13 +60,25 @@ def _checks(res) -> dict:
         def mse(lab):
             r = m.get(lab, {})
             return r["mean"]["mse"] if r.get("status") == "ok" else float("nan")
-        pairs = [("akf", "cf")] if task == "leave_one_out" else []
-        pairs.append(("akf_causal", "cf_causal"))
+        pairs = [("akf", "cf"), ("akf_noise", "cf")] if task == "leave_one_out" else []
+        pairs += [("akf_causal", "cf_causal"), ("akf_causal_noise", "cf_causal")]
         for akf, cf in pairs:
             a, c, h = mse(akf), mse(cf), mse("hold_previous")
             out[f"{task}_{akf}_below_hold_previous"] = {"akf": a, "hold_previous": h, "ratio": a / h,
                                                          "pass": bool(a < h)}
             out[f"{task}_{akf}_below_{cf}"] = {"akf": a, "cf": c, "ratio": a / c, "pass": bool(a < c)}
+    return out
+
+
+def _noise_ratios(res) -> dict:
+    """MSE of the AKF with the measured frame noise over the default AKF's, per task and mode."""
+    out = {}
+    for task in ("leave_one_out", "next_frame"):
+        m = res.get(task, {}).get("methods", {})
+        for lab in ("akf", "akf_causal"):
+            a, b = m.get(f"{lab}_noise", {}), m.get(lab, {})
+            if a.get("status") == "ok" and b.get("status") == "ok":
+                out[f"{task}_{lab}"] = a["mean"]["mse"] / b["mean"]["mse"]
     return out
 
 
@@ -74,6 +91,8 @@ def main() -> int:
     from hybridhdr.evaluate import realdata as RD
     t_start = time.perf_counter()
     specs = [RD.HoldoutSpec("akf", "akf", "offline"), RD.HoldoutSpec("akf_causal", "akf", "causal"),
+             RD.HoldoutSpec("akf_noise", "akf", "offline", params={"noise_from_frames": True}),
+             RD.HoldoutSpec("akf_causal_noise", "akf", "causal", params={"noise_from_frames": True}),
              RD.HoldoutSpec("cf", "cf", "offline"), RD.HoldoutSpec("cf_causal", "cf", "causal")]
     res = {"benchmark": "real_holdout", "quick": bool(args.quick), "recordings": {}}
     for name, path in RECORDINGS.items():
@@ -98,7 +117,10 @@ def main() -> int:
         checks = _checks(r)
         print("  checks: " + "; ".join(f"{'PASS' if v['pass'] else 'FAIL'} {k} (ratio {v['ratio']:.3f})"
                                        for k, v in checks.items()))
+        noise = _noise_ratios(r)
+        print("  measured frame noise / default AKF, MSE: " + "; ".join(f"{k} {v:.3f}" for k, v in noise.items()))
         res["recordings"][name] = {
+            "noise_from_frames_over_default": noise,
             "held": r["held"], "thresholds": thr, "calibration_holdout": hold, "wall_s": wall, "checks": checks,
             **{task: {lab: ({"mse": row["mean"]["mse"], "psnr_db": row["mean"]["psnr_db"], "ssim": row["mean"]["ssim"]}
                             if row.get("status") == "ok" else {"status": row.get("status")})

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
 import os
 from dataclasses import dataclass, field
@@ -403,18 +404,69 @@ def _open(req: ReconstructRequest, source, info: dict | None) -> _Opened:
         op.profile = req.reading.profile if req.reading.profile is not None else source_profile(opened)
         op.exposure_mean = (req.run.method == "akf" and req.run.measurements is None and not op.use_aug
                             and _exposure_mean(op.params, frames))
-        if op.use_aug or req.run.method == "edi" or op.exposure_mean:
+        noise = _measures_frame_noise(req, op.params, frames)
+        in_memory = isinstance(opened, Recording)
+        if op.use_aug or req.run.method == "edi" or op.exposure_mean or (noise and not in_memory):
             # EDI, frame augmentation and frames read as exposure means look ahead in time (the
-            # events inside an exposure): hold the events in memory (13 B/event)
+            # events inside an exposure), and the frame-noise measurement reads every frame
+            # interval's events: hold the events in memory (13 B/event)
             if n_declared is None:
                 op.events = EventArrays.from_chunks(chunks(req.run.chunk_events), op.shape)
             else:  # read in the background: the filter starts on the first chunks
                 op.events = StreamingEventArrays(chunks(req.run.chunk_events), op.shape, n_declared)
             op.chunks = op.events.chunks
+        if noise:
+            op.params = _frame_noise(op, opened if in_memory else None, info)
         return op
     except BaseException:
         close()
         raise
+
+
+def _measures_frame_noise(req: ReconstructRequest, params, frames) -> bool:
+    """The AKF with its own frame measurements measures σ²_im and σ²_proc on the input's frames
+    (``AKFParams.noise_from_frames``; needs three frames)."""
+    return (req.run.method == "akf" and req.run.measurements is None
+            and bool(getattr(params, "noise_from_frames", False)) and frames is not None and len(frames) >= 3)
+
+
+def _frame_noise(op: _Opened, rec: Recording | None, info: dict | None):
+    """``op.params`` with the frame noise σ²_im and the process noise σ²_proc measured on the
+    input (:func:`hybridhdr.calibrate.frame_noise.estimate_frame_noise`, on the frames as the
+    filter reads them and the camera profile it uses) in place of the fields left at their
+    defaults (``frame_precision_scale`` None, ``process_noise_per_s`` the class default: a value
+    the caller states wins); unchanged where the frames do not identify them. The record, with
+    the fields it replaced (``"applied"``), goes to ``info["frame_noise"]``."""
+    from ..calibrate.frame_noise import estimate_frame_noise
+    from .params import AKFParams
+    p = op.params
+    if rec is not None:
+        t, x, y = rec.events["t"], rec.events["x"], rec.events["y"]
+    else:
+        ev = op.events
+        n = len(ev)  # a background reader: wait for every event
+        t, x, y = ev.t[:n], ev.x[:n], ev.y[:n]
+    prof = load_profile(op.profile)
+    if p.min_weighting is not None:  # the weighting floor the filter's measurements use
+        prof = dataclasses.replace(prof, min_weighting=float(p.min_weighting))
+    got = estimate_frame_noise(op.frames, t, x, y, prof, p.intensity_offset)
+    applied = []
+    prec, q, rate = p.frame_precision_scale, p.process_noise_per_s, p.fusion_carried_rate_per_s
+    if got["identifiable"]:
+        if p.frame_precision_scale is None:
+            prec = got["frame_precision_scale"]
+            applied.append("frame_precision_scale")
+        if p.process_noise_per_s == AKFParams.process_noise_per_s:
+            q = got["process_noise_per_s"]
+            applied.append("process_noise_per_s")
+            if p.fusion_carried_rate_per_s is None:  # the fusion keeps its rate (AKFParams)
+                rate = p.process_noise_per_s
+                applied.append("fusion_carried_rate_per_s")
+    if info is not None:
+        info["frame_noise"] = {**got, "applied": sorted(applied)}
+    if not applied:
+        return p
+    return p.replace(frame_precision_scale=prec, process_noise_per_s=q, fusion_carried_rate_per_s=rate)
 
 
 def _exposure_mean(params, frames) -> bool:
