@@ -35,3 +35,11 @@ def procedural_rec_file(tmp_path_factory):
     p = tmp_path_factory.mktemp("rec") / "src.h5"
     write_recording(rec, p)
     return p, rec
+
+
+def sigint_default() -> None:
+    """``preexec_fn`` of a child a test interrupts with SIGINT: a child inherits an ignored SIGINT
+    from a parent started in the background (``cmd &`` in a non-interactive shell), and Python then
+    installs no KeyboardInterrupt handler; the test needs the default, as a terminal gives."""
+    import signal
+    signal.signal(signal.SIGINT, signal.SIG_DFL)

@@ -20,6 +20,7 @@ import pytest
 
 import hybridhdr as hh
 from hybridhdr.cli import main
+from tests.conftest import sigint_default
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -48,6 +49,7 @@ def _child(code: str, *args, **kw):
     env = dict(os.environ, PYTHONPATH=str(REPO) + os.pathsep + os.environ.get("PYTHONPATH", ""))
     kw.setdefault("stdout", subprocess.PIPE)
     kw.setdefault("stderr", subprocess.PIPE)
+    kw.setdefault("preexec_fn", sigint_default)  # the SIGINT tests need it not ignored
     return subprocess.Popen([sys.executable, "-c", code, *map(str, args)], cwd=REPO, env=env, text=True, **kw)
 
 

@@ -14,6 +14,7 @@ from pathlib import Path
 import pytest
 
 from hybridhdr.simulate.dataset_run import load_spec, plan_jobs
+from tests.conftest import sigint_default
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -33,7 +34,7 @@ fixed_rate_hz = 800
 def _cli(args, cwd):
     env = dict(os.environ, PYTHONPATH=str(ROOT))
     return subprocess.Popen([sys.executable, "-m", "hybridhdr", *args], cwd=str(cwd), env=env,
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=sigint_default)
 
 
 def _files(d: Path) -> dict:
