@@ -70,15 +70,21 @@ def test_lines_written_while_a_bar_runs_do_not_cut_through_it(capsys):
         b = new_bar(total=10, desc="work")
         b.update(3)
         print("a line in the middle", file=sys.stderr)
-        # a handler of its own on stderr as it is now (other tests may leave the root logger
-        # without a console handler: the result must not depend on the test order)
+        # a handler and a level of its own, on stderr as it is now: other tests' commands configure
+        # the root logger once per process (``-q`` leaves it at ERROR, its handler on a stream pytest
+        # has closed since), and the result must not depend on the test order
         log = logging.getLogger("hybridhdr.test")
         h = logging.StreamHandler()
+        old_level, old_propagate = log.level, log.propagate
         log.addHandler(h)
+        log.setLevel(logging.WARNING)
+        log.propagate = False
         try:
             log.warning("a logged line")
         finally:
             log.removeHandler(h)
+            log.setLevel(old_level)
+            log.propagate = old_propagate
         b.update(7)
     print("final line", file=sys.stderr)
     err = capsys.readouterr().err
