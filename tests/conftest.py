@@ -35,3 +35,27 @@ def procedural_rec_file(tmp_path_factory):
     p = tmp_path_factory.mktemp("rec") / "src.h5"
     write_recording(rec, p)
     return p, rec
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """``(rc, stdout, stderr, folder)`` of one ``hybridhdr demo`` (its ``--help`` example, verbatim)
+    run from an empty folder through ``hybridhdr.cli.main``. The demo simulates, reconstructs and
+    evaluates for minutes, so the tests about it (the example runs; what it prints and writes) read
+    this one run instead of each running it."""
+    import contextlib
+    import io
+    import shlex
+
+    from hybridhdr._util.examples import EXAMPLES
+    from hybridhdr.cli import main
+    folder = tmp_path_factory.mktemp("demo")
+    out, err = io.StringIO(), io.StringIO()
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(shlex.split(EXAMPLES["demo"])[1:])
+    finally:
+        os.chdir(cwd)
+    return rc, out.getvalue(), err.getvalue(), folder
