@@ -7,6 +7,13 @@ from pathlib import Path
 
 import pytest
 
+# One OpenMP thread per test process and per worker it starts (they inherit the environment):
+# PyTorch's intra-op pool (ColorVideoVDP's JOD, the learned baselines) and OpenBLAS. The suite
+# runs on 2 cores with bench worker processes beside the test process, and oversubscribed OpenMP
+# threads spin-wait: a JOD took 10-20x longer with 2 threads than with 1 on a loaded 2-core
+# machine, for the same bits (checked on 36x48 to 173x130 frames). A value set in the environment wins.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
