@@ -7,6 +7,13 @@ from pathlib import Path
 
 import pytest
 
+# One OpenMP thread per test process and per worker it starts (they inherit the environment):
+# PyTorch's intra-op pool (ColorVideoVDP's JOD, the learned baselines) and OpenBLAS. The suite
+# runs on 2 cores with bench worker processes beside the test process, and oversubscribed OpenMP
+# threads spin-wait: a JOD took 10-20x longer with 2 threads than with 1 on a loaded 2-core
+# machine, for the same bits (checked on 36x48 to 173x130 frames). A value set in the environment wins.
+os.environ.setdefault("OMP_NUM_THREADS", "1")
+
 REPO_ROOT = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("HYBRIDHDR_SHARED_DATA", REPO_ROOT.parent / "shared" / "data"))
 
@@ -43,3 +50,27 @@ def sigint_default() -> None:
     installs no KeyboardInterrupt handler; the test needs the default, as a terminal gives."""
     import signal
     signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
+@pytest.fixture(scope="session")
+def demo_run(tmp_path_factory):
+    """``(rc, stdout, stderr, folder)`` of one ``hybridhdr demo`` (its ``--help`` example, verbatim)
+    run from an empty folder through ``hybridhdr.cli.main``. The demo simulates, reconstructs and
+    evaluates for minutes, so the tests about it (the example runs; what it prints and writes) read
+    this one run instead of each running it."""
+    import contextlib
+    import io
+    import shlex
+
+    from hybridhdr._util.examples import EXAMPLES
+    from hybridhdr.cli import main
+    folder = tmp_path_factory.mktemp("demo")
+    out, err = io.StringIO(), io.StringIO()
+    cwd = os.getcwd()
+    os.chdir(folder)
+    try:
+        with contextlib.redirect_stdout(out), contextlib.redirect_stderr(err):
+            rc = main(shlex.split(EXAMPLES["demo"])[1:])
+    finally:
+        os.chdir(cwd)
+    return rc, out.getvalue(), err.getvalue(), folder

@@ -91,11 +91,12 @@ def test_cli_errors_are_clear(tmp_path, capsys):
     assert rc == 2 and "--end-us" in err and not (tmp_path / "o.h5").exists()
 
 
-def test_demo_runs(tmp_path, capsys):
-    rc, out, err = run_cli(capsys, "demo", "--out", str(tmp_path / "demo"))
+def test_demo_runs(demo_run):
+    """``hybridhdr demo`` (the run shared with its --help example's test: tests/conftest.py)."""
+    rc, out, err, folder = demo_run
     assert rc == 0, err
     assert "identical events" in out and "EVENTS DIFFER" not in out
-    assert (tmp_path / "demo" / "procedural.h5").exists()
+    assert (folder / "demo_out" / "procedural.h5").exists()  # the default --out
 
 
 def test_demo_passes_learned_weights_to_table_1(tmp_path, capsys, monkeypatch):

@@ -132,8 +132,12 @@ _NEEDS = {
 
 
 @pytest.mark.parametrize("name", [pytest.param(n, marks=pytest.mark.slow) if n in _SLOW else n for n in _OWN])
-def test_help_example_runs(name, tmp_path, capsys, monkeypatch):
+def test_help_example_runs(name, tmp_path, capsys, monkeypatch, request):
     line = EXAMPLES[name]
+    if name == "demo":  # run once for this test and tests/test_cli.py (minutes): tests/conftest.py
+        rc, _, err, _ = request.getfixturevalue("demo_run")
+        assert rc == 0, f"{line}\n{err[-2000:]}"
+        return
     steps = _NEEDS.get(name, [])
     if "../shared/data" in line + " ".join(s for s in steps if isinstance(s, str)):
         if not SHARED_DATA.is_dir():

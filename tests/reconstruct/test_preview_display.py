@@ -36,11 +36,13 @@ def test_ecd_preview_mean_matches_the_frame(tmp_path, capsys):
     """The AKF preview of ecd_slider_depth at 0.1 s has the frame's brightness: within 4 codes of
     the frame at that time (was 126 vs 63 with the gamma-2.2 map on 'unknown'-encoded frames). The
     AKF output is the frame's linear intensity plus event detail, so the means agree to a few codes
-    (measured 64.1 vs 62.7-63.3; 4 codes leaves room for the event detail, not for a gamma error)."""
+    (measured 64.1 vs 62.7-63.3; 4 codes leaves room for the event detail, not for a gamma error).
+    ``--thresholds input``: the preview's map is the subject, not the self-calibration, which took
+    half of this test's time (with it the mean is 62.6)."""
     data = shared_file("ecd_slider_depth")
     out = tmp_path / "v"
     assert main(["reconstruct", str(data), "--method", "akf", "--fps", "300", "--out", str(out), "--png",
-                 "--no-exr", "--no-progress"]) == 0
+                 "--no-exr", "--no-progress", "--thresholds", "input"]) == 0
     capsys.readouterr()
     run = json.loads((out / "run.json").read_text())
     assert run["written"]["preview_display"] == {"mode": "linear", "hi": 1.0, "gamma": 1.0}

@@ -62,14 +62,23 @@ def test_spec_checks(tmp_path):
     assert jobs[1]["argv"][6:8] == ["--sensor", str((tmp_path / "p.json").resolve())]
 
 
-@pytest.mark.slow
-def test_dataset_interrupt_resume_identical(tmp_path):
+@pytest.fixture(scope="module")
+def dataset_a(tmp_path_factory):
+    """``(folder, JSON summary)``: ``spec.toml`` in the folder and the uninterrupted local run of it
+    (``A``), made once for the two tests below, which compare their own runs (other output folders
+    beside it, from the same spec file) with it and only read it."""
     pytest.importorskip("mitsuba")
-    (tmp_path / "spec.toml").write_text(SPEC)
-    p = _cli(["simulate", "dataset", "spec.toml", "--out", "A", "--jobs", "2", "--no-progress", "--json"], tmp_path)
+    d = tmp_path_factory.mktemp("dataset")
+    (d / "spec.toml").write_text(SPEC)
+    p = _cli(["simulate", "dataset", "spec.toml", "--out", "A", "--jobs", "2", "--no-progress", "--json"], d)
     out, err = p.communicate(timeout=900)
     assert p.returncode == 0, err
-    summary = json.loads(out)
+    return d, json.loads(out)
+
+
+@pytest.mark.slow
+def test_dataset_interrupt_resume_identical(dataset_a):
+    tmp_path, summary = dataset_a
     assert summary["recordings"] == 4 == summary["ran"]
     m = json.loads((tmp_path / "A" / "manifest.json").read_text())
     assert all(r["done"] and r["events"] > 0 and len(r["sha256"]) == 64 for r in m["recordings"])
@@ -104,13 +113,9 @@ def test_dataset_interrupt_resume_identical(tmp_path):
 
 
 @pytest.mark.slow
-def test_dataset_on_local_dask_cluster(tmp_path):
-    pytest.importorskip("mitsuba")
+def test_dataset_on_local_dask_cluster(dataset_a):
     distributed = pytest.importorskip("distributed")
-    (tmp_path / "spec.toml").write_text(SPEC)
-    p = _cli(["simulate", "dataset", "spec.toml", "--out", "A", "--jobs", "2", "--no-progress"], tmp_path)
-    _, err = p.communicate(timeout=900)
-    assert p.returncode == 0, err
+    tmp_path = dataset_a[0]
     with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=False, protocol="tcp",
                                    dashboard_address=None) as cl:
         p = _cli(["simulate", "dataset", "spec.toml", "--out", "D", "--scheduler", cl.scheduler_address,

@@ -84,14 +84,23 @@ def _cli(args, **kw):
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, **kw)
 
 
-@pytest.mark.slow
-@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
-def test_cli_signal_keeps_partial_and_resume_matches(tmp_path, sig):
+@pytest.fixture(scope="module")
+def uninterrupted(tmp_path_factory):
+    """The scene simulated by the command line without interruption: the file both signals' resumed
+    runs must equal, simulated once for both (they only read it)."""
     pytest.importorskip("mitsuba")
-    a, b = tmp_path / "a.h5", tmp_path / "b.h5"
+    a = tmp_path_factory.mktemp("uninterrupted") / "a.h5"
     p = _cli(_SCENE + ["--out", str(a)])
     _, err = p.communicate(timeout=600)
     assert p.returncode == 0, err
+    return a
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
+def test_cli_signal_keeps_partial_and_resume_matches(tmp_path, sig, uninterrupted):
+    pytest.importorskip("mitsuba")
+    a, b = uninterrupted, tmp_path / "b.h5"
     p = _cli(_SCENE + ["--out", str(b)])
     part = partial_path(b)
     t0 = time.time()
