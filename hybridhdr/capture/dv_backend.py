@@ -919,33 +919,26 @@ def serve_recording(path, urls: dict, *, speed: float | None = 1.0, wait_clients
             if lo <= f.timestamp < hi:
                 yield int(f.timestamp) + int(round(f.exposure.total_seconds() * 1e6)), "frames", f
 
-    def triggers():
+    def batches(get_next, vector_type, kind):
+        # a packet cut to [lo, hi), each batch keyed by its last sample's time
         while True:
-            t = rec.getNextTriggerBatch()
-            if t is None:
+            b = get_next()
+            if b is None:
                 return
-            keep = [x for x in t if lo <= x.timestamp < hi]
-            if len(keep) < len(t):
-                tv = dv.TriggerPacket.TriggersVector()
+            keep = [x for x in b if lo <= x.timestamp < hi]
+            if len(keep) < len(b):
+                v = vector_type()
                 for x in keep:
-                    tv.append(x)
-                t = tv
+                    v.append(x)
+                b = v
             if keep:
-                yield int(keep[-1].timestamp), "triggers", t
+                yield int(keep[-1].timestamp), kind, b
+
+    def triggers():
+        return batches(rec.getNextTriggerBatch, dv.TriggerPacket.TriggersVector, "triggers")
 
     def imu():
-        while True:
-            m = rec.getNextImuBatch()
-            if m is None:
-                return
-            keep = [x for x in m if lo <= x.timestamp < hi]
-            if len(keep) < len(m):
-                iv = dv.IMUPacket.ImuVector()
-                for x in keep:
-                    iv.append(x)
-                m = iv
-            if keep:
-                yield int(keep[-1].timestamp), "imu", m
+        return batches(rec.getNextImuBatch, dv.IMUPacket.ImuVector, "imu")
 
     import heapq
     gens = {"events": events, "frames": frames, "triggers": triggers, "imu": imu}

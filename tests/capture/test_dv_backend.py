@@ -91,9 +91,10 @@ def _end(proc: subprocess.Popen):
     proc.communicate(timeout=30)  # reads and closes the pipes
 
 
-def test_url_parsing():
+def test_url_parsing(tmp_path):
     assert parse_dv_source("dv-tcp://127.0.0.1:7777") == ("tcp", ("127.0.0.1", 7777))
-    assert parse_dv_source("dv-unix:///tmp/a.sock") == ("unix", "/tmp/a.sock")
+    sock = tmp_path / "a.sock"
+    assert parse_dv_source(f"dv-unix://{sock}") == ("unix", str(sock))
     for bad in ("dv-tcp://host", "tcp://h:1", "dv-unix://", "davis"):
         with pytest.raises(ValueError, match="expected"):
             parse_dv_source(bad)
@@ -323,12 +324,12 @@ def test_imu_with_an_infinite_reading_is_dropped_and_counted(tmp_path):
     assert len(back.events) == 1
 
 
-def test_port_zero_gets_distinct_free_ports_and_a_taken_port_is_a_clear_error():
+def test_port_zero_gets_distinct_free_ports_and_a_taken_port_is_a_clear_error(tmp_path):
     import socket
 
     import dv_processing as dv
     from hybridhdr.capture.dv_backend import _writer, resolve_free_ports
-    urls = {"events": "dv-tcp://127.0.0.1:0", "frames": "dv-tcp://127.0.0.1:0", "imu": "dv-unix:///tmp/x.sock"}
+    urls = {"events": "dv-tcp://127.0.0.1:0", "frames": "dv-tcp://127.0.0.1:0", "imu": f"dv-unix://{tmp_path / 'x.sock'}"}
     got = resolve_free_ports(urls)
     ports = [parse_dv_source(got[k])[1][1] for k in ("events", "frames")]
     assert got["imu"] == urls["imu"] and len(set(ports)) == 2 and all(p > 0 for p in ports)
