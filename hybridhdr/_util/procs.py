@@ -17,29 +17,72 @@ import signal
 import sys
 import threading
 
-__all__ = ["signals_exit", "die_with_parent", "die_with_process"]
+__all__ = ["signals_exit", "raise_if_signalled", "die_with_parent", "die_with_process"]
+
+
+# signals received inside an active :func:`signals_exit` block, in order; emptied when the outermost
+# block ends. Python prints and drops an exception raised by a signal handler while a weakref
+# callback or a ``__del__`` runs, so a received signal is also kept here and acted on again at the
+# next :func:`raise_if_signalled` check (a render loop's) or at the end of the block.
+_received: list[int] = []
+_depth = 0
+
+
+def _exception_for(signum: int) -> BaseException:
+    if signum == getattr(signal, "SIGINT", None):
+        return KeyboardInterrupt()
+    return SystemExit(128 + signum)
+
+
+def raise_if_signalled() -> None:
+    """Raise the exception of a signal received in the current :func:`signals_exit` block (a no-op
+    when none was): long loops call it once per step, so a signal whose exception Python dropped
+    still ends the command at the next step."""
+    if _received:
+        raise _exception_for(_received[0])
 
 
 @contextlib.contextmanager
-def signals_exit():
-    """SIGTERM/SIGHUP raise ``SystemExit(128 + signum)`` while the block runs (main thread only)."""
+def signals_exit(*, sigint: bool = False):
+    """SIGTERM/SIGHUP raise ``SystemExit(128 + signum)`` while the block runs (main thread only);
+    with ``sigint``, SIGINT raises KeyboardInterrupt through the same path. A handler is installed
+    only over the default one (a caller's own handler is left alone; an enclosing block's is
+    kept). Whatever leaves the block after a signal was received, it leaves as that signal's
+    exception (a renderer that wraps an exception raised inside it in its own error, or a dropped
+    handler exception, still ends the command with 128 + signal)."""
+    global _depth
     if threading.current_thread() is not threading.main_thread():
         yield
         return
 
     def _exit(signum, frame):
-        raise SystemExit(128 + signum)
+        _received.append(signum)
+        raise _exception_for(signum)
 
+    names = ("SIGTERM", "SIGHUP") + (("SIGINT",) if sigint else ())
     old = {}
-    for name in ("SIGTERM", "SIGHUP"):
+    for name in names:
         sg = getattr(signal, name, None)
-        if sg is not None and signal.getsignal(sg) in (signal.SIG_DFL, None):
+        if sg is None:
+            continue
+        cur = signal.getsignal(sg)
+        if cur in (signal.SIG_DFL, None, signal.default_int_handler) or getattr(cur, "_hybridhdr_signals_exit", False):
             old[sg] = signal.signal(sg, _exit)
+    _exit._hybridhdr_signals_exit = True
+    _depth += 1
     try:
         yield
+        raise_if_signalled()
+    except BaseException:
+        if _received:
+            raise _exception_for(_received[0]) from None
+        raise
     finally:
         for sg, h in old.items():
             signal.signal(sg, h)
+        _depth -= 1
+        if _depth == 0:
+            _received.clear()
 
 
 def die_with_process(pid: int, period_s: float = 0.5) -> None:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import contextlib
 import json
 import sys
 from pathlib import Path
@@ -544,23 +543,8 @@ def run(args) -> int:
         return 2 if usage else 1
 
 
-@contextlib.contextmanager
 def _signals_exit():
     """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only), so
     the writer pool and OUT.partial are cleaned up instead of the process just ending."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    def _exit(signum, frame):
-        raise SystemExit(128 + signum)
-
-    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP") if hasattr(signal, n)]
-    old = {sg: signal.signal(sg, _exit) for sg in sigs}
-    try:
-        yield
-    finally:
-        for sg, h in old.items():
-            signal.signal(sg, h)
+    from .._util.procs import signals_exit
+    return signals_exit()

@@ -24,6 +24,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .._util.procs import raise_if_signalled
+
 __all__ = ["RenderCache", "partial_path", "partial_source_info"]
 
 #: the partial's format version (attrs["hybridhdr_render_cache"])
@@ -129,6 +131,7 @@ class RenderCache:
         return self.calls
 
     def render(self, t_us: int) -> np.ndarray:
+        raise_if_signalled()  # a signal whose exception Python dropped ends the run here
         t = int(t_us)
         self.calls += 1
         i = self._index.get(t)

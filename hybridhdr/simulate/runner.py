@@ -3,45 +3,18 @@ event-sensor options (v2e names), signals, the resumable run with its time estim
 
 from __future__ import annotations
 
-import contextlib
 import sys
+
+from .._util import procs as _procs
 
 __all__ = ["sensor_params", "run_simulation", "signals_exit"]
 
 
-@contextlib.contextmanager
 def signals_exit():
     """SIGTERM and SIGHUP raise SystemExit(128 + signal), SIGINT KeyboardInterrupt, while the block
-    runs (main thread only), so ``finally``/``except BaseException`` clean-ups run instead of the
-    process just ending. A Mitsuba render turns an exception raised inside it into its own error:
-    a received signal decides what leaves the block."""
-    import signal
-    import threading
-    if threading.current_thread() is not threading.main_thread():
-        yield
-        return
-
-    got = []
-
-    def _exit(signum, frame):
-        got.append(signum)
-        if signum == signal.SIGINT:
-            raise KeyboardInterrupt
-        raise SystemExit(128 + signum)
-
-    sigs = [getattr(signal, n) for n in ("SIGTERM", "SIGHUP", "SIGINT") if hasattr(signal, n)]
-    old = {sg: signal.signal(sg, _exit) for sg in sigs}
-    try:
-        yield
-    except BaseException:
-        if got:
-            if got[0] == signal.SIGINT:
-                raise KeyboardInterrupt from None
-            raise SystemExit(128 + got[0]) from None
-        raise
-    finally:
-        for sg, h in old.items():
-            signal.signal(sg, h)
+    runs (:func:`hybridhdr._util.procs.signals_exit`): a Mitsuba render turns an exception raised
+    inside it into its own error, and a received signal decides what leaves the block."""
+    return _procs.signals_exit(sigint=True)
 
 
 class _MinuteAdvice:

@@ -73,23 +73,29 @@ def test_lines_written_while_a_bar_runs_do_not_cut_through_it(capsys):
         # a handler and a level of its own, on stderr as it is now: other tests' commands configure
         # the root logger once per process (``-q`` leaves it at ERROR, its handler on a stream pytest
         # has closed since), and the result must not depend on the test order
+        # (and ``logging.disable``/a ``disabled`` flag left by a library's logging set-up are undone)
         log = logging.getLogger("hybridhdr.test")
         h = logging.StreamHandler()
-        old_level, old_propagate = log.level, log.propagate
+        old = log.level, log.propagate, log.disabled, logging.root.manager.disable
         log.addHandler(h)
         log.setLevel(logging.WARNING)
         log.propagate = False
+        log.disabled = False
+        logging.disable(logging.NOTSET)
         try:
             log.warning("a logged line")
         finally:
             log.removeHandler(h)
-            log.setLevel(old_level)
-            log.propagate = old_propagate
+            log.setLevel(old[0])
+            log.propagate, log.disabled = old[1], old[2]
+            logging.disable(old[3])
         b.update(7)
     print("final line", file=sys.stderr)
     err = capsys.readouterr().err
     for text in ("a line in the middle", "a logged line"):
-        line = next(ln for ln in err.split("\n") if text in ln)
+        lines = [ln for ln in err.split("\n") if text in ln]
+        assert lines, f"{text!r} is missing from stderr: {err!r}"
+        line = lines[0]
         assert line.split("\r")[-1].strip().endswith(text) and "work" not in line.split("\r")[-1], repr(line)
     assert err.rstrip().endswith("final line") and "work" not in err.rstrip().rsplit("\n", 1)[-1]
     with progress_bars(False) as new_bar:
