@@ -86,12 +86,11 @@ def main(argv=None) -> int:
     if quiet:
         args.no_progress = True
     verbose = getattr(args, "verbose", 0)
-    logging.basicConfig(level=logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)],
-                        format="%(name)s: %(message)s")
+    level = logging.ERROR if quiet else (logging.WARNING, logging.INFO, logging.DEBUG)[min(verbose, 2)]
     try:
         # SIGTERM/SIGHUP end a command as Ctrl-C does: partial outputs and temp files are removed
         from ._util.limits import allow_huge
-        with signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter(sys.stderr)) if quiet else contextlib.nullcontext():
+        with _command_logging(level), signals_exit(), allow_huge(bool(getattr(args, "allow_huge", False))), contextlib.redirect_stderr(_NullWriter(sys.stderr)) if quiet else contextlib.nullcontext():
             return int(args.func(args) or 0)
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
@@ -102,6 +101,41 @@ def main(argv=None) -> int:
         print(f"{prog}: error: {cli_wording(str(e))}", file=sys.stderr)
         return 2 if isinstance(e, UsageError) else 1
 
+
+
+class _CurrentStderr(logging.StreamHandler):
+    """A handler on whatever ``sys.stderr`` is when a record is emitted (a redirected or captured
+    stderr included), not the stream of the moment it was made."""
+
+    @property
+    def stream(self):
+        return sys.stderr
+
+    @stream.setter
+    def stream(self, value):
+        pass
+
+
+@contextlib.contextmanager
+def _command_logging(level: int):
+    """The command's logging for the duration of one ``main`` call: a ``name: message`` handler on
+    the root logger at ``level``, removed afterwards with the root's level restored, so a second
+    ``main`` call in the same process (a test, a notebook) gets its own ``-q``/``-v`` and not the
+    first call's. A program that configured logging itself (the root has handlers) is left alone."""
+    root = logging.getLogger()
+    if root.handlers:
+        yield
+        return
+    h = _CurrentStderr()
+    h.setFormatter(logging.Formatter("%(name)s: %(message)s"))
+    old = root.level
+    root.addHandler(h)
+    root.setLevel(level)
+    try:
+        yield
+    finally:
+        root.removeHandler(h)
+        root.setLevel(old)
 
 if __name__ == "__main__":  # pragma: no cover
     raise SystemExit(main())

@@ -116,3 +116,24 @@ def test_demo_passes_learned_weights_to_table_1(tmp_path, capsys, monkeypatch):
     text = P.demo_evaluate(tmp_path / "ev", progress=False, weights={"e2vid": w, "firenet": None})
     # Table 1 (then the demo's headline figures)
     assert "\ntable 1\n" in "\n" + text + "\n" and seen["weights"] == {"e2vid": w, "firenet": None}
+
+
+def test_command_logging_is_undone_after_each_call(capsys):
+    # a second main() in one process (a test, a notebook) must not inherit the first call's -q
+    # (root at ERROR) nor its handler on a stream that may be closed since
+    import logging
+
+    from hybridhdr.cli import _command_logging
+    root = logging.getLogger()
+    saved = root.handlers[:], root.level
+    root.handlers[:] = []
+    try:
+        with _command_logging(logging.ERROR):
+            logging.getLogger("hybridhdr.x").warning("hidden by -q")
+        with _command_logging(logging.WARNING):
+            logging.getLogger("hybridhdr.x").warning("shown")
+        assert root.handlers == [] and root.level == saved[1]
+    finally:
+        root.handlers[:], _ = saved[0], root.setLevel(saved[1])
+    err = capsys.readouterr().err
+    assert "hybridhdr.x: shown" in err and "hidden by -q" not in err

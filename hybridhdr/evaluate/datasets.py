@@ -43,6 +43,8 @@ seed, and read back afterwards.
 
 from __future__ import annotations
 
+import dataclasses
+
 import hashlib
 import json
 import math
@@ -240,8 +242,7 @@ def _file(spec: dict, seed: int) -> Dataset:
         prof = profile_for_frames(load_profile(spec.get("profile")), fr)
         ref = prof.intensity(np.asarray(fr.images[idx])).astype(np.float32)
         sub = fr.select(keep)
-        rec = Recording(rec.events, rec.sensor_size, sub, rec.triggers, HDRReferences(ref, fr.t_mid_us[idx]),
-                        rec.metadata)
+        rec = dataclasses.replace(rec, frames=sub, hdr=HDRReferences(ref, fr.t_mid_us[idx]))
     if rec.hdr is None or len(rec.hdr) == 0:
         raise ValueError(f"{spec['path']}: a benchmark dataset needs HDR references (or holdout_frames), "
                          f"but the recording has none")

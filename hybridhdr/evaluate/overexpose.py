@@ -195,7 +195,7 @@ def overexpose_recording(rec, gain: float, *, profile=None) -> tuple[Recording, 
                            "how": "frame codes re-encoded as round(CRF(gain * CRF^-1(code))) clipped to "
                                   "[0, max_code]; events untouched (hybridhdr.evaluate.overexpose)",
                            "clipped_fraction": float(np.mean(codes >= prof.clip_high_code))}
-    out = Recording(rec.events, rec.sensor_size, new, rec.triggers, rec.hdr, dataclasses.replace(md, provenance=prov))
+    out = dataclasses.replace(rec, frames=new, metadata=dataclasses.replace(md, provenance=prov))
     return out, HDRReferences(ref, fr.t_mid_us)
 
 
@@ -329,8 +329,7 @@ def apply_calibration(spec: OverexposeSpec, params, overrides) -> tuple[object, 
 def _without(rec_in, k):
     """The over-exposed input without its frame(s) k (for the calibration: never a scored frame)."""
     fr = rec_in.frames
-    return Recording(rec_in.events, rec_in.sensor_size, fr.select(np.setdiff1d(np.arange(len(fr)), np.atleast_1d(k))),
-                     rec_in.triggers, None, rec_in.metadata)
+    return dataclasses.replace(rec_in, frames=fr.select(np.setdiff1d(np.arange(len(fr)), np.atleast_1d(k))), hdr=None)
 
 
 #: What a calibration leaves out of its input (``evaluate_overexpose(calibration_holdout=...)``):
@@ -358,7 +357,7 @@ def _run_spec(spec, rec_in, scored, tk, *, profile, thresholds, calibrate, cal_c
               tmap=None, holdout="frame"):
     """``(frames (n, H, W) float64, wall_s, used per frame or None)`` of one spec; ``tmap``: the
     per-pixel threshold map every threshold method takes (``thresholds`` a map file)."""
-    from ..calibrate.resolve import is_sensor_profile, resolve_thresholds
+    from ..calibrate.resolve import is_sensor_profile
     loo = thresholds in ("auto", "selfcal") or calibrate is not None
     if not loo:
         # without a map, the method's own parameters (and what the input declares), never
@@ -545,7 +544,7 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                              f"held-out frame cannot be scored at an instant another input frame covers (the "
                              f"recording's frame times are not distinct instants)")
     fr_all = rec.frames.select(kept)
-    rec_k = Recording(rec.events, rec.sensor_size, fr_all, rec.triggers, None, rec.metadata)
+    rec_k = dataclasses.replace(rec, frames=fr_all, hdr=None)
     prof = _frames_profile(rec_k, profile)
     lo, hi = well_exposed_range(prof.max_code)
     clip = (int(prof.clip_low_code), int(prof.clip_high_code))

@@ -58,7 +58,6 @@ from ..camera import load_profile, profile_for_frames
 from ..camera.encoding import well_exposed_range
 from ..errors import InputMismatchError
 from ..events import slice_time
-from ..model import Recording
 from ..reconstruct import reconstruct
 from ..reconstruct.methods import make_params, method_spec, methods_with, resolve_method
 from ..camera.encoding import frames_to_codes
@@ -116,14 +115,14 @@ def holdout_input(rec, k: int, task: str, time_offset_us: int = 0):
     tk = int(fr.t_mid_us[k]) + int(time_offset_us)
     if task == "leave_one_out":
         sub = fr.select(np.setdiff1d(np.arange(len(fr)), [k]))
-        return Recording(rec.events, rec.sensor_size, sub, rec.triggers, None, rec.metadata), tk
+        return dataclasses.replace(rec, frames=sub, hdr=None), tk
     if task == "next_frame":
         if k < 1:
             raise ValueError("next-frame prediction needs a frame before the predicted one")
         t = tk - 1
         sub = fr.select(np.arange(k))
-        return Recording(slice_time(rec.events, None, t), rec.sensor_size, sub,
-                         slice_time(rec.triggers, None, t), None, rec.metadata), t
+        return dataclasses.replace(rec, events=slice_time(rec.events, None, t), frames=sub, hdr=None,
+                                   triggers=slice_time(rec.triggers, None, t), imu=slice_time(rec.imu, None, t)), t
     raise ValueError(f"task must be one of {TASKS}, got {task!r}")
 
 
@@ -250,8 +249,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     shared_rec, shared_cal = None, {}
     if calibration_holdout == "scored":
         fr = _trimmed_frames(rec)
-        shared_rec = Recording(rec.events, rec.sensor_size, fr.select(np.setdiff1d(np.arange(len(fr)), held)),
-                               rec.triggers, None, rec.metadata)
+        shared_rec = dataclasses.replace(rec, frames=fr.select(np.setdiff1d(np.arange(len(fr)), held)), hdr=None)
     for k in held:
         loo_k, calib_k = None, {}  # the recording without frame k, and its threshold estimates, once per k
         if shared_rec is not None:

@@ -49,6 +49,8 @@ writer writes ``f_Q`` back from such a profile.
 
 from __future__ import annotations
 
+import dataclasses
+
 import time
 from pathlib import Path
 from typing import Iterator
@@ -60,7 +62,7 @@ from ..camera import CameraProfile
 from ..camera.encoding import inverse_crf_table, parse_frame_encoding
 from ..errors import FormatError
 from ..events import EVENT_DTYPE, SensorSize
-from ..model import CameraInfo, Frames, HDRReferences, Metadata, Recording
+from ..model import CameraInfo, Frames, HDRReferences, Metadata
 from ._safe_h5 import close_and_remove, open_h5_for_writing
 from .base import EventChunk, EventFileReader, EventFileWriter, register_formats
 
@@ -745,7 +747,7 @@ class AkfMatReader(EventFileReader):
             return rec
         order = np.argsort(hdr.t_us, kind="stable")
         hdr = HDRReferences(hdr.images[order], hdr.t_us[order])
-        return Recording(rec.events, rec.sensor_size, rec.frames, rec.triggers, hdr, rec.metadata)
+        return dataclasses.replace(rec, hdr=hdr)
 
     def _count_time_image(self) -> int:
         ti = self._read_var("time_image")

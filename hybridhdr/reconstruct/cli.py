@@ -8,7 +8,7 @@ import sys
 from pathlib import Path
 
 from .._util.cliargs import (COMMON, HelpFormatter, UsageError, add_format_arg, chunk_events_count, cli_wording,
-                             json_output, nonneg_int, positive_float, positive_int, positive_worker_count, worker_count)
+                             json_output, positive_float, positive_worker_count, worker_count)
 from .._util.timearg import add_time_window
 from ..calibrate.resolve import (DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, add_sensor_profile_arg,
                                  take_sensor_profile_arg, thresholds_arg)

@@ -148,8 +148,7 @@ def to_frame_units(rec, camera=None):
         return rec, None
     cam = camera if camera is not None else rec.metadata.provenance
     im, info = reference_to_frame_units(rec.hdr.images, rec.hdr.t_us, cam, rec.frames)
-    return Recording(rec.events, rec.sensor_size, rec.frames, rec.triggers, HDRReferences(im, rec.hdr.t_us),
-                     rec.metadata), info
+    return dataclasses.replace(rec, hdr=HDRReferences(im, rec.hdr.t_us)), info
 
 
 def _units_desc(info) -> dict:
