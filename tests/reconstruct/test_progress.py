@@ -62,10 +62,7 @@ def test_cli_bar_has_a_total_counts_frames_and_ends_before_the_final_line(rec_fi
     assert head.endswith("\n") and "device:" in head
 
 
-def test_lines_written_while_a_bar_runs_do_not_cut_through_it(capsys):
-    import logging
-
-    from hybridhdr._util.progress import progress_bars
+def _write_beside_a_bar(progress_bars, logging):
     with progress_bars(True) as new_bar:
         b = new_bar(total=10, desc="work")
         b.update(3)
@@ -91,7 +88,20 @@ def test_lines_written_while_a_bar_runs_do_not_cut_through_it(capsys):
             logging.disable(old[3])
         b.update(7)
     print("final line", file=sys.stderr)
-    err = capsys.readouterr().err
+
+
+def test_lines_written_while_a_bar_runs_do_not_cut_through_it():
+    import contextlib
+    import io
+    import logging
+
+    from hybridhdr._util.progress import progress_bars
+    # stderr is a buffer of this test's own (not pytest's capture, which other tests' bars and
+    # handlers may still hold), so the test sees exactly what the block wrote
+    buf = io.StringIO()
+    with contextlib.redirect_stderr(buf):
+        _write_beside_a_bar(progress_bars, logging)
+    err = buf.getvalue()
     for text in ("a line in the middle", "a logged line"):
         lines = [ln for ln in err.split("\n") if text in ln]
         assert lines, f"{text!r} is missing from stderr: {err!r}"
