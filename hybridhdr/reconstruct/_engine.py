@@ -11,6 +11,7 @@ import numpy as np
 
 from .._util import phases as PH
 from .._util.checks import check_shape
+from .._util.procs import raise_if_signalled
 from .._util.prefetch import Prefetcher
 from . import _kernels as K
 
@@ -839,6 +840,7 @@ def _drive(engine: Engine, chunks: Iterable, clock: OutputClock, *, t_start_us=N
             c = next(it, None)
         if c is None:
             break
+        raise_if_signalled()  # a termination signal whose exception Python dropped ends the run here
         t, x, y, p = c
         n = t.shape[0]
         if n == 0:
