@@ -744,15 +744,21 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
                 ii = i0s.index(i0_crit)
                 c2, rec3 = _indirect(D, ints, i0_crit, _ls_at(D, rows, latency, ii, r_on, r_off), sig, r_on, r_off,
                                      seed=seed)
-                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in ("iterations", "simulated_signal_events")}}
+                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in _FINAL_INDIRECT_KEYS}}
             else:
                 i0_rule = {**rec2, "time_offset_us": latency, "first_pass": first}
                 score, coefs, i0s = _with_i0(D, ints, offs, rows, score, coefs, i0s, i0_hat2, r_on, r_off, c_range)
                 ii = i0s.index(i0_hat2)
                 c2, rec3 = _indirect(D, ints, i0_hat2, _ls_at(D, rows, latency, ii, r_on, r_off), sig, r_on, r_off,
                                      seed=seed)
-                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in ("iterations", "simulated_signal_events")}}
+                ii_rec = {**ii_rec, **{k: v for k, v in rec3.items() if k in _FINAL_INDIRECT_KEYS}}
         i0 = float(i0s[ii])
+        if c2 is not None:
+            # shrunk toward the least squares by how well the simulation reproduces what it was not fitted to
+            check = _correction_check(D, ints, float(i0s[ii]), c2, sig, r_on, r_off, latency, seed)
+            c2, shrink_rec = _shrink_correction(c2, ii_rec, check, _observed_signal(D, ints, latency, r_on, r_off))
+            ii_rec = {**ii_rec, "shrinkage": shrink_rec,
+                      "simulated_to_observed_events": shrink_rec["simulated_to_observed_events"]}
         c = c2 if c2 is not None else c
         if c2 is None and rule_used:
             # the correction was not applied: neither is the band rule that rests on the same simulation
@@ -847,7 +853,8 @@ def _mismatch(pp, min_intervals=2, min_pixels=30, n_boot=100, seed=0):
 def _ls_stat(G, DL, N_on, N_off, dts, lam_on, lam_off):
     """The pooled noise-corrected forward least squares of the frames' log change ``DL`` on the
     counts (all (intervals, pixels) arrays; ``G`` the well-exposed mask, ``DL`` zero outside it)
-    over the intervals of durations ``dts`` (s), as the observed statistic is computed."""
+    over the intervals of durations ``dts`` (s), as the observed statistic is computed. Returns the
+    statistic (c_on, c_off) and the signal events (ON, OFF: the counts less the expected noise)."""
     no, nf = np.where(G, N_on, 0.0), np.where(G, N_off, 0.0)
     lo, lf, K = lam_on * dts, lam_off * dts, G.sum(1).astype(np.float64)
     so, sf = no.sum(1), nf.sum(1)
@@ -856,7 +863,7 @@ def _ls_stat(G, DL, N_on, N_off, dts, lam_on, lam_off):
                   np.sum((nf * nf).sum(1) - 2 * lf * sf + K * (lf * lf - lf)),
                   np.sum((no * nf).sum(1) - lf * so - lo * sf + K * lo * lf),
                   np.sum((no * DL).sum(1) - lo * sd), np.sum((nf * DL).sum(1) - lf * sd)])
-    return np.array(_c(S)), float(np.sum(so - lo * K) + np.sum(sf - lf * K))
+    return np.array(_c(S)), np.array([float(np.sum(so - lo * K)), float(np.sum(sf - lf * K))])
 
 
 def _ls_sums_per_pixel(G, DL, N_on, N_off, dts, lam_on, lam_off):
@@ -960,10 +967,13 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
         if np.all(np.abs(gap) <= CORRECTION_TOLERANCE):
             break  # the simulated statistic matches the observed one: c is the answer
         c = np.maximum(c + gap, 0.01)
+    tot_pol = np.mean(totals, 0) if totals else None
     return (float(c[0]), float(c[1])), {"method": "indirect inference on a simulated DVS quantiser (hysteresis) "
                                                   "over the frames' own log path", "replicates": reps,
                                         "pixels_simulated": int(n), "iterations": history, "sigma_used": [s_on, s_off],
-                                        "simulated_signal_events": float(np.mean(totals)) if totals else None}
+                                        "observed_statistic": [float(v) for v in c_obs], "i0": float(i0),
+                                        "simulated_signal_events": float(tot_pol.sum()) if totals else None,
+                                        "simulated_signal_events_on_off": [float(v) for v in tot_pol] if totals else None}
 
 
 class _BandRule:
@@ -1174,6 +1184,123 @@ def _ls_at(D, rows, d, ii, r_on, r_off):
     return _c(_sums(rows, _moments(rows, counts), ii, r_on, r_off))
 
 
+#: What the final quantiser correction's record carries from its last :func:`_indirect` run.
+_FINAL_INDIRECT_KEYS = ("iterations", "simulated_signal_events", "simulated_signal_events_on_off",
+                        "observed_statistic", "i0")
+
+
+def _reverse_stat(G, DL, N_on, N_off):
+    """The reverse regression (:func:`_reverse`: instruments (ΔL+, ΔL−) for (N_on, N_off)) on
+    (intervals, pixels) arrays; NaN where it is singular."""
+    no, nf = np.where(G, N_on, 0.0), np.where(G, N_off, 0.0)
+    dl = np.where(G, DL, 0.0)
+    zp, zn = np.maximum(dl, 0), np.maximum(-dl, 0)
+    a = np.array([[np.sum(no * zp), -np.sum(nf * zp)], [np.sum(no * zn), -np.sum(nf * zn)]])
+    y = np.array([np.sum(dl * zp), np.sum(dl * zn)])
+    try:
+        return np.linalg.solve(a, y)
+    except np.linalg.LinAlgError:
+        return np.full(2, np.nan)
+
+
+def _correction_check(D, ints, i0, c_ind, sigma, r_on, r_off, d, seed, reps=4):
+    """The statistics the quantiser correction did not fit, observed and simulated at its answer.
+
+    On the correction's own pixel subset and draws (the same seeded stream as :func:`_indirect`),
+    with the plain counts between the frame times shifted by ``d``: the forward least squares and
+    the reverse regression of the observed counts, and the reverse regression of the counts the
+    quantiser simulated at ``c_ind`` fires. Returns a dict of (ON, OFF) pairs."""
+    k0, k1 = ints[0], ints[-1] + 1
+    rng = np.random.default_rng([int(seed), 35])
+    sub = (np.sort(rng.choice(D.n, MAX_CORRECTION_PIXELS, replace=False)) if D.n > MAX_CORRECTION_PIXELS
+           else np.arange(D.n))
+    n = sub.size
+    Ls = np.stack([np.log(D.lut[D.frame(k)[0][sub].astype(np.int64)] * D.scale[k] + i0) for k in range(k0, k1 + 1)])
+    rel = [j - k0 for j in ints]
+    G = np.stack([D.frame(j)[1][sub] & D.frame(j + 1)[1][sub] for j in ints])
+    DL = np.where(G, Ls[[r + 1 for r in rel]] - Ls[rel], 0.0)
+    dts = np.asarray([(D.tau[j + 1] - D.tau[j]) * 1e-6 for j in ints], np.float64)
+    no, nf = [], []
+    for j in ints:
+        a, b = _find(D.t, [D.tau[j] + d, D.tau[j + 1] + d])
+        p_, o_ = D.pix[a:b], D.on[a:b]
+        no.append(np.bincount(p_[o_], minlength=D.n)[sub].astype(np.float64))
+        nf.append(np.bincount(p_[~o_], minlength=D.n)[sub].astype(np.float64))
+    No, Nf = np.stack(no), np.stack(nf)
+    sim_r = []
+    for _ in range(reps):
+        draw = (rng.random(n), rng.standard_normal(n), rng.standard_normal(n), int(rng.integers(1 << 31)))
+        a_, b_ = _path_counts(Ls, rel, list(dts), c_ind, (sigma.get("on") or 0.0, sigma.get("off") or 0.0), draw,
+                              r_on, r_off)
+        sim_r.append(_reverse_stat(G, DL, a_, b_))
+    return {"forward_observed": _ls_stat(G, DL, No, Nf, dts, r_on, r_off)[0],
+            "reverse_observed": _reverse_stat(G, DL, No, Nf), "reverse_simulated": np.mean(sim_r, 0)}
+
+
+def _shrink_correction(c_ind, rec, check, obs_events):
+    """The quantiser correction shrunk toward the least squares it corrects, per polarity, by how
+    well the simulation reproduces a statistic it was not fitted to; returns (c, record).
+
+    The correction is an estimate ``δ = c_ind − c_ls`` of the least squares' bias ``b`` (the
+    simulated quantiser's). The simulation was fitted to the forward least squares only, so it
+    reproduces that one by construction; the reverse regression of the same counts is a second
+    statistic it should reproduce too if the quantiser on the frames' log path is what the pixels
+    did (both are consistent under a right simulation; their disagreement measures its
+    misspecification, as in Hausman's test, Econometrica 1978). Its misfit, turned into threshold
+    units (one proportional step: the c at which the simulated reverse statistic would equal the
+    observed one), is the error of δ: ``σ = c_ind·|rev_obs / rev_sim − 1|``. The bias itself has
+    the errors-in-variables bracket as its scale (the forward and reverse regressions bound the
+    truth under classical measurement error: Frisch 1934; Klepper & Leamer, Econometrica 1984):
+    ``τ = |rev_obs − fwd_obs|``. Under a normal prior N(0, τ²) for b and δ ~ N(b, σ²), the
+    posterior mean of b is ``w·δ`` with ``w = τ² / (τ² + σ²)``, its variance ``w·σ²``. So a
+    simulation that reproduces the unfitted statistic keeps its full correction (w near 1 on the
+    simulator round trips: σ well below the bracket), and one that does not (a short recording
+    whose frames undersample the scene: the simulation fires 0.85x the observed events and its
+    reverse statistic misses by 10-12 %) gives way to the least squares, smoothly, with no
+    threshold on the event ratio. The event ratios are recorded for the reader."""
+    c_ind = np.asarray(c_ind, np.float64)
+    c_ls = np.asarray(rec["observed_statistic"], np.float64)
+    fwd, rev_o, rev_s = (np.asarray(check[k], np.float64) for k in ("forward_observed", "reverse_observed",
+                                                                      "reverse_simulated"))
+    delta = c_ind - c_ls
+    with np.errstate(invalid="ignore", divide="ignore"):
+        sig = c_ind * np.abs(rev_o / rev_s - 1.0)
+        tau = np.abs(rev_o - fwd)
+        w = tau ** 2 / (tau ** 2 + sig ** 2)
+    # a reverse statistic that cannot be computed leaves the correction unverified: not applied
+    w = np.where(np.isfinite(w), w, 0.0)
+    out = c_ls + w * delta
+    sim = np.asarray(rec.get("simulated_signal_events_on_off") or (np.nan, np.nan), np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        ratio = np.where(obs_events > 0, sim / obs_events, np.nan)
+        rt = float(sim.sum() / obs_events.sum()) if obs_events.sum() > 0 else float("nan")
+    return (float(out[0]), float(out[1])), {
+        "method": "posterior mean of the least squares' bias: prior N(0, tau^2), tau the errors-in-variables bracket "
+                  "|reverse - forward|; the simulated correction's error sigma from the reverse statistic it "
+                  "was not fitted to; weight tau^2 / (tau^2 + sigma^2)",
+        "weight": [float(v) for v in w], "correction": [float(v) for v in delta], "sigma": [_f(v) for v in sig],
+        "tau": [_f(v) for v in tau], "posterior_std": [_f(v) for v in np.sqrt(w) * np.where(np.isfinite(sig), sig, 0.0)],
+        "unshrunk": [float(v) for v in c_ind], "least_squares": [float(v) for v in c_ls],
+        "reverse_observed": [_f(v) for v in rev_o], "reverse_simulated": [_f(v) for v in rev_s],
+        "simulated_to_observed_events_on_off": [_f(v) for v in ratio], "simulated_to_observed_events": _f(rt)}
+
+
+def _observed_signal(D, ints, dd, r_on, r_off):
+    """Signal events (ON, OFF) the well-exposed pixel-intervals hold between the frame times shifted by
+    ``dd``, less the noise events expected there (the simulated statistic's counterpart)."""
+    tot = np.zeros(2)
+    for j in ints:
+        _, g0 = D.frame(j)
+        _, g1 = D.frame(j + 1)
+        g = g0 & g1
+        a, b = _find(D.t, [D.tau[j] + dd, D.tau[j + 1] + dd])
+        sel = g[D.pix[a:b]]
+        n_on = float(np.count_nonzero(D.on[a:b][sel]))
+        k = float(np.count_nonzero(g)) * (D.tau[j + 1] - D.tau[j]) * 1e-6
+        tot += (n_on - r_on * k, float(np.count_nonzero(sel)) - n_on - r_off * k)
+    return tot
+
+
 def _vertex(xs, ys, half=4):
     """Abscissa of the least-squares parabola's vertex through the ``2·half + 1`` points around the
     minimum of ``ys`` (the minimum's own abscissa if the parabola does not open upward), kept within them."""
@@ -1206,15 +1333,7 @@ def _binding(D, rows, ints, i0s, offs, d_obs, ii_obs, sig, r_on, r_off, seed, fr
     c_span = (float(D.tau[ints[0]]), float(D.tau[ints[-1] + 1]))
 
     def observed_signal(dd, i_):
-        # events the well-exposed pixel-intervals hold between the shifted frame times, less the noise
-        tot = 0.0
-        for j in ints:
-            _, g0 = D.frame(j)
-            _, g1 = D.frame(j + 1)
-            a, b = _find(D.t, [D.tau[j] + dd, D.tau[j + 1] + dd])
-            tot += float(np.count_nonzero((g0 & g1)[D.pix[a:b]]))
-            tot -= (r_on + r_off) * (D.tau[j + 1] - D.tau[j]) * 1e-6 * float(np.count_nonzero(g0 & g1))
-        return tot
+        return float(_observed_signal(D, ints, dd, r_on, r_off).sum())
 
     d, ii = float(d_obs), int(ii_obs)
     step = float(np.median(np.diff(offs))) if len(offs) > 1 else 1000.0
