@@ -133,6 +133,10 @@ I0_RULE_BOOT = 100
 #: change to count (f approaching 0 from one side, as it does for large I0 where the log is linear,
 #: gives about half).
 I0_RULE_MISSING = 0.1
+#: Poisson bootstrap replicates (over pixels) of the edge test (:func:`_edge_test`).
+EDGE_TEST_BOOT = 200
+#: Standard errors by which the criterion at a grid edge must beat the fallback I0 for the edge to stand.
+EDGE_TEST_SE = 2.0
 #: Sub-intervals of an exposure in the exact log-of-mean refinement.
 EXPOSURE_BINS = 16
 
@@ -173,6 +177,7 @@ class CameraModel:
     reverse_regression: dict
     fixed: dict
     i0_rule: dict | None = None  # the band rule's record (profile over I0, zero, applicability)
+    i0_edge: dict | None = None  # the criterion's best I0 on its grid edge: the flatness test and the fallback
     per_pixel: dict | None = None  # arrays (not serialised): per-pixel sums at the chosen model
 
     def to_dict(self) -> dict:
@@ -508,6 +513,66 @@ def _band_homogeneity(D, rows, counts, i0s, n_bands=4):
     return np.asarray(out), per, edges.tolist()
 
 
+def _fallback_index(i0s):
+    """The I0 used when the recording does not identify it: the grid value nearest the grid's geometric
+    centre (the minimax choice in ln I0 over the values searched: no searched value lies further than
+    half the grid's log span from it), never an edge of a grid of three or more values."""
+    lg = np.log(np.asarray(i0s, np.float64))
+    k = int(np.argmin(np.abs(lg - 0.5 * (lg[0] + lg[-1]))))
+    return int(np.clip(k, 1, len(i0s) - 2)) if len(i0s) > 2 else k
+
+
+def _cv_errors(D, rows, d, ii, i0, r_on, r_off):
+    """Per pixel-interval: the squared code error of the grid criterion (:func:`_score`) at (d, I0 index
+    ii), and the pixel of each (concatenated over the rows)."""
+    counts = [D.weighted_counts(r["j"], d, r["idx"]) for r in rows]
+    mom = _moments(rows, counts)
+    cf = [_c(_sums(rows, mom, ii, r_on, r_off, [(q % 2) == f for q in range(len(rows))])) for f in (0, 1)]
+    errs, pix = [], []
+    for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
+        if not r["idx"].size:
+            continue
+        con, coff = cf[1 - (q % 2)]
+        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
+        lhat = r["L0"][ii] + con * (no - lo) - coff * (nf - lf)
+        ihat = np.maximum(np.exp(lhat) - i0, 0.0) / D.scale[r["j"] + 1]
+        e = _codes_of(D.lut, ihat) - r["code1"]
+        errs.append(e * e)
+        pix.append(r["idx"])
+    return np.concatenate(errs), np.concatenate(pix)
+
+
+def _edge_test(D, rows, offs, i0s, best, fallback, r_on, r_off, seed):
+    """Does the criterion's best I0, on an edge of its grid, beat the fallback I0 inside it (each at its
+    own best frame offset) by more than the sampling error? Paired squared code errors on the same
+    pixel-intervals; the standard error of their mean difference by a Poisson(1) bootstrap over
+    pixels (a pixel's intervals share its texture, so pixels, not pixel-intervals, are resampled).
+    ``significant`` when the improvement exceeds :data:`EDGE_TEST_SE` standard errors."""
+    (a_e, i_e), (a_f, i_f) = best, fallback
+    e_edge, pix = _cv_errors(D, rows, int(offs[a_e]), i_e, float(i0s[i_e]), r_on, r_off)
+    e_fb, _ = _cv_errors(D, rows, int(offs[a_f]), i_f, float(i0s[i_f]), r_on, r_off)
+    diff = e_fb - e_edge  # > 0: the edge predicts better
+    u, inv = np.unique(pix, return_inverse=True)
+    per_pix = np.bincount(inv, diff, minlength=u.size)
+    n_pix = np.bincount(inv, minlength=u.size).astype(np.float64)
+    rng = np.random.default_rng([int(seed), 41])
+    W = rng.poisson(1.0, size=(EDGE_TEST_BOOT, u.size)).astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        boot = (W @ per_pix) / (W @ n_pix)
+    mean = float(diff.mean()) if diff.size else float("nan")
+    se = float(np.nanstd(boot, ddof=1)) if diff.size else float("nan")
+    z = mean / se if se > 0 else (math.inf if mean > 0 else 0.0)
+    return {"edge": "lower" if i_e == 0 else "upper", "edge_i0": float(i0s[i_e]), "fallback_i0": float(i0s[i_f]),
+            "edge_time_offset_us": int(offs[a_e]), "fallback_time_offset_us": int(offs[a_f]),
+            "rms_edge": _f(math.sqrt(e_edge.mean())) if e_edge.size else None,
+            "rms_fallback": _f(math.sqrt(e_fb.mean())) if e_fb.size else None,
+            "mean_squared_improvement": _f(mean), "std_error": _f(se), "improvement_se": _f(z),
+            "pixels": int(u.size), "pixel_intervals": int(diff.size), "significant": bool(z > EDGE_TEST_SE),
+            "identifiable": bool(z > EDGE_TEST_SE),
+            "method": "paired squared code errors of the cross-fitted frame prediction, edge I0 against the grid "
+                      "value nearest the grid's geometric centre; Poisson bootstrap over pixels"}
+
+
 def _default_offsets(period_us, fraction=0.5, n=N_OFFSETS):
     half = max(int(round(period_us * fraction)), 1)
     return tuple(sorted(set(int(round(v)) for v in np.linspace(-half, half, n))))
@@ -675,6 +740,15 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         notes.append(f"grid widened (best at I0 {i0s[ii] if ii < len(i0s) else float('nan'):.4g}, δ {offs[a_i]} µs)")
     i0_rule = None
     i0s_all = i0s  # the criterion's grid after widening (an I0 on its edge is warned)
+    i0_edge = None
+    if intensity_offset is None and len(i0s) > 2 and ii in (0, len(i0s) - 1):
+        # the criterion's best I0 on an edge of its widened grid: does it beat an I0 inside the grid by more
+        # than its sampling error? If not, the criterion is flat there and I0 falls back inside the grid
+        i_fb = _fallback_index(i0s)
+        a_fb = int(np.nanargmin(score[:, i_fb]))
+        i0_edge = _edge_test(D, rows, offs, i0s, (int(a_i), int(ii)), (a_fb, i_fb), r_on, r_off, seed)
+        if not i0_edge["significant"]:
+            a_i, ii = a_fb, i_fb
     # the criterion's state: where every fallback from the band rule starts again, so that an I0 the rule
     # tried and gave up leaves nothing behind (not the frame offset best at that I0, nor its fit)
     crit = (score, coefs, i0s, int(a_i), int(ii), [dict(r) for r in rows])
@@ -786,12 +860,24 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         edge["time_offset_us"] = True
         warnings.warn(f"camera model: the best frame time offset {d} µs lies on the edge of its grid "
                       f"({offs[0]}..{offs[-1]} µs) after widening", GridEdgeWarning, stacklevel=2)
+    if i0_edge is not None and not rule_used:
+        e_ = i0_edge
+        i0_edge = {**e_, "used": "fallback" if not e_["significant"] else "edge"}
+        if not e_["significant"]:
+            # flat at the edge: not identified, the documented fallback inside the grid (named, warned)
+            warnings.warn(f"camera model: the grid criterion is flat at the {e_['edge']} edge of the I0 grid "
+                          f"({min(i0s_all):.4g}..{max(i0s_all):.4g}): I0 = {e_['edge_i0']:.4g} predicts the frames "
+                          f"{e_['improvement_se']:.2g} standard errors better than I0 = {e_['fallback_i0']:.4g} "
+                          f"(needs {EDGE_TEST_SE:g}); the recording does not identify I0, the fallback "
+                          f"{e_['fallback_i0']:.4g} inside the grid is used", GridEdgeWarning, stacklevel=2)
     if intensity_offset is None and not rule_used and len(i0s) > 1 and float(i0s[ii]) in (min(i0s_all), max(i0s_all)):
         edge["intensity_offset"] = True
         lim = "lower" if float(i0s[ii]) == min(i0s_all) else "upper"
+        why = (f"; it predicts the frames {i0_edge['improvement_se']:.3g} standard errors better than the fallback "
+               f"I0 = {i0_edge['fallback_i0']:.4g} inside the grid" if i0_edge is not None else "")
         warnings.warn(f"camera model: the best log offset I0 = {i0:.4g} lies on the {lim} edge of its grid "
-                      f"({min(i0s_all):.4g}..{max(i0s_all):.4g}) after widening: the recording does not bound it",
-                      GridEdgeWarning, stacklevel=2)
+                      f"({min(i0s_all):.4g}..{max(i0s_all):.4g}) after widening: the recording does not bound it"
+                      + why, GridEdgeWarning, stacklevel=2)
     a0 = int(np.argmin(np.abs(np.asarray(offs))))
     from ..camera.encoding import DEFAULT_INTENSITY_OFFSET
     i_def = int(np.argmin(np.abs(np.log(np.asarray(i0s)) - math.log(DEFAULT_INTENSITY_OFFSET))))
@@ -808,7 +894,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         noise={**noise, "rate_on_hz": r_on, "rate_off_hz": r_off, "shot_noise_rate_hz": 2 * r_off,
                "leak_rate_hz": max(r_on - r_off, 0.0)},
         uncorrected={"c_on": unc[0], "c_off": unc[1]}, least_squares={"c_on": ls[0], "c_off": ls[1]},
-        quantiser_correction=ii_rec, mismatch_sigma=sig, bands=homog, latency_us=latency, r2=r2, r2_nominal=r2_nominal, reverse_regression=rev, fixed=fixed, i0_rule=i0_rule,
+        quantiser_correction=ii_rec, mismatch_sigma=sig, bands=homog, latency_us=latency, r2=r2, r2_nominal=r2_nominal, reverse_regression=rev, fixed=fixed, i0_rule=i0_rule, i0_edge=i0_edge,
         per_pixel=pp if per_pixel else None)
 
 

@@ -269,3 +269,52 @@ def test_frame_offset_is_the_criterions_best_at_the_reported_i0(model, shared_da
         m = CM.estimate_camera_model(hybridhdr.read(shared_data("ecd_slider_depth")), n_boot=10)
     assert not m.i0_rule["applied"], m.i0_rule  # tried, then given up: the correction was not applied there
     check(m)
+
+
+def test_fallback_i0_lies_inside_the_grid():
+    assert CM._fallback_index((1e-3, 4e-3, 1.6e-2)) == 1
+    g = CM.DEFAULT_INTENSITY_OFFSETS + (2.048,)  # ecd_slider_depth's widened grid: centre 0.045
+    assert g[CM._fallback_index(g)] in (0.032, 0.064)
+    for n in range(3, 13):
+        g = tuple(1e-3 * 2 ** k for k in range(n))
+        assert 0 < CM._fallback_index(g) < n - 1
+
+
+def test_flat_criterion_at_an_i0_edge_falls_back_inside_the_grid(shared_data, monkeypatch):
+    """ecd_slider_depth (2 usable frame intervals): the criterion's best I0 lies on the upper edge of
+    its widened grid (2.048). It beats the fallback inside the grid by far more than its sampling
+    error (pixels resampled), so the edge stands, said with the evidence. Where it does not (forced
+    here by asking for more standard errors than any difference has), the criterion counts as flat:
+    I0 is the fallback inside the grid, not identified, warned with both values, and the frame offset
+    is the criterion's best at the fallback."""
+    import warnings
+
+    import hybridhdr
+    rec = hybridhdr.read(shared_data("ecd_slider_depth"))
+    with warnings.catch_warnings(record=True) as wl:
+        warnings.simplefilter("always")
+        m = CM.estimate_camera_model(rec, n_boot=10, quantiser_correction=False)
+    e = m.i0_edge
+    assert e is not None and e["significant"] and e["used"] == "edge", e
+    assert m.intensity_offset == e["edge_i0"] == max(m.intensity_offsets) and m.at_grid_edge["intensity_offset"]
+    assert e["improvement_se"] > CM.EDGE_TEST_SE
+    assert any("standard errors better" in str(w.message) for w in wl if issubclass(w.category, CM.GridEdgeWarning))
+    monkeypatch.setattr(CM, "EDGE_TEST_SE", math.inf)
+    with warnings.catch_warnings(record=True) as wl:
+        warnings.simplefilter("always")
+        m = CM.estimate_camera_model(rec, n_boot=10, quantiser_correction=False)
+    e = m.i0_edge
+    assert e["used"] == "fallback" and not e["identifiable"]
+    assert m.intensity_offset == e["fallback_i0"] and min(m.intensity_offsets) < m.intensity_offset < max(m.intensity_offsets)
+    assert not m.at_grid_edge["intensity_offset"]
+    msgs = [str(w.message) for w in wl if issubclass(w.category, CM.GridEdgeWarning)]
+    assert any("flat" in s and f"{e['fallback_i0']:.4g}" in s and f"{e['edge_i0']:.4g}" in s for s in msgs), msgs
+    col = list(m.intensity_offsets).index(m.intensity_offset)
+    assert m.time_offset_us == m.offsets_us[int(np.nanargmin(np.asarray(m.score_grid)[:, col]))]
+    # the sensor profile says so
+    from hybridhdr.calibrate.sensor_profile import estimate_sensor_profile
+    with warnings.catch_warnings(record=True):
+        warnings.simplefilter("always")
+        prof = estimate_sensor_profile(rec, n_boot=20)
+    i0 = prof.estimates["intensity_offset"]
+    assert not i0["identifiable"] and "flat" in i0["reason"], i0
