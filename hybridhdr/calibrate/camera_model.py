@@ -41,7 +41,10 @@ Estimation (pooled over every pixel-interval both frames show well exposed):
   exposed, at least one event in the widest window any δ opens), cross-fitted (thresholds fitted
   on the even intervals predict the odd ones and the reverse). A best value on a grid edge
   widens the grid (I0 by factors of 4, δ by half a grid width, twice) and is then reported with
-  ``at_grid_edge`` and a warning naming the value; never silently. The criterion's best is
+  ``at_grid_edge`` and a warning naming the value; never silently. An I0 still on an edge is
+  tested against the fallback inside the grid (:func:`_edge_test`, :func:`_fallback_index`): not
+  significantly better, the criterion is flat there and the fallback is used, not identified
+  (``i0_edge``), warned. The criterion's best is
   biased by the DVS quantiser (hysteresis: after a reversal the events come late, so a later
   window predicts better: 12 ms after the true latency at c = 0.5 on the round trip, and its best
   I0 a factor 3 above the truth there), so neither is reported as it stands:
@@ -54,7 +57,8 @@ Estimation (pooled over every pixel-interval both frames show well exposed):
   zero is used where its sign change is significant (at most ``I0_RULE_MISSING`` of the
   replicates without a zero) and the simulated quantiser reproduces the observed events; it is
   found first at the criterion's δ, then again at the latency the binding finds (below), and only
-  a zero there stands; else I0 is the criterion's (warned on an edge). The profile's
+  a zero there stands; else I0 is the criterion's (warned on an edge), everything estimated
+  again from the criterion's grid (a given-up I0 leaves nothing behind). The profile's
   ``identifiable`` says whether two standard errors lie within one grid step (a factor 2).
 * **latency, the binding** (:func:`_binding`): indirect inference on δ: the DVS model driven by the
   frames' own log path at the candidate (latency, I0, thresholds) goes through the same criterion;
@@ -63,7 +67,9 @@ Estimation (pooled over every pixel-interval both frames show well exposed):
   which jumps by grid steps), the simulated search on a window centred on the observed best.
 * **quantiser correction**: indirect inference (``_indirect``) on a fixed, seeded subset of at
   most ``MAX_CORRECTION_PIXELS`` pixels, iterated until the simulated statistic is within
-  ``CORRECTION_TOLERANCE`` of the observed one (same seed, same bits). Every simulation drives the
+  ``CORRECTION_TOLERANCE`` of the observed one (same seed, same bits), then shrunk toward the
+  least squares by how well the simulation reproduces the statistics it was not fitted to
+  (:func:`_shrink_correction`: a posterior mean, no threshold). Every simulation drives the
   quantiser along a Catmull-Rom cubic through the frames' log values (``PATH_SUBSTEPS`` points per
   frame interval, :func:`_path_counts`): a smooth scene's extremum between two frames makes the
   pixel reverse as the camera's did, which a path linear between frames never does.
