@@ -86,6 +86,7 @@ def roundtrip(c: float, sigma: float, seed: int, duration_us: int) -> dict:
            "intensity_offset": m.intensity_offset, "i0_true": I0_TRUE, "latency_us": lat,
            "latency_true_us": LATENCY_US, "time_offset_us": m.time_offset_us, "grid_step_us": step,
            "mismatch_sigma": m.mismatch_sigma, "i0_rule": _rule_summary(m),
+           "correction_weight": ((m.quantiser_correction or {}).get("shrinkage") or {}).get("weight"),
            "quantiser_correction_applied": (m.quantiser_correction or {}).get("applied"),
            "simulated_to_observed_events": (m.quantiser_correction or {}).get("simulated_to_observed_events"),
            "warnings": [str(w.message) for w in wl if issubclass(w.category, CM.GridEdgeWarning)],
@@ -223,6 +224,8 @@ def heldout(name: str, path: Path, quick: bool) -> dict:
                         "quantiser_correction_reason": (m.quantiser_correction or {}).get("reason"),
                         "simulated_to_observed_events": (m.quantiser_correction or {}).get(
                             "simulated_to_observed_events"),
+                        "correction_weight": ((m.quantiser_correction or {}).get("shrinkage") or {}).get("weight"),
+                        "i0_edge": {k: v for k, v in (m.i0_edge or {}).items() if k != "method"} or None,
                         "mismatch_sigma": m.mismatch_sigma, "i0_rule": _rule_summary(m), "noise": {k: m.noise.get(k) for k in (
                             "rate_on_hz", "rate_off_hz")}},
             "rms_code_error": {"profile": prof, "per_pixel_shrunk": pix, "oracle": best[0],

@@ -766,7 +766,7 @@ def estimate_camera_model(recording, *, profile=None, exclude_frames=(), offsets
         if use_rule:
             # I0 by the band rule (one threshold pair at every brightness, quantiser-corrected), where the
             # simulated quantiser sees what the pixels saw; else the criterion's I0 (the second pass)
-            i0s_grid, d_rule, i0_crit = i0s, d, float(i0s[ii])
+            i0s_grid, d_rule = i0s, d
             # (at the criterion's offset, which holds the quantiser's lag: the simulated events are compared with
             # the first look's tolerance, as the correction's; the strict one is the correction's own, at the end)
             i0_hat, i0_rule = _choose_i0(_BandRule(D, ints, d, {}, r_on, r_off, seed), i0s,
