@@ -1045,6 +1045,7 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
     c = np.array(c_obs if c_init is None else c_init, float)
     history = []
     totals = []
+    converged = False  # unit steps converge slowly on a flat binding (recorded; the shrinkage weighs the slope)
     for _ in range(iters):
         stats = []
         totals = []
@@ -1057,12 +1058,14 @@ def _indirect(D, ints, i0, c_obs, sigma, r_on, r_off, *, reps=4, iters=6, seed=0
         history.append([float(c[0]), float(c[1]), float(sim[0]), float(sim[1])])
         gap = np.asarray(c_obs) - sim
         if np.all(np.abs(gap) <= CORRECTION_TOLERANCE):
+            converged = True
             break  # the simulated statistic matches the observed one: c is the answer
         c = np.maximum(c + gap, 0.01)
     tot_pol = np.mean(totals, 0) if totals else None
     return (float(c[0]), float(c[1])), {"method": "indirect inference on a simulated DVS quantiser (hysteresis) "
                                                   "over the frames' own log path", "replicates": reps,
-                                        "pixels_simulated": int(n), "iterations": history, "sigma_used": [s_on, s_off],
+                                        "pixels_simulated": int(n), "iterations": history, "converged": converged,
+                                        "sigma_used": [s_on, s_off],
                                         "observed_statistic": [float(v) for v in c_obs], "i0": float(i0),
                                         "simulated_signal_events": float(tot_pol.sum()) if totals else None,
                                         "simulated_signal_events_on_off": [float(v) for v in tot_pol] if totals else None}
@@ -1277,7 +1280,7 @@ def _ls_at(D, rows, d, ii, r_on, r_off):
 
 
 #: What the final quantiser correction's record carries from its last :func:`_indirect` run.
-_FINAL_INDIRECT_KEYS = ("iterations", "simulated_signal_events", "simulated_signal_events_on_off",
+_FINAL_INDIRECT_KEYS = ("iterations", "converged", "simulated_signal_events", "simulated_signal_events_on_off",
                         "observed_statistic", "i0")
 
 
