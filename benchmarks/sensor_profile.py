@@ -9,7 +9,9 @@ then ONE JSON object on the last stdout line.
   with thresholds 0.15, 0.3 and 0.5, mismatch σ 0 and 0.03, a log offset I0 (the simulator's
   ``log_eps``, in this scene's frame-linear units) of 0.02, a latency of 3 ms (every event stamped
   late) and 2 Hz shot noise, then estimated. Pass: thresholds within 5 % or 2 standard errors, I0
-  and latency within one grid step. The least-squares and reverse-regression thresholds (the
+  within one step of the default I0 grid (a factor 2; the band rule's I0 need not lie on the grid,
+  its bootstrap standard error in ln I0 is printed as ``lnI0sd``) and the latency within one step
+  of the offset grid. The least-squares and reverse-regression thresholds (the
   errors-in-variables bracket) are printed beside them. Quick: 2 of the 6 settings, 0.6 s each.
 * **Real sensors** (``../shared/data``: ``ecd_slider_depth``, DAVIS240C; ``aedat4/davis346_street.aedat4``,
   DAVIS346): every third frame is held out; the model is estimated on the others and predicts each
@@ -50,6 +52,16 @@ def _log(msg):
     print(msg, file=sys.stderr, flush=True)
 
 
+def _rule_summary(m):
+    r = m.i0_rule or {}
+    out = {k: r.get(k) for k in ("applied", "identifiable", "ln_i0_std", "bracket", "simulated_to_observed_events",
+                                 "reason")}
+    if "first_pass" in r or "second_pass" in r:
+        out["other_pass"] = {k: r.get("first_pass", r.get("second_pass", {})).get(k) for k in ("time_offset_us", "intensity_offset", "applied",
+                                                                 "ln_i0_std")}
+    return out
+
+
 def roundtrip(c: float, sigma: float, seed: int, duration_us: int) -> dict:
     p = EventSensorParams(contrast_threshold_on=c, contrast_threshold_off=c, threshold_mismatch_sigma=sigma,
                           log_eps=I0_TRUE, shot_noise_rate_hz=SHOT_HZ, min_threshold=0.01)
@@ -64,17 +76,17 @@ def roundtrip(c: float, sigma: float, seed: int, duration_us: int) -> dict:
         warnings.simplefilter("always")
         m = CM.estimate_camera_model(rec, n_boot=50, seed=0)
     t2 = time.perf_counter()
-    grid = list(m.intensity_offsets)
-    k = int(np.searchsorted(grid, I0_TRUE))
-    i0_ok = grid[max(k - 1, 0)] <= m.intensity_offset <= grid[min(k, len(grid) - 1)] or \
-        abs(math.log(m.intensity_offset / I0_TRUE)) <= abs(math.log(grid[1] / grid[0])) + 1e-9
+    # within one step of the default I0 grid (a factor 2; the estimate need not lie on the grid)
+    dg = CM.DEFAULT_INTENSITY_OFFSETS
+    i0_ok = abs(math.log(m.intensity_offset / I0_TRUE)) <= math.log(dg[1] / dg[0]) + 1e-9
     step = m.offsets_us[1] - m.offsets_us[0]
     lat = m.latency_us
     row = {"c": c, "sigma": sigma, "seed": seed, "c_on": m.c_on, "c_off": m.c_off, "c_on_std": m.c_on_std,
            "c_off_std": m.c_off_std, "least_squares": m.least_squares, "reverse_regression": m.reverse_regression,
            "intensity_offset": m.intensity_offset, "i0_true": I0_TRUE, "latency_us": lat,
            "latency_true_us": LATENCY_US, "time_offset_us": m.time_offset_us, "grid_step_us": step,
-           "mismatch_sigma": m.mismatch_sigma,
+           "mismatch_sigma": m.mismatch_sigma, "i0_rule": _rule_summary(m),
+           "correction_weight": ((m.quantiser_correction or {}).get("shrinkage") or {}).get("weight"),
            "quantiser_correction_applied": (m.quantiser_correction or {}).get("applied"),
            "simulated_to_observed_events": (m.quantiser_correction or {}).get("simulated_to_observed_events"),
            "warnings": [str(w.message) for w in wl if issubclass(w.category, CM.GridEdgeWarning)],
@@ -212,7 +224,9 @@ def heldout(name: str, path: Path, quick: bool) -> dict:
                         "quantiser_correction_reason": (m.quantiser_correction or {}).get("reason"),
                         "simulated_to_observed_events": (m.quantiser_correction or {}).get(
                             "simulated_to_observed_events"),
-                        "mismatch_sigma": m.mismatch_sigma, "noise": {k: m.noise.get(k) for k in (
+                        "correction_weight": ((m.quantiser_correction or {}).get("shrinkage") or {}).get("weight"),
+                        "i0_edge": {k: v for k, v in (m.i0_edge or {}).items() if k != "method"} or None,
+                        "mismatch_sigma": m.mismatch_sigma, "i0_rule": _rule_summary(m), "noise": {k: m.noise.get(k) for k in (
                             "rate_on_hz", "rate_off_hz")}},
             "rms_code_error": {"profile": prof, "per_pixel_shrunk": pix, "oracle": best[0],
                                "frames_only_hold_previous": frames_only},
@@ -229,6 +243,7 @@ def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 round-trip settings of 0.6 s, coarser oracle (< 60 s)")
     args = ap.parse_args(argv)
+    t_start = time.perf_counter()
     settings = [(0.3, 0.03), (0.15, 0.0)] if args.quick else [(c, s) for c in (0.15, 0.3, 0.5) for s in (0.0, 0.03)]
     dur = 600_000 if args.quick else 1_000_000
     res = {"benchmark": "sensor_profile", "quick": args.quick,
@@ -237,13 +252,14 @@ def main(argv=None) -> int:
                                "duration_s": dur / 1e6},
            "roundtrip": []}
     _log(f"{'c':>5} {'sigma':>5} | {'c_on':>7} {'c_off':>7} {'+-':>6} {'LS on':>6} {'rev on':>6} | {'I0':>6} "
-         f"{'lat us':>6} {'delta':>6} | pass")
+         f"{'lat us':>6} {'delta':>6} {'lnI0sd':>6} | pass")
     for c, s in settings:
         r = roundtrip(c, s, 1, dur)
         res["roundtrip"].append(r)
         _log(f"{c:5.2f} {s:5.2f} | {r['c_on']:7.4f} {r['c_off']:7.4f} {r['c_on_std'] or 0:6.4f} "
              f"{r['least_squares']['c_on']:6.3f} {r['reverse_regression']['c_on'] or float('nan'):6.3f} | "
-             f"{r['intensity_offset']:6.3g} {str(r['latency_us']):>6} {r['time_offset_us']:6d} | "
+             f"{r['intensity_offset']:6.3g} {str(r['latency_us']):>6} {r['time_offset_us']:6d} "
+             f"{(r['i0_rule'].get('ln_i0_std') or float('nan')):6.3f} | "
              f"{'yes' if r['pass'] else 'NO'} ({r['estimate_s']} s)")
     res["roundtrip_all_pass"] = all(r["pass"] for r in res["roundtrip"])
     res["real"] = {}
@@ -259,6 +275,7 @@ def main(argv=None) -> int:
             _log(f"  rms code error: profile {e['profile']:.4f}, oracle {e['oracle']:.4f} "
                  f"({h['profile_over_oracle']:.4f}x), per-pixel {e['per_pixel_shrunk']:.4f} "
                  f"({h['per_pixel_over_pooled']:.4f}x pooled), frames only {e['frames_only_hold_previous']:.4f}")
+    res["elapsed_s"] = round(time.perf_counter() - t_start, 1)
     print(json.dumps(res, default=lambda o: None if isinstance(o, float) and not math.isfinite(o) else
                      (o.item() if hasattr(o, "item") else str(o))))
     return 0

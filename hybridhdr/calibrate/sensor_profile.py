@@ -179,15 +179,37 @@ def estimate_sensor_profile(recording, *, profile=None, intensity_offset: float 
                             reverse_regression=m.reverse_regression.get("c_" + k.rsplit("_", 1)[-1]))
             sim[k] = float(v)
         i0_edge = m.at_grid_edge.get("intensity_offset")
-        grid = list(m.intensity_offsets)
-        k_ = grid.index(m.intensity_offset) if m.intensity_offset in grid else 0
-        nb = (grid[max(k_ - 1, 0)], grid[min(k_ + 1, len(grid) - 1)])
-        est["intensity_offset"] = _entry(
-            m.intensity_offset, identifiable=not i0_edge and not m.fixed["intensity_offset"], unit="frame-linear",
-            method="I0 of ln(I + I0): best cross-fitted prediction of the frames' codes, corrected for the quantiser "
-                   "(indirect inference); the interval is the neighbouring grid values",
-            ci95=nb, reason="on the edge of its grid after widening" if i0_edge else
-            ("given, not estimated" if m.fixed["intensity_offset"] else ""))
+        rule = m.i0_rule or {}
+        if rule.get("applied"):
+            # the band rule's zero (equal quantiser-corrected thresholds at every brightness), its bootstrap error
+            sd_ = rule.get("ln_i0_std")
+            ok_ = bool(rule.get("identifiable")) and not m.fixed["intensity_offset"]
+            est["intensity_offset"] = _entry(
+                m.intensity_offset, identifiable=ok_, unit="frame-linear",
+                method="I0 of ln(I + I0): the zero of ln(c_dark / c_bright), the thresholds below and above the median "
+                       "intensity corrected for the quantiser (indirect inference); interval: bootstrap over pixels",
+                std_ln=sd_, ci95=([m.intensity_offset * math.exp(-2 * sd_), m.intensity_offset * math.exp(2 * sd_)]
+                                  if sd_ is not None and math.isfinite(sd_) else None),
+                reason="" if ok_ else rule.get("reason", ""))
+        else:
+            grid = list(m.intensity_offsets)
+            k_ = grid.index(m.intensity_offset) if m.intensity_offset in grid else 0
+            nb = (grid[max(k_ - 1, 0)], grid[min(k_ + 1, len(grid) - 1)])
+            flat = (m.i0_edge or {}).get("used") == "fallback"
+            e_ = m.i0_edge or {}
+            est["intensity_offset"] = _entry(
+                m.intensity_offset, identifiable=not i0_edge and not flat and not m.fixed["intensity_offset"],
+                unit="frame-linear",
+                method="I0 of ln(I + I0): best cross-fitted prediction of the frames' codes, corrected for the quantiser "
+                       "(indirect inference); the interval is the neighbouring grid values",
+                ci95=nb, reason=(f"on the edge of its grid after widening ({e_.get('improvement_se', float('nan')):.3g} "
+                                 f"standard errors better than I0 = {e_.get('fallback_i0', float('nan')):.4g})"
+                                 if i0_edge and e_ else "on the edge of its grid after widening") if i0_edge else
+                (f"the grid criterion is flat at the {e_.get('edge')} edge (I0 = {e_.get('edge_i0', float('nan')):.4g} "
+                 f"only {e_.get('improvement_se', float('nan')):.2g} standard errors better): the fallback inside the "
+                 f"grid" if flat else
+                 ("given, not estimated" if m.fixed["intensity_offset"] else
+                  (f"the band rule was not used: {rule['reason']}" if rule.get("reason") else ""))))
         step = (m.offsets_us[1] - m.offsets_us[0]) if len(m.offsets_us) > 1 else 0
         for k, v, what in (("time_offset_us", m.time_offset_us, "the shift of the frames' times under which the events "
                                                                 "predict the next frame best (includes the quantiser's "
