@@ -27,8 +27,12 @@ supplies those two names from a small pure-PyTorch stand-in for the duration of 
 
 from __future__ import annotations
 
+import contextlib
+import logging
 import math
+import os
 import sys
+import threading
 import time
 import types
 import warnings
@@ -192,17 +196,39 @@ def _version() -> str:
         return "unknown"
 
 
-class _restore_logging:
-    def __init__(self, level):
-        self.level = level
+class _DropCvvdpWarnings:
+    """A root-logger filter that drops pycvvdp's own warnings and notes (it logs "not in absolute
+    photometric units" once per frame with ``logging.warning`` on the root logger); every other
+    record passes. A filter, not ``logging.disable``: that is process-wide, and two metrics
+    computed at once (a bench's threads) would restore each other's level, leaving every warning
+    of the process off."""
 
-    def __enter__(self):
-        return self
+    def filter(self, record) -> bool:
+        return not (record.levelno <= logging.WARNING and f"{os.sep}pycvvdp{os.sep}" in (record.pathname or ""))
 
-    def __exit__(self, *exc):
-        import logging
-        logging.disable(self.level)
-        return False
+
+_DROP = _DropCvvdpWarnings()
+_drop_lock = threading.Lock()
+_drop_users = 0
+_predict_lock = threading.Lock()
+
+
+@contextlib.contextmanager
+def _quiet_cvvdp():
+    """pycvvdp's warnings off while the block runs (reference-counted across threads)."""
+    global _drop_users
+    root = logging.getLogger()
+    with _drop_lock:
+        _drop_users += 1
+        if _drop_users == 1:
+            root.addFilter(_DROP)
+    try:
+        yield
+    finally:
+        with _drop_lock:
+            _drop_users -= 1
+            if _drop_users == 0:
+                root.removeFilter(_DROP)
 
 
 def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPLAY, anchor: str = "max",
@@ -243,10 +269,9 @@ def cvvdp_jod(test, reference, *, fps: float = 0.0, display: str = DEFAULT_DISPL
     r = np.clip(r * gain, 0, None).astype(np.float32)
     order = "HW" if t.ndim == 3 else "HWC"
     t0 = time.perf_counter()
-    import logging
-    before = logging.root.manager.disable
-    logging.disable(logging.WARNING)  # cvvdp logs "not in absolute photometric units" per frame on the root logger
-    with _restore_logging(before), torch.no_grad(), warnings.catch_warnings():
+    # one prediction at a time per process: warnings.catch_warnings saves and restores the
+    # process's filters, which two threads (a Dask cluster's) would cross like logging.disable
+    with _predict_lock, _quiet_cvvdp(), torch.no_grad(), warnings.catch_warnings():
         warnings.simplefilter("ignore")
         if fps > 0 and t.shape[0] > 1:
             q, _ = m.predict(torch.from_numpy(t), torch.from_numpy(r), dim_order="F" + order,
