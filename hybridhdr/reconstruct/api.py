@@ -599,7 +599,8 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
         from .cuda import cuda_two_sided_iter
         make_engine.needs_events = op.use_aug or op.exposure_mean
         yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
-                                       progress=run.progress, info=info, carried_variance=p.carried_variance())
+                                       progress=run.progress, info=info, carried_variance=p.carried_variance(),
+                                       censored_codes=_censored_codes(p, prof, frames))
     else:
         yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                   chunk_events=run.chunk_events, progress=run.progress, info=info,
