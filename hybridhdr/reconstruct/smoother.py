@@ -299,17 +299,14 @@ class _CarriedVariance:
             if self.measured is None or self.j < 0:
                 # every pixel restarts at frame j (without ``measured``) or at the first frame
                 j0 = j if self.measured is None else 0
-                self.cnt[:] = 0.0
-                self.tau_ref[:] = self.tau[j0]
+                self._restart(None, int(self.tau[j0]), engine)
                 self.pos = int(np.searchsorted(t_ev, self.tau[j0], side="left"))
                 self.j = j0
             for jj in range(self.j + 1, j + 1):  # each later frame restarts the pixels it measures
                 stop = int(np.searchsorted(t_ev, self.tau[jj], side="left"))
                 self._count(self.pos, stop, engine)
                 self.pos = max(stop, self.pos)
-                m = np.asarray(self.measured(jj), bool).reshape(-1)
-                self.cnt[m] = 0.0
-                self.tau_ref[m] = self.tau[jj]
+                self._restart(np.asarray(self.measured(jj), bool).reshape(-1), int(self.tau[jj]), engine)
             self.j = j
         end = int(np.searchsorted(t_ev, t_us, side="left"))
         self._count(self.pos, end, engine)
@@ -325,6 +322,26 @@ class _CarriedVariance:
         else:
             engine._map_bands(add, self.n_pix)
         return var
+
+    def _restart(self, mask, tau: int, engine=None) -> None:
+        """Counts 0 and reference time ``tau`` for the pixels of ``mask`` (None: every pixel);
+        row bands with ``engine``."""
+        W = self.ev.shape[1]
+        cnt, tref = self.cnt, self.tau_ref
+
+        def band(b, lo, hi):
+            a, z = lo * W, hi * W
+            if mask is None:
+                cnt[a:z] = 0.0
+                tref[a:z] = tau
+            else:
+                m = mask[a:z]
+                cnt[a:z][m] = 0.0
+                tref[a:z][m] = tau
+        if engine is None:
+            band(0, 0, self.ev.shape[0])
+        else:
+            engine._map_bands(band, self.n_pix)
 
     def _count(self, pos: int, end: int, engine=None) -> None:
         """Each pixel's events ``[pos, end)`` added to its count (row bands with ``engine``)."""
