@@ -196,10 +196,16 @@ def gpu_akf_cf(t, x, y, p, frames, shape, reps, res_key, res, cpu_workers, run_c
         finally:
             C.RESIDENT_CHUNK = keep
 
+    from hybridhdr.camera import load_profile, profile_for_frames
+    fprof = profile_for_frames(load_profile(None), frames)  # the engines' built-in profile
+    # as reconstruct runs it: a clipped code does not restart its pixel's carried variance
+    cens = (int(fprof.clip_low_code), int(fprof.clip_high_code)) if params.saturation == "bound" else None
+
     def two_sided():
         k = 0
         for _ in cuda_two_sided_iter(ev, frames, make, times, offset=params.intensity_offset,
-                                     carried_variance=params.carried_variance(), device_events=dev):
+                                     carried_variance=params.carried_variance(), device_events=dev,
+                                     censored_codes=cens):
             k += 1
         cuda.synchronize()
         return k

@@ -233,19 +233,31 @@ def k_akf_output(S, seg_t0, seg_inv_t, t_out, out_l32, out_log, out_var, n_pix):
 
 
 @cuda.jit
-def k_akf_output_state32(S, seg_t0, seg_inv_t, t_out, out_l, out_p, ccount, q, s_age, n_pix):
+def k_akf_output_state32(S, seg_t0, seg_inv_t, t_out, out_l, out_p, ccount, q, s, t_us, ctau, n_pix):
     """:func:`._kernels.akf_output_state32`, then (``ccount`` not empty) the carried variance of
-    :func:`._kernels.add_carried_variance` (float32 ``P + (q·n + s_age)``)."""
+    :func:`._kernels.add_carried_variance_since` (float32 ``P + (q·n + s·(t_us − τ_ref)·1e-6)``,
+    ``ctau`` each pixel's reference frame time, µs)."""
     has_cc = ccount.shape[0] > 0
     qq = np.float32(q)
-    sa = np.float32(s_age)
     for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
         lhat, pv = d_output_pixel(S, pix, seg_t0, seg_inv_t, t_out)
         out_l[pix] = np.float32(lhat)
         p32 = np.float32(pv)
         if has_cc:
+            sa = np.float32(s * ((t_us - ctau[pix]) * 1e-6))
             p32 = p32 + (qq * ccount[pix] + sa)
         out_p[pix] = p32
+
+
+@cuda.jit
+def k_reset_count(ccount, ctau, mask, tau, n_pix):
+    """The carried variance's restart at a frame at ``tau`` µs: count 0 and reference time
+    ``tau`` for the pixels the frame measures (``mask`` nonzero; empty ``mask``: every pixel)."""
+    has_mask = mask.shape[0] > 0
+    for pix in range(cuda.grid(1), n_pix, cuda.gridsize(1)):
+        if not has_mask or mask[pix] != 0:
+            ccount[pix] = np.float32(0.0)
+            ctau[pix] = tau
 
 
 @cuda.jit

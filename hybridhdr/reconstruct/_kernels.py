@@ -1016,3 +1016,15 @@ def add_carried_variance(var, cnt, q, s_age):
     for i in range(var.shape[0]):
         var[i] = var[i] + (qq * cnt[i] + sa)
 
+
+
+@njit(cache=True, nogil=True)
+def add_carried_variance_since(var, cnt, q, s, t_us, tau_ref):
+    """In place, float32: ``var += q·cnt + s·(t_us − tau_ref)·1e-6`` per pixel, the two-sided
+    fusion's carried variance with each pixel's own reference frame time ``tau_ref`` (µs; int64)
+    (:class:`hybridhdr.reconstruct.smoother._CarriedVariance`). With one ``tau_ref`` for every
+    pixel the same float32 values as :func:`add_carried_variance`."""
+    qq = np.float32(q)
+    for i in range(var.shape[0]):
+        sa = np.float32(s * ((t_us - tau_ref[i]) * 1e-6))
+        var[i] = var[i] + (qq * cnt[i] + sa)

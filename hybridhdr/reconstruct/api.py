@@ -14,7 +14,7 @@ from .._util import phases as PH
 from .._util.checks import check_shape
 from .._util.limits import check_fps_outputs, check_sensor_size
 from ..calibrate.resolve import recording_declares_thresholds, resolve_thresholds
-from ..camera import CameraProfile
+from ..camera import CameraProfile, profile_for_frames
 from ..camera.profile import load_profile
 from ..events import EVENT_DTYPE, SensorSize, events_fields
 from ..model import Frames, Recording, source_metadata
@@ -562,6 +562,16 @@ def _uses_two_sided(req: ReconstructRequest, op: _Opened) -> bool:
     return run.method == "akf" and run.mode == "offline" and run.measurements is None and op.has_frames()
 
 
+def _censored_codes(p, prof, frames) -> tuple | None:
+    """``(clip_low_code, clip_high_code)`` when the AKF reads clipped codes as censored bounds
+    (``saturation="bound"``): such a code does not measure its pixel, and the two-sided fusion's
+    carried variance runs from the pixel's last unclipped frame (:class:`.smoother._CarriedVariance`)."""
+    if getattr(p, "saturation", "value") != "bound" or frames is None or len(frames) == 0:
+        return None
+    prof = profile_for_frames(prof, frames)  # the profile the frame measurements read the codes with
+    return int(prof.clip_low_code), int(prof.clip_high_code)
+
+
 def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
     """The two-sided AKF (:mod:`.smoother`, or :func:`.cuda.cuda_two_sided_iter` on the GPU)."""
     run, out, p, frames = req.run, req.output, op.params, op.frames
@@ -589,11 +599,13 @@ def _two_sided(req: ReconstructRequest, op: _Opened, info: dict | None):
         from .cuda import cuda_two_sided_iter
         make_engine.needs_events = op.use_aug or op.exposure_mean
         yield from cuda_two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
-                                       progress=run.progress, info=info, carried_variance=p.carried_variance())
+                                       progress=run.progress, info=info, carried_variance=p.carried_variance(),
+                                       censored_codes=_censored_codes(p, prof, frames))
     else:
         yield from two_sided_iter(events, frames, make_engine, times, offset=p.intensity_offset,
                                   chunk_events=run.chunk_events, progress=run.progress, info=info,
-                                  carried_variance=p.carried_variance(), n_workers=run.n_workers)
+                                  carried_variance=p.carried_variance(), n_workers=run.n_workers,
+                                  censored_codes=_censored_codes(p, prof, frames))
     if info is not None:
         info["n_events_used"] = len(events)  # each event by each pass
         stats = [getattr(e.m, "stats", None) for e in engines]

@@ -581,19 +581,27 @@ class CudaAKFEngine(_CudaEngine):
         return out.reshape(self.shape)
 
     def output_state32(self, t_us: int, out_l, out_p, carried: tuple | None) -> None:
-        """Float32 L̂ and P at ``t_us`` into device arrays; ``carried = (q, s_age)`` adds the carried
-        variance from :attr:`ccount` (see :class:`.smoother._CarriedVariance`)."""
-        cc, q, sa = (self.ccount, carried[0], carried[1]) if carried is not None else (self._empty(np.float32), 0.0,
-                                                                                         0.0)
-        self.ck.k_akf_output_state32[_grid(self.n, self.stream)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), out_l, out_p,
-                                                    cc, q, sa, self.n)
+        """Float32 L̂ and P at ``t_us`` into device arrays; ``carried = (q, s)`` adds the carried
+        variance ``q·n + s·(t_us − τ_ref)`` from :attr:`ccount` and :attr:`ctau` (see
+        :class:`.smoother._CarriedVariance`)."""
+        if carried is not None:
+            cc, ct, q, s = self.ccount, self.ctau, carried[0], carried[1]
+        else:
+            cc, ct, q, s = self._empty(np.float32), self._empty(np.int64), 0.0, 0.0
+        self.ck.k_akf_output_state32[_grid(self.n, self.stream)](self.S, self.seg_t0, self.seg_inv_t, float(t_us), out_l,
+                                                    out_p, cc, q, s, np.int64(t_us), ct, self.n)
 
     def enable_count(self) -> None:
-        """Count each pixel's events into :attr:`ccount` (for the carried variance)."""
+        """Count each pixel's events into :attr:`ccount` (for the carried variance), from the time
+        :attr:`ctau` per pixel."""
         self.ccount = self.cuda.to_device(np.zeros(self.n, np.float32))
+        self.ctau = self.cuda.to_device(np.zeros(self.n, np.int64))
 
-    def reset_count(self) -> None:
-        self.ck.k_fill_f32[_grid(self.n, self.stream)](self.ccount, np.float32(0.0), self.n)
+    def reset_count(self, tau: int = 0, mask=None) -> None:
+        """Restart the counts at a frame at ``tau`` µs for the pixels it measures (``mask``, a
+        flat bool array; None: every pixel)."""
+        m = self._empty(np.uint8) if mask is None else self.cuda.to_device(np.ascontiguousarray(mask, np.uint8))
+        self.ck.k_reset_count[_grid(self.n, self.stream)](self.ccount, self.ctau, m, np.int64(tau), self.n)
 
 
 class CudaCFEngine(_CudaEngine):
@@ -733,12 +741,14 @@ def _device_process(dev: DeviceEvents, eng, i: int, j: int) -> None:
     eng.process_resident(dev, i, j)
 
 
-def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarray | None, progress=None):
+def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarray | None, progress=None,
+                     measured=None):
     """Drive one pass as :func:`._engine.drive` would with explicit output ``times``; yield
     ``(t, j)`` at each output (the state then at t; ``j`` the index of the last frame time τ_j <= t
     in ``taus``, -1 before the first). At equal times: frame switch, then (carried variance) the
-    per-pixel event count reset at τ_j, then the output; an output at t holds the events with
-    timestamps < t, so the counts cover [τ_j, t) as :class:`.smoother._CarriedVariance` does."""
+    per-pixel event count reset at τ_j (``measured(j)``: only the pixels frame j measures, after
+    the first frame; None: every pixel), then the output; an output at t holds the events with
+    timestamps < t, so the counts cover [τ_ref, t) as :class:`.smoother._CarriedVariance` does."""
     process = dev.process if isinstance(dev, _HostWindows) else (lambda e, i, j: _device_process(dev, e, i, j))
     t_init = eng.start(None)
     times = times[times >= t_init]
@@ -761,7 +771,7 @@ def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarra
         if ts == bp:
             eng.switch()
         elif tt == bp:
-            eng.reset_count()
+            eng.reset_count(tt, None if (measured is None or j_tau < 0) else measured(it))
             j_tau = it
             it += 1
         else:
@@ -770,7 +780,8 @@ def _run_pass_device(eng: CudaAKFEngine, dev, times: np.ndarray, taus: np.ndarra
 
 
 def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offset: float, progress=None,
-                        info: dict | None = None, carried_variance: tuple | None = None, device_events=None):
+                        info: dict | None = None, carried_variance: tuple | None = None, device_events=None,
+                        censored_codes: tuple | None = None):
     """:func:`.smoother.two_sided_iter` on the GPU, in its serial order: the backward pass (on the
     reversed recording) keeps its float32 (L̂, P) per output on the device (host memory beyond
     :data:`DEVICE_STORE_BYTES`), then the forward pass streams, each output fused on the device
@@ -783,7 +794,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
     forward and reversed copies fit :data:`DEVICE_EVENTS_BYTES`, otherwise each window streams
     through the engines' staging buffers. Yields ``(t_us, linear image)``.
     """
-    from .smoother import _Store, reverse_events, reverse_frames
+    from .smoother import _Store, frames_measure, reverse_events, reverse_frames
     cuda = _cuda()
     from . import _cuda_kernels as CK
     shape = events.shape
@@ -816,7 +827,7 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
         if taus is None or j < 0:
             return None
         q, s = carried_variance
-        return float(q), float(s) * ((int(t) - int(taus[j])) * 1e-6)  # as _CarriedVariance.add_to
+        return float(q), float(s)  # the age per pixel: as _CarriedVariance.add_to
 
     def passes(fr, ev_host, ev_dev, backward, tms):
         eng = make_engine(fr, ev_host if needs_host else None, backward)
@@ -824,8 +835,9 @@ def cuda_two_sided_iter(events, frames, make_engine, times: np.ndarray, *, offse
         if taus is not None:
             eng.enable_count()
         src = ev_dev if ev_dev is not None else _HostWindows(ev_host)
+        measured = frames_measure(fr, censored_codes) if taus is not None else None
         try:
-            for t, j in _run_pass_device(eng, src, tms, taus, progress):
+            for t, j in _run_pass_device(eng, src, tms, taus, progress, measured):
                 yield eng, t, carried_at(taus, j, t)
         finally:
             eng.close()

@@ -51,7 +51,7 @@ from . import _engine as E
 from . import _kernels as K
 from .event_arrays import EventArrays, map_ranges
 
-__all__ = ["reverse_events", "reverse_frames", "fuse", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
+__all__ = ["reverse_events", "reverse_frames", "fuse", "frames_measure", "output_times", "two_sided_iter", "MEMORY_LIMIT_BYTES"]
 
 #: Backward estimates beyond this size go to an unlinked temporary file, written and read with
 #: pwrite/pread (the page cache, not the process, holds them: memory stays bounded).
@@ -164,6 +164,29 @@ def fuse(l_f, p_f, l_b, p_b):
     return (l_f * p_b + l_b * p_f) / (p_f + p_b), p
 
 
+def frames_measure(frames: Frames, censored_codes: tuple | None) -> Callable[[int], np.ndarray] | None:
+    """``measured(j)``: the flat bool mask of the pixels that the frame(s) at the j-th distinct
+    mid-exposure time of ``frames`` measure, i.e. whose code (:func:`hybridhdr.camera.encoding.
+    frames_to_codes`, as the frame measurements read it) lies strictly between the censored codes
+    ``(lo, hi)`` (frames sharing a mid-exposure time: any of them); None when ``censored_codes``
+    is None (every frame then measures every pixel)."""
+    if censored_codes is None or frames is None or len(frames) == 0:
+        return None
+    from ..camera.encoding import frames_to_codes
+    lo, hi = (float(v) for v in censored_codes)
+    mids = np.asarray(frames.t_mid_us, dtype=np.int64)
+    taus = np.unique(mids)
+    H, W = frames.images.shape[1:3]
+
+    def measured(j: int) -> np.ndarray:
+        m = np.zeros(H * W, bool)
+        for k in np.flatnonzero(mids == taus[j]):
+            c = np.asarray(frames_to_codes(frames.select([int(k)]), (H, W))[0]).reshape(-1)
+            m |= (c > lo) & (c < hi)
+        return m
+    return measured
+
+
 def output_times(frame_times_us, t_last_us: int, *, times_us=None, fps=None, t_start_us=None,
                  t_end_us=None) -> np.ndarray:
     """The output times the forward driver would produce, as an explicit array.
@@ -232,19 +255,33 @@ class _CarriedVariance:
     P alone, an estimate carried 45 ms from its frame weighs as much as one carried 5 ms
     (``benchmarks/accuracy.py``, AHDR between frames). Each pass therefore reports
     ``P + q·n + s·Δt`` at output time t: n the pixel's events in ``[τ_last, t)``, Δt = t − τ_last
-    in s, τ_last the pass's last frame (mid-exposure) at or before t, q the paper's per-event
-    refractory-noise variance σ²_ref (§6, 0.01) and s = σ²_proc. Computed from the pass's own
-    (possibly reversed) events and frames, so a reversed recording gives the reversed numbers.
+    in s, τ_last the pass's last frame (mid-exposure) at or before t that *measured the pixel*, q
+    the paper's per-event refractory-noise variance σ²_ref (§6, 0.01) and s = σ²_proc. Computed
+    from the pass's own (possibly reversed) events and frames, so a reversed recording gives the
+    reversed numbers.
+
+    A frame that clips the pixel (a censored code, ``AKFParams.saturation = "bound"``) does not
+    measure it: the bound moves L̂ only where L̂ violates it and leaves P as it is, so the pixel's
+    L^A is still the value of its last unclipped frame carried by every event since. ``measured``
+    (a callable: unique-frame index j -> bool mask of the pixels frame j measures, flat) keeps
+    τ_last, n and Δt per pixel running from that frame: without it, an estimate carried 2 frames
+    through clipped frames was weighed as if frame k had just measured it (each pass's clipped
+    frame k at an output at τ_k set n = Δt = 0 in both passes, so the fusion weighed a backward
+    estimate carried from a frame 3 periods away like the forward one carried 1 period). None:
+    every frame measures every pixel (a pixel's τ_last is the pass's last frame).
     """
 
-    def __init__(self, events: EventArrays, frame_mids_us, q_event: float, s_proc_per_s: float):
+    def __init__(self, events: EventArrays, frame_mids_us, q_event: float, s_proc_per_s: float,
+                 measured: Callable[[int], np.ndarray] | None = None):
         self.ev = events
         self.tau = np.unique(np.asarray(frame_mids_us, dtype=np.int64))
         self.q = float(q_event)
         self.s = float(s_proc_per_s)
+        self.measured = measured
         self.n_pix = events.shape[0] * events.shape[1]
         self.cnt = np.zeros(self.n_pix, np.float32)  # exact up to 2**24 events per pixel and frame
-        self.j = -1  # the frame the counts run from
+        self.tau_ref = np.zeros(self.n_pix, np.int64)  # per pixel: the frame its counts run from
+        self.j = -1  # the last frame the counts have passed
         self.pos = 0  # events counted up to this index
         self._bufs: dict = {}  # per band: reused int32 index buffers
 
@@ -258,46 +295,82 @@ class _CarriedVariance:
         if j < 0:
             return var
         t_ev = self.ev.t
-        reset = j != self.j
-        if reset:
+        if j != self.j:
+            if self.measured is None or self.j < 0:
+                # every pixel restarts at frame j (without ``measured``) or at the first frame
+                j0 = j if self.measured is None else 0
+                self._restart(None, int(self.tau[j0]), engine)
+                self.pos = int(np.searchsorted(t_ev, self.tau[j0], side="left"))
+                self.j = j0
+            for jj in range(self.j + 1, j + 1):  # each later frame restarts the pixels it measures
+                stop = int(np.searchsorted(t_ev, self.tau[jj], side="left"))
+                self._count(self.pos, stop, engine)
+                self.pos = max(stop, self.pos)
+                self._restart(np.asarray(self.measured(jj), bool).reshape(-1), int(self.tau[jj]), engine)
             self.j = j
-            self.pos = int(np.searchsorted(t_ev, self.tau[j], side="left"))
-        pos = self.pos
         end = int(np.searchsorted(t_ev, t_us, side="left"))
-        age_s = (int(t_us) - int(self.tau[j])) * 1e-6
+        self._count(self.pos, end, engine)
+        self.pos = max(end, self.pos)
         W = self.ev.shape[1]
-        ev, cnt, q, sa = self.ev, self.cnt, self.q, self.s * age_s
-        bufs = self._bufs
+        cnt, q, s, tref, t = self.cnt, self.q, self.s, self.tau_ref, int(t_us)
+
+        def add(b, lo, hi):
+            a, z = lo * W, hi * W
+            K.add_carried_variance_since(var[a:z], cnt[a:z], q, s, t, tref[a:z])  # in place
+        if engine is None:
+            add(0, 0, self.ev.shape[0])
+        else:
+            engine._map_bands(add, self.n_pix)
+        return var
+
+    def _restart(self, mask, tau: int, engine=None) -> None:
+        """Counts 0 and reference time ``tau`` for the pixels of ``mask`` (None: every pixel);
+        row bands with ``engine``."""
+        W = self.ev.shape[1]
+        cnt, tref = self.cnt, self.tau_ref
 
         def band(b, lo, hi):
             a, z = lo * W, hi * W
-            if reset:
+            if mask is None:
                 cnt[a:z] = 0.0
-            if end > pos:
-                if lo == 0 and hi == ev.shape[0]:
-                    K.count_pixel_events(ev.y, ev.x, pos, end, W, cnt)
-                else:
-                    idx = bufs.get(b)
-                    if idx is None or idx.shape[0] < end - pos:
-                        idx = bufs[b] = np.empty(max(end - pos, 2 * (0 if idx is None else idx.shape[0])),
-                                                 np.int32)
-                    m = K.band_select(ev.y, pos, end, lo, hi, idx)
-                    K.count_pixel_events_indexed(ev.y, ev.x, pos, idx, m, W, cnt)
-            K.add_carried_variance(var[a:z], cnt[a:z], q, sa)  # in place: var is this output's own
+                tref[a:z] = tau
+            else:
+                m = mask[a:z]
+                cnt[a:z][m] = 0.0
+                tref[a:z][m] = tau
         if engine is None:
             band(0, 0, self.ev.shape[0])
         else:
-            if end - pos >= 1 << 31:
-                raise ValueError(f"{end - pos} events between two outputs: too many for the parallel count (< 2**31)")
-            threaded = (getattr(engine, "_pool", None) is not None and len(engine.bands) > 1
-                        and end - pos >= E.PARALLEL_MIN_WORK)
-            engine._map_bands(self._split_count(engine, pos, end, reset, var, q, sa) if threaded else band,
-                              self.n_pix + (end - pos))
-        self.pos = max(end, pos)
-        return var
+            engine._map_bands(band, self.n_pix)
 
-    def _split_count(self, engine, pos: int, end: int, reset: bool, var, q: float, sa: float):
-        """The per-band function of :meth:`add_to` for threaded bands: worker ``w`` splits part
+    def _count(self, pos: int, end: int, engine=None) -> None:
+        """Each pixel's events ``[pos, end)`` added to its count (row bands with ``engine``)."""
+        if end <= pos:
+            return
+        W = self.ev.shape[1]
+        ev, cnt = self.ev, self.cnt
+        bufs = self._bufs
+
+        def band(b, lo, hi):
+            if lo == 0 and hi == ev.shape[0]:
+                K.count_pixel_events(ev.y, ev.x, pos, end, W, cnt)
+            else:
+                idx = bufs.get(b)
+                if idx is None or idx.shape[0] < end - pos:
+                    idx = bufs[b] = np.empty(max(end - pos, 2 * (0 if idx is None else idx.shape[0])), np.int32)
+                m = K.band_select(ev.y, pos, end, lo, hi, idx)
+                K.count_pixel_events_indexed(ev.y, ev.x, pos, idx, m, W, cnt)
+        if engine is None:
+            band(0, 0, self.ev.shape[0])
+            return
+        if end - pos >= 1 << 31:
+            raise ValueError(f"{end - pos} events between two outputs: too many for the parallel count (< 2**31)")
+        threaded = (getattr(engine, "_pool", None) is not None and len(engine.bands) > 1
+                    and end - pos >= E.PARALLEL_MIN_WORK)
+        engine._map_bands(self._split_count(engine, pos, end) if threaded else band, self.n_pix + (end - pos))
+
+    def _split_count(self, engine, pos: int, end: int):
+        """The per-band function of :meth:`_count` for threaded bands: worker ``w`` splits part
         ``w`` of the events ``[pos, end)`` by band (own rows, :func:`_kernels.band_split_lut`),
         then each band counts its events part by part, waiting only for the part it reaches:
         every event's row is read once in all, not once per band (a band's scan of the whole
@@ -334,15 +407,11 @@ class _CarriedVariance:
                     e.set()
                 raise
             ready[b].set()
-            a, z = lo * W, hi * W
-            if reset:
-                cnt[a:z] = 0.0
             for v in range(nb):
                 ready[v].wait()
                 if failed:
                     raise threading.BrokenBarrierError(f"worker {failed[0]} failed")
                 K.count_pixel_events_indexed(ev.y, ev.x, pos, bufs[v][b], counts[v, b], W, cnt)
-            K.add_carried_variance(var[a:z], cnt[a:z], q, sa)
         return band
 
 
@@ -377,7 +446,8 @@ def _run_pass(make_engine, events: EventArrays, times: np.ndarray, chunk_events:
 def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.ndarray, *, offset: float,
                    chunk_events: int = 1 << 20, progress: Callable[[int], None] | None = None,
                    info: dict | None = None, carried_variance: tuple | None = None,
-                   n_workers: int | None = None) -> Iterator[tuple[int, np.ndarray]]:
+                   n_workers: int | None = None, censored_codes: tuple | None = None
+                   ) -> Iterator[tuple[int, np.ndarray]]:
     """Yield ``(t_us, linear image)`` of the two-sided AKF at ``times`` (strictly increasing).
 
     ``make_engine(frames, events, backward)`` builds a forward :class:`~._engine.AKFEngine` for a
@@ -386,6 +456,10 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     a forward ON event of threshold c_on is a backward OFF event of the same size.
     ``carried_variance = (q_event, s_proc_per_s)``: fuse with each pass's P plus the variance its
     carried frame has accumulated (:class:`_CarriedVariance`); None: P alone.
+    ``censored_codes = (lo, hi)``: a frame code ``<= lo`` or ``>= hi`` is a censored bound, not a
+    measurement of its pixel (``AKFParams.saturation = "bound"``), so the carried variance of
+    that pixel keeps running from its last frame with a code strictly between them
+    (:func:`frames_measure`); None: every frame measures every pixel.
 
     ``n_workers`` None or 1: the passes one after the other (the backward pass first, then the
     forward pass streams, fusing as it goes), with the engines as ``make_engine`` builds them.
@@ -408,8 +482,8 @@ def two_sided_iter(events: EventArrays, frames: Frames, make_engine, times: np.n
     rev_times = (np.int64(mirror) - times)[::-1]  # t' = T0 - t: the backward pass holds events >= t
     cv_b = cv_f = None
     if carried_variance is not None:
-        cv_b = (rev_fr.t_mid_us,) + tuple(carried_variance)
-        cv_f = (frames.t_mid_us,) + tuple(carried_variance)
+        cv_b = (rev_fr.t_mid_us,) + tuple(carried_variance) + (frames_measure(rev_fr, censored_codes),)
+        cv_f = (frames.t_mid_us,) + tuple(carried_variance) + (frames_measure(frames, censored_codes),)
     passes = {True: (rev_fr, rev_ev, rev_times, cv_b), False: (frames, events, times, cv_f)}
     stats = {"outputs_fused": 0, "outputs_one_pass": 0, "backward_outputs": 0, "spilled_to_disk": False,
              "n_clamped": 0, "n_output_pixels": 0}

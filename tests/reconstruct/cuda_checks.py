@@ -225,11 +225,20 @@ def _cf_runs(make, t, x, y, p, resident_chunk):
     return res
 
 
-def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, fps=None, resident_chunk=None):
+def check_reconstruct(mode="offline", augment=False, spill=False, stream=False, fps=None, resident_chunk=None,
+                      clip=False):
     import hybridhdr.reconstruct.cuda as C
     from conftest import ideal_recording
     from hybridhdr.reconstruct import reconstruct
     rec, _ = ideal_recording(height=8, width=10, duration_us=80_000, frame_period_us=30_000, noise_events=40)
+    if clip:  # a block clipped in every other frame: the carried variance runs from its last unclipped frame
+        import dataclasses
+        from hybridhdr import Frames
+        f = rec.frames
+        codes = np.array(f.images, copy=True)
+        top = np.iinfo(codes.dtype).max if codes.dtype.kind in "ui" else 1.0
+        codes[1::2, 2:5, 3:7] = top
+        rec = dataclasses.replace(rec, frames=Frames(codes, f.t_start_us, f.t_end_us, f.gain, f.iso, f.encoding))
     if spill:
         C.DEVICE_STORE_BYTES = 0
     if stream:
@@ -274,6 +283,7 @@ CHECKS = {
     "reconstruct_two_sided_per_window": lambda: check_reconstruct("offline", fps=100.0, resident_chunk=0),
     "reconstruct_two_sided_spill_stream": lambda: check_reconstruct("offline", spill=True, stream=True),
     "reconstruct_two_sided_augmented": lambda: check_reconstruct("offline", augment=True),
+    "reconstruct_two_sided_clipped": lambda: check_reconstruct("offline", fps=100.0, clip=True),
 }
 
 

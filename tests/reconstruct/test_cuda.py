@@ -23,7 +23,7 @@ CHECKS = ["akf_paper_linear", "akf_reference_hold", "akf_discrete_thresholds", "
           "akf_windows_split", "akf_resident", "akf_resident_chunks", "cf", "cf_adaptive", "cf_generic",
           "cf_resident_chunks", "highpass", "direct", "reconstruct_forward", "reconstruct_causal",
           "reconstruct_two_sided", "reconstruct_two_sided_chunks", "reconstruct_two_sided_per_window",
-          "reconstruct_two_sided_spill_stream", "reconstruct_two_sided_augmented"]
+          "reconstruct_two_sided_spill_stream", "reconstruct_two_sided_augmented", "reconstruct_two_sided_clipped"]
 REAL = os.environ.get("HYBRIDHDR_TEST_CUDA_REAL") == "1"
 
 

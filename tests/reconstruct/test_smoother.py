@@ -219,6 +219,49 @@ def test_each_pass_reports_p_plus_the_variance_its_carried_frame_accumulated():
     assert AKFParams.paper().carried_variance() is None and AKFParams.reference_code().carried_variance() is None
 
 
+
+def test_a_frame_that_clips_a_pixel_does_not_restart_its_carried_variance():
+    """A clipped code is a censored bound, not a measurement: the pixel's carried variance keeps
+    running from its last unclipped frame (n and Δt since that frame), while a pixel the frame
+    measures restarts there. Without the rule both restarted at the clipped frame, so the fusion
+    weighed an estimate carried through clipped frames as if the clipped frame had measured it."""
+    from hybridhdr.reconstruct.api import ReconstructRequest, engine_for
+    from hybridhdr.reconstruct.smoother import _run_pass, frames_measure
+    h, w = 1, 2
+    ts = np.array([0, 40_000, 80_000], np.int64)
+    img = np.array([[[100, 100]], [[255, 120]], [[110, 110]]], np.uint8)  # frame 1 clips pixel 0
+    fr = Frames(img, ts, ts + 2_000, encoding="linear")  # mid-exposures 1, 41, 81 ms
+    ev = np.zeros(12, EVENT_DTYPE)  # pixel 0: an ON event every 5 ms from 3 ms; pixel 1: none
+    ev["t"] = np.arange(12) * 5_000 + 3_000
+    ev["p"] = 1
+    r = Recording(ev, SensorSize(h, w), fr)
+    p = AKFParams(contrast_threshold=0.1)
+    q, s = p.carried_variance()
+    ea = EventArrays.from_structured(r.events, (h, w))
+    t = np.array([20_000, 60_000, 90_000], np.int64)
+    mk = lambda: engine_for(ReconstructRequest.build("akf", p, mode="forward"), (h, w), fr, ea)  # noqa: E731
+    raw = {tt: var.copy() for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None)}
+    measured = frames_measure(fr, (0, 255))
+    assert measured(1).tolist() == [False, True] and measured(0).all() and measured(2).all()
+    got = {tt: var.copy() for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None, (fr.t_mid_us, q, s, measured))}
+    plain = {tt: var.copy() for tt, _, var in _run_pass(mk, ea, t, 1 << 20, None, (fr.t_mid_us, q, s))}
+    mids = fr.t_mid_us
+    # (output time, pixel 0's reference frame with the rule, without it); pixel 1 always the last frame
+    for tt, ref0, last in ((20_000, 0, 0), (60_000, 0, 1), (90_000, 2, 2)):
+        def want(ref, pix):
+            n = int(np.sum((ea.t >= mids[ref]) & (ea.t < tt) & (ea.x == pix)))
+            return float(raw[tt][pix]) + q * n + s * (tt - int(mids[ref])) * 1e-6
+        np.testing.assert_allclose(got[tt], [want(ref0, 0), want(last, 1)], rtol=1e-6)
+        np.testing.assert_allclose(plain[tt], [want(last, 0), want(last, 1)], rtol=1e-6)
+    # at 60 ms pixel 0 has carried 12 events (3..58 ms) since frame 0, not 4 (43..58 ms) since frame 1
+    assert got[60_000][0] - plain[60_000][0] == pytest.approx(q * 8 + s * 0.040, rel=1e-5)
+    # the two-sided reconstruction reads the clip codes of its profile ("bound": the default)
+    from hybridhdr.camera import load_profile
+    from hybridhdr.reconstruct.api import _censored_codes
+    pr = load_profile(None)  # the built-in 8-bit profile: clip codes 0 and 255
+    assert _censored_codes(p, pr, fr) == (0, 255)
+    assert _censored_codes(p.replace(saturation="value"), pr, fr) is None
+
 # -- the faster paths against the serial order, bit for bit ------------------------------------
 
 def _fuse_numpy(l_f, p_f, l_b, p_b, offset, floor, out):
@@ -291,18 +334,19 @@ def _serial_reference(rec, p, times):
     full, then the forward pass fused output by output with the numpy fusion (one worker)."""
     from hybridhdr.reconstruct import _kernels as K
     from hybridhdr.reconstruct.api import ReconstructRequest, engine_for
-    from hybridhdr.reconstruct.smoother import _run_pass
+    from hybridhdr.reconstruct.smoother import _run_pass, frames_measure
     shape = rec.sensor_size.shape
     ev, fr = EventArrays.from_structured(rec.events, shape), rec.frames
+    cc = (0, 255) if p.saturation == "bound" else None  # the built-in 8-bit profile's clip codes
     m = min(int(ev.t[0]), int(fr.t_start_us[0])) + max(int(ev.t[-1]), int(fr.t_end_us[-1])) + 1
     q_s = p.carried_variance()
     rev_p = p.replace(contrast_threshold_on=p.c_off, contrast_threshold_off=p.c_on)
     rf, re = reverse_frames(fr, m), reverse_events(ev, m)
     mk = lambda pp, f, e: engine_for(ReconstructRequest.build("akf", pp, mode="forward"), shape, f, e)  # noqa: E731
     bwd = {int(m - t): (lg.copy(), var.copy()) for t, lg, var in
-           _run_pass(lambda: mk(rev_p, rf, re), re, (m - times)[::-1], 1 << 20, None, (rf.t_mid_us,) + q_s)}
+           _run_pass(lambda: mk(rev_p, rf, re), re, (m - times)[::-1], 1 << 20, None, (rf.t_mid_us,) + q_s + (frames_measure(rf, cc),))}
     fwd = {int(t): (lg.copy(), var.copy()) for t, lg, var in
-           _run_pass(lambda: mk(p, fr, ev), ev, times, 1 << 20, None, (fr.t_mid_us,) + q_s)}
+           _run_pass(lambda: mk(p, fr, ev), ev, times, 1 << 20, None, (fr.t_mid_us,) + q_s + (frames_measure(fr, cc),))}
     out = []
     n_clamped = 0
     for t in times:

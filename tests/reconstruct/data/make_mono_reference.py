@@ -2,8 +2,9 @@
 colour frames, no CFA), written at commit a6507ee (threshold maps), before the colour path existed.
 The two-sided AKF entries (``*_akf_offline*``) were recomputed when the fusion gained the carried
 frame's variance (AKFParams.fusion_carried_variance) and again when the fusion's exp became
-numpy's float32 exp, as the forward outputs' (changes below 2.3e-7 relative); every other entry is
-the original.
+numpy's float32 exp, as the forward outputs' (changes below 2.3e-7 relative), and again (grey
+frames: 803 of 4800 values, below 6.1e-5 relative) when a frame that clips a pixel stopped
+restarting that pixel's carried variance; every other entry is the original.
 
 Run ``python tests/reconstruct/data/make_mono_reference.py tests/reconstruct/data/mono_reference.npz``
 only when a deliberate change of the monochrome results is made."""
