@@ -27,9 +27,12 @@ def ecd_profile(tmp_path_factory):
 def _no_estimation(monkeypatch):
     def refuse(*a, **k):
         raise AssertionError("the camera model was re-estimated although a sensor profile was given")
-    monkeypatch.setattr(CM, "estimate_camera_model", refuse)
+    # every module that binds the name, imported BEFORE the patch: one first imported while
+    # camera_model is patched would bind ``refuse`` and keep it after the test (later tests failed)
     import hybridhdr.calibrate.selfcal as SC
-    monkeypatch.setattr(SC, "estimate_camera_model", refuse, raising=False)
+    import hybridhdr.calibrate.sensor_profile as SP
+    for mod in (CM, SC, SP):
+        monkeypatch.setattr(mod, "estimate_camera_model", refuse)
 
 
 def test_reconstruct_uses_the_profile_exactly(ecd_profile, tmp_path, monkeypatch):
