@@ -450,10 +450,9 @@ def _c(S):
     return tuple(float(np.asarray(v).reshape(-1)[0]) for v in _nnls2(*S))
 
 
-def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
-    """Σ squared code error of predicting frame k+1 from frame k and the events (cross-fitted), and n."""
-    se = 0.0
-    m = 0
+def _code_errors(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
+    """``(row, error)`` per pixel-interval row with pixels: the code error of predicting frame k+1
+    from frame k and the events, each row's thresholds fitted on the other fold (cross-fitted)."""
     for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
         if not r["idx"].size:
             continue
@@ -461,7 +460,14 @@ def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
         lo, lf = lam_on_hz * r["dt_s"], lam_off_hz * r["dt_s"]
         lhat = r["L0"][ii] + con * (no - lo) - coff * (nf - lf)
         ihat = np.maximum(np.exp(lhat) - i0, 0.0) / D.scale[r["j"] + 1]
-        err = _codes_of(D.lut, ihat) - r["code1"]
+        yield r, _codes_of(D.lut, ihat) - r["code1"]
+
+
+def _score(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
+    """Σ squared code error of predicting frame k+1 from frame k and the events (cross-fitted), and n."""
+    se = 0.0
+    m = 0
+    for _, err in _code_errors(D, rows, counts, ii, i0, c_by_fold, lam_on_hz, lam_off_hz):
         se += float(err @ err)
         m += err.size
     return se, m
@@ -535,14 +541,7 @@ def _cv_errors(D, rows, d, ii, i0, r_on, r_off):
     mom = _moments(rows, counts)
     cf = [_c(_sums(rows, mom, ii, r_on, r_off, [(q % 2) == f for q in range(len(rows))])) for f in (0, 1)]
     errs, pix = [], []
-    for q, (r, (no, nf)) in enumerate(zip(rows, counts)):
-        if not r["idx"].size:
-            continue
-        con, coff = cf[1 - (q % 2)]
-        lo, lf = r_on * r["dt_s"], r_off * r["dt_s"]
-        lhat = r["L0"][ii] + con * (no - lo) - coff * (nf - lf)
-        ihat = np.maximum(np.exp(lhat) - i0, 0.0) / D.scale[r["j"] + 1]
-        e = _codes_of(D.lut, ihat) - r["code1"]
+    for r, e in _code_errors(D, rows, counts, ii, i0, cf, r_on, r_off):
         errs.append(e * e)
         pix.append(r["idx"])
     return np.concatenate(errs), np.concatenate(pix)

@@ -97,6 +97,28 @@ def block_scatter(y, a, j0, j1, block_of_row, edge_of_row, pos, out):
     return j1 - j0
 
 
+@njit(cache=True, nogil=True, inline="always")
+def _rows_around(te, tp, wpu, c, first_row, last_row, top, bot):
+    """The last event times of the three pixels above and the three below te index ``tp`` (column
+    ``c``): from the band's ghost-row copies ``top``/``bot`` on its first/last row, else from ``te``."""
+    if first_row:
+        u0, u1, u2 = top[c], top[c + ONE], top[c + ONE + ONE]
+    else:
+        u0, u1, u2 = te[tp - wpu - ONE], te[tp - wpu], te[tp - wpu + ONE]
+    if last_row:
+        d0, d1, d2 = bot[c], bot[c + ONE], bot[c + ONE + ONE]
+    else:
+        d0, d1, d2 = te[tp + wpu - ONE], te[tp + wpu], te[tp + wpu + ONE]
+    return u0, u1, u2, d0, d1, d2
+
+
+@njit(cache=True, nogil=True, inline="always")
+def _window_max(te, tp, te0, u0, u1, u2, d0, d1, d2):
+    """The latest event time of the 3x3 window, in the serial kernel's order (K._akf_event)."""
+    return max(max(max(u0, u1), max(u2, te[tp - ONE])),
+               max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+
+
 @njit(cache=True, nogil=True)
 def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, te_base, top, bot, gcnt, glo, ghi, rec,
                 act):
@@ -192,25 +214,9 @@ def group_block(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, te, 
             bot[c + ONE] = tr
             continue
         tp = (r + ONE) * wpu + c + ONE
-        if r == lo:
-            u0 = top[c]
-            u1 = top[c + ONE]
-            u2 = top[c + ONE + ONE]
-        else:
-            u0 = te[tp - wpu - ONE]
-            u1 = te[tp - wpu]
-            u2 = te[tp - wpu + ONE]
-        if r + ONE == hi:
-            d0 = bot[c]
-            d1 = bot[c + ONE]
-            d2 = bot[c + ONE + ONE]
-        else:
-            d0 = te[tp + wpu - ONE]
-            d1 = te[tp + wpu]
-            d2 = te[tp + wpu + ONE]
+        u0, u1, u2, d0, d1, d2 = _rows_around(te, tp, wpu, c, r == lo, r + ONE == hi, top, bot)
         te0 = te[tp]
-        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
-                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        tstar = _window_max(te, tp, te0, u0, u1, u2, d0, d1, d2)
         q = r * w + c
         g = ghi[q]
         rec[g, 0] = ti
@@ -312,26 +318,10 @@ def _block_stream(t, x, y, p, a, ev, e0, e1, identity, width, row_lo, row_hi, S,
             if r >= hi:
                 bot[c + ONE] = tr
                 continue
-            if r == lo:  # the band's first row: the row above is the ghost row's copy
-                u0 = top[c]
-                u1 = top[c + ONE]
-                u2 = top[c + ONE + ONE]
-            else:
-                u0 = te[tp - wpu - ONE]
-                u1 = te[tp - wpu]
-                u2 = te[tp - wpu + ONE]
-            if r + ONE == hi:  # its last row: the row below is the copy
-                d0 = bot[c]
-                d1 = bot[c + ONE]
-                d2 = bot[c + ONE + ONE]
-            else:
-                d0 = te[tp + wpu - ONE]
-                d1 = te[tp + wpu]
-                d2 = te[tp + wpu + ONE]
+            # the band's first or last row: the row above or below is the ghost row's copy
+            u0, u1, u2, d0, d1, d2 = _rows_around(te, tp, wpu, c, r == lo, r + ONE == hi, top, bot)
         te0 = te[tp]
-        # the serial kernel's maximum, in its order (K._akf_event)
-        tstar = max(max(max(u0, u1), max(u2, te[tp - ONE])),
-                    max(max(te0, te[tp + ONE]), max(max(d0, d1), d2)))
+        tstar = _window_max(te, tp, te0, u0, u1, u2, d0, d1, d2)
         q = r * w + c
         jump_on = con_px[q] if has_px else c_on
         jump_off = -(coff_px[q] if has_px else c_off)

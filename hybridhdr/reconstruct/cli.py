@@ -9,6 +9,7 @@ from pathlib import Path
 
 from .._util.cliargs import (COMMON, HelpFormatter, UsageError, add_format_arg, chunk_events_count, cli_wording,
                              json_output, positive_float, positive_worker_count, worker_count)
+from .._util.procs import signals_exit
 from .._util.timearg import add_time_window
 from ..calibrate.resolve import (DEFAULT_THRESHOLDS, THRESHOLD_KEYS, THRESHOLDS_HELP, add_sensor_profile_arg,
                                  take_sensor_profile_arg, thresholds_arg)
@@ -439,7 +440,7 @@ def run(args) -> int:
         device_line = Device.resolve(getattr(args, "device", "cpu"), method).naming_engine(
             method, args.mode, args.workers).line
         print(device_line, file=sys.stderr)  # before the bar: no line cuts through it
-        with _signals_exit(), progress_bars(not args.no_progress) as new_bar:
+        with signals_exit(), progress_bars(not args.no_progress) as new_bar:  # the writer pool and OUT.partial cleaned up on SIGTERM
             # the writer pool forks here, before any other thread (progress bars, readers) starts
             writer = VideoWriter(folder.path, exr=not args.no_exr, compression=compression, png=args.png,
                                  mp4=args.mp4, playback_fps=args.playback_fps, writers=args.writers)
@@ -542,9 +543,3 @@ def run(args) -> int:
                  and not isinstance(e, (EmptyWindowError, FormatError)))
         return 2 if usage else 1
 
-
-def _signals_exit():
-    """SIGTERM and SIGHUP raise SystemExit(128 + signal) while the block runs (main thread only), so
-    the writer pool and OUT.partial are cleaned up instead of the process just ending."""
-    from .._util.procs import signals_exit
-    return signals_exit()

@@ -7,7 +7,7 @@ import os
 import sys
 from pathlib import Path
 
-from .runner import run_simulation, sensor_params, signals_exit as _signals_exit  # noqa: F401 (re-exported)
+from .runner import run_simulation, sensor_params
 from .._util.cliargs import COMMON, HelpFormatter, fraction, json_output, nonneg_float, nonneg_int, positive_float, \
     positive_int, image_side
 
