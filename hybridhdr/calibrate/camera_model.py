@@ -344,11 +344,22 @@ _MIDS: dict = {}
 
 
 def _codes_of(lut, x):
-    """Nearest code of intensities x under the inverse-CRF table lut (monotone)."""
+    """Nearest code of intensities x under the inverse-CRF table lut (monotone): the number of
+    code midpoints below x. A linear table (midpoints evenly spaced to 1e-9) takes the numba
+    lookup (:func:`._kernels.nearest_codes`: the same result, about 3x faster; it is the
+    estimator's inner loop), any other numpy's binary search."""
     key = (lut.size, float(lut[1]), float(lut[-2]))
-    mids = _MIDS.get(key)
-    if mids is None:
-        mids = _MIDS[key] = 0.5 * (lut[1:] + lut[:-1])
+    ent = _MIDS.get(key)
+    if ent is None:
+        mids = 0.5 * (lut[1:] + lut[:-1])
+        d = np.diff(mids)
+        even = d.size > 0 and float(d.min()) > 0 and float(d.max() - d.min()) <= 1e-9 * float(d.mean())
+        ent = _MIDS[key] = (np.ascontiguousarray(mids, np.float64), float(mids[0]), float(d.mean()) if even else 0.0)
+    mids, m0, step = ent
+    if step:
+        from ._kernels import nearest_codes
+        xa = np.asarray(x, np.float64)
+        return nearest_codes(mids, m0, step, np.ascontiguousarray(xa).reshape(-1)).reshape(xa.shape)
     return np.searchsorted(mids, x).astype(np.float64)
 
 

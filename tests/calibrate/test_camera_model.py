@@ -318,3 +318,18 @@ def test_flat_criterion_at_an_i0_edge_falls_back_inside_the_grid(shared_data, mo
         prof = estimate_sensor_profile(rec, n_boot=20)
     i0 = prof.estimates["intensity_offset"]
     assert not i0["identifiable"] and "flat" in i0["reason"], i0
+
+
+def test_nearest_code_lookup_is_searchsorted_bit_for_bit():
+    """``_codes_of``: the numba lookup of a linear table (and numpy's search of any other) gives
+    ``np.searchsorted(mids, x)`` exactly, ties at the midpoints, NaN, ±inf and out-of-range values
+    included."""
+    from hybridhdr.calibrate import camera_model as CM
+    rng = np.random.default_rng(3)
+    for lut in (np.arange(256) / 255.0, np.arange(1024) / 1023.0 * 3.7 + 0.01, (np.arange(256) / 255.0) ** 2.2):
+        mids = 0.5 * (lut[1:] + lut[:-1])
+        x = np.concatenate([np.exp(rng.normal(-1.5, 2, 20_000)), mids, np.nextafter(mids, 0), -mids,
+                            [np.nan, np.inf, -np.inf, 0.0, lut[-1] * 10]])
+        want = np.searchsorted(mids, x).astype(np.float64)
+        np.testing.assert_array_equal(CM._codes_of(lut, x), want)
+        np.testing.assert_array_equal(CM._codes_of(lut, x[:20_000].reshape(100, 200)), want[:20_000].reshape(100, 200))
