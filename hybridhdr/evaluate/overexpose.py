@@ -72,7 +72,8 @@ from . import realdata as RD
 from .accuracy import LOG_FLOOR, log_errors, recoverable_masks
 
 __all__ = ["CLASSES", "BASELINES", "OverexposeSpec", "default_specs", "FRAME_METHODS", "overexpose_recording",
-           "pixel_classes", "default_scored_frames", "gain_key", "apply_calibration", "evaluate_overexpose",
+           "pixel_classes", "default_scored_frames", "gain_key", "apply_calibration", "calibrated_on_original",
+           "evaluate_overexpose",
            "format_overexpose", "per_frame_rows", "write_per_frame_csv", "plot_method"]
 
 #: The pixel classes (module docstring), in the order of the tables.
@@ -330,6 +331,44 @@ def _without(rec_in, k):
     """The over-exposed input without its frame(s) k (for the calibration: never a scored frame)."""
     fr = rec_in.frames
     return dataclasses.replace(rec_in, frames=fr.select(np.setdiff1d(np.arange(len(fr)), np.atleast_1d(k))), hdr=None)
+
+
+def calibrated_on_original(original, *, profile=None):
+    """A ``calibrate`` callable for :func:`evaluate_overexpose`: the camera calibrated once on the
+    well-exposed frames of ``original`` (the recording before :func:`overexpose_recording`).
+
+    Given the over-exposed input without its held-out frame(s), it self-calibrates
+    (:func:`hybridhdr.calibrate.resolve.resolve_thresholds`, ``"selfcal"``) the ORIGINAL recording
+    restricted to the frames the input still has (matched by their exposure start), so the
+    scored frame is never seen, clipped or not; the log offset I0, in the original frames' linear
+    units, is scaled by the input's over-exposure gain (its frames read ``gain`` times brighter,
+    as :func:`_profile_at_gain` does for a profile file). This is the "calibrate the camera once,
+    on well-exposed footage, then reuse the model" workflow, against which the default
+    (self-calibration of the clipped input itself) can be compared.
+
+    Returns ``calibrate(rec_without_frame_k) -> overrides`` (:func:`apply_calibration`): the AKF's
+    thresholds and I0 (``method_params["akf"]``: the model is the AKF's ``ln(I + I0)``; other
+    methods keep their own parameters and take only the frame offset), ``frame_time_offset_us``
+    and a ``note``; a recording the calibration cannot use raises ValueError naming why.
+    """
+    from ..calibrate.resolve import resolve_thresholds
+    ts = np.asarray(original.frames.t_start_us)
+
+    def calibrate(rec_in):
+        have = np.asarray(rec_in.frames.t_start_us)
+        keep = np.flatnonzero(np.isin(ts, have))
+        if keep.size != have.size:
+            raise ValueError(f"the input has {have.size} frames, {have.size - keep.size} of them not in the original "
+                             f"recording (matched by exposure start): not an over-exposed copy of it")
+        sub = dataclasses.replace(original, frames=original.frames.select(keep), hdr=None)
+        got = resolve_thresholds(sub, "selfcal", profile=profile)
+        gain = float((rec_in.metadata.provenance or {}).get("overexposed", {}).get("gain", 1.0))
+        ov = got.overrides()
+        if "intensity_offset" in ov:
+            ov["intensity_offset"] = ov["intensity_offset"] * gain
+        return {"method_params": {"akf": ov}, "frame_time_offset_us": int(got.frame_time_offset_us),
+                "note": f"calibrated on the original's {keep.size} well-exposed frames; I0 x {gain:g}, the gain"}
+    return calibrate
 
 
 #: What a calibration leaves out of its input (``evaluate_overexpose(calibration_holdout=...)``):

@@ -222,6 +222,43 @@ def test_one_calibration_without_every_scored_frame():
         O.evaluate_overexpose(rec, [4], specs, calibration_holdout="none")
 
 
+def test_calibrated_on_original_sees_only_the_original_unscored_frames(monkeypatch):
+    """``calibrated_on_original``: each calibration runs on the ORIGINAL (unclipped) codes of the
+    frames its over-exposed input still has, never the scored frame; the AKF takes its thresholds
+    with I0 x the gain, and a recording that is not an over-exposed copy is refused."""
+    import types
+
+    import hybridhdr.calibrate.resolve as R
+    rec = _analytic_recording(0.05, wobble=0.3, n_frames=6)
+    tau = rec.frames.t_mid_us
+    seen = []
+
+    def fake_resolve(r, source, profile=None):
+        assert source == "selfcal"
+        seen.append({int(t): img for t, img in zip(r.frames.t_mid_us, r.frames.images)})
+        return types.SimpleNamespace(overrides=lambda: {"contrast_threshold_on": 0.05, "contrast_threshold_off": 0.06,
+                                                        "intensity_offset": 0.01}, frame_time_offset_us=0)
+
+    monkeypatch.setattr(R, "resolve_thresholds", fake_resolve)
+    specs = [O.OverexposeSpec("akf_causal", "akf", "causal")]
+    res = O.evaluate_overexpose(rec, [4], specs, frames=[2, 4], thresholds="params",
+                                calibrate=O.calibrated_on_original(rec), baselines=False)
+    assert len(seen) == 2
+    for k, got in zip([2, 4], seen):
+        assert set(got) == set(tau.tolist()) - {int(tau[k])}
+        for t, img in got.items():  # the original codes, not the clipped ones
+            np.testing.assert_array_equal(img, rec.frames.images[int(np.flatnonzero(tau == t)[0])])
+    used = res["by_gain"]["4"]["methods"]["akf_causal"]["used"]
+    assert all(u["calibration"]["applied"] == {"contrast_threshold_on": 0.05, "contrast_threshold_off": 0.06,
+                                               "intensity_offset": pytest.approx(0.04)} for u in used)
+    other = _analytic_recording(0.05, n_frames=6)
+    shifted = Recording(other.events, other.sensor_size, Frames(other.frames.images, other.frames.t_start_us + 7,
+                                                                other.frames.t_end_us + 7, encoding="linear"),
+                        metadata=other.metadata)
+    with pytest.raises(ValueError, match="not an over-exposed copy"):
+        O.calibrated_on_original(rec)(shifted)
+
+
 def test_planted_frame_changes_no_estimate_made_for_it():
     """A sentinel: frame 2 replaced by noise changes the thresholds estimated for the other frames
     (their calibration input holds it) but not those used for frame 2 itself."""
