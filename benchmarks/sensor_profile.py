@@ -149,25 +149,18 @@ class _Scorer:
         return math.sqrt(se / n) if n else float("nan")
 
 
-def heldout(name: str, path: Path, quick: bool) -> dict:
-    import hybridhdr
-    t0 = time.perf_counter()
-    rec = hybridhdr.read(path)
+def heldout_split(rec):
+    """The held-out protocol's split of ``rec``: (its frame data, the (k-1, k) pairs of every third
+    frame k inside the events' span, those frames' indices in the recording)."""
     D = CM._Data(rec, None, (), None)
-    K = len(D.tau)
-    held = [k for k in range(2, K, 3)]
-    pairs = _pairs(D, held)
-    if not pairs:
-        return {"skipped": "no held-out frame inside the events' span"}
-    held_orig = [int(D.order[b]) for _, b in pairs]
-    t_est = time.perf_counter()
-    with warnings.catch_warnings(record=True) as wl:
-        warnings.simplefilter("always")
-        m = CM.estimate_camera_model(rec, exclude_frames=held_orig, per_pixel=True, n_boot=50, seed=0)
-    t_est = time.perf_counter() - t_est
-    con_map, coff_map, ident, shrink = CM.shrink_per_pixel(m)
-    # fixed scoring set: both frames well exposed, an event within the widest window any δ opens
-    W = max(abs(m.offsets_us[0]), abs(m.offsets_us[-1]))
+    pairs = _pairs(D, [k for k in range(2, len(D.tau), 3)])
+    return D, pairs, [int(D.order[b]) for _, b in pairs]
+
+
+def heldout_scorer(D, pairs, offsets_us) -> _Scorer:
+    """The fixed scoring set (both frames well exposed, an event within the widest window any δ of
+    ``offsets_us`` opens) and its :class:`_Scorer`."""
+    W = max(abs(offsets_us[0]), abs(offsets_us[-1]))
     idxs = []
     for a, b in pairs:
         _, g0 = D.frame(a)
@@ -176,9 +169,26 @@ def heldout(name: str, path: Path, quick: bool) -> dict:
         hit = np.zeros(D.n, bool)
         hit[D.pix[lo:hi]] = True
         idxs.append(np.flatnonzero(g0 & g1 & hit))
-    npx = int(sum(i.size for i in idxs))
+    return _Scorer(D, pairs, idxs)
 
-    rms = _Scorer(D, pairs, idxs).rms
+
+def heldout(name: str, path: Path, quick: bool) -> dict:
+    import hybridhdr
+    t0 = time.perf_counter()
+    rec = hybridhdr.read(path)
+    D, pairs, held_orig = heldout_split(rec)
+    K = len(D.tau)
+    if not pairs:
+        return {"skipped": "no held-out frame inside the events' span"}
+    t_est = time.perf_counter()
+    with warnings.catch_warnings(record=True) as wl:
+        warnings.simplefilter("always")
+        m = CM.estimate_camera_model(rec, exclude_frames=held_orig, per_pixel=True, n_boot=50, seed=0)
+    t_est = time.perf_counter() - t_est
+    con_map, coff_map, ident, shrink = CM.shrink_per_pixel(m)
+    scorer = heldout_scorer(D, pairs, m.offsets_us)
+    npx = int(sum(i.size for i in scorer.idxs))
+    rms = scorer.rms
 
     prof = rms(m.time_offset_us, m.intensity_offset, m.c_on, m.c_off)
     pix = rms(m.time_offset_us, m.intensity_offset, con_map.reshape(-1), coff_map.reshape(-1))

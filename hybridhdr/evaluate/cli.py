@@ -157,6 +157,10 @@ def add_parser(sub) -> None:
                    help=THRESHOLDS_HELP + "; here auto and selfcal are estimated on the over-exposed input "
                         "without the scored frame")
     add_sensor_profile_arg(o)
+    o.add_argument("--calibrate-on-original", action="store_true",
+                   help="calibrate the camera once on the ORIGINAL, well-exposed frames (each scored frame left "
+                        "out; the log offset I0 x the gain) instead of self-calibrating the clipped input: the "
+                        "AKF's thresholds and I0, every method's frame offset (see docs/evaluate.md)")
     o.add_argument("--profile", type=Path, default=None, help="camera profile JSON of the frames (default: the "
                                                               "recording's, else built-in)")
     add_format_arg(o)
@@ -538,18 +542,28 @@ def run_overexpose_cmd(args) -> int:
             from None
     if args.profile is not None and not args.profile.is_file():
         raise FileNotFoundError(f"--profile {args.profile} does not exist")
+    if args.calibrate_on_original and (args.thresholds is not None or args.sensor_profile is not None):
+        from ..errors import UsageError
+        raise UsageError("--calibrate-on-original calibrates the camera itself; it takes neither --thresholds nor "
+                         "--sensor-profile")
     folder = AtomicFolder(args.out, outputs=OVEREXPOSE_OUTPUTS, command="evaluate overexpose",
                           overwrite=args.overwrite)
     try:
         take_sensor_profile_arg(args)
         rec = read(args.recording, format=args.format) if args.format else read(args.recording)
         thresholds = args.thresholds  # None: the API's default rule (realdata.default_thresholds_for)
+        calibrate = None
+        if args.calibrate_on_original:
+            from .overexpose import calibrated_on_original
+            calibrate = calibrated_on_original(rec, profile=None if args.profile is None else str(args.profile))
+            thresholds = "params"
         from .._util.progress import progress_bars
         with progress_bars(not args.no_progress) as new_bar:  # failures logged meanwhile go above the bar
             bar = new_bar(total=len(args.gain) * len(specs), desc="overexpose", unit="method")
             res = evaluate_overexpose(rec, args.gain, specs, frames=frames,
                                       profile=None if args.profile is None else str(args.profile),
-                                      thresholds=thresholds, skipped=skipped, keep_images=not args.no_figures,
+                                      thresholds=thresholds, calibrate=calibrate, skipped=skipped,
+                                      keep_images=not args.no_figures,
                                       log=lambda msg: print(msg, file=sys.stderr),
                                       progress=None if bar is None else bar.update)
         images = res.pop("_images", None)

@@ -259,6 +259,36 @@ def test_calibrated_on_original_sees_only_the_original_unscored_frames(monkeypat
         O.calibrated_on_original(rec)(shifted)
 
 
+def test_cli_calibrate_on_original(tmp_path, capsys, monkeypatch):
+    """``--calibrate-on-original``: the AKF takes the original frames' calibration (I0 x gain), never
+    the scored frame's; with ``--thresholds`` or ``--sensor-profile`` it is a usage error."""
+    import types
+
+    import hybridhdr.calibrate.resolve as R
+    rec = _analytic_recording(0.05, n_frames=5)
+    path = tmp_path / "rec.h5"
+    write_recording(rec, path)
+    seen = []
+
+    def fake_resolve(r, source, profile=None):
+        seen.append(len(r.frames))
+        return types.SimpleNamespace(overrides=lambda: {"contrast_threshold_on": 0.05, "contrast_threshold_off": 0.05,
+                                                        "intensity_offset": 0.002}, frame_time_offset_us=0)
+
+    monkeypatch.setattr(R, "resolve_thresholds", fake_resolve)
+    assert main(["evaluate", "overexpose", str(path), "--gain", "4", "--method", "akf", "--mode", "causal",
+                 "--calibrate-on-original", "--out", str(tmp_path / "o"), "--json", "--no-progress",
+                 "--no-figures"]) == 0
+    res = json.loads(capsys.readouterr().out)
+    used = res["by_gain"]["4"]["methods"]["akf_causal"]["used"]
+    assert len(used) == len(res["frames"]) and seen == [4] * len(res["frames"])
+    assert all(u["calibration"]["applied"]["intensity_offset"] == pytest.approx(0.008) for u in used)
+    assert res["by_gain"]["4"]["methods"]["akf_causal"]["ratio_to_frames_only"]["recoverable_causal"] < 0.5
+    assert main(["evaluate", "overexpose", str(path), "--calibrate-on-original", "--thresholds", "selfcal",
+                 "--out", str(tmp_path / "o2"), "--no-progress"]) == 2
+    assert "--calibrate-on-original" in capsys.readouterr().err
+
+
 def test_planted_frame_changes_no_estimate_made_for_it():
     """A sentinel: frame 2 replaced by noise changes the thresholds estimated for the other frames
     (their calibration input holds it) but not those used for frame 2 itself."""
