@@ -5,13 +5,12 @@ from __future__ import annotations
 import math
 import dataclasses
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
 from ._util.checks import check_shape
-from .events import (EVENT_DTYPE, TRIGGER_DTYPE, SensorSize, empty_events, empty_imu, empty_triggers,
-                     slice_time, time_window_indices, validate_events, validate_imu, validate_triggers)
+from .events import (SensorSize, empty_events, empty_imu, empty_triggers, slice_time, time_window_indices,
+                     validate_events, validate_imu, validate_triggers)
 
 __all__ = ["Frames", "HDRReferences", "CameraInfo", "Metadata", "Recording", "FRAME_ENCODINGS", "source_metadata"]
 

@@ -27,6 +27,10 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:  # numpy is imported where it is used (the command starts fast)
+    import numpy as np
 
 from ._util.atomic import atomic_path
 from ._util.cliargs import COMMON, HelpFormatter, add_format_arg, image_side, json_output, positive_float

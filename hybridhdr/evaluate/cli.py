@@ -9,8 +9,7 @@ from pathlib import Path
 
 from .._util.cliargs import (HelpFormatter, add_format_arg, json_command, json_output, nonneg_int, positive_float,
                              worker_count)
-from ..calibrate.resolve import (DEFAULT_THRESHOLDS, THRESHOLD_WORDS, THRESHOLDS_HELP, add_sensor_profile_arg,
-                                 take_sensor_profile_arg, thresholds_arg)
+from ..calibrate.resolve import THRESHOLDS_HELP, add_sensor_profile_arg, take_sensor_profile_arg, thresholds_arg
 
 
 def add_parser(sub) -> None:

@@ -41,7 +41,6 @@ Options: ``compression`` (``"lz4"`` default, ``"lz4_high"``, ``"zstd"``, ``"zstd
 from __future__ import annotations
 
 import os
-from pathlib import Path
 
 import numpy as np
 

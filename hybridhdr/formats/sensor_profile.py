@@ -25,7 +25,6 @@ a field it could not tell is absent there, and the simulator takes it from a bas
 
 from __future__ import annotations
 
-import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path

@@ -36,7 +36,6 @@ from __future__ import annotations
 
 import io
 import re
-import shutil
 import warnings
 import zipfile
 import zlib

@@ -13,7 +13,6 @@ import numpy as np
 from .._util.checks import check_shape
 from ..events import EVENT_DTYPE
 from . import _augment_kernels as AK
-from . import _kernels as K
 
 #: events per thread below which the whole-array passes (split, reversal) stay in one thread
 PARALLEL_MIN_EVENTS = 1 << 18

@@ -209,12 +209,9 @@ def run(args) -> int:
             print(json.dumps({"preview": str(args.preview), "scene": scene.name, "variant": source.variant}))
         return 0
 
-    import time
-
     import numpy as np
 
     from .camera import FrameCameraParams
-    from .pipeline import simulate_to_file
     from .sampling import SamplingParams
 
     if args.fixed_rate_hz is not None:
