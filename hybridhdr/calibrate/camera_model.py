@@ -1811,7 +1811,7 @@ def plot_camera_model(recording, model: CameraModel, path, *, profile=None, titl
         yt = list(range(0, len(model.intensity_offsets), max(1, len(model.intensity_offsets) // 6)))
         ax.set_yticks(yt)
         ax.set_yticklabels([f"{model.intensity_offsets[i]:.2g}" for i in yt], fontsize=7)
-        ax.legend(fontsize=7, loc="upper right")
+        ax.legend(fontsize=7, loc="best", framealpha=0.6)  # "best" keeps clear of the star (an I0 on the top edge)
     ax.set_xlabel("frame time offset (ms)", fontsize=8)
     ax.set_ylabel("I0 (frame-linear)", fontsize=8)
     sd_on = f" +- {model.c_on_std:.3f}" if model.c_on_std is not None else ""
