@@ -252,6 +252,9 @@ def heldout(name: str, path: Path, quick: bool) -> dict:
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="2 round-trip settings of 0.6 s, coarser oracle (< 60 s)")
+    ap.add_argument("--latency-seeds", type=int, default=0, metavar="N",
+                    help="also run every round-trip setting with seeds 2..N+1 and report the spread of the latency "
+                         "estimate (seed-to-seed standard deviation and mean error; the pass marks stay seed 1's)")
     args = ap.parse_args(argv)
     t_start = time.perf_counter()
     settings = [(0.3, 0.03), (0.15, 0.0)] if args.quick else [(c, s) for c in (0.15, 0.3, 0.5) for s in (0.0, 0.03)]
@@ -272,6 +275,20 @@ def main(argv=None) -> int:
              f"{(r['i0_rule'].get('ln_i0_std') or float('nan')):6.3f} | "
              f"{'yes' if r['pass'] else 'NO'} ({r['estimate_s']} s)")
     res["roundtrip_all_pass"] = all(r["pass"] for r in res["roundtrip"])
+    if args.latency_seeds > 0:
+        res["latency_seed_spread"] = []
+        for c, s in settings:
+            lats = [res_r["latency_us"] for res_r in res["roundtrip"] if res_r["c"] == c and res_r["sigma"] == s]
+            lats += [roundtrip(c, s, seed, dur)["latency_us"] for seed in range(2, args.latency_seeds + 2)]
+            got = np.array([v for v in lats if v is not None], float)
+            row = {"c": c, "sigma": s, "latency_us": lats, "not_identified": sum(v is None for v in lats),
+                   "mean_error_us": float(got.mean() - LATENCY_US) if got.size else None,
+                   "std_us": float(got.std(ddof=1)) if got.size > 1 else None,
+                   "std_of_mean_us": float(got.std(ddof=1) / math.sqrt(got.size)) if got.size > 1 else None}
+            res["latency_seed_spread"].append(row)
+            _log(f"latency over seeds 1..{args.latency_seeds + 1} at c {c} sigma {s}: {lats} µs; mean error "
+                 f"{row['mean_error_us']:+.0f} µs +- {row['std_of_mean_us'] or float('nan'):.0f}, seed-to-seed sd "
+                 f"{row['std_us'] or float('nan'):.0f} µs")
     res["real"] = {}
     for name, path in REAL.items():
         if not path.exists():
