@@ -125,6 +125,38 @@ class Frames:
     def exposure_us(self) -> np.ndarray:
         return self.t_end_us - self.t_start_us
 
+    def exposure_scale(self) -> np.ndarray:
+        """Per frame, the factor that puts its linear intensity in the units of the median frame.
+
+        A frame records the mean intensity over its exposure times the exposure and the gain, so
+        ``CRF⁻¹(code) × median(T·g) / (T_k·g_k)`` is the mean intensity over exposure k in the
+        units of a frame exposed for the median ``T·g`` of these frames. float64 (K,); all ones
+        when every frame has the same ``T·g`` or some frame has no exposure (an instantaneous or
+        unknown one: nothing to divide by). The camera model (``calibrate``) and the frame
+        measurements of the filters (``reconstruct``) both read frames through it, so a log
+        offset I0 means one thing in both.
+        """
+        ref = self.reference_exposure()
+        return np.ones(len(self)) if ref is None else ref / self._exposure_gain()
+
+    def _exposure_gain(self) -> np.ndarray:
+        ex = self.exposure_us.astype(np.float64)
+        return ex if self.gain is None else ex * np.asarray(self.gain, np.float64)
+
+    def reference_exposure(self) -> float | None:
+        """``median(T·g)`` of these frames (exposure in µs times gain): the exposure whose units
+        :meth:`exposure_scale` puts every frame in; None when some frame has no exposure (or
+        there are no frames), where frames are read as they are."""
+        ex = self._exposure_gain()
+        return float(np.median(ex)) if ex.size and np.all(ex > 0) else None
+
+    def units_factor(self, k: int, reference: float | None) -> float:
+        """The factor from the units of ``reference`` (another frame set's
+        :meth:`reference_exposure`) to frame ``k``'s own: ``T_k·g_k / reference``; 1 when either
+        is unknown. A filter's output on those frames times it compares with ``CRF⁻¹(code_k)``."""
+        ex = float(self._exposure_gain()[int(k)])
+        return ex / reference if reference is not None and ex > 0 else 1.0
+
     def select(self, idx) -> "Frames":
         sel = lambda a: None if a is None else a[idx]  # noqa: E731
         return Frames(self.images[idx], self.t_start_us[idx], self.t_end_us[idx],

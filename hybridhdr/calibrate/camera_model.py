@@ -285,10 +285,7 @@ class _Data:
         self.codes = frames_to_codes(sub, (h, w))
         check_codes_in_profile(self.codes, self.prof)  # codes past the profile's table: refused, never an index error
         self.order = order
-        expo = sub.exposure_us.astype(np.float64)[order]
-        gain = np.ones(len(order)) if sub.gain is None else np.asarray(sub.gain, np.float64)[order]
-        ex = expo * gain
-        self.scale = (float(np.median(ex)) / ex) if (np.all(ex > 0) and np.ptp(ex) > 0) else np.ones(len(order))
+        self.scale = sub.exposure_scale()[order]  # each frame in the median frame's units (as the filters read it)
         self.t = ev["t"]
         self.pix = ev["y"].astype(np.int64) * w + ev["x"].astype(np.int64)
         self.on = ev["p"] > 0

@@ -644,6 +644,13 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                 if log is not None:
                     log(f"gain {g:g}, {s.label}: {row['status']}")
             else:
+                # a method reads its input's frames in the units of their median exposure
+                # (Frames.exposure_scale): each scored frame's reconstruction in that frame's own, the
+                # reference's (factors of 1 when the exposures are equal)
+                ref_ex = over.frames.reference_exposure()
+                fk = [fr_all.units_factor(k, ref_ex) for k in scored]
+                if any(f != 1.0 for f in fk):
+                    x = x * np.asarray(fk).reshape((-1,) + (1,) * (x.ndim - 1))
                 record(s.label, row, x, wall, used)
                 x = None  # one method's stack at a time
             if progress is not None:

@@ -246,6 +246,7 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     if calibration_holdout not in CALIBRATION_HOLDOUTS:
         raise ValueError(f"calibration_holdout must be one of {CALIBRATION_HOLDOUTS}, got {calibration_holdout!r}")
     out = {s.label: {"frames": [], "wall_s": 0.0, "error": None, "thresholds": []} for s in specs}
+    frames_k = _trimmed_frames(rec)  # the held-out frames' exposures (the references' units)
     shared_rec, shared_cal = None, {}
     if calibration_holdout == "scored":
         fr = _trimmed_frames(rec)
@@ -308,7 +309,10 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
                     st["thresholds"].append({"source": "input", "used": v.info.get(
                         "thresholds", "the method's own (the recording declares none)")})
                 st["wall_s"] += time.perf_counter() - t0
-                st["frames"].append(_luminance(v.frames[0]))
+                # the reconstruction is in the units of its input's median exposure (Frames.exposure_scale):
+                # in frame k's own, the reference's (a factor of 1 when the exposures are equal)
+                f_k = frames_k.units_factor(k, r_k.frames.reference_exposure() if r_k.frames is not None else None)
+                st["frames"].append(_luminance(v.frames[0]) * f_k if f_k != 1.0 else _luminance(v.frames[0]))
             except Exception as e:  # reported per spec
                 st["error"] = f"error: {type(e).__name__}: {e}"
                 if log is not None:

@@ -407,6 +407,7 @@ class EDIEngine:
         self.t_start = frames.t_start_us[order]
         self.t_end = frames.t_end_us[order]
         self._codes = codes[order]
+        self._escale = frames.exposure_scale()[order]  # each frame in the median frame's units (as the AKF)
         self.profile = profile
         self.events = events
         self.n_events = len(events)
@@ -434,6 +435,8 @@ class EDIEngine:
         if k not in self._cache:
             pr = self.params
             B = self.profile.intensity(self._codes[k]).ravel()
+            if self._escale[k] != 1.0:
+                B = B * self._escale[k]
             ts, te = int(self.t_start[k]), int(self.t_end[k])
             c = pr.contrast_threshold
             if c is None:

@@ -175,6 +175,11 @@ class FrameMeasurements:
             if pix.size:
                 self._corr[int(j)] = (pix.astype(np.int64), corr.astype(np.float64))
         self._codes = codes
+        # each frame's intensity in the median frame's units (Frames.exposure_scale: a frame is the mean
+        # intensity over its exposure times the exposure and gain), as the camera model reads it; frames
+        # of unequal exposure take the per-pixel path (the per-code tables hold one scale)
+        self._escale = frames.exposure_scale()
+        self._uniform = not bool(np.any(self._escale != 1.0))
         self.profile = profile
         self.offset = float(intensity_offset)
         self.bias_correction = bool(bias_correction)
@@ -199,8 +204,10 @@ class FrameMeasurements:
             inten, rbar, logf, rinv, cens = self._measure(c)
             self._lut = tuple(np.ascontiguousarray(a, dtype=np.float64) for a in (inten, rbar, logf, rinv, cens))
 
-    def _measure(self, codes):
-        """(I, R̄, L^F, 1/R, censor) of eq. 3, 6, 8, 9 for raw ``codes`` (flattened float64)."""
+    def _measure(self, codes, scale: float = 1.0):
+        """(I, R̄, L^F, 1/R, censor) of eq. 3, 6, 8, 9 for raw ``codes`` (flattened float64), the
+        intensity times ``scale`` (the frame's :meth:`Frames.exposure_scale`; its variance by
+        ``scale²``)."""
         prof = self.profile
         c = np.asarray(codes).reshape(-1)
         inten = prof.intensity(c)
@@ -212,6 +219,9 @@ class FrameMeasurements:
             lo, hi = prof.bounds()
             inten = np.where(cens > 0, hi, np.where(cens < 0, lo, inten))
             rbar = np.where(cens != 0, self.scale_factor / prof.frame_precision_scale, rbar)
+        if scale != 1.0:
+            inten = inten * scale
+            rbar = rbar * (scale * scale)
         ip = inten + self.offset
         r_log = rbar / (ip * ip)  # eq. 9
         logf = np.log(ip)
@@ -233,7 +243,7 @@ class FrameMeasurements:
         return self._codes_of(k)
 
     def _codes_of(self, k: int) -> SegmentCodes | None:
-        if self._lut is None:
+        if self._lut is None or not self._uniform:
             return None
         code = np.ascontiguousarray(self._codes[self._idx[k]]).reshape(-1)
         last = k + 1 >= len(self)
@@ -271,9 +281,9 @@ class FrameMeasurements:
             step = np.full(n, self.event_step) if self.event_step else None
             return Segment(t0_us=int(self.times_us[k]), t1_us=None if last else int(self.times_us[k + 1]),
                            log_frame=lf, intensity=inten, rinv=rinv, beta=beta, la_step=step, censor=cens)
-        inten, rbar, logf, rinv, cens = self._measure(code)
+        inten, rbar, logf, rinv, cens = self._measure(code, float(self._escale[self._idx[k]]))
         if self.interpolate_covariance and not last:
-            _, rbar1, _, _, cens1 = self._measure(self._codes[self._idx[k + 1]])
+            _, rbar1, _, _, cens1 = self._measure(self._codes[self._idx[k + 1]], float(self._escale[self._idx[k + 1]]))
             beta = np.where((cens != 0) | (cens1 != 0), 0.0, rbar1 / rbar - 1.0)  # eq. 7, R̄ linear in t
         else:
             beta = np.zeros_like(rbar)

@@ -55,7 +55,7 @@ def _set_path(monkeypatch, path):
 
 
 @pytest.mark.parametrize("n_workers", [1, 2, 3, 5])
-@pytest.mark.parametrize("variant", ["paper", "reference", "la_step", "thresholds"])
+@pytest.mark.parametrize("variant", ["paper", "reference", "la_step", "thresholds", "exposures"])
 @pytest.mark.parametrize("path", PATHS)
 def test_pixel_engine_bit_identical(n_workers, variant, path, threaded_windows, monkeypatch):
     _set_path(monkeypatch, path)
@@ -63,6 +63,11 @@ def test_pixel_engine_bit_identical(n_workers, variant, path, threaded_windows, 
     ev = _stream(6_000, h, w, seed=n_workers, t0=1_000, boundary_rows=(0, 5, 6, 12))
     ev[1][::7] = 3  # a busy column: long groups, many active neighbours
     frames = _frames(h, w, [1_000, 50_000, 100_000, 150_000])
+    if variant == "exposures":  # unequal exposures: every frame through the per-pixel measurement path
+        from hybridhdr.model import Frames
+        frames = Frames(frames.images, frames.t_start_us, frames.t_start_us + np.array([800, 2_000, 500, 1_000]),
+                        encoding=frames.encoding)
+        assert FrameMeasurements(frames, (h, w), default_profile(), intensity_offset=0.1).segment_codes(0) is None
     params = AKFParams(noise_model="reference_code" if variant == "reference" else "paper")
     thr = None
     if variant == "thresholds":
