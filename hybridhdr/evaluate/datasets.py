@@ -240,8 +240,13 @@ def _file(spec: dict, seed: int) -> Dataset:
         if keep.size == 0:
             raise ValueError("holdout_frames leaves no input frame")
         prof = profile_for_frames(load_profile(spec.get("profile")), fr)
-        ref = prof.intensity(np.asarray(fr.images[idx])).astype(np.float32)
+        ref = prof.intensity(np.asarray(fr.images[idx]))
         sub = fr.select(keep)
+        # in the units the methods read the input in (its median exposure: Frames.exposure_scale)
+        f = np.array([fr.units_factor(k, sub.reference_exposure()) for k in idx])
+        if np.any(f != 1.0):
+            ref = ref / f.reshape((-1,) + (1,) * (ref.ndim - 1))
+        ref = ref.astype(np.float32)
         rec = dataclasses.replace(rec, frames=sub, hdr=HDRReferences(ref, fr.t_mid_us[idx]))
     if rec.hdr is None or len(rec.hdr) == 0:
         raise ValueError(f"{spec['path']}: a benchmark dataset needs HDR references (or holdout_frames), "
