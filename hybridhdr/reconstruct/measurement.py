@@ -101,7 +101,9 @@ class FrameMeasurements:
     ----------
     frames : Frames
         Frames (K, H, W) of raw codes; τ_k is the mid-exposure time (``frames.t_mid_us``).
-        Frames sharing a τ keep the last one.
+        Frames sharing a τ keep the last one. Frames of unequal exposure × gain are read in the
+        units of their median (``frames.exposure_scale()``, as the camera model reads them), on
+        the per-pixel path.
     sensor_shape : (int, int)
         (H, W) of the event sensor.
     profile : CameraProfile
