@@ -295,15 +295,11 @@ def _real_overexpose(rec, name: str = "ecd_slider_depth", gains=OVEREXPOSE_GAINS
     # scored one, its I0 x the gain (OE.calibrated_on_original): the AKF, causal and two-sided
     once = OE.evaluate_overexpose(
         rec, gains, [OE.OverexposeSpec(ONCE + "akf", "akf", "offline"), OE.OverexposeSpec(ONCE + "akf_causal", "akf", "causal")],
-        frames=frames, thresholds="params", calibrate=OE.calibrated_on_original(rec), baselines=False,
-        calibration_holdout=calibration_holdout)
+        frames=frames, thresholds="params", calibrate=OE.calibrated_on_original(rec),
+        calibration_holdout=calibration_holdout)  # its baselines are the defaults' (the same frames): their ratios
     for g in r["gains"]:
-        ms = r["by_gain"][OE.gain_key(g)]["methods"]
-        fo = ms["frames_only"]["log_rmse"]  # the same frames and classes: the ratios as the defaults'
-        for lab, row in once["by_gain"][OE.gain_key(g)]["methods"].items():
-            if row.get("status") == "ok":
-                row["ratio_to_frames_only"] = {c: OE._ratio(row["log_rmse"][c], fo[c]) for c in OE.CLASSES}
-            ms[lab] = row
+        r["by_gain"][OE.gain_key(g)]["methods"].update(
+            {lab: row for lab, row in once["by_gain"][OE.gain_key(g)]["methods"].items() if lab.startswith(ONCE)})
     out = {"recording": name, "frames": r["frames"], "t_us": r["t_us"], "thresholds": r["thresholds"],
            "calibration_holdout": calibration_holdout, "fit": r["fit"],
            "skipped_methods": r["skipped"], "table": OE.format_overexpose(r, f"{name}, "), "gains": {}}

@@ -321,10 +321,13 @@ def _scaling_case(rec, method, mode, workers, reps):
     from hybridhdr.reconstruct import reconstruct
     n_ev = len(rec.events)
 
+    def job(nw):
+        return reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20, thresholds="input")
+
     def run(nw):
         c0 = time.process_time()
         with PH.timing() as pt:
-            v = reconstruct(rec, method, fps=30, n_workers=nw, mode=mode, chunk_events=1 << 20, thresholds="input")
+            v = job(nw)
         r = pt.report()
         r["cpu_s"] = time.process_time() - c0  # every thread of the process
         return r, v.frames
@@ -340,7 +343,7 @@ def _scaling_case(rec, method, mode, workers, reps):
         def one():
             bar.wait()
             s = time.perf_counter()
-            reconstruct(rec, method, fps=30, n_workers=1, mode=mode, chunk_events=1 << 20, thresholds="input")
+            job(1)
             out_w.append(time.perf_counter() - s)
         ths = [threading.Thread(target=one) for _ in range(2)]
         for th in ths:

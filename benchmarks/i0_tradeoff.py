@@ -55,8 +55,9 @@ def _log(*a):
     print(*a, file=sys.stderr, flush=True)
 
 
-def _one(rec, case, D, pairs, held, i0):
-    """Estimate with I0 fixed (None: free), score held out and over-exposed."""
+def _one(rec, case, D, pairs, held, i0, scorers):
+    """Estimate with I0 fixed (None: free), score held out and over-exposed; ``scorers``: the
+    held-out scorers by offset grid (each caches its counts per δ), shared by the calls."""
     from hybridhdr.reconstruct import AKFParams
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", CM.GridEdgeWarning)
@@ -64,7 +65,10 @@ def _one(rec, case, D, pairs, held, i0):
             m = CM.estimate_camera_model(rec, exclude_frames=held, intensity_offset=i0, n_boot=20, seed=0)
         except ValueError as e:  # thresholds outside the estimator's range at this I0
             return {"intensity_offset": i0, "error": str(e)}
-    rms = SP.heldout_scorer(D, pairs, m.offsets_us).rms(m.time_offset_us, m.intensity_offset, m.c_on, m.c_off)
+    grid = (m.offsets_us[0], m.offsets_us[-1])  # the scoring set depends on the grid's reach only
+    if grid not in scorers:
+        scorers[grid] = SP.heldout_scorer(D, pairs, m.offsets_us)
+    rms = scorers[grid].rms(m.time_offset_us, m.intensity_offset, m.c_on, m.c_off)
     p = AKFParams().replace(contrast_threshold_on=m.c_on, contrast_threshold_off=m.c_off,
                             intensity_offset=m.intensity_offset * OB.GAIN)
     dt = int(m.time_offset_us)
@@ -97,8 +101,9 @@ def tradeoff(rec, name: str, scored) -> dict:
     if not pairs:
         return {"skipped": "no held-out frame inside the events' span"}
     case = OB._Case(rec, scored)
-    rows = [_one(rec, case, D, pairs, held, i0) for i0 in I0_GRID]
-    free = _one(rec, case, D, pairs, held, None)
+    scorers: dict = {}
+    rows = [_one(rec, case, D, pairs, held, i0, scorers) for i0 in I0_GRID]
+    free = _one(rec, case, D, pairs, held, None, scorers)
     ok = [r for r in rows if "error" not in r]
     best_h = min(r["heldout_rms_code"] for r in ok + [free])
     for r in ok + [free]:

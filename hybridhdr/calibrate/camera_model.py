@@ -337,7 +337,7 @@ def _find(t, x):
     return np.searchsorted(t, x)
 
 
-_MIDS: dict = {}
+_LOOKUPS: dict = {}  # per inverse-CRF table: its nearest-code lookup (_codes_of)
 
 
 def _codes_of(lut, x):
@@ -346,18 +346,22 @@ def _codes_of(lut, x):
     lookup (:func:`._kernels.nearest_codes`: the same result, about 3x faster; it is the
     estimator's inner loop), any other numpy's binary search."""
     key = (lut.size, float(lut[1]), float(lut[-2]))
-    ent = _MIDS.get(key)
-    if ent is None:
-        mids = 0.5 * (lut[1:] + lut[:-1])
+    look = _LOOKUPS.get(key)
+    if look is None:  # the table's lookup, made once (the kernel imported here, never per call)
+        mids = np.ascontiguousarray(0.5 * (lut[1:] + lut[:-1]), np.float64)
         d = np.diff(mids)
-        even = d.size > 0 and float(d.min()) > 0 and float(d.max() - d.min()) <= 1e-9 * float(d.mean())
-        ent = _MIDS[key] = (np.ascontiguousarray(mids, np.float64), float(mids[0]), float(d.mean()) if even else 0.0)
-    mids, m0, step = ent
-    if step:
-        from ._kernels import nearest_codes
-        xa = np.asarray(x, np.float64)
-        return nearest_codes(mids, m0, step, np.ascontiguousarray(xa).reshape(-1)).reshape(xa.shape)
-    return np.searchsorted(mids, x).astype(np.float64)
+        if d.size > 0 and float(d.min()) > 0 and float(d.max() - d.min()) <= 1e-9 * float(d.mean()):
+            from ._kernels import nearest_codes
+            m0, step = float(mids[0]), float(d.mean())
+
+            def look(v):
+                va = np.asarray(v, np.float64)
+                return nearest_codes(mids, m0, step, np.ascontiguousarray(va).reshape(-1)).reshape(va.shape)
+        else:
+            def look(v):
+                return np.searchsorted(mids, v).astype(np.float64)
+        _LOOKUPS[key] = look
+    return look(x)
 
 
 def _noise_rates(D, ints, i0, static_log_bound):

@@ -353,6 +353,7 @@ def calibrated_on_original(original, *, profile=None):
     """
     from ..calibrate.resolve import resolve_thresholds
     ts = np.asarray(original.frames.t_start_us)
+    done = {}  # per set of original frames: its calibration (every gain of a run asks for the same sets)
 
     def calibrate(rec_in):
         have = np.asarray(rec_in.frames.t_start_us)
@@ -360,8 +361,11 @@ def calibrated_on_original(original, *, profile=None):
         if keep.size != have.size:
             raise ValueError(f"the input has {have.size} frames, {have.size - keep.size} of them not in the original "
                              f"recording (matched by exposure start): not an over-exposed copy of it")
-        sub = dataclasses.replace(original, frames=original.frames.select(keep), hdr=None)
-        got = resolve_thresholds(sub, "selfcal", profile=profile)
+        key = tuple(keep.tolist())
+        if key not in done:
+            sub = dataclasses.replace(original, frames=original.frames.select(keep), hdr=None)
+            done[key] = resolve_thresholds(sub, "selfcal", profile=profile)
+        got = done[key]
         gain = float((rec_in.metadata.provenance or {}).get("overexposed", {}).get("gain", 1.0))
         ov = got.overrides()
         if "intensity_offset" in ov:
@@ -602,6 +606,11 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
     images = {}
     for g in gains:
         over, refs = overexpose_recording(rec_k, g, profile=prof)
+        # every method reads its input's frames in the units of their median exposure
+        # (Frames.exposure_scale): each scored frame's reconstruction goes to that frame's own units,
+        # the reference's (all factors 1 when the exposures are equal)
+        ref_ex = over.frames.reference_exposure()
+        units = np.array([fr_all.units_factor(k, ref_ex) for k in scored])
         ref_ndim = refs.images.ndim
         ref_all = prof.intensity(fr_all.images) * g  # = refs.images in float64 (no float32 rounding)
         ref = np.stack([_luminance(r) for r in ref_all[scored]]) if ref_ndim == 4 else ref_all[scored]
@@ -644,13 +653,8 @@ def evaluate_overexpose(rec, gains, specs=None, *, frames=None, profile=None, th
                 if log is not None:
                     log(f"gain {g:g}, {s.label}: {row['status']}")
             else:
-                # a method reads its input's frames in the units of their median exposure
-                # (Frames.exposure_scale): each scored frame's reconstruction in that frame's own, the
-                # reference's (factors of 1 when the exposures are equal)
-                ref_ex = over.frames.reference_exposure()
-                fk = [fr_all.units_factor(k, ref_ex) for k in scored]
-                if any(f != 1.0 for f in fk):
-                    x = x * np.asarray(fk).reshape((-1,) + (1,) * (x.ndim - 1))
+                if np.any(units != 1.0):
+                    x = x * units.reshape((-1,) + (1,) * (x.ndim - 1))
                 record(s.label, row, x, wall, used)
                 x = None  # one method's stack at a time
             if progress is not None:

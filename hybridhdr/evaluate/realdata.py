@@ -249,8 +249,8 @@ def holdout_reconstructions(rec, specs, *, task: str, held, profile=None, log=No
     frames_k = _trimmed_frames(rec)  # the held-out frames' exposures (the references' units)
     shared_rec, shared_cal = None, {}
     if calibration_holdout == "scored":
-        fr = _trimmed_frames(rec)
-        shared_rec = dataclasses.replace(rec, frames=fr.select(np.setdiff1d(np.arange(len(fr)), held)), hdr=None)
+        shared_rec = dataclasses.replace(rec, frames=frames_k.select(np.setdiff1d(np.arange(len(frames_k)), held)),
+                                         hdr=None)
     for k in held:
         loo_k, calib_k = None, {}  # the recording without frame k, and its threshold estimates, once per k
         if shared_rec is not None:
